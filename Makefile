@@ -1,0 +1,38 @@
+# Two commands do all the set-up on a fresh machine: `make demo` and `make test`.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.stamp-install
+
+.PHONY: demo test test-all bench venv viewer-deps clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	# torch first, pinned, so pip takes the CPU build on disk instead of a multi-GB CUDA build
+	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
+	$(BIN)/pip install -q --disable-pip-version-check -e '.[test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+# The real Rerun viewer runs headless on Mesa's software Vulkan (tests against the viewer need it).
+viewer-deps:
+	@if ! ldconfig -p | grep -q libvulkan_lvp || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ]; then (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers >/dev/null) || echo "warning: could not install mesa-vulkan-drivers; viewer tests will be skipped"; \
+	  else echo "warning: not root, cannot install mesa-vulkan-drivers; viewer tests will be skipped"; fi; \
+	fi
+
+demo: $(STAMP)
+	$(BIN)/s2p demo
+
+test: $(STAMP) viewer-deps
+	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+test-all: $(STAMP) viewer-deps
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m ''
+
+bench: $(STAMP)
+	for b in benches/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,1 @@
+"""The T-Analyst replacement: keyframes, interpolation, edit journal, UI (later issue)."""

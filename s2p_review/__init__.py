@@ -1,0 +1,1 @@
+"""Everything Rerun: entity layout, blueprint, logging, viewer control, MCAP export."""

@@ -1,0 +1,156 @@
+"""The ground surface of paper section 3.1, equation (1), and ray/surface intersection.
+
+    z(x, y) = sum_i z_i exp(-alpha d_i^2) / sum_i exp(-alpha d_i^2),   d_i^2 = (x_i-x)^2 + (y_i-y)^2
+
+with alpha = 0.3 (per square metre). The weights are computed with the exponents shifted by
+their per-query minimum, so a query far from every ground point still gets the height of the
+nearest points instead of 0/0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seg2pose.errors import InputError
+
+ALPHA = 0.3
+
+# Reasons a ray yields NaN instead of a point (status codes of ``intersect_rays``).
+HIT, POINTS_UP, BELOW_SURFACE, NO_CONVERGENCE = 0, 1, 2, 3
+MISS_REASONS = {
+    HIT: "hit",
+    POINTS_UP: "ray points up or runs parallel to the ground",
+    BELOW_SURFACE: "ray starts below the raised surface (behind the camera)",
+    NO_CONVERGENCE: "no convergence",
+}
+
+_CHUNK = 8192  # queries per block: bounds memory at CHUNK x n_points floats
+
+
+class GroundSurface:
+    """Eq. (1) over ground points (n, 3) metres, vectorised over many queries."""
+
+    def __init__(self, points: np.ndarray, alpha: float = ALPHA, *, file=None):
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise InputError(f"ground points must be (n, 3), got {pts.shape}", file=file)
+        if len(pts) < 3:
+            raise InputError(f"need at least 3 ground points, got {len(pts)}", file=file)
+        if not np.all(np.isfinite(pts)):
+            bad = int(np.argwhere(~np.isfinite(pts).all(axis=1))[0, 0])
+            raise InputError(f"ground point {bad} has NaN or inf", file=file, line=bad + 1)
+        _, idx, counts = np.unique(pts, axis=0, return_index=True, return_counts=True)
+        if np.any(counts > 1):
+            dup = int(idx[np.argmax(counts > 1)])
+            raise InputError(f"duplicate ground point {pts[dup].tolist()}", file=file, line=dup + 1)
+        if alpha <= 0:
+            raise InputError(f"alpha must be positive, got {alpha}", field="alpha")
+        self.points = pts
+        self.alpha = float(alpha)
+        self.z_min, self.z_max = float(pts[:, 2].min()), float(pts[:, 2].max())
+        self.z_mean = float(pts[:, 2].mean())
+
+    def _weights(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised weights (M, n) and offsets x_i - x (M, n, 2)."""
+        diff = self.points[None, :, :2] - xy[:, None, :]
+        e = -self.alpha * np.einsum("mnk,mnk->mn", diff, diff)
+        e -= e.max(axis=1, keepdims=True)  # shift: the largest weight is exp(0) = 1, never 0/0
+        w = np.exp(e)
+        w /= w.sum(axis=1, keepdims=True)
+        return w, diff
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height z (M,) metres at top-down positions xy (M, 2) metres."""
+        return self.height_and_gradient(xy, gradient=False)[0]
+
+    def height_and_gradient(self, xy: np.ndarray, gradient: bool = True
+                            ) -> tuple[np.ndarray, np.ndarray | None]:
+        """z (M,) and dz/d(x, y) (M, 2) at xy (M, 2).
+
+        dz/dx = 2 alpha sum_i w_i (z_i - z)(x_i - x), with w the normalised weights."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        z = np.empty(len(xy))
+        g = np.empty((len(xy), 2)) if gradient else None
+        for s in range(0, len(xy), _CHUNK):
+            w, diff = self._weights(xy[s:s + _CHUNK])
+            zc = w @ self.points[:, 2]
+            z[s:s + _CHUNK] = zc
+            if gradient:
+                dz = self.points[None, :, 2] - zc[:, None]
+                g[s:s + _CHUNK] = 2 * self.alpha * np.einsum("mn,mnk->mk", w * dz, diff)
+        return z, g
+
+    def intersect_rays(self, origins: np.ndarray, dirs: np.ndarray, h: np.ndarray | float = 0.0,
+                       tol: float = 1e-7, max_iter: int = 60) -> tuple[np.ndarray, np.ndarray]:
+        """Intersect rays with the surface raised by ``h``: points X with X_z = z(X_xy) + h.
+
+        origins: (M, 3) or (3,) metres; dirs: (M, 3) (need not be unit); h: (M,) or scalar metres.
+        Returns X (M, 3) metres (NaN rows for misses) and status (M,) int8, see MISS_REASONS.
+
+        Starts from the plane at the points' mean height + h, then Newton steps along the ray,
+        safeguarded by bisection inside a bracket [0, s_hi] whose ends are above and below the
+        raised surface, so it converges for every downward ray from above the surface.
+        """
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        M = len(dirs)
+        o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), (M, 3))
+        h = np.broadcast_to(np.asarray(h, dtype=np.float64), (M,))
+        status = np.zeros(M, dtype=np.int8)
+        X = np.full((M, 3), np.nan)
+
+        down = dirs[:, 2] < -1e-12
+        status[~down] = POINTS_UP
+        f0 = o[:, 2] - self.height(o[:, :2]) - h
+        above = f0 > 0
+        status[down & ~above] = BELOW_SURFACE
+        ok = down & above
+        if not ok.any():
+            return X, status
+        o, d, hh = o[ok], dirs[ok], h[ok]
+        dz = d[:, 2]
+        # f(s) = o_z + s d_z - z(o_xy + s d_xy) - h; f(0) > 0, and f(s_hi) < 0 since z >= z_min.
+        lo = np.zeros(len(o))
+        hi = (self.z_min + hh - 1.0 - o[:, 2]) / dz
+        s = np.clip((self.z_mean + hh - o[:, 2]) / dz, lo, hi)  # plane at the mean height
+        done = np.zeros(len(o), dtype=bool)
+        for _ in range(max_iter):
+            act = ~done
+            if not act.any():
+                break
+            sa = s[act]
+            p = o[act] + sa[:, None] * d[act]
+            z, g = self.height_and_gradient(p[:, :2])
+            f = p[:, 2] - z - hh[act]
+            fp = dz[act] - np.einsum("mk,mk->m", g, d[act, :2])
+            # keep the bracket: f > 0 above the surface (lo side), f < 0 below (hi side)
+            lo_a, hi_a = lo[act], hi[act]
+            lo_a = np.where(f > 0, sa, lo_a)
+            hi_a = np.where(f <= 0, sa, hi_a)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s_new = sa - f / fp
+            bad = ~np.isfinite(s_new) | (s_new < lo_a) | (s_new > hi_a)
+            s_new = np.where(bad, 0.5 * (lo_a + hi_a), s_new)
+            hit = np.abs(f) < tol
+            s_new = np.where(hit, sa, s_new)  # converged: keep the point where f was measured
+            conv = hit | (np.abs(s_new - sa) < tol * 1e-2) | (hi_a - lo_a < tol)
+            lo[act], hi[act], s[act] = lo_a, hi_a, s_new
+            done[np.flatnonzero(act)[conv]] = True
+        Xok = o + s[:, None] * d
+        idx = np.flatnonzero(ok)
+        X[idx] = Xok
+        status[idx[~done]] = NO_CONVERGENCE
+        X[idx[~done]] = np.nan
+        return X, status
+
+    def mesh(self, n: int = 64, margin: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+        """A triangle mesh of the surface over the points' bounding box (plus ``margin`` m):
+        vertices (n*n, 3) metres, triangles (2*(n-1)^2, 3) vertex indices."""
+        lo = self.points[:, :2].min(axis=0) - margin
+        hi = self.points[:, :2].max(axis=0) + margin
+        gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n))
+        xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        verts = np.hstack([xy, self.height(xy)[:, None]])
+        i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+        a = (i * n + j).ravel()
+        tris = np.concatenate([np.stack([a, a + 1, a + n], 1), np.stack([a + 1, a + n + 1, a + n], 1)])
+        return verts, tris

@@ -1,0 +1,200 @@
+"""Masks in MOTS txt: one detection per line, ``frame track_id class_id height width rle``.
+
+``rle`` is pycocotools' compressed COCO RLE string. A ``track_id`` of -1 means "no track yet"
+and a ``class_id`` of 0 "no class yet" (the video path fills them in later). Frames must be
+non-decreasing, so files can be streamed frame by frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from seg2pose.errors import InputError
+from seg2pose.io.atomic import atomic_open
+from seg2pose.masks import decode_counts
+
+
+@dataclass
+class MaskTable:
+    """Detections of one camera, column-wise. frame, track_id, class_id: (N,) int64;
+    height, width: image size (pixels); rles: N compressed RLE strings."""
+
+    frame: np.ndarray
+    track_id: np.ndarray
+    class_id: np.ndarray
+    height: int
+    width: int
+    rles: list[bytes] = field(default_factory=list)
+    score: np.ndarray | None = None  # (N,) detector confidence, when known
+
+    def __len__(self) -> int:
+        return len(self.rles)
+
+    def __post_init__(self) -> None:
+        self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
+        self.track_id = np.asarray(self.track_id, dtype=np.int64).reshape(-1)
+        self.class_id = np.asarray(self.class_id, dtype=np.int64).reshape(-1)
+        if not (len(self.frame) == len(self.track_id) == len(self.class_id) == len(self.rles)):
+            raise ValueError("MaskTable columns differ in length")
+
+    def take(self, idx) -> "MaskTable":
+        idx = np.asarray(idx)
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        return MaskTable(self.frame[idx], self.track_id[idx], self.class_id[idx], self.height,
+                         self.width, [self.rles[i] for i in idx],
+                         None if self.score is None else self.score[idx])
+
+    @classmethod
+    def empty(cls, height: int, width: int) -> "MaskTable":
+        z = np.zeros(0, np.int64)
+        return cls(z, z, z, height, width, [])
+
+    @classmethod
+    def concat(cls, tables: list["MaskTable"]) -> "MaskTable":
+        if not tables:
+            raise ValueError("nothing to concatenate")
+        return cls(np.concatenate([t.frame for t in tables]),
+                   np.concatenate([t.track_id for t in tables]),
+                   np.concatenate([t.class_id for t in tables]),
+                   tables[0].height, tables[0].width, [r for t in tables for r in t.rles])
+
+    def frames(self) -> Iterator[tuple[int, "MaskTable"]]:
+        """(frame, detections of that frame) in frame order."""
+        if len(self) == 0:
+            return
+        order = np.argsort(self.frame, kind="stable")
+        f = self.frame[order]
+        cuts = np.flatnonzero(np.diff(f)) + 1
+        for chunk in np.split(order, cuts):
+            yield int(self.frame[chunk[0]]), self.take(chunk)
+
+
+def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | None,
+                size: tuple[int, int] | None):
+    parts = line.split()
+    if len(parts) != 6:
+        raise InputError(f"expected 6 fields 'frame track_id class_id height width rle', got {len(parts)}",
+                         file=path, line=lineno)
+    try:
+        frame, tid, cid, h, w = (int(p) for p in parts[:5])
+    except ValueError:
+        raise InputError(f"expected integers for frame track_id class_id height width, got {parts[:5]}",
+                         file=path, line=lineno) from None
+    if frame < 0:
+        raise InputError(f"negative frame {frame}", file=path, line=lineno)
+    if h <= 0 or w <= 0:
+        raise InputError(f"non-positive image size {h}x{w}", file=path, line=lineno)
+    if size is not None and (h, w) != size:
+        raise InputError(f"image size {h}x{w} differs from earlier lines ({size[0]}x{size[1]})",
+                         file=path, line=lineno)
+    if known_classes is not None and cid != 0 and cid not in known_classes:
+        raise InputError(f"unknown class_id {cid}; the scene knows {sorted(known_classes)}",
+                         file=path, line=lineno)
+    try:
+        rle = parts[5].encode("ascii")
+    except UnicodeEncodeError:
+        raise InputError("RLE string is not ASCII", file=path, line=lineno) from None
+    return frame, tid, cid, h, w, rle
+
+
+def _check_rles(rles: list[bytes], linenos: list[int], h: int, w: int, path: Path) -> None:
+    """Each RLE's runs must add up to height*width."""
+    try:
+        counts, offsets = decode_counts(rles)
+    except InputError:
+        for r, ln in zip(rles, linenos):  # find the offending line
+            try:
+                decode_counts([r])
+            except InputError as e:
+                raise InputError(str(e), file=path, line=ln) from None
+        raise
+    total = np.add.reduceat(counts, offsets[:-1]) if len(counts) else np.zeros(len(rles))
+    total = np.where(np.diff(offsets) == 0, 0, total)
+    bad = np.flatnonzero(total != h * w)
+    if len(bad):
+        i = int(bad[0])
+        raise InputError(f"RLE covers {int(total[i])} pixels but height*width = {h * w}",
+                         file=path, line=linenos[i])
+
+
+def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
+              frame_range: tuple[int, int] | None = None) -> Iterator[tuple[int, MaskTable]]:
+    """Stream a MOTS txt file frame by frame: yields (frame, MaskTable of that frame).
+
+    frame_range: (first, last) inclusive; frames outside are skipped (and reading stops after
+    ``last``). Blank lines and lines starting with '#' are skipped."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("masks file not found", file=path)
+    kc = set(known_classes) if known_classes is not None else None
+    size = None
+    cur = None
+    rows: list = []
+    linenos: list[int] = []
+    last_frame = -1
+
+    def flush():
+        h, w = size
+        _check_rles([r[5] for r in rows], linenos, h, w, path)
+        a = np.array([r[:3] for r in rows], dtype=np.int64)
+        return MaskTable(a[:, 0], a[:, 1], a[:, 2], h, w, [r[5] for r in rows])
+
+    with open(path, "rb") as f:
+        for lineno, raw in enumerate(f, start=1):
+            try:
+                line = raw.decode("ascii").strip()
+            except UnicodeDecodeError:
+                raise InputError("not ASCII text", file=path, line=lineno) from None
+            if not line or line.startswith("#"):
+                continue
+            row = _parse_line(line, path, lineno, kc, size)
+            size = (row[3], row[4])
+            frame = row[0]
+            if frame < last_frame:
+                raise InputError(f"frame {frame} comes after frame {last_frame}: frames must be in order",
+                                 file=path, line=lineno)
+            last_frame = frame
+            if frame_range is not None:
+                if frame < frame_range[0]:
+                    continue
+                if frame > frame_range[1]:
+                    break
+            if cur is not None and frame != cur:
+                yield cur, flush()
+                rows, linenos = [], []
+            cur = frame
+            rows.append(row)
+            linenos.append(lineno)
+    if rows:
+        yield cur, flush()
+
+
+def read_mots(path: str | Path, known_classes: Iterable[int] | None = None,
+              frame_range: tuple[int, int] | None = None,
+              size: tuple[int, int] | None = None) -> MaskTable:
+    """A whole MOTS file as one MaskTable (use ``iter_mots`` for long sequences).
+    ``size`` (height, width) is used for an empty file."""
+    tables = [t for _, t in iter_mots(path, known_classes, frame_range)]
+    if not tables:
+        h, w = size if size is not None else (0, 0)
+        return MaskTable(np.zeros(0), np.zeros(0), np.zeros(0), h, w, [])
+    return MaskTable.concat(tables)
+
+
+def format_mots_lines(table: MaskTable) -> Iterator[str]:
+    for i in np.argsort(table.frame, kind="stable"):
+        yield (f"{table.frame[i]} {table.track_id[i]} {table.class_id[i]} "
+               f"{table.height} {table.width} {table.rles[i].decode('ascii')}\n")
+
+
+def write_mots(path: str | Path, table: MaskTable | Iterable[MaskTable]) -> None:
+    """Write one table, or stream many (in frame order), atomically."""
+    tables = [table] if isinstance(table, MaskTable) else table
+    with atomic_open(path, "w", encoding="ascii", newline="\n") as f:
+        for t in tables:
+            f.writelines(format_mots_lines(t))

@@ -1,0 +1,157 @@
+"""Pose tables: ground truth (``gt/poses.csv``) and estimated pose tracks (``RUN/poses.csv``).
+
+CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h]`` — metres, heading in radians
+counter-clockwise from +x; x, y, z is the road user's ground contact point (bottom centre).
+Floats are written with ``repr`` so that a round trip is exact.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from seg2pose.errors import InputError
+from seg2pose.io.atomic import atomic_write_text
+
+BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
+SIZE_COLUMNS = ["l", "w", "h"]
+
+
+@dataclass
+class PoseTable:
+    """Columns of N poses. frame, track_id: (N,) int64; cls: (N,) str; xyz: (N, 3) metres;
+    heading: (N,) radians (NaN = unknown); size: (N, 3) l, w, h metres or None."""
+
+    frame: np.ndarray
+    track_id: np.ndarray
+    cls: np.ndarray
+    xyz: np.ndarray
+    heading: np.ndarray
+    size: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
+        self.track_id = np.asarray(self.track_id, dtype=np.int64).reshape(-1)
+        self.cls = np.asarray(self.cls, dtype=object).reshape(-1)
+        self.xyz = np.asarray(self.xyz, dtype=np.float64).reshape(-1, 3)
+        self.heading = np.asarray(self.heading, dtype=np.float64).reshape(-1)
+        if self.size is not None:
+            self.size = np.asarray(self.size, dtype=np.float64).reshape(-1, 3)
+        n = len(self.frame)
+        if not (len(self.track_id) == len(self.cls) == len(self.xyz) == len(self.heading) == n) or (
+                self.size is not None and len(self.size) != n):
+            raise ValueError("PoseTable columns differ in length")
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def take(self, idx) -> "PoseTable":
+        return PoseTable(self.frame[idx], self.track_id[idx], self.cls[idx], self.xyz[idx],
+                         self.heading[idx], None if self.size is None else self.size[idx])
+
+    def sorted(self) -> "PoseTable":
+        return self.take(np.lexsort((self.track_id, self.frame)))
+
+    def in_frames(self, frame_range: tuple[int, int] | None) -> "PoseTable":
+        if frame_range is None:
+            return self
+        return self.take((self.frame >= frame_range[0]) & (self.frame <= frame_range[1]))
+
+    @classmethod
+    def empty(cls, with_size: bool = False) -> "PoseTable":
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0, object), np.zeros((0, 3)), np.zeros(0),
+                   np.zeros((0, 3)) if with_size else None)
+
+    @classmethod
+    def concat(cls, tables: Iterable["PoseTable"]) -> "PoseTable":
+        tables = list(tables)
+        if not tables:
+            return cls.empty()
+        with_size = all(t.size is not None for t in tables)
+        return cls(np.concatenate([t.frame for t in tables]),
+                   np.concatenate([t.track_id for t in tables]),
+                   np.concatenate([t.cls for t in tables]),
+                   np.concatenate([t.xyz for t in tables]),
+                   np.concatenate([t.heading for t in tables]),
+                   np.concatenate([t.size for t in tables]) if with_size else None)
+
+
+def _f(v: float) -> str:
+    return repr(float(v))
+
+
+def format_poses(table: PoseTable) -> str:
+    buf = io.StringIO()
+    cols = BASE_COLUMNS + (SIZE_COLUMNS if table.size is not None else [])
+    buf.write(",".join(cols) + "\n")
+    for i in range(len(table)):
+        row = [str(table.frame[i]), str(table.track_id[i]), str(table.cls[i]),
+               _f(table.xyz[i, 0]), _f(table.xyz[i, 1]), _f(table.xyz[i, 2]), _f(table.heading[i])]
+        if table.size is not None:
+            row += [_f(v) for v in table.size[i]]
+        buf.write(",".join(row) + "\n")
+    return buf.getvalue()
+
+
+def write_poses(path: str | Path, table: PoseTable) -> None:
+    atomic_write_text(path, format_poses(table))
+
+
+def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> PoseTable:
+    """Read a pose CSV; errors name the file, line and column."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("pose file not found", file=path)
+    kc = set(known_classes) if known_classes is not None else None
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", file=path) from None
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None:
+        raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)
+    header = [h.strip() for h in header]
+    if header[:7] != BASE_COLUMNS or header[7:] not in ([], SIZE_COLUMNS):
+        raise InputError(f"expected header {','.join(BASE_COLUMNS)}[,l,w,h], got {','.join(header)}",
+                         file=path, line=1)
+    ncol = len(header)
+    frames, tids, classes, nums = [], [], [], []
+    last_frame = -1
+    for lineno, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != ncol:
+            raise InputError(f"expected {ncol} fields, got {len(row)}", file=path, line=lineno)
+        try:
+            fr, tid = int(row[0]), int(row[1])
+        except ValueError:
+            raise InputError(f"frame and track_id must be integers, got {row[:2]}", file=path,
+                             line=lineno) from None
+        if fr < last_frame:
+            raise InputError(f"frame {fr} comes after frame {last_frame}: frames must be in order",
+                             file=path, line=lineno)
+        last_frame = fr
+        c = row[2].strip()
+        if kc is not None and c not in kc:
+            raise InputError(f"unknown class {c!r}; the scene knows {sorted(kc)}", file=path,
+                             line=lineno, field="class")
+        try:
+            v = [float(x) for x in row[3:]]
+        except ValueError:
+            raise InputError(f"expected numbers in {','.join(header[3:])}", file=path,
+                             line=lineno) from None
+        if not np.all(np.isfinite(v[:3])):
+            raise InputError("x, y, z must be finite", file=path, line=lineno)
+        frames.append(fr)
+        tids.append(tid)
+        classes.append(c)
+        nums.append(v)
+    a = np.array(nums, dtype=np.float64).reshape(-1, ncol - 3)
+    return PoseTable(frames, tids, np.array(classes, dtype=object), a[:, :3], a[:, 3],
+                     a[:, 4:7] if ncol == 10 else None)

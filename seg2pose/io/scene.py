@@ -1,0 +1,240 @@
+"""The scene folder (DESIGN.md): ``scene.json`` + ground points + masks + video + ground truth.
+
+scene.json, version 1::
+
+    {
+      "version": 1,
+      "name": "junction",
+      "fps": 13.333,
+      "ground_points": "ground_points.csv",
+      "classes": [{"id": 1, "name": "pedestrian", "default_height": 0.9}, ...],
+      "rig": "device",
+      "cameras": [{"name": "c0", "width": 1280, "height": 720,
+                   "K": [[...]], "R": [[...]], "t": [...],          # or "P": 3x4
+                   "distortion": {"model": "opencv", "k1": 0, ...}}], # optional
+      "configs": {"mono-1": ["c0"], "stereo-10": ["c0", "c1"]},
+      "splits": {"train": [0, 6999], "val": [7150, 14149], "test": [14300, 21299]},  # optional
+      "extra": {...}   # free-form provenance (generator settings etc.)
+    }
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seg2pose.camera import Camera, Rig
+from seg2pose.errors import InputError
+from seg2pose.ground import GroundSurface
+from seg2pose.io.atomic import atomic_write_text
+
+SCENE_VERSION = 1
+SCENE_FILE = "scene.json"
+DEFAULT_CLASSES = [
+    {"id": 1, "name": "pedestrian", "default_height": 0.9},
+    {"id": 2, "name": "bicyclist", "default_height": 0.9},
+    {"id": 3, "name": "car", "default_height": 0.75},
+]
+
+
+@dataclass
+class ClassSpec:
+    id: int
+    name: str
+    default_height: float  # metres: the height of the normal position above the ground (3.2)
+
+
+@dataclass
+class Scene:
+    """A scene folder in memory (masks and truth stay on disk and are streamed)."""
+
+    root: Path
+    name: str
+    fps: float
+    rig: Rig
+    ground_points: np.ndarray  # (n, 3) metres
+    classes: list[ClassSpec]
+    splits: dict[str, tuple[int, int]] = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+    ground_file: str = "ground_points.csv"
+
+    def __post_init__(self) -> None:
+        self.ground = GroundSurface(self.ground_points, file=self.root / self.ground_file)
+
+    # --- lookups --------------------------------------------------------------------------------
+    @property
+    def cameras(self) -> dict[str, Camera]:
+        return self.rig.cameras
+
+    def class_by_id(self) -> dict[int, ClassSpec]:
+        return {c.id: c for c in self.classes}
+
+    def class_by_name(self) -> dict[str, ClassSpec]:
+        return {c.name: c for c in self.classes}
+
+    def masks_path(self, camera: str) -> Path:
+        return self.root / "masks" / f"{camera}.txt"
+
+    def video_path(self, camera: str) -> Path | None:
+        """The camera's video file or image folder, when present."""
+        for cand in (self.root / "video" / f"{camera}.mp4", self.root / "video" / camera):
+            if cand.exists():
+                return cand
+        return None
+
+    @property
+    def gt_path(self) -> Path:
+        return self.root / "gt" / "poses.csv"
+
+    def split_range(self, split: str | None) -> tuple[int, int] | None:
+        """(first, last) frame, inclusive, of a named split; None = all frames."""
+        if split is None or split == "all":
+            return None
+        if split not in self.splits:
+            raise InputError(f"scene has no split {split!r}; known: {sorted(self.splits)}",
+                             file=self.root / SCENE_FILE, field="splits")
+        return self.splits[split]
+
+    def fingerprint(self) -> str:
+        """A short hash of the calibration and ground points: checkpoints record it so that
+        a model trained on another scene is noticed."""
+        d = {"cameras": [c.to_dict() for c in self.cameras.values()],
+             "ground": np.round(self.ground_points, 6).tolist()}
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+    # --- serialisation ---------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {"version": SCENE_VERSION, "name": self.name, "fps": self.fps,
+             "ground_points": self.ground_file,
+             "classes": [{"id": c.id, "name": c.name, "default_height": c.default_height}
+                         for c in self.classes],
+             "rig": self.rig.name,
+             "cameras": [c.to_dict() for c in self.cameras.values()],
+             "configs": self.rig.configs}
+        if self.splits:
+            d["splits"] = {k: list(v) for k, v in self.splits.items()}
+        if self.extra:
+            d["extra"] = self.extra
+        return d
+
+    def save(self, root: str | Path | None = None) -> None:
+        """Write scene.json and the ground points (atomically) into ``root``."""
+        root = Path(root) if root is not None else self.root
+        root.mkdir(parents=True, exist_ok=True)
+        write_ground_points(root / self.ground_file, self.ground_points)
+        atomic_write_text(root / SCENE_FILE, json.dumps(self.to_dict(), indent=1) + "\n")
+
+
+def read_ground_points(path: str | Path) -> np.ndarray:
+    """Ground points CSV: ``x,y,z`` per line (metres), an optional header line."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("ground points file not found", file=path)
+    rows = []
+    with open(path, newline="", encoding="utf-8") as f:
+        for i, row in enumerate(csv.reader(f), start=1):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if i == 1 and row[0].strip().lower() in ("x", "#x"):
+                continue
+            if len(row) != 3:
+                raise InputError(f"expected 3 fields x,y,z, got {len(row)}", file=path, line=i)
+            try:
+                v = [float(c) for c in row]
+            except ValueError:
+                raise InputError(f"expected numbers x,y,z, got {row}", file=path, line=i) from None
+            if not np.all(np.isfinite(v)):
+                raise InputError("NaN or inf in ground point", file=path, line=i)
+            rows.append(v)
+    pts = np.array(rows, dtype=np.float64).reshape(-1, 3)
+    GroundSurface(pts, file=path)  # validates count and duplicates
+    return pts
+
+
+def write_ground_points(path: str | Path, points: np.ndarray) -> None:
+    buf = io.StringIO()
+    buf.write("x,y,z\n")
+    for x, y, z in np.asarray(points, float):
+        buf.write(f"{x!r},{y!r},{z!r}\n")
+    atomic_write_text(path, buf.getvalue())
+
+
+def _req(d: dict, key: str, file: Path, where: str = ""):
+    if not isinstance(d, dict) or key not in d:
+        raise InputError(f"missing field '{where}{key}'", file=file, field=f"{where}{key}")
+    return d[key]
+
+
+def load_scene(root: str | Path) -> Scene:
+    """Read and validate a scene folder (or a path to its scene.json)."""
+    root = Path(root)
+    if root.name == SCENE_FILE:
+        root = root.parent
+    path = root / SCENE_FILE
+    if not path.exists():
+        raise InputError(f"no {SCENE_FILE} here (is this a scene folder?)", file=path)
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", file=path) from None
+    if not isinstance(d, dict):
+        raise InputError("expected a JSON object", file=path)
+    version = _req(d, "version", path)
+    if version != SCENE_VERSION:
+        raise InputError(f"unsupported version {version!r}; this s2p reads version {SCENE_VERSION}",
+                         file=path, field="version")
+    fps = _req(d, "fps", path)
+    if not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:
+        raise InputError(f"fps must be a positive number, got {fps!r}", file=path, field="fps")
+    cams_d = _req(d, "cameras", path)
+    if not isinstance(cams_d, list) or not cams_d:
+        raise InputError("expected a non-empty list of cameras", file=path, field="cameras")
+    cameras: dict[str, Camera] = {}
+    for i, cd in enumerate(cams_d):
+        if not isinstance(cd, dict):
+            raise InputError("expected an object", file=path, field=f"cameras[{i}]")
+        cam = Camera.from_dict(cd, file=path, where=f"cameras[{i}]")
+        if cam.name in cameras:
+            raise InputError(f"duplicate camera name {cam.name!r}", file=path, field=f"cameras[{i}].name")
+        cameras[cam.name] = cam
+    configs = d.get("configs") or {}
+    if not isinstance(configs, dict) or not all(isinstance(v, list) for v in configs.values()):
+        raise InputError("expected an object of name -> list of camera names", file=path, field="configs")
+    try:
+        rig = Rig(cameras=cameras, configs={k: [str(n) for n in v] for k, v in configs.items()},
+                  name=str(d.get("rig", "rig")))
+    except InputError as e:
+        raise InputError(str(e), file=path, field=e.field) from None
+    classes = []
+    for i, c in enumerate(d.get("classes") or DEFAULT_CLASSES):
+        try:
+            cs = ClassSpec(id=int(_req(c, "id", path, f"classes[{i}].")),
+                           name=str(_req(c, "name", path, f"classes[{i}].")),
+                           default_height=float(c.get("default_height", 0.9)))
+        except (TypeError, ValueError):
+            raise InputError("expected id (int), name (str), default_height (number)",
+                             file=path, field=f"classes[{i}]") from None
+        if not np.isfinite(cs.default_height) or cs.default_height < 0:
+            raise InputError("default_height must be a finite number >= 0", file=path,
+                             field=f"classes[{i}].default_height")
+        classes.append(cs)
+    if len({c.id for c in classes}) != len(classes) or len({c.name for c in classes}) != len(classes):
+        raise InputError("class ids and names must be unique", file=path, field="classes")
+    splits = {}
+    for k, v in (d.get("splits") or {}).items():
+        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) for x in v) and v[0] <= v[1]):
+            raise InputError("expected [first, last] frame numbers", file=path, field=f"splits.{k}")
+        splits[k] = (v[0], v[1])
+    gfile = str(d.get("ground_points", "ground_points.csv"))
+    pts = read_ground_points(root / gfile)
+    return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
+                 ground_points=pts, classes=classes, splits=splits,
+                 extra=d.get("extra") or {}, ground_file=gfile)

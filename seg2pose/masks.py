@@ -1,0 +1,208 @@
+"""Instance masks: COCO RLE (pycocotools), centres straight from RLE runs, and network crops.
+
+Pixels: x right, y down, origin at the top-left corner of the top-left pixel; the centre of
+pixel (row, col) is at (col + 0.5, row + 0.5). COCO RLE runs are column-major (Fortran order)
+and alternate background / foreground, starting with background.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from pycocotools import mask as mask_util
+
+from seg2pose.errors import InputError
+
+CROP_SIZE = 420  # paper 3.3
+
+
+def encode(mask: np.ndarray) -> bytes:
+    """(H, W) bool/uint8 mask -> compressed COCO RLE counts string (bytes)."""
+    rle = mask_util.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return rle["counts"]
+
+
+def decode(rle: bytes, height: int, width: int) -> np.ndarray:
+    """Compressed RLE counts -> (H, W) uint8 mask."""
+    return mask_util.decode({"size": [height, width], "counts": rle})
+
+
+def decode_counts(rles: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """Decompress many COCO RLE strings at once (vectorised LEB128-like decoding).
+
+    Returns counts (total,) int64, all masks' run lengths concatenated, and offsets (N+1,) so
+    that mask i's runs are counts[offsets[i]:offsets[i+1]]. Mirrors pycocotools' rleFrString:
+    5 bits per char (+48), bit 0x20 = more chars follow, bit 0x10 of the last char = sign;
+    runs with index > 2 are stored as differences to the run two before.
+    """
+    n = len(rles)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(1, np.int64)
+    lens = np.fromiter((len(r) for r in rles), dtype=np.int64, count=n)
+    buf = np.frombuffer(b"".join(rles), dtype=np.uint8).astype(np.int64) - 48
+    if buf.size and (buf.min() < 0 or buf.max() > 63):
+        raise InputError("RLE string has characters outside the COCO alphabet")
+    more = (buf & 0x20) != 0
+    ends = np.flatnonzero(~more)  # last char of each value
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    # chars may not continue across mask boundaries
+    str_ends = np.cumsum(lens)
+    if buf.size and more[str_ends[lens > 0] - 1].any():
+        raise InputError("truncated RLE string (last character says more follow)")
+    pos = np.arange(buf.size) - np.repeat(starts, ends - starts + 1)  # char index within value
+    val = np.zeros(len(ends), np.int64)
+    np.add.at(val, np.repeat(np.arange(len(ends)), ends - starts + 1), (buf & 0x1F) << (5 * pos))
+    neg = (buf[ends] & 0x10) != 0
+    nbits = 5 * (ends - starts + 1)
+    val = np.where(neg, val | (-1 << nbits), val)
+    # which mask each value belongs to, and its index within the mask
+    owner = np.searchsorted(str_ends, ends, side="right")
+    counts_per = np.bincount(owner, minlength=n)
+    offsets = np.concatenate([[0], np.cumsum(counts_per)])
+    k = np.arange(len(val)) - offsets[owner]
+    # undo the delta coding: runs k >= 3 add run k-2 (already undone): cumulative sums
+    # over the chains k = 1, 3, 5, ... and k = 2, 4, 6, ... of each mask
+    for parity in (0, 1):
+        sel = (k >= 1) & ((k % 2) == (1 - parity))  # parity 0: odd chain, parity 1: even from 2
+        if not sel.any():
+            continue
+        v = val[sel]
+        grp = owner[sel]
+        cs = np.cumsum(v)
+        first = np.concatenate([[True], grp[1:] != grp[:-1]])
+        base = np.repeat(cs[first] - v[first], np.diff(np.concatenate([np.flatnonzero(first), [len(v)]])))
+        val[sel] = cs - base
+    if (val < 0).any():
+        raise InputError("RLE decodes to a negative run length")
+    return val, offsets
+
+
+def _index_sums(n: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """For linear (column-major) indices i in [0, n): sum of columns floor(i/h) and of rows i mod h."""
+    q, r = np.divmod(n, h)
+    col_sum = h * q * (q - 1) // 2 + r * q
+    row_sum = q * (h * (h - 1) // 2) + r * (r - 1) // 2
+    return col_sum, row_sum
+
+
+def _runs(rles: Sequence[bytes]):
+    counts, offsets = decode_counts(rles)
+    n = len(rles)
+    owner = np.repeat(np.arange(n), np.diff(offsets))
+    k = np.arange(len(counts)) - offsets[owner]
+    # run start positions: exclusive cumulative sum within each mask
+    cs = np.cumsum(counts)
+    before = np.concatenate([[0], cs])[offsets[:-1]]
+    start = cs - counts - np.repeat(before, np.diff(offsets))
+    fg = (k % 2) == 1
+    return owner[fg], start[fg], counts[fg]
+
+
+def rle_stats(rles: Sequence[bytes], height: int, width: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Areas (N,) pixels, centroids (N, 2) and bounding boxes (N, 4) straight from RLE runs,
+    without decoding any mask. Centroid = mean of pixel centres (x, y); bbox = (x0, y0, x1, y1)
+    in corner coordinates (x1, y1 exclusive). Empty masks give NaN centroids and boxes."""
+    n = len(rles)
+    h = int(height)
+    owner, a, ln = _runs(rles)
+    b = a + ln
+    area = np.bincount(owner, weights=ln, minlength=n)
+    cb, rb = _index_sums(b, h)
+    ca, ra = _index_sums(a, h)
+    sx = np.bincount(owner, weights=(cb - ca).astype(np.float64), minlength=n)
+    sy = np.bincount(owner, weights=(rb - ra).astype(np.float64), minlength=n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cen = np.stack([sx / area + 0.5, sy / area + 0.5], axis=1)
+    # bounding boxes: a run spanning a column boundary covers rows 0 and h-1
+    ca0, ra0 = np.divmod(a, h)
+    cb1, rb1 = np.divmod(b - 1, h)
+    spans = cb1 > ca0
+    rmin = np.where(spans, 0, ra0)
+    rmax = np.where(spans, h - 1, rb1)
+    box = np.full((n, 4), np.nan)
+    if len(owner):
+        x0 = np.full(n, np.iinfo(np.int64).max)
+        y0 = x0.copy()
+        x1 = np.full(n, -1)
+        y1 = x1.copy()
+        np.minimum.at(x0, owner, ca0)
+        np.minimum.at(y0, owner, rmin)
+        np.maximum.at(x1, owner, cb1)
+        np.maximum.at(y1, owner, rmax)
+        has = area > 0
+        box[has] = np.stack([x0, y0, x1 + 1, y1 + 1], axis=1)[has]
+    return area, cen, box
+
+
+def mask_centers(rles: Sequence[bytes], height: int, width: int, method: str = "bbox"
+                 ) -> np.ndarray:
+    """Mask centres (N, 2) pixels: ``"bbox"`` = centre of the bounding box (paper section 5),
+    ``"centroid"`` = mean of the mask's pixel centres (paper 3.2 "center point")."""
+    _, cen, box = rle_stats(rles, height, width)
+    if method == "centroid":
+        return cen
+    if method == "bbox":
+        return np.stack([(box[:, 0] + box[:, 2]) / 2, (box[:, 1] + box[:, 3]) / 2], axis=1)
+    raise InputError(f"unknown centre method {method!r}; use 'bbox' or 'centroid'", field="center")
+
+
+def crop_origin(centers: np.ndarray, size: int = CROP_SIZE) -> np.ndarray:
+    """Integer top-left pixel (N, 2) of size x size crops centred at ``centers`` (N, 2) pixels."""
+    return np.round(np.asarray(centers, float) - size / 2).astype(np.int64)
+
+
+def crop_masks(rles: Sequence[bytes], height: int, width: int, centers: np.ndarray,
+               size: int = CROP_SIZE, out: np.ndarray | None = None) -> np.ndarray:
+    """Crops (N, size, size) uint8 of the masks, centred at ``centers`` (N, 2) pixels and
+    zero-padded beyond the image border (paper 3.3). A mask larger than the crop is cut
+    around its centre."""
+    n = len(rles)
+    if out is None:
+        out = np.zeros((n, size, size), np.uint8)
+    else:
+        out[:] = 0
+    if n == 0:
+        return out
+    org = crop_origin(centers, size)
+    full = mask_util.decode([{"size": [int(height), int(width)], "counts": r} for r in rles])
+    for i in range(n):  # slicing only: one numpy copy per mask
+        x0, y0 = org[i]
+        sx0, sy0 = max(x0, 0), max(y0, 0)
+        sx1, sy1 = min(x0 + size, width), min(y0 + size, height)
+        if sx1 > sx0 and sy1 > sy0:
+            out[i, sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = full[sy0:sy1, sx0:sx1, i]
+    return out
+
+
+def iou(rles_a: Sequence[bytes], rles_b: Sequence[bytes], height: int, width: int) -> np.ndarray:
+    """Pairwise IoU (len(a), len(b)) of two lists of masks."""
+    if not rles_a or not rles_b:
+        return np.zeros((len(rles_a), len(rles_b)))
+    size = [int(height), int(width)]
+    a = [{"size": size, "counts": r} for r in rles_a]
+    b = [{"size": size, "counts": r} for r in rles_b]
+    return np.asarray(mask_util.iou(a, b, [0] * len(b)))
+
+
+def merge_bicyclists(person: Sequence[bytes], bicycle: Sequence[bytes], height: int, width: int,
+                     min_overlap: float = 0.1) -> tuple[list[bytes], np.ndarray]:
+    """The paper's bicyclist logic for COCO detectors: a person mask that overlaps a bicycle
+    mask (IoU >= min_overlap, best match, one-to-one) is merged with it into one bicyclist mask.
+
+    Returns the merged masks and, per person, the index of its bicycle (-1 for pedestrians)."""
+    ious = iou(person, bicycle, height, width)
+    match = np.full(len(person), -1)
+    if ious.size:
+        from scipy.optimize import linear_sum_assignment
+        r, c = linear_sum_assignment(-ious)
+        keep = ious[r, c] >= min_overlap
+        match[r[keep]] = c[keep]
+    size = [int(height), int(width)]
+    merged = []
+    for i in np.flatnonzero(match >= 0):
+        m = mask_util.merge([{"size": size, "counts": person[i]},
+                             {"size": size, "counts": bicycle[match[i]]}])
+        merged.append(m["counts"])
+    return merged, match

@@ -1,0 +1,1 @@
+"""Synthetic traffic scenes (the CARLA stand-in) and rough 3D models (paper 3.5)."""
