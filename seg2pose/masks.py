@@ -136,6 +136,37 @@ def rle_stats(rles: Sequence[bytes], height: int, width: int
     return area, cen, box
 
 
+def rle_contains(rles: Sequence[bytes], height: int, width: int, mask_idx: np.ndarray,
+                 points: np.ndarray) -> np.ndarray:
+    """Whether mask ``mask_idx[k]`` covers pixel point ``points[k]``, straight from RLE runs.
+
+    mask_idx: (K,) indices into ``rles``; points: (K, 2) pixel coordinates (x, y) with the pixel
+    convention of this module (pixel (row, col) spans [col, col+1) x [row, row+1)). Points
+    outside the image are not covered. Returns (K,) bool. No mask is decoded: all masks' runs
+    are laid end to end (each sums to height*width) and the query is one searchsorted."""
+    mask_idx = np.asarray(mask_idx, dtype=np.int64).reshape(-1)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out = np.zeros(len(mask_idx), dtype=bool)
+    h, w = int(height), int(width)
+    with np.errstate(invalid="ignore"):
+        inside = ((pts[:, 0] >= 0) & (pts[:, 0] < w) & (pts[:, 1] >= 0) & (pts[:, 1] < h))
+    if not inside.any() or len(rles) == 0:
+        return out
+    counts, offsets = decode_counts(rles)
+    ends = np.cumsum(counts)  # global run ends: mask i occupies [base[i], base[i+1])
+    base = np.concatenate([[0], ends])[offsets]
+    q_i = mask_idx[inside]
+    col = np.floor(pts[inside, 0]).astype(np.int64)
+    row = np.floor(pts[inside, 1]).astype(np.int64)
+    lin = col * h + row  # column-major linear index within the mask
+    run = np.searchsorted(ends, base[q_i] + lin, side="right")
+    k = run - offsets[q_i]
+    # a pixel beyond the mask's own runs (runs not reaching h*w) is background
+    valid = lin < base[q_i + 1] - base[q_i]
+    out[np.flatnonzero(inside)] = valid & ((k % 2) == 1)
+    return out
+
+
 def mask_centers(rles: Sequence[bytes], height: int, width: int, method: str = "bbox"
                  ) -> np.ndarray:
     """Mask centres (N, 2) pixels: ``"bbox"`` = centre of the bounding box (paper section 5),
