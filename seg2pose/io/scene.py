@@ -160,7 +160,7 @@ def read_ground_points(path: str | Path) -> np.ndarray:
 def write_ground_points(path: str | Path, points: np.ndarray) -> None:
     buf = io.StringIO()
     buf.write("x,y,z\n")
-    for x, y, z in np.asarray(points, float):
+    for x, y, z in np.asarray(points, float).tolist():  # Python floats: repr is a plain number
         buf.write(f"{x!r},{y!r},{z!r}\n")
     atomic_write_text(path, buf.getvalue())
 
