@@ -79,11 +79,24 @@ DISTORTION_MODELS: dict[str, type] = {"opencv": OpenCVDistortion}
 def distortion_from_dict(d: dict | None, *, file=None) -> Distortion | None:
     if d is None:
         return None
+    if not isinstance(d, dict):
+        raise InputError("expected an object {\"model\": ..., parameters}", file=file,
+                         field="distortion")
     model = d.get("model", "opencv")
-    if model not in DISTORTION_MODELS:
+    if not isinstance(model, str) or model not in DISTORTION_MODELS:
         raise InputError(f"unknown distortion model {model!r}; known: {sorted(DISTORTION_MODELS)}",
                          file=file, field="distortion.model")
-    kwargs = {k: float(v) for k, v in d.items() if k != "model"}
+    kwargs = {}
+    for k, v in d.items():
+        if k == "model":
+            continue
+        try:
+            kwargs[k] = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"expected a number, got {v!r}", file=file,
+                             field=f"distortion.{k}") from None
+        if not np.isfinite(kwargs[k]):
+            raise InputError("NaN or inf", file=file, field=f"distortion.{k}")
     try:
         dist = DISTORTION_MODELS[model](**kwargs)
     except TypeError as e:
@@ -162,8 +175,12 @@ class Camera:
         principal point at the image centre."""
         center = np.asarray(center, float)
         z = np.asarray(target, float) - center
+        if not np.linalg.norm(z) > 0:
+            raise InputError("look_at: target equals the camera centre", field="target")
         z /= np.linalg.norm(z)
         x = np.cross(z, np.asarray(up, float))
+        if np.linalg.norm(x) < 1e-9:  # looking straight along 'up': any image x-axis will do
+            x = np.cross(z, [0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0])
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
         R = np.stack([x, y, z])

@@ -18,6 +18,7 @@ class InputError(S2PError, ValueError):
 
     def __init__(self, message: str, *, file: str | Path | None = None,
                  line: int | None = None, field: str | None = None):
+        self.message = message  # without the location, for re-raising with a better one
         self.file = str(file) if file is not None else None
         self.line = line
         self.field = field

@@ -16,13 +16,21 @@ from seg2pose.errors import InputError
 ALPHA = 0.3
 
 # Reasons a ray yields NaN instead of a point (status codes of ``intersect_rays``).
-HIT, POINTS_UP, BELOW_SURFACE, NO_CONVERGENCE = 0, 1, 2, 3
+HIT, POINTS_UP, BELOW_SURFACE, NO_CONVERGENCE, INVALID = 0, 1, 2, 3, 4
 MISS_REASONS = {
     HIT: "hit",
     POINTS_UP: "ray points up or runs parallel to the ground",
     BELOW_SURFACE: "ray starts below the raised surface (behind the camera)",
     NO_CONVERGENCE: "no convergence",
+    INVALID: "NaN or inf in the ray origin, direction or height",
 }
+
+
+
+def miss_reasons(status: np.ndarray) -> list[str]:
+    """Human-readable reasons (N,) for status codes of ``intersect_rays``."""
+    return [MISS_REASONS.get(int(c), f"status {int(c)}") for c in np.asarray(status).reshape(-1)]
+
 
 _CHUNK = 8192  # queries per block: bounds memory at CHUNK x n_points floats
 
@@ -98,9 +106,12 @@ class GroundSurface:
         status = np.zeros(M, dtype=np.int8)
         X = np.full((M, 3), np.nan)
 
-        down = dirs[:, 2] < -1e-12
+        finite = np.isfinite(dirs).all(axis=1) & np.isfinite(o).all(axis=1) & np.isfinite(h)
+        down = finite & (dirs[:, 2] < -1e-12)
         status[~down] = POINTS_UP
-        f0 = o[:, 2] - self.height(o[:, :2]) - h
+        status[~finite] = INVALID
+        f0 = np.full(M, np.nan)
+        f0[finite] = o[finite, 2] - self.height(o[finite, :2]) - h[finite]
         above = f0 > 0
         status[down & ~above] = BELOW_SURFACE
         ok = down & above

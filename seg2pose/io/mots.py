@@ -38,7 +38,10 @@ class MaskTable:
         self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
         self.track_id = np.asarray(self.track_id, dtype=np.int64).reshape(-1)
         self.class_id = np.asarray(self.class_id, dtype=np.int64).reshape(-1)
-        if not (len(self.frame) == len(self.track_id) == len(self.class_id) == len(self.rles)):
+        if self.score is not None:
+            self.score = np.asarray(self.score, dtype=np.float64).reshape(-1)
+        if not (len(self.frame) == len(self.track_id) == len(self.class_id) == len(self.rles)) or (
+                self.score is not None and len(self.score) != len(self.rles)):
             raise ValueError("MaskTable columns differ in length")
 
     def take(self, idx) -> "MaskTable":
@@ -58,10 +61,12 @@ class MaskTable:
     def concat(cls, tables: list["MaskTable"]) -> "MaskTable":
         if not tables:
             raise ValueError("nothing to concatenate")
+        with_score = all(t.score is not None for t in tables)
         return cls(np.concatenate([t.frame for t in tables]),
                    np.concatenate([t.track_id for t in tables]),
                    np.concatenate([t.class_id for t in tables]),
-                   tables[0].height, tables[0].width, [r for t in tables for r in t.rles])
+                   tables[0].height, tables[0].width, [r for t in tables for r in t.rles],
+                   np.concatenate([t.score for t in tables]) if with_score else None)
 
     def frames(self) -> Iterator[tuple[int, "MaskTable"]]:
         """(frame, detections of that frame) in frame order."""
@@ -87,8 +92,13 @@ def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | No
                          file=path, line=lineno) from None
     if frame < 0:
         raise InputError(f"negative frame {frame}", file=path, line=lineno)
+    if not (frame < 2**62 and -2**62 < tid < 2**62 and -2**62 < cid < 2**62):
+        raise InputError("frame, track_id and class_id must fit in 64 bits", file=path, line=lineno)
     if h <= 0 or w <= 0:
         raise InputError(f"non-positive image size {h}x{w}", file=path, line=lineno)
+    if h > 2**20 or w > 2**20:
+        raise InputError(f"implausible image size {h}x{w} (more than 2^20 pixels a side)",
+                         file=path, line=lineno)
     if size is not None and (h, w) != size:
         raise InputError(f"image size {h}x{w} differs from earlier lines ({size[0]}x{size[1]})",
                          file=path, line=lineno)

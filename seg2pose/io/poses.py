@@ -113,6 +113,13 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
     except UnicodeDecodeError:
         raise InputError("not UTF-8 text", file=path) from None
     reader = csv.reader(io.StringIO(text))
+    try:
+        return _parse_poses(reader, path, kc)
+    except csv.Error as e:
+        raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
+
+
+def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
     header = next(reader, None)
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)
@@ -123,7 +130,8 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
     ncol = len(header)
     frames, tids, classes, nums = [], [], [], []
     last_frame = -1
-    for lineno, row in enumerate(reader, start=2):
+    for row in reader:
+        lineno = reader.line_num
         if not row:
             continue
         if len(row) != ncol:
@@ -133,6 +141,9 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
         except ValueError:
             raise InputError(f"frame and track_id must be integers, got {row[:2]}", file=path,
                              line=lineno) from None
+        if not (0 <= fr < 2**62 and -2**62 < tid < 2**62):
+            raise InputError(f"frame must be >= 0 and ids within 64 bits, got {fr}, {tid}",
+                             file=path, line=lineno)
         if fr < last_frame:
             raise InputError(f"frame {fr} comes after frame {last_frame}: frames must be in order",
                              file=path, line=lineno)

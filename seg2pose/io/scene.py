@@ -136,25 +136,45 @@ def read_ground_points(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.exists():
         raise InputError("ground points file not found", file=path)
-    rows = []
-    with open(path, newline="", encoding="utf-8") as f:
-        for i, row in enumerate(csv.reader(f), start=1):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if i == 1 and row[0].strip().lower() in ("x", "#x"):
-                continue
-            if len(row) != 3:
-                raise InputError(f"expected 3 fields x,y,z, got {len(row)}", file=path, line=i)
-            try:
-                v = [float(c) for c in row]
-            except ValueError:
-                raise InputError(f"expected numbers x,y,z, got {row}", file=path, line=i) from None
-            if not np.all(np.isfinite(v)):
-                raise InputError("NaN or inf in ground point", file=path, line=i)
-            rows.append(v)
-    pts = np.array(rows, dtype=np.float64).reshape(-1, 3)
-    GroundSurface(pts, file=path)  # validates count and duplicates
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", file=path) from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        pts, lines = _parse_ground_points(reader, path)
+    except csv.Error as e:
+        raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
+    try:
+        GroundSurface(pts, file=path)  # validates count and duplicates
+    except InputError as e:
+        if e.line is None or not lines:
+            raise
+        # GroundSurface numbers points from 1; report the file's line instead
+        raise InputError(e.message, file=path, line=lines[e.line - 1]) from None
     return pts
+
+
+def _parse_ground_points(reader, path: Path) -> tuple[np.ndarray, list[int]]:
+    """Rows (n, 3) metres and their line numbers (n,)."""
+    rows, lines = [], []
+    for row in reader:
+        i = reader.line_num
+        if not row or all(not c.strip() for c in row):
+            continue
+        if not rows and row[0].strip().lower() in ("x", "#x"):
+            continue  # header
+        if len(row) != 3:
+            raise InputError(f"expected 3 fields x,y,z, got {len(row)}", file=path, line=i)
+        try:
+            v = [float(c) for c in row]
+        except ValueError:
+            raise InputError(f"expected numbers x,y,z, got {row}", file=path, line=i) from None
+        if not np.all(np.isfinite(v)):
+            raise InputError("NaN or inf in ground point", file=path, line=i)
+        rows.append(v)
+        lines.append(i)
+    return np.array(rows, dtype=np.float64).reshape(-1, 3), lines
 
 
 def write_ground_points(path: str | Path, points: np.ndarray) -> None:
@@ -214,7 +234,10 @@ def load_scene(root: str | Path) -> Scene:
     except InputError as e:
         raise InputError(str(e), file=path, field=e.field) from None
     classes = []
-    for i, c in enumerate(d.get("classes") or DEFAULT_CLASSES):
+    classes_d = d.get("classes") or DEFAULT_CLASSES
+    if not isinstance(classes_d, list):
+        raise InputError("expected a list of {id, name, default_height}", file=path, field="classes")
+    for i, c in enumerate(classes_d):
         try:
             cs = ClassSpec(id=int(_req(c, "id", path, f"classes[{i}].")),
                            name=str(_req(c, "name", path, f"classes[{i}].")),
@@ -229,12 +252,21 @@ def load_scene(root: str | Path) -> Scene:
     if len({c.id for c in classes}) != len(classes) or len({c.name for c in classes}) != len(classes):
         raise InputError("class ids and names must be unique", file=path, field="classes")
     splits = {}
-    for k, v in (d.get("splits") or {}).items():
+    splits_d = d.get("splits") or {}
+    if not isinstance(splits_d, dict):
+        raise InputError("expected an object of name -> [first, last]", file=path, field="splits")
+    for k, v in splits_d.items():
         if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) for x in v) and v[0] <= v[1]):
             raise InputError("expected [first, last] frame numbers", file=path, field=f"splits.{k}")
         splits[k] = (v[0], v[1])
-    gfile = str(d.get("ground_points", "ground_points.csv"))
+    gfile = d.get("ground_points", "ground_points.csv")
+    if not isinstance(gfile, str) or not gfile:
+        raise InputError("expected a file name relative to the scene folder", file=path,
+                         field="ground_points")
+    extra = d.get("extra") or {}
+    if not isinstance(extra, dict):
+        raise InputError("expected an object", file=path, field="extra")
     pts = read_ground_points(root / gfile)
     return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
                  ground_points=pts, classes=classes, splits=splits,
-                 extra=d.get("extra") or {}, ground_file=gfile)
+                 extra=extra, ground_file=gfile)
