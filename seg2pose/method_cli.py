@@ -1,0 +1,126 @@
+"""``s2p train``, ``s2p run``, ``s2p eval``, ``s2p paper-table``: the method's commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    app.command("train")(train_cmd)
+    app.command("run")(run_cmd)
+    app.command("eval")(eval_cmd)
+    app.command("paper-table")(paper_table_cmd)
+
+
+def run_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    out: Path = typer.Option(..., "-o", "--out", help="run folder to write"),
+    config: Optional[str] = typer.Option(None, "--config", "-c",
+                                         help="camera configuration (default: all cameras)"),
+    baseline: bool = typer.Option(False, "--baseline", help="normal positions only, no network"),
+    models: Optional[Path] = typer.Option(None, "--models", help="checkpoint folder (default SCENE/models)"),
+    split: Optional[str] = typer.Option(None, "--split", help="only this split's frames (train/val/test)"),
+    center: str = typer.Option("bbox", "--center", help="mask centre: bbox (paper) or centroid"),
+    arch: Optional[str] = typer.Option(None, "--arch", help="require checkpoints of this arch (lite|paper)"),
+    device: Optional[str] = typer.Option(None, "--device", help="torch device (default: cuda if present)"),
+    force: bool = typer.Option(False, "--force", help="overwrite an existing run folder"),
+) -> None:
+    """Estimate world pose tracks: normal positions, Seg2PoseNet residuals (unless --baseline),
+    late fusion over the configuration's views, headings from motion. Writes OUT/run.json,
+    OUT/poses.csv and OUT/views.csv."""
+    from seg2pose.pipeline import run_scene
+
+    d = run_scene(scene, out, config=config, baseline=baseline, models_dir=models, split=split,
+                  force=force, center_method=center, arch=arch, device=device)
+    import json
+    meta = json.loads((d / "run.json").read_text())
+    typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
+               f"-> {meta['n_poses']} poses in {d}")
+
+
+def train_cmd(
+    scene: Path = typer.Argument(..., help="scene folder with ground truth (gt/poses.csv)"),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default SCENE/models)"),
+    arch: str = typer.Option("paper", "--arch", help="paper (Figure 3) or lite (CPU)"),
+    quick: bool = typer.Option(False, "--quick", help="short CPU protocol (lite, fewer epochs/runs)"),
+    demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
+    zero_annotation: bool = typer.Option(False, "--zero-annotation",
+                                         help="train on rough-model examples only (no ground truth)"),
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="comma-separated camera names"),
+    classes: Optional[str] = typer.Option(None, "--classes", help="comma-separated class names"),
+    epochs: Optional[int] = typer.Option(None, "--epochs"),
+    runs: Optional[int] = typer.Option(None, "--runs", help="best-of-N runs (paper: 4)"),
+    batches: Optional[int] = typer.Option(None, "--batches", help="batches per epoch (paper: 64)"),
+    lr: Optional[float] = typer.Option(None, "--lr"),
+    share_classes: Optional[bool] = typer.Option(None, "--share-classes/--per-class",
+                                                 help="one model per camera with a class input"),
+    device: Optional[str] = typer.Option(None, "--device"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="first of the runs' seeds"),
+    force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
+) -> None:
+    """Train Seg2PoseNet per camera and class (paper 4.1: best of four, Adam 5e-5, batch 16,
+    64 batches/epoch, 50 epochs, every 4th example a rough model). Resumes an interrupted
+    training from its checkpoints."""
+    from seg2pose.train import TrainConfig, train_scene
+
+    if demo:
+        cfg = TrainConfig.demo()
+    elif quick:
+        cfg = TrainConfig.quick()
+    else:
+        cfg = TrainConfig.paper(arch=arch)
+    if quick or demo:
+        if arch != "paper":
+            cfg = cfg.replace(arch=arch)
+    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
+                                  share_classes=share_classes, device=device, seed=seed).items()
+            if v is not None}
+    cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
+    out_dir = train_scene(scene, out, cfg,
+                          cameras=cameras.split(",") if cameras else None,
+                          classes=classes.split(",") if classes else None, progress=True)
+    typer.echo(f"models in {out_dir}")
+
+
+def eval_cmd(
+    scene: Path = typer.Argument(..., help="scene folder with gt/poses.csv"),
+    run: Path = typer.Argument(..., help="run folder (from s2p run)"),
+    split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
+) -> None:
+    """Mean ground-plane error of a run against the truth, overall, per class and per 5 m bin
+    of distance from the cameras."""
+    import json
+
+    from seg2pose.pipeline import evaluate_run
+    from seg2pose.evaluate import format_table
+
+    res = evaluate_run(scene, run, split=split)
+    if as_json:
+        typer.echo(json.dumps(res.to_dict(), indent=1))
+    else:
+        typer.echo(format_table({Path(run).name: res}))
+
+
+def paper_table_cmd(
+    scene: Path = typer.Argument(..., help="scene folder with gt/poses.csv"),
+    models: Optional[Path] = typer.Option(None, "--models", help="checkpoint folder (default SCENE/models)"),
+    split: str = typer.Option("test", "--split"),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="output folder (default SCENE/out/paper-table)"),
+    configs: Optional[str] = typer.Option(None, "--configs", help="comma-separated configurations (default all)"),
+    baseline_only: bool = typer.Option(False, "--baseline-only", help="skip the Seg2PoseNet rows"),
+    force: bool = typer.Option(False, "--force"),
+) -> None:
+    """Table 1 and Figure 6 of the paper on this scene: every configuration with and without
+    Seg2PoseNet, mean error overall and per 5 m bin; writes table.txt, results.json and
+    error_vs_distance.png."""
+    from seg2pose.pipeline import paper_table
+
+    out_dir, text = paper_table(scene, models_dir=models, split=split, out_dir=out,
+                                configs=configs.split(",") if configs else None,
+                                baseline_only=baseline_only, force=force)
+    typer.echo(text)
+    typer.echo(f"written to {out_dir}")

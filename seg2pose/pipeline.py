@@ -1,0 +1,433 @@
+"""Inference: masks -> normal positions (3.2) -> Seg2PoseNet residuals (3.3) -> late fusion
+(mean over views, 3.3) -> headings from motion (3.4) -> a run folder.
+
+Run folder (the contract between pipeline, evaluation and review)::
+
+    RUN/run.json    {"scene", "scene_fingerprint", "config", "cameras", "method", "center_method",
+                     "models", "created", "split", "frame_range"}
+    RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
+    RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
+                    (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
+                    Seg2PoseNet residual, metres, 0 for the baseline)
+
+Masks are streamed: all cameras of the configuration are read in lockstep, a chunk of frames at
+a time, and the network sees batches of crops gathered across the chunk's frames (one batch
+per model: models are per camera and class, or per camera with a class input).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import heapq
+import io
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.atomic import atomic_write_text, check_writable
+from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.poses import PoseTable, write_poses
+from seg2pose.io.scene import Scene, load_scene
+from seg2pose.masks import CROP_SIZE, crop_masks, mask_centers, rle_stats
+from seg2pose.normal import fuse_views, headings_from_tracks, normal_positions
+
+# l, w, h metres, used when the scene does not give class sizes in extra["class_sizes"]
+DEFAULT_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.7),
+                 "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.55, 3.2)}
+VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
+
+
+def class_sizes(scene: Scene) -> dict[str, tuple[float, float, float]]:
+    """Class name -> (l, w, h) metres: scene.extra['class_sizes'] over the built-in defaults."""
+    sizes = dict(DEFAULT_SIZES)
+    extra = scene.extra.get("class_sizes") or {}
+    for k, v in extra.items():
+        try:
+            sizes[str(k)] = tuple(float(x) for x in v)[:3]
+        except (TypeError, ValueError):
+            raise InputError("expected [l, w, h] numbers", file=scene.root / "scene.json",
+                             field=f"extra.class_sizes.{k}") from None
+    return sizes
+
+
+def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
+                ) -> Iterator[tuple[int, dict[str, MaskTable]]]:
+    """Stream all cameras' masks in lockstep: (frame, {camera: detections of that frame}),
+    frames in increasing order; a camera without detections in a frame is absent."""
+    known = [c.id for c in scene.classes]
+    its = {}
+    for cam in cameras:
+        path = scene.masks_path(cam)
+        if not path.exists():
+            raise InputError(f"no masks for camera {cam!r}", file=path)
+        its[cam] = iter_mots(path, known, frame_range)
+    heap: list[tuple[int, int, str, MaskTable]] = []
+    for k, (cam, it) in enumerate(its.items()):
+        nxt = next(it, None)
+        if nxt is not None:
+            heapq.heappush(heap, (nxt[0], k, cam, nxt[1]))
+    order = {cam: k for k, cam in enumerate(its)}
+    while heap:
+        frame = heap[0][0]
+        out = {}
+        while heap and heap[0][0] == frame:
+            _, _, cam, table = heapq.heappop(heap)
+            out[cam] = table
+            nxt = next(its[cam], None)
+            if nxt is not None:
+                heapq.heappush(heap, (nxt[0], order[cam], cam, nxt[1]))
+        yield frame, out
+
+
+# ----------------------------------------------------------------------------------------------
+# models
+
+
+def model_filename(camera: str, cls: str) -> str:
+    """``<camera>__<class>.safetensors``; ``<camera>__all.safetensors`` for a model serving all
+    classes of a camera."""
+    return f"{camera}__{'all' if cls == '*' else cls}.safetensors"
+
+
+@dataclass
+class ModelSet:
+    """The checkpoints a run uses, looked up by (camera, class name)."""
+
+    models: dict[tuple[str, str], object] = field(default_factory=dict)  # -> Checkpoint
+    paths: dict[tuple[str, str], Path] = field(default_factory=dict)
+
+    @classmethod
+    def load(cls, models_dir: Path, cameras: list[str], classes: list[str], arch: str | None = None,
+             fingerprint: str | None = None, device=None) -> "ModelSet":
+        from seg2pose.net import Checkpoint
+
+        models_dir = Path(models_dir)
+        ms = cls()
+        missing = []
+        cache: dict[Path, object] = {}
+        for cam in cameras:
+            for c in classes:
+                for name in (model_filename(cam, c), model_filename(cam, "*")):
+                    p = models_dir / name
+                    if p.exists():
+                        if p not in cache:
+                            cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
+                            ck = cache[p]
+                            if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
+                                print(f"warning: {p} was trained on another scene "
+                                      f"(fingerprint {ck.scene_fingerprint}, this scene {fingerprint})",
+                                      file=sys.stderr)
+                        ms.models[(cam, c)] = cache[p]
+                        ms.paths[(cam, c)] = p
+                        break
+                else:
+                    missing.append(f"{cam}/{c}")
+        if missing:
+            raise S2PError(f"no Seg2PoseNet model in {models_dir} for {', '.join(missing)}; "
+                           "train with `s2p train` or run with --baseline")
+        return ms
+
+
+# ----------------------------------------------------------------------------------------------
+# per-view estimates
+
+
+@dataclass
+class ViewRows:
+    """Per-detection results, column-wise (the rows of views.csv)."""
+
+    frame: list = field(default_factory=list)
+    track_id: list = field(default_factory=list)
+    camera: list = field(default_factory=list)
+    cls: list = field(default_factory=list)
+    uv: list = field(default_factory=list)
+    normal: list = field(default_factory=list)
+    residual: list = field(default_factory=list)
+
+    def add(self, frame, track_id, camera, cls, uv, normal, residual) -> None:
+        self.frame.append(frame)
+        self.track_id.append(track_id)
+        self.camera.append(np.full(len(frame), camera, dtype=object))
+        self.cls.append(cls)
+        self.uv.append(uv)
+        self.normal.append(normal)
+        self.residual.append(residual)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        if not self.frame:
+            return {"frame": np.zeros(0, np.int64), "track_id": np.zeros(0, np.int64),
+                    "camera": np.zeros(0, object), "cls": np.zeros(0, object),
+                    "uv": np.zeros((0, 2)), "normal": np.zeros((0, 3)), "residual": np.zeros((0, 2))}
+        return {"frame": np.concatenate(self.frame), "track_id": np.concatenate(self.track_id),
+                "camera": np.concatenate(self.camera), "cls": np.concatenate(self.cls),
+                "uv": np.concatenate(self.uv), "normal": np.concatenate(self.normal),
+                "residual": np.concatenate(self.residual)}
+
+
+class _Warn:
+    """Say a thing once per run."""
+
+    def __init__(self):
+        self.said: set[str] = set()
+
+    def __call__(self, key: str, msg: str) -> None:
+        if key not in self.said:
+            self.said.add(key)
+            print(f"warning: {msg}", file=sys.stderr)
+
+
+def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
+                   models: ModelSet | None, warn: _Warn, batch: int = 64
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For the detections of one camera (any number of frames): class names (N,), mask centres
+    (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground) and
+    residuals (N, 2) metres (zeros for the baseline or a missed ray)."""
+    camera = scene.cameras[cam]
+    by_id = scene.class_by_id()
+    n = len(table)
+    names = np.array([by_id[c].name if c in by_id else "" for c in table.class_id], dtype=object)
+    heights = np.array([by_id[c].default_height if c in by_id else np.nan for c in table.class_id])
+    if (table.class_id == 0).any():
+        warn("noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
+    uv = mask_centers(table.rles, table.height, table.width, center_method)
+    normal = np.full((n, 3), np.nan)
+    ok = np.isfinite(uv[:, 0]) & np.isfinite(heights)
+    if ok.any():
+        normal[ok], _ = normal_positions(camera, scene.ground, uv[ok], heights[ok])
+    residual = np.zeros((n, 2))
+    if models is None or n == 0:
+        return names, uv, normal, residual
+    _, _, box = rle_stats(table.rles, table.height, table.width)
+    big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
+    if big.any():
+        warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
+                        "cropped around their centre")
+    usable = np.isfinite(normal[:, 0])
+    for (mcam, c), ck in models.models.items():
+        if mcam != cam:
+            continue
+        sel = np.flatnonzero(usable & (names == c))
+        for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
+            idx = sel[s:s + batch]
+            crops = crop_masks([table.rles[i] for i in idx], table.height, table.width, uv[idx])
+            residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch)
+    return names, uv, normal, residual
+
+
+# ----------------------------------------------------------------------------------------------
+# fusion and the run folder
+
+
+def fuse(views: dict[str, np.ndarray], scene: Scene) -> PoseTable:
+    """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
+    z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
+    sizes from the class. Detections without a track id (-1) are not fused with anything."""
+    frame, tid = views["frame"], views["track_id"]
+    est = views["normal"][:, :2] + views["residual"]
+    keep = np.isfinite(est).all(axis=1) & (views["cls"] != "")
+    frame, tid, est = frame[keep], tid[keep], est[keep]
+    cam, cls = views["camera"][keep], views["cls"][keep]
+    if len(frame) == 0:
+        return PoseTable.empty(with_size=True)
+    # untracked detections get unique negative keys so that they stay alone
+    key_tid = tid.copy()
+    lone = tid < 0
+    key_tid[lone] = -1 - np.arange(int(lone.sum()))
+    keys = np.stack([frame, key_tid], axis=1)
+    ukeys, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    cams, cam_idx = np.unique(cam, return_inverse=True)
+    stack = np.full((len(cams), len(ukeys), 2), np.nan)
+    stack[cam_idx, inv] = est       # one detection per (camera, road user, frame)
+    xy = fuse_views(stack)
+    z = scene.ground.height(xy)
+    out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
+    heading = np.full(len(ukeys), np.nan)
+    tracked = out_tid >= 0
+    heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
+    out_cls = cls[first]
+    sizes = class_sizes(scene)
+    size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
+    table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size)
+    return table.sorted()
+
+
+def format_views(v: dict[str, np.ndarray]) -> str:
+    buf = io.StringIO()
+    buf.write(",".join(VIEW_COLUMNS) + "\n")
+    num = np.column_stack([v["uv"], v["normal"], v["residual"]])
+    for i in np.lexsort((v["camera"], v["track_id"], v["frame"])):
+        buf.write(f"{v['frame'][i]},{v['track_id'][i]},{v['camera'][i]},{v['cls'][i]},"
+                  + ",".join(repr(float(x)) for x in num[i]) + "\n")
+    return buf.getvalue()
+
+
+def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
+              baseline: bool = False, models_dir: str | Path | None = None,
+              split: str | None = None, force: bool = False, center_method: str = "bbox",
+              arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
+              progress: bool = True) -> Path:
+    """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
+
+    config: a configuration of the rig (None = all cameras); baseline: normal positions only;
+    models_dir: checkpoints (default SCENE/models); split: a named frame range of the scene."""
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    run_dir = Path(run_dir)
+    if run_dir.exists() and any(run_dir.iterdir()) and not force:
+        raise S2PError(f"{run_dir} exists and is not empty; pass --force to overwrite it")
+    cams = [c.name for c in scene.rig.select(config)]
+    frame_range = scene.split_range(split)
+    models = None
+    if not baseline:
+        from seg2pose.net import pick_device
+        dev = pick_device(device)
+        models = ModelSet.load(Path(models_dir) if models_dir else scene.root / "models", cams,
+                               [c.name for c in scene.classes], arch=arch,
+                               fingerprint=scene.fingerprint(), device=dev)
+    warn = _Warn()
+    rows = ViewRows()
+
+    def flush(chunk: dict[str, list[MaskTable]]) -> None:
+        for cam, tables in chunk.items():
+            if not tables:
+                continue
+            t = MaskTable.concat(tables)
+            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
+            rows.add(t.frame, t.track_id, cam, names, uv, normal, residual)
+
+    from tqdm import tqdm
+
+    first_last = frame_range
+    chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
+    nframes = 0
+    bar = tqdm(total=None if frame_range is None else frame_range[1] - frame_range[0] + 1,
+               desc=f"s2p run {'baseline' if baseline else 'seg2posenet'}", unit="frame",
+               disable=not progress, leave=False)
+    for frame, tables in iter_frames(scene, cams, frame_range):
+        for cam, t in tables.items():
+            chunk[cam].append(t)
+        nframes += 1
+        bar.update(1)
+        if nframes % chunk_frames == 0:
+            flush(chunk)
+            chunk = {c: [] for c in cams}
+    flush(chunk)
+    bar.close()
+    views = rows.arrays()
+    poses = fuse(views, scene)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in ("poses.csv", "views.csv", "run.json"):
+        check_writable(run_dir / name, force)
+    write_poses(run_dir / "poses.csv", poses)
+    atomic_write_text(run_dir / "views.csv", format_views(views))
+    meta = {
+        "scene": str(scene.root.resolve()), "scene_fingerprint": scene.fingerprint(),
+        "config": config, "cameras": cams, "method": "baseline" if baseline else "seg2posenet",
+        "center_method": center_method,
+        "models": {} if models is None else {
+            f"{c}/{k}": {"path": str(p), **{kk: models.models[(c, k)].info.get(kk)
+                                            for kk in ("val_loss", "epoch", "seed")}}
+            for (c, k), p in models.paths.items()},
+        "split": split, "frame_range": None if first_last is None else list(first_last),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "n_frames": nframes, "n_views": int(len(views["frame"])), "n_poses": len(poses),
+    }
+    atomic_write_text(run_dir / "run.json", json.dumps(meta, indent=1) + "\n")
+    return run_dir
+
+
+def read_views(path: str | Path) -> dict[str, np.ndarray]:
+    """views.csv back into columns (as written by ``run_scene``)."""
+    import csv
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError("views file not found", file=path)
+    with open(path, newline="", encoding="utf-8") as f:
+        r = csv.reader(f)
+        header = next(r, None)
+        if header != VIEW_COLUMNS:
+            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}", file=path, line=1)
+        rows = list(r)
+    a = np.array([x[4:] for x in rows], float).reshape(-1, 7)
+    return {"frame": np.array([int(x[0]) for x in rows], np.int64),
+            "track_id": np.array([int(x[1]) for x in rows], np.int64),
+            "camera": np.array([x[2] for x in rows], object),
+            "cls": np.array([x[3] for x in rows], object),
+            "uv": a[:, :2], "normal": a[:, 2:5], "residual": a[:, 5:7]}
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluation of run folders (s2p eval, s2p paper-table)
+
+
+def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
+    """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
+    (mean of all camera centres); ``split`` restricts both to that split's frames."""
+    from seg2pose.evaluate import evaluate
+    from seg2pose.io.poses import read_poses
+
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    if not scene.gt_path.exists():
+        raise InputError("no ground truth to evaluate against", file=scene.gt_path)
+    est = read_poses(Path(run_dir) / "poses.csv")
+    gt = read_poses(scene.gt_path)
+    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
+
+
+PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",
+                      "tri-I", "tri-L", "tri-T"]
+
+
+def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
+                split: str = "test", out_dir: str | Path | None = None,
+                configs: list[str] | None = None, baseline_only: bool = False,
+                force: bool = False, progress: bool = True) -> tuple[Path, str]:
+    """Table 1 / Figure 6 on this scene: every configuration with and without Seg2PoseNet.
+
+    Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
+    OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
+    from seg2pose.evaluate import format_table, plot_error_vs_distance
+
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
+    if (out / "results.json").exists() and not force:
+        raise S2PError(f"{out} holds a paper table already; pass --force to redo it")
+    if configs is None:
+        configs = [c for c in PAPER_CONFIG_ORDER if c in scene.rig.configs]
+        configs += [c for c in scene.rig.configs if c not in configs]
+    if not configs:
+        raise InputError("the scene defines no camera configurations", file=scene.root / "scene.json",
+                         field="configs")
+    results = {}
+    for baseline in ([False, True] if not baseline_only else [True]):
+        for cfg in configs:
+            name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
+            rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
+            run_scene(scene, rd, config=cfg, baseline=baseline, models_dir=models_dir,
+                      split=split, force=True, progress=progress)
+            results[name] = evaluate_run(scene, rd, split=split)
+    text = format_table(results)
+    s2pn = [r.mean_error for k, r in results.items() if k.endswith("S2PN")]
+    base = [r.mean_error for k, r in results.items() if k.endswith("baseline")]
+    if s2pn and base:
+        ratios = {k.split()[0]: results[k].mean_error / results[k.split()[0] + " baseline"].mean_error
+                  for k in results if k.endswith("S2PN")}
+        text += "\nS2PN / baseline mean error: " + ", ".join(f"{k} {v:.3f}" for k, v in ratios.items()) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "table.txt", text)
+    atomic_write_text(out / "results.json", json.dumps(
+        {"scene": str(scene.root), "split": split,
+         "models": None if baseline_only else str(models_dir or scene.root / "models"),
+         "results": {k: r.to_dict() for k, r in results.items()}}, indent=1) + "\n")
+    plot_error_vs_distance(results, out / "error_vs_distance.png",
+                           title=f"{scene.name}: mean error by distance ({split} split)")
+    return out, text
