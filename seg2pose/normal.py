@@ -17,6 +17,12 @@ from seg2pose.ground import GroundSurface
 
 DEFAULT_HEIGHTS = {"pedestrian": 0.9, "bicyclist": 0.9, "car": 0.75}  # metres, before bisection
 
+# Which mask centre the normal position starts from: "bbox" (centre of the mask's bounding box,
+# paper section 5) or "centroid" (mean of its pixels, paper 3.2). Chosen by measured error on
+# scenes with known truth; see docs/NORMAL_POSITIONS.md.
+DEFAULT_CENTER_METHOD = "bbox"
+CENTER_METHODS = ("bbox", "centroid")
+
 
 def normal_positions(camera: Camera, ground: GroundSurface, centers: np.ndarray,
                      heights: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
