@@ -83,7 +83,8 @@ class Scene:
 
     def video_path(self, camera: str) -> Path | None:
         """The camera's video file or image folder, when present."""
-        for cand in (self.root / "video" / f"{camera}.mp4", self.root / "video" / camera):
+        for cand in (self.root / "video" / f"{camera}.mp4", self.root / "video" / camera,
+                     *(self.root / "video" / f"{camera}{e}" for e in (".avi", ".mkv", ".mov"))):
             if cand.exists():
                 return cand
         return None

@@ -1,0 +1,182 @@
+"""Masks as COCO RLE JSON (detector results style).
+
+A file holds a JSON list of records, one per detection::
+
+    {"frame": 12, "image_id": 12, "category_id": 3, "track_id": 7, "score": 0.98,
+     "segmentation": {"size": [720, 1280], "counts": "<compressed COCO RLE>"}}
+
+``frame`` (or else ``image_id``) is the frame number; ``track_id`` is optional (-1 = none yet);
+``score`` optional. ``counts`` may also be an uncompressed RLE (a list of run lengths, as in
+COCO's iscrowd annotations); it is compressed on reading. A full COCO dataset object
+(``{"images": [...], "annotations": [...]}``) is read too: an image's ``frame_id`` or ``frame``
+gives the frame when present, else its ``id``. ``category_id`` is used as the class id (COCO's
+person=1, bicycle=2, car=3 line up with this project's pedestrian=1, bicyclist=2, car=3;
+pass ``category_map`` for other numberings).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+from pycocotools import mask as mask_util
+
+from seg2pose.errors import InputError
+from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.mots import MaskTable
+from seg2pose.masks import decode_counts
+
+
+def _int(rec: dict, key: str, path: Path, i: int, default=None) -> int:
+    v = rec.get(key, default)
+    if v is None:
+        raise InputError(f"missing '{key}'", file=path, field=f"[{i}].{key}")
+    # order matters: bool is an int; inf/huge fail the range test before int() sees them; NaN != NaN
+    if (isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) < 2**62
+            or v != int(v)):
+        raise InputError(f"expected an integer, got {v!r}", file=path, field=f"[{i}].{key}")
+    return int(v)
+
+
+def _records(data, path: Path) -> tuple[list, dict]:
+    """The annotation list and image_id -> frame map of a results list or a dataset object."""
+    if isinstance(data, list):
+        return data, {}
+    if isinstance(data, dict) and isinstance(data.get("annotations"), list):
+        frames = {}
+        for j, im in enumerate(data.get("images") or []):
+            if not isinstance(im, dict) or not isinstance(im.get("id"), int):
+                raise InputError("expected an object with an integer 'id'", file=path,
+                                 field=f"images[{j}]")
+            fr = im.get("frame_id", im.get("frame", im["id"]))
+            if isinstance(fr, bool) or not isinstance(fr, int):
+                raise InputError(f"expected an integer frame, got {fr!r}", file=path,
+                                 field=f"images[{j}]")
+            frames[im["id"]] = fr
+        return data["annotations"], frames
+    raise InputError("expected a JSON list of detections or a COCO object with 'annotations'",
+                     file=path)
+
+
+def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
+              category_map: dict[int, int] | None = None,
+              size: tuple[int, int] | None = None) -> MaskTable:
+    """Read COCO RLE JSON into a MaskTable (sorted by frame, stable). ``size`` (height, width)
+    is needed only for an empty file; every record must have the same size."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("masks file not found", file=path)
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", file=path) from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
+    except RecursionError:
+        raise InputError("JSON nested too deeply", file=path) from None
+    recs, image_frames = _records(data, path)
+    kc = set(known_classes) if known_classes is not None else None
+    frames, tids, cids, rles, scores = [], [], [], [], []
+    hw = None
+    for i, r in enumerate(recs):
+        if not isinstance(r, dict):
+            raise InputError("expected an object", file=path, field=f"[{i}]")
+        if "frame" in r:
+            fr = _int(r, "frame", path, i)
+        else:
+            img = _int(r, "image_id", path, i)
+            fr = image_frames.get(img, img)
+        if fr < 0:
+            raise InputError(f"negative frame {fr}", file=path, field=f"[{i}].frame")
+        cid = _int(r, "category_id", path, i)
+        if category_map is not None:
+            if cid not in category_map:
+                raise InputError(f"category_id {cid} not in the category map {sorted(category_map)}",
+                                 file=path, field=f"[{i}].category_id")
+            cid = category_map[cid]
+        if kc is not None and cid != 0 and cid not in kc:
+            raise InputError(f"unknown class {cid}; the scene knows {sorted(kc)}", file=path,
+                             field=f"[{i}].category_id")
+        tid = _int(r, "track_id", path, i, default=-1)
+        seg = r.get("segmentation")
+        if not isinstance(seg, dict) or "size" not in seg or "counts" not in seg:
+            raise InputError("expected an RLE object {'size': [h, w], 'counts': ...}", file=path,
+                             field=f"[{i}].segmentation")
+        sz = seg["size"]
+        if (not isinstance(sz, list) or len(sz) != 2
+                or not all(isinstance(v, int) and not isinstance(v, bool) for v in sz)
+                or not (0 < sz[0] <= 2**20 and 0 < sz[1] <= 2**20)):
+            raise InputError(f"expected [height, width] positive integers, got {sz!r}", file=path,
+                             field=f"[{i}].segmentation.size")
+        if hw is None:
+            hw = (sz[0], sz[1])
+        elif tuple(sz) != hw:
+            raise InputError(f"size {sz} differs from earlier records ({hw[0]}x{hw[1]})",
+                             file=path, field=f"[{i}].segmentation.size")
+        counts = seg["counts"]
+        if isinstance(counts, list):
+            if not all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c < 2**40
+                       for c in counts):
+                raise InputError("uncompressed counts must be non-negative integers", file=path,
+                                 field=f"[{i}].segmentation.counts")
+            if sum(counts) != hw[0] * hw[1]:
+                raise InputError(f"RLE covers {sum(counts)} pixels but height*width = "
+                                 f"{hw[0] * hw[1]}", file=path, field=f"[{i}].segmentation.counts")
+            rle = mask_util.frPyObjects({"size": list(hw), "counts": counts}, hw[0], hw[1])["counts"]
+        elif isinstance(counts, str):
+            try:
+                rle = counts.encode("ascii")
+            except UnicodeEncodeError:
+                raise InputError("RLE string is not ASCII", file=path,
+                                 field=f"[{i}].segmentation.counts") from None
+            _check_rle(rle, hw, path, i)
+        else:
+            raise InputError("counts must be a string or a list of integers", file=path,
+                             field=f"[{i}].segmentation.counts")
+        sc = r.get("score")
+        if sc is not None and (isinstance(sc, bool) or not isinstance(sc, (int, float))):
+            raise InputError(f"expected a number, got {sc!r}", file=path, field=f"[{i}].score")
+        frames.append(fr)
+        tids.append(tid)
+        cids.append(cid)
+        rles.append(rle)
+        scores.append(np.nan if sc is None else float(sc))
+    if hw is None:
+        hw = size if size is not None else (0, 0)
+    has_score = len(recs) > 0 and not np.isnan(scores).all()
+    t = MaskTable(np.array(frames, np.int64), np.array(tids, np.int64), np.array(cids, np.int64),
+                  hw[0], hw[1], rles, np.array(scores) if has_score else None)
+    return t.take(np.argsort(t.frame, kind="stable"))
+
+
+def _check_rle(rle: bytes, hw: tuple[int, int], path: Path, i: int) -> None:
+    try:
+        counts, _ = decode_counts([rle])
+    except InputError as e:
+        raise InputError(e.message, file=path, field=f"[{i}].segmentation.counts") from None
+    if int(counts.sum()) != hw[0] * hw[1]:
+        raise InputError(f"RLE covers {int(counts.sum())} pixels but height*width = {hw[0] * hw[1]}",
+                         file=path, field=f"[{i}].segmentation.counts")
+
+
+def coco_records(table: MaskTable) -> list[dict]:
+    """JSON-ready records of a MaskTable (frame order, stable)."""
+    out = []
+    size = [int(table.height), int(table.width)]
+    for i in np.argsort(table.frame, kind="stable"):
+        rec = {"frame": int(table.frame[i]), "image_id": int(table.frame[i]),
+               "category_id": int(table.class_id[i]), "track_id": int(table.track_id[i]),
+               "segmentation": {"size": size, "counts": table.rles[i].decode("ascii")}}
+        if table.score is not None and np.isfinite(table.score[i]):
+            rec["score"] = float(table.score[i])
+        out.append(rec)
+    return out
+
+
+def write_coco(path: str | Path, table: MaskTable) -> None:
+    """Write a MaskTable as COCO RLE JSON (one record per line, atomically)."""
+    recs = coco_records(table)
+    text = "[\n" + ",\n".join(json.dumps(r, separators=(",", ":")) for r in recs) + "\n]\n"
+    atomic_write_text(path, text)

@@ -1,0 +1,301 @@
+"""Import of UTOCS (CARLA traffic-surveillance data) into a scene folder.
+
+UTOCS layout (one recording)::
+
+    cameras.json        {"instrinsics": {"f", "Cx", "Cy"},            # sic: "instrinsics"
+                         "cams": [{"id", "x", "y", "z", "pitch", "roll", "yaw"}, ...]}  # m, deg
+    ground_points.txt   x,y,z per line (metres)
+    positions/NNNNNN.json   per frame: [{"type", "id", "x", "y", "z", "l", "w", "h",
+                                         "forward_x", "forward_y", ...}, ...]
+    images/cam<id>/NNNNNN.jpg   optional frames (or a video file cam<id>.mp4 / videos/cam<id>.mp4)
+
+CARLA's world is Unreal's: left-handed, z up. This project's world is right-handed, z up, so the
+import mirrors y: a CARLA point (x, y, z) becomes (x, -y, z), everywhere (cameras, ground
+points, road users, forward vectors). A mirror flips handedness, so the camera rotation becomes
+a proper rotation again (see ``carla_camera``); headings are atan2(-forward_y, forward_x).
+
+Positions are the bottom centre of each road user's box; l, w, h are taken as full box sizes
+(``size_scale=2`` doubles them when a recording stores CARLA's half extents).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seg2pose.camera import Camera, Rig
+from seg2pose.errors import InputError
+from seg2pose.io.atomic import check_writable
+from seg2pose.io.poses import PoseTable, write_poses
+from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
+
+MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
+# camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
+CARLA_TO_OPENCV = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+CARLA_FRAME_TIME = 0.075  # s, the paper's recording interval (4.1)
+
+TYPE_ALIASES = {
+    "pedestrian": "pedestrian", "walker": "pedestrian", "person": "pedestrian",
+    "bicyclist": "bicyclist", "bicycle": "bicyclist", "cyclist": "bicyclist", "bike": "bicyclist",
+    "car": "car", "vehicle": "car",
+}
+EXTRA_HEIGHTS = {"truck": 1.5, "bus": 1.6, "motorbike": 0.8, "motorcyclist": 0.8, "van": 1.1}
+_NUM = re.compile(r"^(\d{1,15})\.json$")
+
+
+def carla_rotation(pitch: float, roll: float, yaw: float) -> np.ndarray:
+    """CARLA's camera-to-world rotation (3, 3) in Unreal's left-handed world; angles degrees."""
+    p, r, y = (math.radians(a) for a in (pitch, roll, yaw))
+    cp, sp, cr, sr, cy, sy = math.cos(p), math.sin(p), math.cos(r), math.sin(r), math.cos(y), math.sin(y)
+    return np.array([[cp * cy, cy * sp * sr - sy * cr, -cy * sp * cr - sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, -sy * sp * cr + cy * sr],
+                     [sp, -cp * sr, cp * cr]])
+
+
+def carla_camera(name: str, f: float, cx: float, cy: float, x: float, y: float, z: float,
+                 pitch: float, roll: float, yaw: float, width: int, height: int) -> Camera:
+    """A camera of this project's (right-handed, y-mirrored) world from a CARLA transform.
+
+    CARLA: X_ue = R_cw @ x_local + p, the camera looks along local +x, image right = local +y,
+    image down = local -z. With X_ue = M X (M the y mirror) and x_cv = C x_local,
+    x_cv = C R_cw^T M (X - M p): R = C R_cw^T M (det = (-1)(+1)(-1) = +1), centre = M p."""
+    R = CARLA_TO_OPENCV @ carla_rotation(pitch, roll, yaw).T @ MIRROR
+    center = MIRROR @ np.array([x, y, z], dtype=np.float64)
+    K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    return Camera(name=name, K=K, R=R, t=-R @ center, width=width, height=height)
+
+
+def _num(d: dict, key: str, file: Path, where: str) -> float:
+    v = d.get(key) if isinstance(d, dict) else None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"expected a finite number, got {v!r}", file=file, field=f"{where}{key}")
+    return float(v)
+
+
+@dataclass
+class UtocsCamera:
+    id: str
+    x: float
+    y: float
+    z: float
+    pitch: float
+    roll: float
+    yaw: float
+
+
+def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[UtocsCamera]]:
+    """(f, Cx, Cy) and the cameras of a UTOCS cameras.json."""
+    if not path.exists():
+        raise InputError("cameras.json not found (is this a UTOCS folder?)", file=path)
+    d = _load_json(path)
+    if not isinstance(d, dict):
+        raise InputError("expected a JSON object", file=path)
+    intr = d.get("instrinsics", d.get("intrinsics"))
+    if not isinstance(intr, dict):
+        raise InputError("missing object 'instrinsics' {f, Cx, Cy}", file=path, field="instrinsics")
+    f, cx, cy = (_num(intr, k, path, "instrinsics.") for k in ("f", "Cx", "Cy"))
+    if f <= 0:
+        raise InputError(f"focal length must be positive, got {f}", file=path, field="instrinsics.f")
+    cams_d = d.get("cams")
+    if not isinstance(cams_d, list) or not cams_d:
+        raise InputError("expected a non-empty list of cameras", file=path, field="cams")
+    cams = []
+    for i, c in enumerate(cams_d):
+        if not isinstance(c, dict) or "id" not in c or isinstance(c["id"], (dict, list)):
+            raise InputError("expected an object with an 'id'", file=path, field=f"cams[{i}]")
+        vals = [_num(c, k, path, f"cams[{i}].") for k in ("x", "y", "z", "pitch", "roll", "yaw")]
+        cams.append(UtocsCamera(str(c["id"]), *vals))
+    if len({c.id for c in cams}) != len(cams):
+        raise InputError("duplicate camera ids", file=path, field="cams")
+    return (f, cx, cy), cams
+
+
+def _load_json(path: Path):
+    try:
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", file=path) from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
+    except RecursionError:
+        raise InputError("JSON nested too deeply", file=path) from None
+
+
+def read_utocs_ground(path: Path) -> np.ndarray:
+    """UTOCS ground points (n, 3) in CARLA coordinates (validated like a scene's)."""
+    from seg2pose.io.scene import read_ground_points
+
+    return read_ground_points(path)
+
+
+def read_positions(folder: Path) -> tuple[PoseTable, list[str], int]:
+    """All positions/NNNNNN.json as a PoseTable in CARLA coordinates with type names as classes
+    (heading from forward_x/y, still left-handed). Returns the table, types in first-seen
+    order, and the number of frame files."""
+    if not folder.is_dir():
+        raise InputError("positions/ folder not found", file=folder)
+    files = sorted((int(m.group(1)), p) for p in folder.iterdir() if (m := _NUM.match(p.name)))
+    if not files:
+        raise InputError("no NNNNNN.json files", file=folder)
+    frames, tids, types, nums = [], [], [], []
+    seen: list[str] = []
+    for frame, p in files:
+        recs = _load_json(p)
+        if not isinstance(recs, list):
+            raise InputError("expected a JSON list of road users", file=p)
+        for i, r in enumerate(recs):
+            if not isinstance(r, dict):
+                raise InputError("expected an object", file=p, field=f"[{i}]")
+            t = r.get("type")
+            if not isinstance(t, str) or not t.strip():
+                raise InputError(f"expected a type name, got {t!r}", file=p, field=f"[{i}].type")
+            rid = r.get("id")
+            if isinstance(rid, bool) or not isinstance(rid, int) or not abs(rid) < 2**62:
+                raise InputError(f"expected an integer id, got {rid!r}", file=p, field=f"[{i}].id")
+            v = [_num(r, k, p, f"[{i}].") for k in ("x", "y", "z", "l", "w", "h",
+                                                    "forward_x", "forward_y")]
+            name = t.strip().lower()
+            if name not in seen:
+                seen.append(name)
+            frames.append(frame)
+            tids.append(rid)
+            types.append(name)
+            nums.append(v)
+    a = np.array(nums, dtype=np.float64).reshape(-1, 8)
+    heading = np.arctan2(a[:, 7], a[:, 6])
+    return PoseTable(frames, tids, np.array(types, object), a[:, :3], heading, a[:, 3:6]), seen, len(files)
+
+
+def _class_specs(types: list[str]) -> tuple[list[ClassSpec], dict[str, str]]:
+    """This project's classes (defaults + one per extra type) and type -> class name."""
+    specs = [ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES]
+    mapping = {}
+    for t in types:
+        if t in TYPE_ALIASES:
+            mapping[t] = TYPE_ALIASES[t]
+            continue
+        if t not in {s.name for s in specs}:
+            specs.append(ClassSpec(max(s.id for s in specs) + 1, t, EXTRA_HEIGHTS.get(t, 1.0)))
+        mapping[t] = t
+    return specs, mapping
+
+
+def _find_video(src: Path, cam_id: str) -> Path | None:
+    for sub in ("", "videos", "video"):
+        for ext in (".mp4", ".avi", ".mkv", ".mov"):
+            for stem in (f"cam{cam_id}", f"{cam_id}"):
+                p = src / sub / f"{stem}{ext}" if sub else src / f"{stem}{ext}"
+                if p.is_file():
+                    return p
+    return None
+
+
+def _copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists():
+        dst.unlink()
+    try:
+        dst.hardlink_to(src)  # frames are large; a hard link costs nothing when possible
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def default_splits(frames: np.ndarray, gap: int = 150) -> dict[str, tuple[int, int]]:
+    """Train/val/test as consecutive thirds of the frame range with ``gap`` frames dropped
+    between them (the paper's protocol, 4.1); no gap when the recording is too short."""
+    lo, hi = int(frames.min()), int(frames.max())
+    n = hi - lo + 1
+    if n < 3:
+        return {}
+    g = gap if n >= 3 * 10 + 2 * gap else 0
+    k = (n - 2 * g) // 3
+    a = lo
+    out = {}
+    for name in ("train", "val", "test"):
+        out[name] = (a, a + k - 1)
+        a += k + g
+    out["test"] = (out["test"][0], hi)
+    return out
+
+
+def import_utocs(src: str | Path, out: str | Path, force: bool = False,
+                 fps: float | None = None, size_scale: float = 1.0, copy_frames: bool = True,
+                 log=print) -> Scene:
+    """Convert a UTOCS recording ``src`` into a scene folder ``out`` (see module docstring):
+    scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist)."""
+    src, out = Path(src), Path(out)
+    if not src.is_dir():
+        raise InputError("UTOCS source folder not found", file=src)
+    check_writable(out / "scene.json", force)
+    (f, cx, cy), ucams = read_cameras_json(src / "cameras.json")
+    gp = src / "ground_points.txt"
+    if not gp.exists():
+        gp = src / "ground_points.csv"
+    ground = read_utocs_ground(gp) @ MIRROR
+    poses, types, n_files = read_positions(src / "positions")
+    specs, mapping = _class_specs(types)
+
+    cameras: dict[str, Camera] = {}
+    frame_sources: dict[str, tuple[str, Path]] = {}
+    for uc in ucams:
+        name = f"cam{uc.id}"
+        img_dir = src / "images" / name
+        imgs = sorted(img_dir.glob("*.jpg")) + sorted(img_dir.glob("*.png")) if img_dir.is_dir() else []
+        width, height = int(round(2 * cx)), int(round(2 * cy))
+        if imgs:
+            import cv2
+
+            im = cv2.imread(str(imgs[0]), cv2.IMREAD_UNCHANGED)
+            if im is not None:
+                height, width = im.shape[:2]
+            frame_sources[name] = ("images", img_dir)
+        elif (v := _find_video(src, uc.id)) is not None:
+            frame_sources[name] = ("video", v)
+        if width <= 0 or height <= 0:
+            raise InputError(f"cannot infer the image size from Cx={cx}, Cy={cy}",
+                             file=src / "cameras.json", field="instrinsics")
+        cameras[name] = carla_camera(name, f, cx, cy, uc.x, uc.y, uc.z, uc.pitch, uc.roll, uc.yaw,
+                                     width, height)
+    configs = {f"mono-{n[3:]}": [n] for n in cameras}
+    if len(cameras) > 1:
+        configs["all"] = list(cameras)
+
+    # ground truth in the right-handed world
+    heading = np.arctan2(-np.sin(poses.heading), np.cos(poses.heading))
+    gt = PoseTable(poses.frame, poses.track_id, np.array([mapping[t] for t in poses.cls], object),
+                   poses.xyz @ MIRROR, heading, poses.size * size_scale).sorted()
+    cars = gt.size[gt.cls == "car", 0]
+    if len(cars) and np.median(cars) < 3.0 and size_scale == 1.0:
+        log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
+            "use --size-scale 2 if so")
+
+    scene = Scene(root=out, name=src.name, fps=float(fps or 1.0 / CARLA_FRAME_TIME),
+                  rig=Rig(cameras=cameras, configs=configs, name="utocs"), ground_points=ground,
+                  classes=specs, splits=default_splits(gt.frame) if len(gt) else {},
+                  extra={"source": {"format": "utocs", "path": str(src.resolve()),
+                                    "world": "CARLA y mirrored: (x, y, z) -> (x, -y, z)",
+                                    "frames": n_files, "size_scale": size_scale,
+                                    "types": {t: mapping[t] for t in types}}})
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "masks").mkdir(exist_ok=True)
+    write_poses(out / "gt" / "poses.csv", gt)
+    if copy_frames:
+        for name, (kind, p) in frame_sources.items():
+            if kind == "images":
+                for im in sorted(p.iterdir()):
+                    if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                        _copy(im, out / "video" / name / im.name)
+            else:
+                _copy(p, out / "video" / f"{name}{p.suffix.lower()}")
+    scene.save(out)  # scene.json last: its presence marks a finished import
+    log(f"imported {len(cameras)} cameras, {len(ground)} ground points, {n_files} frames, "
+        f"{len(gt)} ground-truth poses of {len(np.unique(gt.track_id))} road users -> {out}")
+    if frame_sources:
+        log(f"frames: {', '.join(f'{n} ({k})' for n, (k, _) in frame_sources.items())} -> {out / 'video'}")
+    return scene
