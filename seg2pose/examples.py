@@ -1,0 +1,195 @@
+"""Training examples for Seg2PoseNet (paper 4.1 and 3.5).
+
+An example is one instance mask of one camera with its target: the true ground position minus
+the mask's normal position (a residual in metres, x and y). Two sources:
+
+- annotated: masks of a split matched to the ground truth as in 4.1 (project the true 3D
+  position into the camera; a mask of the same class covering that point is its match,
+  ``seg2pose.matching.match_masks_to_truth``);
+- rough: rasterised rough 3D models at random positions and headings (3.5,
+  ``seg2pose.synth.rough.render_rough_examples``); they need only the calibration and the
+  ground points, so they also make a training set without annotations (``--zero-annotation``).
+
+Crops are stored at the network's resolution (``NetConfig.input_size``) as uint8 counts of
+covered pixels per downsampling block, so a few thousand lite examples take tens of MB.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from seg2pose.errors import S2PError
+from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.poses import PoseTable
+from seg2pose.io.scene import Scene
+from seg2pose.masks import crop_masks, mask_centers
+from seg2pose.normal import normal_positions
+
+
+@dataclass
+class ExampleSet:
+    """N examples of one camera. crops (N, S, S) uint8: covered pixels per factor x factor block;
+    centers (N, 2) pixels; normal (N, 2) normal position x, y metres; target (N, 2) residual
+    metres (truth - normal); cls (N,) class names; rough (N,) bool (a rough-model example)."""
+
+    crops: np.ndarray
+    factor: int
+    centers: np.ndarray
+    normal: np.ndarray
+    target: np.ndarray
+    cls: np.ndarray
+    rough: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.target)
+
+    def take(self, idx) -> "ExampleSet":
+        return ExampleSet(self.crops[idx], self.factor, self.centers[idx], self.normal[idx],
+                          self.target[idx], self.cls[idx], self.rough[idx])
+
+    def crops_float(self, idx) -> np.ndarray:
+        """(B, 1, S, S) float32 network input in [0, 1] for the examples ``idx``."""
+        return (self.crops[idx].astype(np.float32) / float(self.factor ** 2))[:, None]
+
+    @classmethod
+    def empty(cls, size: int, factor: int) -> "ExampleSet":
+        return cls(np.zeros((0, size, size), np.uint8), factor, np.zeros((0, 2)), np.zeros((0, 2)),
+                   np.zeros((0, 2)), np.zeros(0, object), np.zeros(0, bool))
+
+    @classmethod
+    def concat(cls, sets: list["ExampleSet"]) -> "ExampleSet":
+        sets = [s for s in sets if len(s)] or sets[:1]
+        return cls(np.concatenate([s.crops for s in sets]), sets[0].factor,
+                   np.concatenate([s.centers for s in sets]), np.concatenate([s.normal for s in sets]),
+                   np.concatenate([s.target for s in sets]), np.concatenate([s.cls for s in sets]),
+                   np.concatenate([s.rough for s in sets]))
+
+    def select_class(self, name: str) -> "ExampleSet":
+        return self.take(np.flatnonzero(self.cls == name))
+
+
+def _block_counts(crops: np.ndarray, factor: int) -> np.ndarray:
+    """(N, S, S) 0/1 -> (N, S/f, S/f) uint8 number of covered pixels per f x f block."""
+    if factor == 1:
+        return crops.astype(np.uint8)
+    n, s, _ = crops.shape
+    m = s // factor
+    c = crops[:, :m * factor, :m * factor].reshape(n, m, factor, m, factor)
+    return c.sum(axis=(2, 4), dtype=np.uint16).astype(np.uint8)
+
+
+def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarray,
+                  normal_xy: np.ndarray, target: np.ndarray, cls: np.ndarray, rough: bool,
+                  crop: int, factor: int, batch: int = 64) -> ExampleSet:
+    """Crop and downsample masks (bounded memory: ``batch`` full-resolution crops at a time)."""
+    n = len(rles)
+    m = crop // factor
+    out = np.zeros((n, m, m), np.uint8)
+    for s in range(0, n, batch):
+        c = crop_masks(rles[s:s + batch], height, width, centers[s:s + batch], size=crop)
+        out[s:s + batch] = _block_counts(c, factor)
+    return ExampleSet(out, factor, np.asarray(centers, float).reshape(-1, 2),
+                      np.asarray(normal_xy, float).reshape(-1, 2), np.asarray(target, float).reshape(-1, 2),
+                      np.asarray(cls, object).reshape(-1), np.full(n, bool(rough)))
+
+
+def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
+                       crop: int, factor: int, center_method: str = "bbox",
+                       max_per_class: int | None = None, max_residual: float = 2.5,
+                       rng: np.random.Generator | None = None) -> ExampleSet:
+    """Masks of ``camera`` in ``split`` matched to the truth (4.1), as examples.
+
+    Streams the masks a few hundred frames at a time; gt must be sorted by frame (as
+    read_poses returns it). ``max_per_class`` keeps a random subset per class (CPU budgets);
+    residuals longer than ``max_residual`` metres (beyond the network's 2.5 tanh range, e.g.
+    a wrong match) are dropped."""
+    from seg2pose.matching import match_masks_to_truth
+
+    cam = scene.cameras[camera]
+    by_id = scene.class_by_id()
+    names = {c.id: c.name for c in scene.classes}
+    heights = {c.name: c.default_height for c in scene.classes}
+    fr = scene.split_range(split)
+    gt = gt.in_frames(fr)
+    keep_rles: list[bytes] = []
+    keep_cls, keep_xy = [], []
+    size = (cam.height, cam.width)
+    chunk: list[MaskTable] = []
+
+    def flush() -> None:
+        if not chunk:
+            return
+        t = MaskTable.concat(chunk)
+        lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
+        g = gt.take(np.arange(lo, hi))
+        match = match_masks_to_truth(cam, t, g, names, heights)
+        for i in np.flatnonzero(match >= 0):
+            keep_rles.append(t.rles[i])
+            keep_cls.append(by_id[int(t.class_id[i])].name)
+            keep_xy.append(g.xyz[match[i], :2])
+        chunk.clear()
+
+    nfr = 0
+    for _, t in iter_mots(scene.masks_path(camera), list(by_id), fr):
+        size = (t.height, t.width)
+        chunk.append(t)
+        nfr += 1
+        if nfr % 256 == 0:
+            flush()
+    flush()
+    if not keep_rles:
+        return ExampleSet.empty(crop // factor, factor)
+    cls = np.array(keep_cls, object)
+    truth = np.array(keep_xy, float)
+    idx = np.arange(len(cls))
+    if max_per_class is not None:
+        rng = rng or np.random.default_rng(0)
+        parts = []
+        for c in np.unique(cls):
+            sel = np.flatnonzero(cls == c)
+            if len(sel) > max_per_class:
+                sel = np.sort(rng.choice(sel, max_per_class, replace=False))
+            parts.append(sel)
+        idx = np.sort(np.concatenate(parts))
+    rles = [keep_rles[i] for i in idx]
+    cls, truth = cls[idx], truth[idx]
+    h, w = size
+    centers = mask_centers(rles, h, w, center_method)
+    hts = np.array([heights[c] for c in cls])
+    normal, _ = normal_positions(cam, scene.ground, centers, hts)
+    target = truth - normal[:, :2]
+    ok = np.isfinite(target).all(axis=1) & (np.linalg.norm(target, axis=1) <= max_residual)
+    dropped = int((~ok).sum())
+    if dropped:
+        print(f"note: camera {camera}, split {split}: {dropped} of {len(ok)} matched masks dropped "
+              f"(normal position missing or residual > {max_residual} m)", file=sys.stderr)
+    ok = np.flatnonzero(ok)
+    return make_examples([rles[i] for i in ok], h, w, centers[ok], normal[ok, :2], target[ok],
+                         cls[ok], False, crop, factor)
+
+
+def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
+                   crop: int, factor: int, center_method: str = "bbox",
+                   max_residual: float = 2.5) -> ExampleSet:
+    """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
+    and headings on the ground, rasterised; target = true position - normal position."""
+    try:
+        from seg2pose.synth.rough import render_rough_examples
+    except ImportError as e:
+        raise S2PError(f"rough 3D models are not available ({e})") from None
+    cam = scene.cameras[camera]
+    heights = {c.name: c.default_height for c in scene.classes}
+    rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng)
+    if len(rles) == 0:
+        return ExampleSet.empty(crop // factor, factor)
+    centers = mask_centers(rles, cam.height, cam.width, center_method)
+    normal, _ = normal_positions(cam, scene.ground, centers, heights.get(cls, 0.9))
+    target = np.asarray(xyz, float)[:, :2] - normal[:, :2]
+    ok = np.flatnonzero(np.isfinite(target).all(axis=1)
+                        & (np.linalg.norm(target, axis=1) <= max_residual))
+    return make_examples([rles[i] for i in ok], cam.height, cam.width, centers[ok],
+                         normal[ok, :2], target[ok], np.full(len(ok), cls, object), True,
+                         crop, factor)

@@ -1,0 +1,354 @@
+"""Training Seg2PoseNet (paper 4.1): the protocol, checkpoints and resuming.
+
+The paper's protocol (``TrainConfig.paper()``, the default): one model per camera and class;
+"best of four": four runs with the same four seeds for every camera, keeping the epoch with the
+lowest validation loss over all runs; Adam, learning rate 5e-5, batch 16, 64 batches per epoch,
+50 epochs; every fourth training example a rough-model example (3.5). Batches are drawn at
+random (with replacement) from the training examples. The loss is the mean squared error of
+the normalised residual (residual / residual_scale, see net.py); the paper does not name its
+loss.
+
+CPU presets: ``TrainConfig.quick()`` and ``TrainConfig.demo()`` use the lite arch, one run,
+a larger batch and learning rate with cosine decay, and by default **one model per camera
+for all classes** with a class one-hot input (``share_classes``): the classes then share the
+trunk's features and the number of models to train drops from 15 to 5 for the five lenses.
+
+Checkpoints: ``MODELS/<camera>__<class>.safetensors`` (``__all`` when shared) + ``.json``
+metadata (camera, class, arch, normalisation, scene fingerprint, val loss, epoch, seed, run,
+"complete"). While training, ``<name>.state.pt`` holds the resume state (after every epoch);
+an interrupted ``s2p train`` continues from it. A NaN loss stops training with a message; the
+best checkpoint so far stays on disk.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import sys
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from seg2pose.errors import S2PError
+from seg2pose.examples import ExampleSet, annotated_examples, rough_examples
+from seg2pose.io.scene import Scene, load_scene
+from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, autocast,
+                          check_finite_loss, pick_device)
+from seg2pose.pipeline import model_filename
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    arch: str = "paper"
+    runs: int = 4                    # best of N
+    seed: int = 0                    # run r uses seed + r (the same for every camera)
+    lr: float = 5e-5
+    lr_schedule: str = "constant"    # or "cosine" (decay to 5% over each run)
+    batch_size: int = 16
+    batches_per_epoch: int = 64
+    epochs: int = 50
+    rough_every: int = 4             # every 4th example rough (0: none)
+    rough_per_class: int = 2048      # size of the pre-rendered rough pool per camera and class
+    rough_val_per_class: int = 256   # zero-annotation validation pool
+    zero_annotation: bool = False
+    share_classes: bool = False      # one model per camera with a class one-hot input
+    max_train_per_class: int | None = None
+    max_val_per_class: int | None = 2000
+    center_method: str = "bbox"
+    residual_scale: float = 1.0
+    device: str | None = None
+    threads: int = 2
+    force: bool = False
+
+    def replace(self, **kw) -> "TrainConfig":
+        return replace(self, **kw)
+
+    @classmethod
+    def paper(cls, arch: str = "paper") -> "TrainConfig":
+        return cls(arch=arch)
+
+    @classmethod
+    def quick(cls) -> "TrainConfig":
+        """A CPU protocol of minutes per camera (lite, shared classes, one run)."""
+        return cls(arch="lite", runs=1, lr=1e-3, lr_schedule="cosine", batch_size=32,
+                   batches_per_epoch=64, epochs=30, rough_per_class=768, rough_val_per_class=200,
+                   share_classes=True, max_train_per_class=4000, max_val_per_class=800)
+
+    @classmethod
+    def demo(cls) -> "TrainConfig":
+        """The demo's protocol: lite models for five lenses and three classes in ~3 minutes on
+        a 2-core CPU."""
+        return cls(arch="lite", runs=1, lr=2e-3, lr_schedule="cosine", batch_size=32,
+                   batches_per_epoch=32, epochs=8, rough_per_class=150, rough_val_per_class=60,
+                   share_classes=True, max_train_per_class=700, max_val_per_class=200)
+
+
+def _say(msg: str) -> None:
+    print(msg, file=sys.stderr)
+
+
+# ----------------------------------------------------------------------------------------------
+# one model
+
+
+@dataclass
+class _Data:
+    """An example set with its network vectors precomputed."""
+
+    ex: ExampleSet
+    vec: np.ndarray  # (N, 4 + n_classes) float32
+    y: np.ndarray    # (N, 2) float32 normalised target
+
+    @classmethod
+    def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool) -> "_Data":
+        v = norm.vector(ex.centers, ex.normal)
+        if shared:
+            onehot = np.zeros((len(ex), len(classes)), np.float32)
+            idx = {c: i for i, c in enumerate(classes)}
+            for i, c in enumerate(ex.cls):
+                onehot[i, idx[c]] = 1
+            v = np.hstack([v, onehot])
+        return cls(ex, v.astype(np.float32), (ex.target / norm.residual_scale).astype(np.float32))
+
+
+def _evaluate(net: Seg2PoseNet, data: _Data, device, residual_scale: float, batch: int = 256
+              ) -> tuple[float, float]:
+    """(mean squared error of the normalised residual, mean Euclidean error in metres)."""
+    net.eval()
+    se = err = 0.0
+    with torch.no_grad():
+        for s in range(0, len(data.ex), batch):
+            idx = np.arange(s, min(s + batch, len(data.ex)))
+            x = torch.from_numpy(data.ex.crops_float(idx)).to(device)
+            with autocast(device):
+                p = net(x, torch.from_numpy(data.vec[idx]).to(device)).float().cpu().numpy()
+            d = p - data.y[idx]
+            se += float(np.sum(d * d))
+            err += float(np.sum(np.linalg.norm(d, axis=1))) * residual_scale
+    n = max(len(data.ex), 1)
+    net.train()
+    return se / (2 * n), err / n
+
+
+def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
+                cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True) -> dict:
+    """Best-of-``cfg.runs`` training of one model; writes ``path`` (+ .json) whenever the
+    validation loss improves and keeps a resume state beside it. Returns the best info."""
+    from tqdm import tqdm
+
+    from seg2pose.io.atomic import atomic_path
+
+    device = pick_device(cfg.device)
+    if device.type == "cpu":
+        torch.set_num_threads(max(1, cfg.threads))
+    state_path = path.with_name(path.name + ".state.pt")
+    n_rough = 0
+    if rough is not None and len(rough.ex):
+        n_rough = cfg.batch_size if (train is None or not len(train.ex)) else (
+            cfg.batch_size // cfg.rough_every if cfg.rough_every else 0)
+    n_real = cfg.batch_size - n_rough
+    if n_real and (train is None or not len(train.ex)):
+        raise S2PError(f"{path.stem}: no training examples")
+    best = {"val_loss": math.inf}
+    start_run, start_epoch, resume = 0, 0, None
+    if state_path.exists() and not cfg.force:
+        resume = torch.load(state_path, map_location="cpu", weights_only=False)
+        if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
+            _say(f"warning: {state_path} is from another scene or protocol; starting afresh")
+            resume = None
+        else:
+            start_run, start_epoch, best = resume["run"], resume["epoch"], resume["best"]
+            _say(f"resuming {path.name} at run {start_run + 1}, epoch {start_epoch + 1}")
+    best_state = resume["best_state"] if resume else None
+    steps = cfg.epochs * cfg.batches_per_epoch
+    for run in range(start_run, cfg.runs):
+        seed = cfg.seed + run
+        torch.manual_seed(seed)
+        net = Seg2PoseNet(net_cfg).to(device)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, (lambda k: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(k, steps) / steps)))
+            if cfg.lr_schedule == "cosine" else (lambda k: 1.0))
+        rng = np.random.default_rng(seed)
+        epoch0 = 0
+        if resume is not None and run == start_run and start_epoch > 0:
+            net.load_state_dict(resume["net"])
+            opt.load_state_dict(resume["opt"])
+            sched.load_state_dict(resume["sched"])
+            rng.bit_generator.state = resume["rng"]
+            torch.set_rng_state(resume["torch_rng"])
+            epoch0 = start_epoch
+        net.train()
+        bar = tqdm(range(epoch0, cfg.epochs), desc=f"{path.stem} run {run + 1}/{cfg.runs}",
+                   unit="epoch", disable=not progress, leave=False, file=sys.stderr)
+        for epoch in bar:
+            tot = 0.0
+            for _ in range(cfg.batches_per_epoch):
+                parts_x, parts_v, parts_y = [], [], []
+                for data, k in ((train, n_real), (rough, n_rough)):
+                    if k:
+                        idx = rng.integers(0, len(data.ex), k)
+                        parts_x.append(data.ex.crops_float(idx))
+                        parts_v.append(data.vec[idx])
+                        parts_y.append(data.y[idx])
+                x = torch.from_numpy(np.concatenate(parts_x)).to(device)
+                v = torch.from_numpy(np.concatenate(parts_v)).to(device)
+                y = torch.from_numpy(np.concatenate(parts_y)).to(device)
+                with autocast(device):
+                    p = net(x, v)
+                loss = torch.mean((p.float() - y) ** 2) / 2
+                lv = float(loss.detach())
+                check_finite_loss(lv, f"{path.stem} run {run + 1} epoch {epoch + 1}"
+                                  + (f"; best checkpoint kept at {path}" if path.exists() else ""))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                sched.step()
+                tot += lv
+            val_loss, val_err = _evaluate(net, val, device, cfg.residual_scale)
+            check_finite_loss(val_loss, f"{path.stem} run {run + 1} epoch {epoch + 1} (validation)")
+            bar.set_postfix(loss=f"{tot / cfg.batches_per_epoch:.4f}", val=f"{val_loss:.4f}",
+                            val_m=f"{val_err:.3f}")
+            if val_loss < best["val_loss"]:
+                best = {"val_loss": val_loss, "val_error_m": val_err, "epoch": epoch + 1,
+                        "seed": seed, "run": run + 1, "train_loss": tot / cfg.batches_per_epoch}
+                best_state = copy.deepcopy({k: t.detach().cpu() for k, t in net.state_dict().items()})
+                ckpt.net.load_state_dict(best_state)
+                ckpt.info = {**ckpt.info, **best, "complete": False}
+                ckpt.save(path)
+            with atomic_path(state_path) as tmp:
+                torch.save({"run": run if epoch + 1 < cfg.epochs else run + 1,
+                            "epoch": epoch + 1 if epoch + 1 < cfg.epochs else 0,
+                            "best": best, "best_state": best_state, "net": net.state_dict(),
+                            "opt": opt.state_dict(), "sched": sched.state_dict(),
+                            "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                            "scene_fingerprint": ckpt.scene_fingerprint, "config": asdict(cfg)},
+                           tmp)
+            if epoch + 1 == cfg.epochs:
+                resume = None  # the next run starts fresh
+        bar.close()
+        _say(f"{path.stem} run {run + 1}/{cfg.runs}: best so far val loss {best['val_loss']:.4f} "
+             f"({best.get('val_error_m', float('nan')):.3f} m) at run {best.get('run')}, "
+             f"epoch {best.get('epoch')}")
+    if best_state is None:
+        raise S2PError(f"{path.stem}: training produced no checkpoint")
+    ckpt.net.load_state_dict(best_state)
+    ckpt.info = {**ckpt.info, **best, "complete": True}
+    ckpt.save(path)
+    state_path.unlink(missing_ok=True)
+    return best
+
+
+# ----------------------------------------------------------------------------------------------
+# a scene
+
+
+def _holdout(ex: ExampleSet, frac: float, rng: np.random.Generator) -> tuple[ExampleSet, ExampleSet]:
+    perm = rng.permutation(len(ex))
+    k = int(round(frac * len(ex)))
+    return ex.take(np.sort(perm[k:])), ex.take(np.sort(perm[:k]))
+
+
+def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = None,
+                config: TrainConfig | None = None, cameras: list[str] | None = None,
+                classes: list[str] | None = None, progress: bool = True) -> Path:
+    """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
+
+    Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
+    resume. Without ground truth only ``zero_annotation`` training is possible."""
+    from seg2pose.io.poses import read_poses
+
+    cfg = config or TrainConfig()
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    out = Path(out_models_dir) if out_models_dir else scene.root / "models"
+    if not cfg.zero_annotation and not scene.gt_path.exists():
+        raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it or pass "
+                       "--zero-annotation to train from rough models only")
+    cams = cameras or list(scene.cameras)
+    unknown = [c for c in cams if c not in scene.cameras]
+    if unknown:
+        raise S2PError(f"unknown cameras {unknown}; the scene has {list(scene.cameras)}")
+    all_classes = [c.name for c in scene.classes]
+    cls_list = classes or all_classes
+    bad = [c for c in cls_list if c not in all_classes]
+    if bad:
+        raise S2PError(f"unknown classes {bad}; the scene has {all_classes}")
+    net_cfg = NetConfig.named(cfg.arch, len(all_classes) if cfg.share_classes else 0)
+    crop, factor = net_cfg.crop, net_cfg.downsample
+    gt = None if cfg.zero_annotation else read_poses(scene.gt_path, all_classes)
+    if gt is not None:
+        gt = gt.take(np.argsort(gt.frame, kind="stable"))
+    fp = scene.fingerprint()
+    out.mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        camera = scene.cameras[cam]
+        norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
+                                       cfg.residual_scale)
+        keys = ["*"] if cfg.share_classes else cls_list
+        todo = []
+        for k in keys:
+            path = out / model_filename(cam, k)
+            if path.exists() and not cfg.force and not path.with_name(path.name + ".state.pt").exists():
+                meta = Checkpoint.load(path)
+                if meta.info.get("complete"):
+                    if meta.scene_fingerprint != fp:
+                        _say(f"warning: {path} was trained on another scene; --force retrains it")
+                    _say(f"{path.name}: done already (val loss {meta.info.get('val_loss'):.4f}); skipped")
+                    continue
+            todo.append((k, path))
+        if not todo:
+            continue
+        rng = np.random.default_rng([cfg.seed, sum(map(ord, cam))])
+        train_ex = val_ex = ExampleSet.empty(crop // factor, factor)
+        if gt is not None:
+            _say(f"camera {cam}: building examples from the annotated masks")
+            has_splits = "train" in scene.splits
+            train_ex = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop,
+                                          factor, cfg.center_method, cfg.max_train_per_class, rng=rng)
+            if has_splits and "val" in scene.splits:
+                val_ex = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
+                                            cfg.max_val_per_class, rng=rng)
+            else:
+                _say(f"camera {cam}: no val split; holding out 15% of the training examples")
+                train_ex, val_ex = _holdout(train_ex, 0.15, rng)
+        for k, path in todo:
+            kcls = cls_list if k == "*" else [k]
+            tr = train_ex if k == "*" else train_ex.select_class(k)
+            va = val_ex if k == "*" else val_ex.select_class(k)
+            if k == "*":
+                tr = tr.take(np.flatnonzero(np.isin(tr.cls, kcls)))
+                va = va.take(np.flatnonzero(np.isin(va.cls, kcls)))
+            use_rough = cfg.zero_annotation or cfg.rough_every > 0
+            rough = None
+            if use_rough:
+                per = cfg.rough_per_class
+                rough = ExampleSet.concat([rough_examples(scene, cam, c, per, rng, crop, factor,
+                                                          cfg.center_method) for c in kcls])
+            if cfg.zero_annotation or len(va) == 0:
+                if not cfg.zero_annotation:
+                    _say(f"warning: {path.stem}: no annotated validation examples; validating on rough models")
+                va = ExampleSet.concat([rough_examples(scene, cam, c, cfg.rough_val_per_class, rng,
+                                                       crop, factor, cfg.center_method) for c in kcls])
+            if len(tr) == 0 and not cfg.zero_annotation:
+                if rough is None or len(rough) == 0:
+                    _say(f"warning: {path.stem}: no training examples at all; skipped")
+                    continue
+                _say(f"warning: {path.stem}: no annotated examples; training on rough models only")
+            if len(va) == 0:
+                _say(f"warning: {path.stem}: no validation examples; skipped")
+                continue
+            _say(f"{path.stem}: {len(tr)} annotated + {0 if rough is None else len(rough)} rough "
+                 f"training examples, {len(va)} validation")
+            ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=norm, camera=cam, cls=k,
+                            scene_fingerprint=fp, classes=all_classes if k == "*" else [],
+                            info={"zero_annotation": cfg.zero_annotation,
+                                  "train_config": asdict(cfg), "n_train": len(tr),
+                                  "n_rough": 0 if rough is None else len(rough), "n_val": len(va)})
+            shared = k == "*"
+            train_model(None if cfg.zero_annotation else _Data.of(tr, norm, all_classes, shared),
+                        None if rough is None else _Data.of(rough, norm, all_classes, shared),
+                        _Data.of(va, norm, all_classes, shared), net_cfg, cfg, ck, path, progress)
+    return out

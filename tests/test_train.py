@@ -1,0 +1,181 @@
+"""Training on a tiny scene: validation loss goes down, checkpoints resume, bad input is refused,
+and the trained models run through the pipeline."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import types
+
+import numpy as np
+import pytest
+import torch
+
+from seg2pose.errors import S2PError
+from seg2pose.masks import encode
+
+from test_pipeline import SIZES, make_tiny_scene, render_box
+
+
+def _fake_rough(camera, ground, cls, n, rng, region_xy=None):
+    """Stand-in for seg2pose.synth.rough: boxes of the class size at random places/headings."""
+    rles, xyz, hd = [], [], []
+    while len(rles) < n:
+        xy = np.array([rng.uniform(8, 24), rng.uniform(-6, 6)])
+        p = np.array([xy[0], xy[1], float(ground.height(xy[None])[0])])
+        h = rng.uniform(-np.pi, np.pi)
+        m = render_box(camera, p, h, SIZES[cls])
+        if m is not None:
+            rles.append(encode(m))
+            xyz.append(p)
+            hd.append(h)
+    return rles, np.array(xyz).reshape(-1, 3), np.array(hd)
+
+
+@pytest.fixture()
+def fake_rough(monkeypatch):
+    mod = types.ModuleType("seg2pose.synth.rough")
+    mod.render_rough_examples = _fake_rough
+    monkeypatch.setitem(sys.modules, "seg2pose.synth.rough", mod)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    return make_tiny_scene(tmp_path_factory.mktemp("tiny_train"), frames=60, n_users=9, seed=1)
+
+
+def tiny_config(**kw):
+    from seg2pose.train import TrainConfig
+
+    base = TrainConfig(arch="lite", runs=1, lr=2e-3, lr_schedule="cosine", batch_size=16,
+                       batches_per_epoch=12, epochs=6, rough_per_class=24, rough_val_per_class=12,
+                       share_classes=True, threads=1)
+    return base.replace(**kw)
+
+
+def _val_loss_untrained(scene, cam):
+    """Validation loss of a freshly initialised net (seed 0), computed like train.py does."""
+    from seg2pose.examples import annotated_examples
+    from seg2pose.io.poses import read_poses
+    from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.train import _Data, _evaluate
+
+    torch.manual_seed(0)
+    net = Seg2PoseNet(NetConfig.lite(n_classes=3))
+    gt = read_poses(scene.gt_path)
+    val = annotated_examples(scene, cam, gt, "val", 420, 3)
+    c = scene.cameras[cam]
+    norm = Normalisation.for_scene(scene.ground_points, c.width, c.height)
+    return _evaluate(net, _Data.of(val, norm, ["pedestrian", "bicyclist", "car"], True),
+                     torch.device("cpu"), 1.0)
+
+
+def test_training_lowers_validation_loss_and_resumes(tiny, tmp_path, fake_rough):
+    from seg2pose.net import Checkpoint
+    from seg2pose.train import train_scene
+
+    before, before_m = _val_loss_untrained(tiny, "c1")
+    out = train_scene(tiny, tmp_path / "models", tiny_config(), cameras=["c1"], progress=False)
+    path = out / "c1__all.safetensors"
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta["complete"] is True and meta["camera"] == "c1" and meta["arch"] == "lite"
+    assert meta["scene_fingerprint"] == tiny.fingerprint()
+    assert meta["classes"] == ["pedestrian", "bicyclist", "car"]
+    assert meta["val_loss"] < 0.7 * before, (meta["val_loss"], before)
+    assert not path.with_name(path.name + ".state.pt").exists()
+    # a finished model is kept (not retrained) on a second call
+    mtime = path.stat().st_mtime_ns
+    train_scene(tiny, out, tiny_config(), cameras=["c1"], progress=False)
+    assert path.stat().st_mtime_ns == mtime
+    ck = Checkpoint.load(path, arch="lite", camera="c1")
+    assert ck.info["val_loss"] == pytest.approx(meta["val_loss"])
+
+
+def test_resume_after_interruption(tiny, tmp_path, fake_rough, monkeypatch):
+    """Interrupt after epoch 3 of 6, train again: it resumes at epoch 4 and ends complete."""
+    import seg2pose.train as T
+
+    calls = {"n": 0}
+    real = T._evaluate
+
+    def flaky(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(T, "_evaluate", flaky)
+    cfg = tiny_config(epochs=6, batches_per_epoch=4)
+    with pytest.raises(KeyboardInterrupt):
+        T.train_scene(tiny, tmp_path / "m", cfg, cameras=["c0"], progress=False)
+    path = tmp_path / "m" / "c0__all.safetensors"
+    state = torch.load(path.with_name(path.name + ".state.pt"), weights_only=False)
+    assert state["epoch"] == 3 and state["run"] == 0
+    assert json.loads(path.with_suffix(".json").read_text())["complete"] is False
+    monkeypatch.setattr(T, "_evaluate", real)
+    calls["n"] = 0
+    T.train_scene(tiny, tmp_path / "m", cfg, cameras=["c0"], progress=False)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta["complete"] is True and 1 <= meta["epoch"] <= 6
+
+
+def test_nan_loss_stops_and_keeps_best(tiny, tmp_path, fake_rough, monkeypatch):
+    import seg2pose.train as T
+
+    real = T._evaluate
+    calls = {"n": 0}
+
+    def nan_later(*a, **k):
+        calls["n"] += 1
+        return (float("nan"), float("nan")) if calls["n"] >= 2 else real(*a, **k)
+
+    monkeypatch.setattr(T, "_evaluate", nan_later)
+    with pytest.raises(S2PError, match="nan"):
+        T.train_scene(tiny, tmp_path / "m", tiny_config(epochs=3, batches_per_epoch=2),
+                      cameras=["c2"], progress=False)
+    path = tmp_path / "m" / "c2__all.safetensors"
+    assert path.exists()  # the epoch-1 checkpoint is kept
+    assert json.loads(path.with_suffix(".json").read_text())["epoch"] == 1
+
+
+def test_no_ground_truth_needs_zero_annotation(tmp_path, fake_rough):
+    from seg2pose.io.scene import load_scene
+    from seg2pose.train import train_scene
+
+    root = tmp_path / "s"
+    make_tiny_scene(root, frames=8, n_users=3)
+    shutil.rmtree(root / "gt")
+    scene = load_scene(root)
+    with pytest.raises(S2PError, match="zero-annotation"):
+        train_scene(scene, tmp_path / "m", tiny_config(), cameras=["c1"], progress=False)
+    out = train_scene(scene, tmp_path / "m", tiny_config(zero_annotation=True, epochs=2,
+                                                         batches_per_epoch=3),
+                      cameras=["c1"], progress=False)
+    meta = json.loads((out / "c1__all.json").read_text())
+    assert meta["zero_annotation"] is True and meta["n_train"] == 0 and meta["n_rough"] == 72
+
+
+def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
+    """Per-class models (the paper's layout) for one camera run through `s2p run`; views.csv
+    holds the residuals, and poses = normal position + residual (one view)."""
+    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.io.poses import read_poses
+    from seg2pose.train import train_scene
+
+    out = train_scene(tiny, tmp_path / "m", tiny_config(share_classes=False, epochs=1,
+                                                        batches_per_epoch=2),
+                      cameras=["c1"], progress=False)
+    assert sorted(p.name for p in out.glob("*.safetensors")) == [
+        "c1__bicyclist.safetensors", "c1__car.safetensors", "c1__pedestrian.safetensors"]
+    run = run_scene(tiny, tmp_path / "run", config="mono-1", models_dir=out, split="test",
+                    progress=False)
+    v = read_views(run / "views.csv")
+    assert np.abs(v["residual"]).max() > 0 and np.abs(v["residual"]).max() <= 2.5
+    p = read_poses(run / "poses.csv")
+    est = v["normal"][:, :2] + v["residual"]
+    order = np.lexsort((v["track_id"], v["frame"]))
+    np.testing.assert_allclose(p.xyz[:, :2], est[order], atol=1e-6)
+    with pytest.raises(S2PError, match="arch"):
+        run_scene(tiny, tmp_path / "run2", config="mono-1", models_dir=out, arch="paper",
+                  progress=False)
