@@ -258,9 +258,10 @@ class Camera:
         dist = distortion_from_dict(d.get("distortion"), file=file)
 
         def arr(key, shape):
+            v = get(key)  # outside the try: InputError is a ValueError too
             try:
-                a = np.asarray(get(key), dtype=np.float64)
-            except (TypeError, ValueError):
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError, OverflowError):
                 raise InputError(f"expected a numeric array of shape {shape}", file=file,
                                  field=f"{where}.{key}") from None
             if a.shape != shape:
@@ -278,7 +279,7 @@ class Camera:
         except InputError as e:
             if e.file is not None:
                 raise
-            raise InputError(str(e), file=file, field=f"{where}.{e.field or 'P'}") from None
+            raise InputError(e.message, file=file, field=f"{where}.{e.field or 'P'}") from None
 
 
 @dataclass

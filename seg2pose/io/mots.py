@@ -121,7 +121,7 @@ def _check_rles(rles: list[bytes], linenos: list[int], h: int, w: int, path: Pat
             try:
                 decode_counts([r])
             except InputError as e:
-                raise InputError(str(e), file=path, line=ln) from None
+                raise InputError(e.message, file=path, line=ln) from None
         raise
     total = np.add.reduceat(counts, offsets[:-1]) if len(counts) else np.zeros(len(rles))
     total = np.where(np.diff(offsets) == 0, 0, total)

@@ -233,7 +233,7 @@ def load_scene(root: str | Path) -> Scene:
         rig = Rig(cameras=cameras, configs={k: [str(n) for n in v] for k, v in configs.items()},
                   name=str(d.get("rig", "rig")))
     except InputError as e:
-        raise InputError(str(e), file=path, field=e.field) from None
+        raise InputError(e.message, file=path, field=e.field) from None
     classes = []
     classes_d = d.get("classes") or DEFAULT_CLASSES
     if not isinstance(classes_d, list):
