@@ -1,0 +1,104 @@
+"""``s2p review``, ``s2p export``, ``s2p import-mcap`` and ``s2p screenshot``.
+
+Heavy imports (rerun, mcap, protobuf) happen inside the commands so ``s2p --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from seg2pose.errors import InputError
+
+
+def parse_frames(text: str | None) -> tuple[int, int] | None:
+    """``A:B`` (inclusive) -> (A, B); None stays None."""
+    if text is None:
+        return None
+    parts = text.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a, b = int(parts[0]), int(parts[1])
+    except ValueError:
+        raise InputError(f"expected A:B with integer frames, got {text!r}", field="--frames") from None
+    if a < 0 or b < a:
+        raise InputError(f"expected 0 <= A <= B, got {text!r}", field="--frames")
+    return a, b
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def review(
+        scene: Path = typer.Argument(..., help="scene folder"),
+        run: list[Path] = typer.Option([], "--run", help="run folder (made by `s2p run`); repeat to compare runs"),
+        save: Path | None = typer.Option(None, "--save", help="write the recording to this .rrd file"),
+        spawn: bool = typer.Option(False, "--spawn", help="open the native Rerun viewer"),
+        connect: str | None = typer.Option(None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
+        screenshot: Path | None = typer.Option(None, "--screenshot", help="run a headless viewer and save a PNG of it here"),
+        frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
+        frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame)"),
+        camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
+        mask_every: int = typer.Option(1, "--mask-every", min=1, help="log masks every k-th frame (smaller files)"),
+        video_every: int = typer.Option(1, "--video-every", min=1, help="log video frames every k-th frame"),
+        no_masks: bool = typer.Option(False, "--no-masks", help="leave masks out"),
+        no_video: bool = typer.Option(False, "--no-video", help="leave video frames out"),
+        force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
+    ) -> None:
+        """Review a scene and its runs in Rerun: masks, normal positions, residuals, fused road
+        users, ground truth and errors, with a blueprint that opens laid out."""
+        from seg2pose.io.scene import load_scene
+        from s2p_review.recording import RecordOptions, record
+
+        s = load_scene(scene)
+        opts = RecordOptions(mask_every=mask_every, video_every=video_every,
+                             cameras=list(camera) or None, masks=not no_masks, video=not no_video)
+        out = record(s, list(run), save, spawn=spawn, connect=connect, frames=parse_frames(frames),
+                     force=force, options=opts, screenshot=screenshot, screenshot_frame=frame)
+        if out is not None:
+            typer.echo(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB); open it with:  rerun {out}")
+        if screenshot is not None:
+            typer.echo(f"wrote {screenshot}")
+
+    @app.command()
+    def export(
+        scene: Path = typer.Argument(..., help="scene folder"),
+        run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
+        out: Path = typer.Option(..., "-o", "--out", help="output .mcap file"),
+        frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the run's frames"),
+        mask_every: int = typer.Option(1, "--mask-every", min=1, help="export masks every k-th frame"),
+        video_every: int = typer.Option(1, "--video-every", min=1, help="export video frames every k-th frame"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
+    ) -> None:
+        """Export a scene and a run as MCAP (Foxglove schemas + lossless s2p records)."""
+        from seg2pose.io.scene import load_scene
+        from s2p_review.mcap_io import export_mcap
+
+        p = export_mcap(load_scene(scene), run, out, force=force, frames=parse_frames(frames),
+                        mask_every=mask_every, video_every=video_every)
+        typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
+
+    @app.command("import-mcap")
+    def import_mcap_cmd(
+        file: Path = typer.Argument(..., help=".mcap file written by `s2p export`"),
+        out: Path = typer.Option(..., "-o", "--out", help="output folder (becomes a scene folder)"),
+        force: bool = typer.Option(False, "--force", help="write into an existing, non-empty folder"),
+    ) -> None:
+        """Restore the scene file, ground points and the exact pose table from an s2p MCAP export."""
+        from s2p_review.mcap_io import import_mcap
+
+        run_dir = import_mcap(file, out, force=force)
+        typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")
+
+    @app.command("screenshot")
+    def screenshot_cmd(
+        rrd: Path = typer.Argument(..., help="recording (.rrd) to open"),
+        out: Path = typer.Option(..., "-o", "--out", help="output .png"),
+        frame: int | None = typer.Option(None, "--frame", help="time cursor (default: middle frame)"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
+    ) -> None:
+        """Open a recording in a headless viewer and save a screenshot (e.g. for the README)."""
+        from s2p_review.viewer import take_screenshot
+
+        typer.echo(f"wrote {take_screenshot(rrd, out, frame=frame, force=force)}")

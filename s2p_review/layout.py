@@ -1,0 +1,95 @@
+"""The entity layout of a review recording (DESIGN.md, "Rerun layout"), class colours and the
+default blueprint.
+
+One recording may hold several runs of the same scene (e.g. baseline and Seg2PoseNet side by
+side), so every run-specific entity has the run's name as one more path level::
+
+    world/ground/points, world/ground/mesh          ground points and the eq. (1) surface
+    world/cameras/<cam>                             Transform3D + Pinhole
+    world/cameras/<cam>/image                       video frame (when the scene has video)
+    world/cameras/<cam>/masks                       SegmentationImage (pixel = class id)
+    world/cameras/<cam>/normal/<run>                Points2D: mask centres of the run's views
+    world/cameras/<cam>/poses/<run>                 LineStrips2D: fused boxes projected
+    world/cameras/<cam>/gt                          LineStrips2D: true boxes projected
+    world/road_users/<run>                          Boxes3D: fused road users
+    world/road_users/<run>/trails                   LineStrips3D: the last TRAIL_FRAMES positions
+    world/estimates/<run>/<cam>                     Points3D: normal positions of one view
+    world/estimates/<run>/<cam>/residuals           Arrows3D: Seg2PoseNet residuals
+    world/gt                                        Boxes3D: ground truth, drawn in grey
+    metrics/error/<run>/mean, .../<class>           Scalars: per-frame mean error (metres)
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+TIMELINE = "frame"
+TIME = "time"
+TRAIL_FRAMES = 30
+
+# class name -> RGB; unknown classes get a colour from PALETTE by class id
+CLASS_COLORS = {"pedestrian": (230, 60, 60), "bicyclist": (60, 200, 90), "car": (40, 140, 240),
+                "truck": (240, 170, 30), "bus": (180, 90, 230)}
+PALETTE = [(230, 60, 60), (60, 200, 90), (40, 140, 240), (240, 170, 30), (180, 90, 230),
+           (30, 200, 200), (240, 110, 180), (160, 160, 60)]
+GT_COLOR = (200, 200, 200)
+
+
+def class_color(name: str, class_id: int = 0) -> tuple[int, int, int]:
+    return CLASS_COLORS.get(name, PALETTE[class_id % len(PALETTE)])
+
+
+def class_colors(names: np.ndarray, classes) -> np.ndarray:
+    """(N,) class names -> (N, 3) uint8 colours; ``classes``: the scene's ClassSpecs."""
+    table = {c.name: class_color(c.name, c.id) for c in classes}
+    return np.array([table.get(n, (128, 128, 128)) for n in names], dtype=np.uint8).reshape(-1, 3)
+
+
+def labels(names: np.ndarray, track_ids: np.ndarray) -> list[str]:
+    """Short labels such as ``c12`` (first letter of the class, track id)."""
+    return [f"{str(n)[:1]}{int(t)}" for n, t in zip(names, track_ids)]
+
+
+def safe_name(name: str) -> str:
+    """A run or camera name usable as one entity path part."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", name) or "_"
+
+
+def cam_path(cam: str) -> str:
+    return f"world/cameras/{safe_name(cam)}"
+
+
+def annotation_context(classes):
+    """Class ids (= mask pixel values) with names and colours; id 0 is transparent background."""
+    import rerun as rr
+
+    infos = [rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
+    infos += [rr.AnnotationInfo(id=c.id, label=c.name, color=class_color(c.name, c.id))
+              for c in classes]
+    return rr.AnnotationContext(infos)
+
+
+def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True):
+    """The 3D world on the left; one 2D view per camera and the error plot on the right."""
+    import rerun.blueprint as rrb
+
+    cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
+    world = rrb.Spatial3DView(origin="world", name="world",
+                              contents=["+ world/**"],
+                              line_grid=rrb.LineGrid3D(visible=False))
+    right: list = []
+    if cams:
+        # at most 3 camera views per row keeps each image readable
+        rows = [cams[i:i + 3] for i in range(0, len(cams), 3)]
+        right.append(rrb.Vertical(*[rrb.Horizontal(*r) for r in rows]) if len(rows) > 1
+                     else rrb.Horizontal(*rows[0]))
+    if with_metrics:
+        right.append(rrb.TimeSeriesView(origin="metrics", name="error (m) vs frame"))
+    body = rrb.Horizontal(world, rrb.Vertical(*right, row_shares=[3, 1][:len(right)]),
+                          column_shares=[3, 4]) if right else world
+    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed"),
+                         rrb.SelectionPanel(state="hidden"),
+                         rrb.BlueprintPanel(state="hidden"),
+                         auto_views=False, collapse_panels=False)

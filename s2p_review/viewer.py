@@ -1,0 +1,188 @@
+"""Viewer control with ``rerun.experimental.ViewerClient``: spawn (desktop or headless) or
+connect, follow and set the time cursor, wait for a recording to load, take screenshots.
+
+The headless viewer renders with whatever Vulkan adapter exists; on a machine without a GPU
+that is Mesa's software rasteriser (Debian: ``mesa-vulkan-drivers``). It needs an
+``XDG_RUNTIME_DIR``; we make a private one when none is set.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from pathlib import Path
+from urllib.parse import urlparse
+
+from seg2pose.errors import S2PError
+from seg2pose.io.atomic import atomic_write_bytes, check_writable
+
+
+class ViewerError(S2PError):
+    """The viewer could not be started, reached or driven."""
+
+
+def rerun_executable() -> str:
+    """The ``rerun`` command of this Python environment (the venv's bin is often not on PATH)."""
+    cand = Path(sys.executable).parent / "rerun"
+    if cand.exists():
+        return str(cand)
+    found = shutil.which("rerun")
+    if found is None:
+        raise ViewerError("the `rerun` viewer executable was not found (install rerun-sdk)")
+    return found
+
+
+def free_port() -> int:
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def vulkan_problem() -> str | None:
+    """Why a viewer cannot render here, or None when a Vulkan driver seems present."""
+    icd_dirs = [Path("/usr/share/vulkan/icd.d"), Path("/etc/vulkan/icd.d")]
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        return None
+    if any(d.is_dir() and any(d.glob("*.json")) for d in icd_dirs):
+        return None
+    return ("no Vulkan driver found (on Debian/Ubuntu: apt-get install mesa-vulkan-drivers, "
+            "or `make viewer-deps` as root)")
+
+
+def _ensure_runtime_dir() -> None:
+    d = os.environ.get("XDG_RUNTIME_DIR")
+    if not d or not os.path.isdir(d):
+        os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="s2p-xdg-")
+
+
+def check_reachable(url: str, timeout: float = 2.0) -> None:
+    """Raise ViewerError unless ``url`` (rerun+http://host:port/proxy) accepts connections."""
+    u = urlparse(url)
+    if u.scheme not in ("rerun", "rerun+http", "rerun+https") or not u.hostname:
+        raise ViewerError(f"bad viewer URL {url!r}; expected rerun+http://HOST:PORT/proxy")
+    port = u.port or (443 if u.scheme == "rerun+https" else 9876)
+    try:
+        with socket.create_connection((u.hostname, port), timeout=timeout):
+            pass
+    except OSError as e:
+        raise ViewerError(f"no viewer answers at {url} ({e.strerror or e}); start one with "
+                          f"`rerun` or use --spawn") from None
+
+
+def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0):
+    """Start a viewer (native window, or headless) and return its ViewerClient once it answers.
+    The caller stops it with ``stop``; a desktop viewer is detached and outlives us."""
+    from rerun.experimental import ViewerClient
+
+    if headless:
+        problem = vulkan_problem()
+        if problem:
+            raise ViewerError(f"cannot run a headless viewer: {problem}")
+        _ensure_runtime_dir()
+    port = port or free_port()
+    client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
+                                executable_path=rerun_executable(),
+                                detach_process=not headless)
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            client.get_state()
+            return client
+        except Exception as e:  # noqa: BLE001 - still starting: connection refused etc.
+            if time.monotonic() > deadline:
+                stop(client)
+                raise ViewerError(f"the viewer did not answer on port {port} within {timeout:.0f} s: {e}") from None
+            time.sleep(0.2)
+
+
+def connect_viewer(url: str):
+    from rerun.experimental import ViewerClient
+
+    check_reachable(url)
+    return ViewerClient.connect(url)
+
+
+def stop(client) -> None:
+    """Quit a viewer this process spawned (no-op for connected ones)."""
+    if getattr(client, "_pid", None) is not None:
+        try:
+            client.quit(timeout=5.0)
+        except RuntimeError:
+            pass
+
+
+def wait_loaded(client, timeline: str = "frame", min_end: int | None = None, timeout: float = 60.0):
+    """Poll until the active recording has ``timeline`` (reaching ``min_end`` when given) and
+    nothing is loading; returns the ViewerState."""
+    deadline = time.monotonic() + timeout
+    while True:
+        st = client.get_state()
+        rec = next((r for r in st.recordings if r.store_id == st.active_recording), None)
+        tl = None if rec is None else next((t for t in rec.timelines if t.name == timeline), None)
+        if tl is not None and not st.loading and (min_end is None or (tl.end is not None and tl.end >= min_end)):
+            return st
+        if time.monotonic() > deadline:
+            raise ViewerError(f"the viewer did not finish loading within {timeout:.0f} s "
+                              f"(loading: {[s.status for s in st.loading]})")
+        time.sleep(0.25)
+
+
+def follow(client, timeline: str = "frame") -> None:
+    """Make the viewer follow the newest data on ``timeline`` (live review of a running job)."""
+    client.set_time(timeline, play_state="following")
+
+
+def set_frame(client, frame: int, timeline: str = "frame") -> None:
+    client.set_time(timeline, sequence=int(frame), play_state="paused")
+
+
+def view_reports(client) -> list[tuple[str, str, str]]:
+    """(view name, severity, summary) for every view that reports a warning or an error."""
+    st = client.get_state()
+    return [(v.name, r.severity, r.summary) for v in st.views for r in v.reports]
+
+
+def screenshot_when_loaded(client, png: Path, frame: int | None = None, force: bool = False,
+                           settle: float = 1.5, max_size: int | None = None,
+                           min_end: int | None = None) -> bytes:
+    """Wait for the recording, put the cursor on ``frame``, let it paint, save a PNG atomically."""
+    png = Path(png)
+    wait_loaded(client, min_end=frame if min_end is None else min_end)
+    if frame is not None:
+        set_frame(client, frame)
+    time.sleep(settle)  # the software rasteriser needs a few frames to upload and paint
+    data = client.take_screenshot(max_size=max_size)
+    if not data:
+        raise ViewerError("the viewer returned an empty screenshot")
+    check_writable(png, force)
+    atomic_write_bytes(png, data)
+    return data
+
+
+def take_screenshot(source: Path | str, png_path: Path, *, frame: int | None = None,
+                    force: bool = False, max_size: int | None = None) -> Path:
+    """Open an .rrd (``source``) in a fresh headless viewer and save a screenshot of it (the
+    README picture). ``frame``: where to put the time cursor (default: the middle)."""
+    source = Path(source)
+    if not source.exists():
+        raise S2PError(f"{source}: recording not found")
+    check_writable(Path(png_path), force)
+    client = spawn_viewer(headless=True)
+    try:
+        client.open(str(source.resolve()))
+        st = wait_loaded(client)
+        if frame is None:
+            rec = next((r for r in st.recordings if r.store_id == st.active_recording), None)
+            tl = next((t for t in rec.timelines if t.name == "frame"), None) if rec else None
+            if tl is not None and tl.start is not None and tl.end is not None:
+                frame = (tl.start + tl.end) // 2
+        screenshot_when_loaded(client, Path(png_path), frame=frame, force=force, max_size=max_size)
+    finally:
+        stop(client)
+    return Path(png_path)
