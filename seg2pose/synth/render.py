@@ -1,0 +1,80 @@
+"""Instance masks of one camera and frame: painter's order into an id buffer, then noise, RLE.
+
+Per frame: all road users' part vertices are projected at once; each part's convex hull is
+filled with its road user's index, far road users first, so nearer ones overwrite them
+(mutual occlusion); the image border truncates masks by itself. Each road user's visible mask
+is then a crop of the buffer around its projected box, so nothing is decoded at full size.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seg2pose.camera import Camera
+from seg2pose.synth.noise import Det, NoiseConfig, apply_noise
+from seg2pose.synth.raster import bbox_of, fill_parts, project_parts, rle_from_crop_t
+from seg2pose.synth.world import World
+
+
+class FrameRenderer:
+    """Renders one camera's masks frame by frame (reuses its buffer)."""
+
+    def __init__(self, camera: Camera, cam_index: int, world: World, noise: NoiseConfig,
+                 seed: int):
+        self.cam = camera
+        self.cam_index = cam_index
+        self.world = world
+        self.noise = noise
+        self.seed = seed
+        self.W, self.H = camera.width, camera.height
+        self.buf_t = np.zeros((self.W, self.H), np.uint16)
+        self.margin = int(np.ceil(3 * noise.dilate_px)) + 3 if noise.enabled else 0
+
+    def visible(self, f: int) -> tuple[slice, list[Det]]:
+        """Frame f's noise-free visible masks: (row slice, detections with crops)."""
+        w = self.world
+        r, wv, owner = w.frame_parts(f)
+        dets: list[Det] = []
+        if len(owner) == 0:
+            return r, dets
+        uv, ok = project_parts(self.cam, wv)
+        centre = w.xyz[r] + np.array([0.0, 0.0, 0.5]) * w.size[w.track[r] - 1][:, 2:3]
+        depth = np.linalg.norm(centre - self.cam.center, axis=1)
+        # parts that touch the image
+        lo, hi = uv.min(axis=1), uv.max(axis=1)
+        onimg = ok & (hi[:, 0] >= 0) & (lo[:, 0] < self.W) & (hi[:, 1] >= 0) & (lo[:, 1] < self.H)
+        if not onimg.any():
+            return r, dets
+        sel = np.flatnonzero(onimg)
+        sel = sel[np.argsort(-depth[owner[sel]], kind="stable")]  # far first
+        buf = self.buf_t
+        buf.fill(0)
+        fill_parts(buf, uv[sel], owner[sel] + 1)
+        for a in np.unique(owner[sel]):
+            pts = uv[sel][owner[sel] == a].reshape(-1, 2)
+            box = bbox_of(pts, self.W, self.H)
+            if box is None:
+                continue
+            x0, y0, x1, y1 = box
+            crop = buf[x0:x1, y0:y1] == a + 1
+            if crop.any():
+                dets.append(Det(crop, x0, y0, int(w.track[r][a]), int(w.cls[r][a]),
+                                float(depth[a])))
+        return r, dets
+
+    def render(self, f: int) -> list[tuple[int, int, bytes]]:
+        """Frame f's detections as (track_id, class_id, RLE), sorted by track id."""
+        _, dets = self.visible(f)
+        rng = np.random.default_rng([self.seed, 101, self.cam_index, f])
+        dets = apply_noise(dets, self.noise, rng, self.W, self.H)
+        dets.sort(key=lambda d: d.track_id)
+        return [(d.track_id, d.cls + 1, rle_from_crop_t(d.crop, d.x0, d.y0, self.H, self.W))
+                for d in dets]
+
+    def mots_lines(self, f0: int, f1: int) -> tuple[str, int]:
+        """MOTS text for frames [f0, f1) and the number of detections."""
+        out = []
+        for f in range(f0, f1):
+            for tid, cid, rle in self.render(f):
+                out.append(f"{f} {tid} {cid} {self.H} {self.W} {rle.decode('ascii')}\n")
+        return "".join(out), len(out)
