@@ -25,7 +25,7 @@ from seg2pose.errors import S2PError
 from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
-from seg2pose.masks import crop_masks, mask_centers
+from seg2pose.masks import mask_centers
 from seg2pose.normal import normal_positions
 
 
@@ -81,6 +81,43 @@ def _block_counts(crops: np.ndarray, factor: int) -> np.ndarray:
     return c.sum(axis=(2, 4), dtype=np.uint16).astype(np.uint8)
 
 
+def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
+              size: int = 420) -> np.ndarray:
+    """Same result as ``masks.crop_masks`` (N, size, size) uint8, computed from the RLE runs
+    without decoding whole images: each foreground run is split at column boundaries into
+    vertical segments, clipped to the crop, and drawn with a +1/-1 difference array summed down
+    the rows. Costs O(crop area) per mask instead of O(image area): several times faster for
+    HD images."""
+    from seg2pose.masks import _runs, crop_origin
+
+    n = len(rles)
+    h = int(height)
+    diff = np.zeros((n, size + 1, size), np.int8)
+    if n == 0:
+        return diff[:, :size].astype(np.uint8)
+    org = crop_origin(centers, size)
+    owner, start, length = _runs(rles)
+    end = start + length
+    c0, c1 = start // h, (end - 1) // h
+    k = c1 - c0 + 1                       # pieces per run (a run may wrap over columns)
+    rep = np.repeat(np.arange(len(start)), k)
+    col = c0[rep] + (np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k))
+    rs = np.maximum(start[rep] - col * h, 0)
+    re = np.minimum(end[rep] - col * h, h)
+    own = owner[rep]
+    cx = col - org[own, 0]
+    y0 = org[own, 1]
+    ry0 = np.clip(rs - y0, 0, size)
+    ry1 = np.clip(re - y0, 0, size)
+    keep = (cx >= 0) & (cx < size) & (ry1 > ry0)
+    own, cx, ry0, ry1 = own[keep], cx[keep], ry0[keep], ry1[keep]
+    # within one column of one mask the kept segments are disjoint, so starts (and ends) are
+    # unique cells and plain fancy assignment is exact
+    diff[own, ry0, cx] += 1
+    diff[own, ry1, cx] -= 1
+    return np.cumsum(diff, axis=1, dtype=np.int8)[:, :size].view(np.uint8)
+
+
 def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarray,
                   normal_xy: np.ndarray, target: np.ndarray, cls: np.ndarray, rough: bool,
                   crop: int, factor: int, batch: int = 64) -> ExampleSet:
@@ -89,7 +126,7 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
     m = crop // factor
     out = np.zeros((n, m, m), np.uint8)
     for s in range(0, n, batch):
-        c = crop_masks(rles[s:s + batch], height, width, centers[s:s + batch], size=crop)
+        c = crop_runs(rles[s:s + batch], height, width, centers[s:s + batch], size=crop)
         out[s:s + batch] = _block_counts(c, factor)
     return ExampleSet(out, factor, np.asarray(centers, float).reshape(-1, 2),
                       np.asarray(normal_xy, float).reshape(-1, 2), np.asarray(target, float).reshape(-1, 2),

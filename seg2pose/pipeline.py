@@ -33,7 +33,7 @@ from seg2pose.io.atomic import atomic_write_text, check_writable
 from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import Scene, load_scene
-from seg2pose.masks import CROP_SIZE, crop_masks, mask_centers, rle_stats
+from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
 from seg2pose.normal import fuse_views, headings_from_tracks, normal_positions
 
 # l, w, h metres, used when the scene does not give class sizes in extra["class_sizes"]
@@ -207,6 +207,8 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     if big.any():
         warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
+    from seg2pose.examples import crop_runs
+
     usable = np.isfinite(normal[:, 0])
     for (mcam, c), ck in models.models.items():
         if mcam != cam:
@@ -214,7 +216,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         sel = np.flatnonzero(usable & (names == c))
         for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
             idx = sel[s:s + batch]
-            crops = crop_masks([table.rles[i] for i in idx], table.height, table.width, uv[idx])
+            crops = crop_runs([table.rles[i] for i in idx], table.height, table.width, uv[idx])
             residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch)
     return names, uv, normal, residual
 
