@@ -52,16 +52,45 @@ class OpenCVDistortion:
         return np.stack([xd, yd], axis=1)
 
     def undistort(self, xy_d: np.ndarray, iterations: int = 40) -> np.ndarray:
-        """(N, 2) distorted -> undistorted normalised coordinates (fixed-point iteration, as
-        OpenCV's undistortPoints, but with enough iterations for strong lenses)."""
-        xy = xy_d.astype(np.float64).copy()
-        for _ in range(iterations):
-            x, y = xy[:, 0], xy[:, 1]
-            r2 = x * x + y * y
-            radial = 1 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-            dx = 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
-            dy = self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
-            xy = np.stack([(xy_d[:, 0] - dx) / radial, (xy_d[:, 1] - dy) / radial], axis=1)
+        """(N, 2) distorted -> undistorted normalised coordinates.
+
+        Damped Newton on distort(x) = x_d with the analytic 2x2 Jacobian, started at x_d: a
+        step is halved until the residual shrinks (OpenCV's fixed-point iteration stalls for
+        strong lenses near the image corners, and plain Newton can run away where the model
+        folds over). Converges to ~1e-12 wherever the model is invertible."""
+        xy_d = np.asarray(xy_d, dtype=np.float64).reshape(-1, 2)
+        xy = xy_d.copy()
+        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
+        with np.errstate(all="ignore"):
+            res = self.distort(xy) - xy_d
+            err = np.einsum("nk,nk->n", res, res)
+            for _ in range(iterations):
+                x, y = xy[:, 0], xy[:, 1]
+                r2 = x * x + y * y
+                rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d rad / d r2
+                a = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+                b = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y  # = d yd / dx as well
+                d = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+                det = a * d - b * b
+                step = np.stack([(d * res[:, 0] - b * res[:, 1]) / det,
+                                 (-b * res[:, 0] + a * res[:, 1]) / det], axis=1)
+                step[~np.isfinite(step)] = 0.0
+                lam = np.ones(len(xy))
+                for _ in range(30):  # backtracking: halve where the residual grew
+                    cand = xy - lam[:, None] * step
+                    r_c = self.distort(cand) - xy_d
+                    e_c = np.einsum("nk,nk->n", r_c, r_c)
+                    worse = ~(e_c <= err)
+                    if not worse.any():
+                        break
+                    lam = np.where(worse, lam * 0.5, lam)
+                keep = e_c <= err
+                xy = np.where(keep[:, None], cand, xy)
+                res = np.where(keep[:, None], r_c, res)
+                err = np.where(keep, e_c, err)
+                if np.all(~keep | (np.abs(lam[:, None] * step) < 1e-15).all(axis=1)):
+                    break
         return xy
 
     def to_dict(self) -> dict:
