@@ -101,7 +101,7 @@ def log_masks(rec, scene: Scene, cam: str, first: int, last: int, every: int) ->
     ent = L.cam_path(cam) + "/masks"
     rec.log(ent, rr.SegmentationImage.from_fields(
         format=rr.components.ImageFormat(width=w, height=h, channel_datatype="U8"),
-        opacity=0.6, draw_order=1.0), static=True)
+        opacity=0.6, draw_order=5.0), static=True)
     frames_all = np.arange(first, last + 1, every, dtype=np.int64)
     stream = iter(iter_mots(path, known_classes=[c.id for c in scene.classes],
                             frame_range=(first, last)))
@@ -225,8 +225,9 @@ def log_projected(rec, ent: str, camera, table: PoseTable, sizes: np.ndarray, sc
     lengths = C.frame_lengths(t.frame[idx], first, last) * 12
     rec.send_columns(ent, indexes=_times(np.arange(first, last + 1), scene.fps),
                      columns=rr.LineStrips2D.columns(strips=segs, colors=np.repeat(cols, 12, axis=0),
-                                                     radii=[0.75] * len(segs), draw_order=[2.0] * len(segs))
+                                                     radii=[0.75] * len(segs))
                      .partition(lengths))
+    rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0), static=True)
 
 
 def log_views(rec, run: Run, scene: Scene, cameras: list[str], first: int, last: int) -> None:
@@ -246,8 +247,10 @@ def log_views(rec, run: Run, scene: Scene, cameras: list[str], first: int, last:
         cols = L.class_colors(vv.cls, scene.classes)
         rec.send_columns(f"{L.cam_path(cam)}/normal/{run.name}", indexes=idx_t,
                          columns=rr.Points2D.columns(positions=vv.uv, colors=cols,
-                                                     radii=[2.5] * len(vv), draw_order=[3.0] * len(vv))
+                                                     radii=[2.5] * len(vv))
                          .partition(lengths))
+        rec.log(f"{L.cam_path(cam)}/normal/{run.name}", rr.Points2D.from_fields(draw_order=6.0),
+                static=True)
         base = f"world/estimates/{run.name}/{L.safe_name(cam)}"
         xn = np.nan_to_num(vv.xn, nan=0.0)
         rec.send_columns(base, indexes=idx_t,

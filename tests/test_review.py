@@ -1,0 +1,362 @@
+"""Review recordings without a viewer: column builders with known answers, run checks, the
+.rrd read back with rerun.chunk (entities and row counts), bad input, the CLI."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.mots import read_mots
+from seg2pose.masks import decode, encode
+from s2p_review import columns as C
+from s2p_review import layout as L
+from s2p_review.cli import parse_frames
+from s2p_review.recording import RecordOptions, record
+from s2p_review.runs import load_run, read_views, scene_last_frame
+
+from review_fixtures import CLASS_ID, EST_OFFSET, TRACKS, make_run, make_scene
+
+N_FRAMES = 20
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("review")
+    scene = make_scene(root / "scene", n_frames=N_FRAMES, video=True)
+    base = make_run(scene, root / "scene" / "out" / "run-base")
+    s2pn = make_run(scene, root / "scene" / "out" / "run-s2pn", method="seg2posenet", residual=0.2)
+    return scene, base, s2pn, root
+
+
+# --- column builders ------------------------------------------------------------------------------
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 4), st.integers(0, 2**31 - 1))
+def test_paint_masks_matches_pycocotools(n, seed):
+    rng = np.random.default_rng(seed)
+    h, w = 13, 17
+    masks = rng.random((n, h, w)) < 0.3
+    rles = [encode(m) for m in masks]
+    vals = np.arange(1, n + 1)
+    img = C.paint_masks(rles, vals, np.zeros(n, np.int64), h, w, 1)[0]
+    want = np.zeros((h, w), np.uint8)
+    for m, v in zip(masks, vals):  # later masks over earlier ones
+        want[m] = v
+    np.testing.assert_array_equal(img, want)
+
+
+def test_paint_masks_slots_and_uint16():
+    m = np.zeros((4, 5), np.uint8)
+    m[1:3, 2:4] = 1
+    rle = encode(m)
+    out = C.paint_masks([rle, rle], np.array([300, 7]), np.array([2, 0]), 4, 5, 3, dtype=np.uint16)
+    assert out.shape == (3, 4, 5) and out.dtype == np.uint16
+    np.testing.assert_array_equal(out[2], m.astype(np.uint16) * 300)
+    np.testing.assert_array_equal(out[0], m * 7)
+    assert not out[1].any()
+
+
+def test_box_columns_known_answer():
+    f = C.box_columns(np.array([[1.0, 2.0, 0.5]]), np.array([np.pi / 2]), np.array([[4.0, 2.0, 1.5]]))
+    np.testing.assert_allclose(f["centers"], [[1.0, 2.0, 1.25]])
+    np.testing.assert_allclose(f["half_sizes"], [[2.0, 1.0, 0.75]])
+    np.testing.assert_allclose(f["quaternions"], [[0, 0, np.sqrt(0.5), np.sqrt(0.5)]], atol=1e-12)
+
+
+def test_box_corners_heading_turns_length_axis():
+    c = C.box_corners(np.zeros((1, 3)), np.array([np.pi / 2]), np.array([[4.0, 2.0, 1.0]]))[0]
+    # heading 90 degrees: the 4 m length lies along y, the 2 m width along x
+    np.testing.assert_allclose(np.ptp(c[:, 0]), 2.0, atol=1e-12)
+    np.testing.assert_allclose(np.ptp(c[:, 1]), 4.0, atol=1e-12)
+    np.testing.assert_allclose(sorted(set(np.round(c[:, 2], 9))), [0.0, 1.0])
+
+
+def test_frame_lengths_and_trails():
+    frame = np.array([0, 0, 1, 3, 3, 3])
+    np.testing.assert_array_equal(C.frame_lengths(frame, 0, 4), [2, 1, 0, 3, 0])
+    tid = np.array([1, 2, 1, 1, 2, 5])
+    xyz = np.arange(18, dtype=float).reshape(6, 3)
+    strips = C.trail_strips(tid, frame, xyz, length=2)
+    assert [len(s) for s in strips] == [1, 1, 2, 2, 2, 1]
+    np.testing.assert_array_equal(strips[3], xyz[[2, 3]])  # track 1: frames 1, 3
+    np.testing.assert_array_equal(strips[4], xyz[[1, 4]])  # track 2: frames 0, 3
+
+
+def test_projected_edges_hit_mask(tiny):
+    """The projected box of a road user lies on its mask: the edge segments' bounding box
+    matches the mask's bounding box within a pixel or two."""
+    scene = tiny[0]
+    from seg2pose.io.poses import read_poses
+
+    gt = read_poses(scene.gt_path)
+    cam = scene.cameras["c0"]
+    sel = np.flatnonzero((gt.frame == 5) & (gt.track_id == 12))
+    segs, idx = C.projected_edges(cam, gt.xyz[sel], gt.heading[sel], gt.size[sel])
+    assert segs.shape == (12, 2, 2) and list(idx) == [0]
+    mt = read_mots(scene.masks_path("c0"))
+    k = np.flatnonzero((mt.frame == 5) & (mt.track_id == 12))[0]
+    ys, xs = np.nonzero(decode(mt.rles[k], mt.height, mt.width))
+    pts = segs.reshape(-1, 2)
+    np.testing.assert_allclose([pts[:, 0].min(), pts[:, 1].min()], [xs.min(), ys.min()], atol=2)
+    np.testing.assert_allclose([pts[:, 0].max(), pts[:, 1].max()], [xs.max() + 1, ys.max() + 1], atol=2)
+
+
+def test_layout_labels_and_colours(tiny):
+    scene = tiny[0]
+    assert L.labels(np.array(["car", "pedestrian"]), np.array([12, 4])) == ["c12", "p4"]
+    cols = L.class_colors(np.array(["car", "bicyclist"]), scene.classes)
+    assert cols.dtype == np.uint8 and tuple(cols[0]) == L.CLASS_COLORS["car"]
+    assert L.safe_name("run a/b") == "run_a_b"
+
+
+def test_parse_frames():
+    assert parse_frames("3:9") == (3, 9)
+    assert parse_frames(None) is None
+    for bad in ("3", "9:3", "a:b", "-1:2"):
+        with pytest.raises(InputError, match="--frames"):
+            parse_frames(bad)
+
+
+# --- runs ------------------------------------------------------------------------------------------
+def test_load_run_reads_views(tiny):
+    scene, base, s2pn, _ = tiny
+    run = load_run(s2pn, scene, scene_last_frame(scene))
+    assert run.name == "run-s2pn" and run.cameras == ["c0", "c1"]
+    assert run.frame_range == (0, N_FRAMES - 1)
+    v = run.views
+    assert len(v) == sum(len(read_mots(scene.masks_path(c))) for c in ("c0", "c1"))
+    np.testing.assert_allclose(v.dxy[0], [0.2, -0.2])
+    np.testing.assert_allclose(run.poses.xyz[0] - EST_OFFSET,
+                               np.r_[TRACKS[4][1], run.poses.xyz[0, 2]], atol=1e-12)
+
+
+def test_scene_last_frame(tiny):
+    assert scene_last_frame(tiny[0]) == N_FRAMES - 1
+
+
+def test_run_with_unknown_camera_is_rejected(tiny):
+    scene, _, _, root = tiny
+    bad = make_run(scene, root / "bad-cam", cameras=["c0", "c9"])
+    with pytest.raises(InputError, match=r"c9.*lacks|lacks.*c9"):
+        load_run(bad, scene, scene_last_frame(scene))
+
+
+def test_run_beyond_scene_frames_is_rejected(tiny):
+    scene, _, _, root = tiny
+    bad = make_run(scene, root / "bad-frames", frame_shift=100)
+    with pytest.raises(InputError, match="frame"):
+        load_run(bad, scene, scene_last_frame(scene))
+
+
+def test_views_csv_errors_name_line(tmp_path):
+    p = tmp_path / "views.csv"
+    p.write_text("frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy\n0,1,c0,car,1,2,3,4,5,6,7\n"
+                 "1,1,c0,car,1,2,x,4,5,6,7\n")
+    with pytest.raises(InputError, match=r"views.csv:3"):
+        read_views(p)
+    p.write_text("frame,track,camera\n")
+    with pytest.raises(InputError, match=r"views.csv:1.*expected header"):
+        read_views(p)
+
+
+# --- the recording, read back ------------------------------------------------------------------------
+def _rrd_rows(path: Path) -> tuple[Counter, Counter, list]:
+    import rerun.chunk as rc
+
+    reader = rc.RrdReader(path)
+    rows, comps = Counter(), Counter()
+    for ch in reader.stream():
+        if ch.is_static:
+            for n in ch.to_record_batch().schema.names:
+                comps[(ch.entity_path, n)] += 1
+            continue
+        rows[ch.entity_path] += ch.num_rows
+        for n in ch.to_record_batch().schema.names:
+            comps[(ch.entity_path, n)] += 1
+    return rows, comps, reader.blueprints()
+
+
+def test_rrd_holds_expected_entities_and_rows(tiny):
+    scene, base, s2pn, root = tiny
+    out = record(scene, [base, s2pn], root / "rec.rrd")
+    assert out == root / "rec.rrd" and out.stat().st_size > 0
+    rows, comps, bps = _rrd_rows(out)
+    assert len(bps) == 1  # the blueprint travels with the recording
+    n = N_FRAMES
+    for cam in ("c0", "c1"):
+        p = f"/world/cameras/{cam}"
+        for sub in ("masks", "image", "gt", "poses/run-base", "poses/run-s2pn",
+                    "normal/run-base", "normal/run-s2pn"):
+            assert rows[f"{p}/{sub}"] == n, sub
+        assert (p, "Pinhole:image_from_camera") in comps and (p, "Transform3D:translation") in comps
+        assert rows[f"/world/estimates/run-s2pn/{cam}"] == n
+        assert rows[f"/world/estimates/run-s2pn/{cam}/residuals"] == n
+        assert f"/world/estimates/run-base/{cam}/residuals" not in rows  # baseline: no residuals
+    for r in ("run-base", "run-s2pn"):
+        assert rows[f"/world/road_users/{r}"] == n
+        assert rows[f"/world/road_users/{r}/trails"] == n
+        for k in ("mean", "car", "pedestrian", "bicyclist"):
+            assert rows[f"/metrics/error/{r}/{k}"] == n
+    assert rows["/world/gt"] == n
+    assert ("/world/ground/mesh", "Mesh3D:vertex_positions") in comps
+    assert ("/", "AnnotationContext:context") in comps
+
+
+def test_rrd_values(tiny):
+    """Spot values: the car's box at frame 5 and the error series (all equal to the offset)."""
+    import rerun.chunk as rc
+
+    scene, base, _, root = tiny
+    out = record(scene, [base], root / "values.rrd", options=RecordOptions(masks=False, video=False))
+    boxes, errors, masks = None, None, []
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path == "/world/road_users/run-base" and not ch.is_static:
+            boxes = ch.to_record_batch()
+        if ch.entity_path == "/metrics/error/run-base/mean" and not ch.is_static:
+            errors = ch.to_record_batch()
+        if ch.entity_path.endswith("/masks"):
+            masks.append(ch)
+    assert not masks
+    frames = boxes.column("frame").to_pylist()
+    i = frames.index(5)
+    labels = boxes.column("Boxes3D:labels").to_pylist()[i]
+    centers = np.array(boxes.column("Boxes3D:centers").to_pylist()[i])
+    k = labels.index("c12")
+    x = TRACKS[12][1][0] + 5 * TRACKS[12][2][0] + EST_OFFSET[0]
+    np.testing.assert_allclose(centers[k, 0], x, atol=1e-5)
+    err = np.array([v[0] for v in errors.column("Scalars:scalars").to_pylist()])
+    np.testing.assert_allclose(err, np.hypot(*EST_OFFSET[:2]), atol=1e-9)
+
+
+def test_rrd_masks_hold_class_ids(tiny):
+    import rerun.chunk as rc
+
+    scene, base, _, root = tiny
+    out = record(scene, [base], root / "masks.rrd", frames=(3, 6),
+                 options=RecordOptions(video=False, cameras=["c1"]))
+    buf = None
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path == "/world/cameras/c1/masks" and not ch.is_static:
+            buf = ch.to_record_batch()
+    assert buf.column("frame").to_pylist() == [3, 4, 5, 6]
+    img = np.array(buf.column("SegmentationImage:buffer").to_pylist()[1][0], np.uint8)
+    cam = scene.cameras["c1"]
+    img = img.reshape(cam.height, cam.width)
+    mt = read_mots(scene.masks_path("c1"), frame_range=(4, 4))
+    want = np.zeros_like(img)
+    for r, c in zip(mt.rles, mt.class_id):
+        want[decode(r, mt.height, mt.width) > 0] = c
+    np.testing.assert_array_equal(img, want)
+    assert set(np.unique(img)) <= {0, *CLASS_ID.values()}
+
+
+def test_mask_cadence(tiny):
+    import rerun.chunk as rc
+
+    scene, base, _, root = tiny
+    out = record(scene, [base], root / "cad.rrd", options=RecordOptions(mask_every=5, video_every=10))
+    rows = Counter()
+    for ch in rc.RrdReader(out).stream():
+        if not ch.is_static:
+            rows[ch.entity_path] += ch.num_rows
+    assert rows["/world/cameras/c0/masks"] == 4 and rows["/world/cameras/c0/image"] == 2
+
+
+# --- bad input and outputs ---------------------------------------------------------------------------
+def test_existing_output_refused_and_kept(tiny):
+    scene, base, _, root = tiny
+    p = root / "exists.rrd"
+    p.write_bytes(b"keep me")
+    with pytest.raises(S2PError, match="--force"):
+        record(scene, [base], p)
+    assert p.read_bytes() == b"keep me"
+    record(scene, [base], p, force=True, options=RecordOptions(masks=False, video=False))
+    assert p.read_bytes() != b"keep me"
+
+
+def test_failed_recording_leaves_nothing(tiny):
+    scene, _, _, root = tiny
+    bad = make_run(scene, root / "bad2", cameras=["nope"])
+    out = root / "never.rrd"
+    with pytest.raises(InputError):
+        record(scene, [bad], out)
+    assert not out.exists()
+    assert not [p for p in root.iterdir() if p.name.startswith(".never.rrd")]
+
+
+def test_unreachable_viewer_url(tiny):
+    from s2p_review.viewer import free_port
+
+    scene, base, _, root = tiny
+    url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
+    with pytest.raises(S2PError, match="no viewer answers"):
+        record(scene, [base], connect=url)
+    with pytest.raises(S2PError, match="bad viewer URL"):
+        record(scene, [base], connect="http://nowhere")
+
+
+def test_unreadable_video(tiny, tmp_path):
+    import shutil
+
+    scene, base, _, _ = tiny
+    from seg2pose.io.scene import load_scene
+
+    copy = tmp_path / "scene"
+    shutil.copytree(scene.root, copy, ignore=shutil.ignore_patterns("out"))
+    (copy / "video" / "c0.mp4").write_bytes(b"not a video")
+    s2 = load_scene(copy)
+    with pytest.raises(InputError, match=r"c0.mp4.*cannot open video"):
+        record(s2, [base], tmp_path / "v.rrd")
+    assert not (tmp_path / "v.rrd").exists()
+
+
+def test_nothing_to_do(tiny):
+    scene, base, _, _ = tiny
+    with pytest.raises(S2PError, match="nothing to do"):
+        record(scene, [base])
+
+
+# --- CLI -------------------------------------------------------------------------------------------
+def test_cli_review_and_errors(tiny):
+    from seg2pose.cli import app
+
+    scene, base, s2pn, root = tiny
+    runner = CliRunner()
+    out = root / "cli.rrd"
+    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--run", str(s2pn),
+                            "--save", str(out), "--frames", "2:7", "--no-video"])
+    assert r.exit_code == 0, r.output
+    assert "rerun " + str(out) in r.output
+    rows, _, _ = _rrd_rows(out)
+    assert rows["/world/road_users/run-s2pn"] == 6
+    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--save", str(out)])
+    assert r.exit_code != 0 and "--force" in str(r.exception)
+
+
+def test_cli_main_prints_one_line_error(tiny, monkeypatch, capsys):
+    import sys
+
+    from seg2pose import cli
+
+    scene, _, _, root = tiny
+    bad = make_run(scene, root / "bad3", cameras=["zz"])
+    monkeypatch.setattr(sys, "argv", ["s2p", "review", str(scene.root), "--run", str(bad),
+                                      "--save", str(root / "x.rrd")])
+    with pytest.raises(SystemExit) as e:
+        cli.main()
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "run.json" in err and "zz" in err and len(err.strip().splitlines()) == 1
+
+
+def test_run_json_meta_roundtrip(tiny):
+    _, base, _, _ = tiny
+    meta = json.loads((base / "run.json").read_text())
+    assert meta["method"] == "baseline" and meta["cameras"] == ["c0", "c1"]
