@@ -112,7 +112,9 @@ def _box_iou(a, b) -> float:
 
 def _shape_noise(d: Det, cfg: NoiseConfig, rng: np.random.Generator, width: int, height: int
                  ) -> Det:
-    pad = int(np.ceil(3 * cfg.dilate_px)) + 3
+    # room for dilation and for the resampled boundary (up to a grid cell) to spill outwards
+    cell = max(d.crop.shape) / cfg.mask_resolution if cfg.mask_resolution else 0.0
+    pad = int(np.ceil(3 * cfg.dilate_px + cell)) + 3
     # grow the crop by ``pad`` pixels (inside the image) so dilation has room
     x0, y0 = max(d.x0 - pad, 0), max(d.y0 - pad, 0)
     x1 = min(d.x0 + d.crop.shape[0] + pad, width)

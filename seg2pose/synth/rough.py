@@ -1,0 +1,141 @@
+"""Rough 3D models (paper 3.5, Figure 4): crude car, pedestrian and bicyclist meshes placed at
+random positions and headings on a scene's ground and rasterised into one camera.
+
+Training uses these for every fourth example and for training without any annotations. They
+are deliberately cruder than the benchmark's road users (``shapes.py``): a car is two plain
+boxes (no wheels, no sloped windscreen), a pedestrian a block with a head, a bicyclist a thin
+slab with a block on it. Positions use the scene's ground *points* (eq. (1) through
+``GroundSurface``), since that is all the training side knows about the ground.
+
+Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seg2pose.camera import Camera
+from seg2pose.errors import InputError
+from seg2pose.ground import GroundSurface
+from seg2pose.synth.raster import fill_parts, project_parts, rle_from_crop_t
+from seg2pose.synth.shapes import hexa
+
+MAX_DISTANCE = 60.0  # m: default region = ground the camera sees up to this far away
+
+
+def rough_model(cls: str, scale: float = 1.0) -> np.ndarray:
+    """The rough model of a class: parts (P, 8, 3) in the local frame (x forward, y left,
+    z up, origin at the ground contact point), metres."""
+    s = scale
+    if cls == "car":
+        l, w, h = 4.5 * s, 1.8 * s, 1.5 * s
+        return np.stack([hexa(-l / 2, l / 2, -w / 2, w / 2, 0.0, 0.55 * h),
+                         hexa(-0.3 * l, 0.15 * l, -0.45 * w, 0.45 * w, 0.55 * h, h)])
+    if cls == "pedestrian":
+        h = 1.75 * s
+        return np.stack([hexa(-0.15 * s, 0.15 * s, -0.22 * s, 0.22 * s, 0.0, 0.87 * h),
+                         hexa(-0.1 * s, 0.1 * s, -0.1 * s, 0.1 * s, 0.87 * h, h)])
+    if cls == "bicyclist":
+        l, h = 1.8 * s, 1.75 * s
+        return np.stack([hexa(-l / 2, l / 2, -0.07 * s, 0.07 * s, 0.0, 0.95 * s),
+                         hexa(-0.25 * s, 0.15 * s, -0.2 * s, 0.2 * s, 0.6 * s, h)])
+    raise InputError(f"no rough model for class {cls!r}; known: car, pedestrian, bicyclist",
+                     field="cls")
+
+
+def visible_region(camera: Camera, ground: GroundSurface, max_distance: float = MAX_DISTANCE
+                   ) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax) metres of the ground the camera sees (up to ``max_distance``)."""
+    u, v = np.meshgrid(np.linspace(0, camera.width, 41), np.linspace(0, camera.height, 25))
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    X, _ = ground.intersect_rays(camera.center, camera.unproject(uv), 0.0)
+    ok = np.isfinite(X[:, 0]) & (np.linalg.norm(X - camera.center, axis=1) <= max_distance)
+    if not ok.any():
+        raise InputError(f"camera {camera.name!r} sees no ground within {max_distance:g} m",
+                         field="region_xy")
+    x, y = X[ok, 0], X[ok, 1]
+    return float(x.min()), float(x.max()), float(y.min()), float(y.max())
+
+
+def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: int,
+                          rng: np.random.Generator, region_xy=None, scale_jitter: float = 0.08,
+                          max_distance: float = MAX_DISTANCE
+                          ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
+    """``n`` rough-model examples of class ``cls`` seen by ``camera``.
+
+    region_xy: (xmin, xmax, ymin, ymax) metres to draw positions from (default: the ground the
+    camera sees). Headings are uniform; sizes vary by ``scale_jitter`` (relative).
+    Returns the masks as compressed RLE (n), their ground-contact positions xyz (n, 3) metres
+    on ``ground``, and headings (n,) radians. Every mask is non-empty and its box centre lies
+    inside the image; each example is drawn alone (no occlusion).
+    """
+    if n < 0:
+        raise InputError(f"n must be >= 0, got {n}", field="n")
+    base = rough_model(cls)
+    if n == 0:
+        return [], np.zeros((0, 3)), np.zeros(0)
+    if region_xy is None:
+        region_xy = visible_region(camera, ground, max_distance)
+    x0r, x1r, y0r, y1r = map(float, region_xy)
+    if not (x1r > x0r and y1r > y0r):
+        raise InputError(f"region_xy must be (xmin, xmax, ymin, ymax) with min < max, got {region_xy}",
+                         field="region_xy")
+    W, H = camera.width, camera.height
+    P = len(base)
+    rles: list[bytes] = []
+    xyz_out, hd_out = [], []
+    tries = 0
+    while len(rles) < n:
+        tries += 1
+        if tries > 200:
+            raise InputError(f"could not place {n} {cls} examples in view inside region {region_xy}",
+                             field="region_xy")
+        m = max(2 * (n - len(rles)), 16)
+        xy = np.column_stack([rng.uniform(x0r, x1r, m), rng.uniform(y0r, y1r, m)])
+        hd = rng.uniform(-np.pi, np.pi, m)
+        sc = 1.0 + rng.uniform(-scale_jitter, scale_jitter, m)
+        z = ground.height(xy)
+        xyz = np.column_stack([xy, z])
+        # cheap reject first: the contact point must project into (a margin around) the image
+        uv0, d0, front = camera.project_points(xyz)
+        near = front & (np.linalg.norm(xyz - camera.center, axis=1) <= max_distance) \
+            & (uv0[:, 0] > -0.25 * W) & (uv0[:, 0] < 1.25 * W) & (uv0[:, 1] > -0.25 * H) \
+            & (uv0[:, 1] < 1.25 * H)
+        idx = np.flatnonzero(near)
+        if len(idx) == 0:
+            continue
+        k = len(idx)
+        local = base[None] * sc[idx, None, None, None]  # (k, P, 8, 3)
+        c, s = np.cos(hd[idx])[:, None, None], np.sin(hd[idx])[:, None, None]
+        wx = c * local[..., 0] - s * local[..., 1]
+        wy = s * local[..., 0] + c * local[..., 1]
+        world = np.stack([wx, wy, local[..., 2]], -1) + xyz[idx][:, None, None, :]
+        uv, ok = project_parts(camera, world.reshape(k * P, 8, 3))
+        uv = uv.reshape(k, P, 8, 2)
+        ok = ok.reshape(k, P).all(axis=1)
+        for j in range(k):
+            if len(rles) >= n:
+                break
+            if not ok[j]:
+                continue
+            pts = uv[j].reshape(-1, 2)
+            bx0 = max(int(np.floor(pts[:, 0].min())) - 1, 0)
+            by0 = max(int(np.floor(pts[:, 1].min())) - 1, 0)
+            bx1 = min(int(np.ceil(pts[:, 0].max())) + 1, W)
+            by1 = min(int(np.ceil(pts[:, 1].max())) + 1, H)
+            if bx1 <= bx0 or by1 <= by0:
+                continue
+            crop = np.zeros((bx1 - bx0, by1 - by0), np.uint8)
+            fill_parts(crop, uv[j] - np.array([bx0, by0]), np.ones(P, np.int64))
+            cols = np.flatnonzero(crop.any(axis=1))
+            if len(cols) == 0:
+                continue
+            rows = np.flatnonzero(crop.any(axis=0))
+            cx = bx0 + 0.5 * (cols[0] + cols[-1] + 1)
+            cy = by0 + 0.5 * (rows[0] + rows[-1] + 1)
+            if not (0 <= cx < W and 0 <= cy < H):
+                continue
+            rles.append(rle_from_crop_t(crop.astype(bool), bx0, by0, H, W))
+            xyz_out.append(xyz[idx[j]])
+            hd_out.append(hd[idx[j]])
+    return rles, np.asarray(xyz_out, float).reshape(-1, 3), np.asarray(hd_out, float)

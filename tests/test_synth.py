@@ -1,0 +1,350 @@
+"""Synthetic scenes: masks agree with projected geometry, occlusion, truth inside masks,
+determinism, ground points on the surface, readers, validation, rough models."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from matplotlib.path import Path as MplPath
+from scipy.spatial import ConvexHull
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.mots import read_mots
+from seg2pose.io.poses import read_poses
+from seg2pose.io.scene import load_scene
+from seg2pose.masks import decode, encode, mask_centers, rle_stats
+from seg2pose.synth import junction as J
+from seg2pose.synth.generate import generate_scene, split_ranges
+from seg2pose.synth.noise import NoiseConfig
+from seg2pose.synth.raster import rle_from_crop_t
+from seg2pose.synth.render import FrameRenderer
+from seg2pose.synth.rig import CONFIGS, make_device
+from seg2pose.synth.rough import render_rough_examples
+from seg2pose.synth.shapes import hexa
+from seg2pose.synth.world import World
+
+
+def one_frame_world(boxes: list[np.ndarray], xyz: np.ndarray, cls=None) -> World:
+    """A World of one frame with one single-part road user per box (local verts (8, 3))."""
+    n = len(boxes)
+    xyz = np.asarray(xyz, float).reshape(n, 3)
+    return World(frame=np.zeros(n, np.int64), track=np.arange(1, n + 1), cls=np.array(cls or [2] * n, np.int8),
+                 xyz=xyz, heading=np.zeros(n), phase=np.zeros(n), frame_ptr=np.array([0, n]),
+                 verts=np.stack(boxes), swing=np.zeros(n), kind=np.zeros(n, np.int8),
+                 part_ptr=np.arange(n + 1), size=np.ones((n, 3)), colour=np.zeros((n, 3), np.uint8))
+
+
+def silhouette(cam, world_verts: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixel centres inside the convex hull of the projected vertices."""
+    uv, _, _ = cam.project_points(world_verts)
+    hull = uv[ConvexHull(uv).vertices]
+    yy, xx = np.mgrid[0:cam.height, 0:cam.width]
+    centres = np.column_stack([xx.ravel() + 0.5, yy.ravel() + 0.5])
+    return MplPath(hull).contains_points(centres).reshape(cam.height, cam.width)
+
+
+def boundary_band(m: np.ndarray) -> np.ndarray:
+    """Pixels within one pixel of the mask boundary."""
+    import cv2
+    k = np.ones((3, 3), np.uint8)
+    m8 = m.astype(np.uint8)
+    return (cv2.dilate(m8, k) - cv2.erode(m8, k)).astype(bool)
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return make_device().cameras["c1"]
+
+
+def test_lone_box_mask_is_projected_convex_silhouette(cam):
+    box = hexa(-2.0, 2.0, -0.9, 0.9, 0.0, 1.5)
+    pos = np.array([[3.0, 2.0, 0.1]])
+    w = one_frame_world([box], pos)
+    dets = FrameRenderer(cam, 0, w, NoiseConfig.off(), 0).render(0)
+    assert len(dets) == 1 and dets[0][0] == 1 and dets[0][1] == 3
+    got = decode(dets[0][2], cam.height, cam.width).astype(bool)
+    ref = silhouette(cam, box + pos)
+    diff = got ^ ref
+    assert ref.sum() > 5000
+    assert not (diff & ~boundary_band(ref)).any()  # disagreements only on the boundary
+    assert diff.sum() < 0.02 * ref.sum()
+
+
+def test_occlusion_nearer_road_user_wins(cam):
+    # two boxes on the line of sight: the far one partly hidden behind the near one
+    c = cam.center
+    far_xy = np.array([6.0, 6.0])
+    toward = (c[:2] - far_xy) / np.linalg.norm(c[:2] - far_xy)
+    near_xy = far_xy + 3.2 * toward + np.array([0.4, -0.4])
+    tall = hexa(-1.0, 1.0, -1.0, 1.0, 0.0, 3.5)  # a van in front of a car
+    box = hexa(-1.0, 1.0, -1.0, 1.0, 0.0, 1.8)
+    pos = np.array([[*near_xy, 0.0], [*far_xy, 0.0]])
+    # list the near one first: painter's order must not depend on input order
+    w = one_frame_world([tall, box], pos, cls=[0, 0])
+    dets = {t: decode(r, cam.height, cam.width).astype(bool)
+            for t, _, r in FrameRenderer(cam, 0, w, NoiseConfig.off(), 0).render(0)}
+    near_ref, far_ref = silhouette(cam, tall + pos[0]), silhouette(cam, box + pos[1])
+    overlap = near_ref & far_ref
+    assert overlap.sum() > 200  # the test geometry really overlaps
+    band = boundary_band(near_ref) | boundary_band(far_ref)
+    assert not ((dets[1] ^ near_ref) & ~band).any()
+    assert not ((dets[2] ^ (far_ref & ~near_ref)) & ~band).any()
+    assert not (dets[1] & dets[2]).any()
+    assert dets[2].sum() < far_ref.sum() - 200
+    # reversed input order gives the same masks
+    w2 = one_frame_world([box, tall], pos[::-1], cls=[0, 0])
+    dets2 = {t: decode(r, cam.height, cam.width).astype(bool)
+             for t, _, r in FrameRenderer(cam, 0, w2, NoiseConfig.off(), 0).render(0)}
+    assert (dets2[2] == dets[1]).all() and (dets2[1] == dets[2]).all()
+
+
+def test_truncation_at_image_border(cam):
+    # a car whose contact point is left of the image: the mask is cut at column 0
+    uv_target = np.array([[-40.0, 500.0]])
+    X, _ = J.ray_ground_points(cam.center, cam.unproject(uv_target)), None
+    box = hexa(-2.0, 2.0, -0.9, 0.9, 0.0, 1.5)
+    w = one_frame_world([box], X)
+    dets = FrameRenderer(cam, 0, w, NoiseConfig.off(), 0).render(0)
+    assert len(dets) == 1
+    m = decode(dets[0][2], cam.height, cam.width).astype(bool)
+    assert m[:, 0].any()
+    ref = silhouette(cam, box + X)
+    assert not ((m ^ ref) & ~boundary_band(ref)).any()
+
+
+@pytest.fixture(scope="module")
+def clean_scene(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("synth") / "clean"
+    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1)
+    return out
+
+
+@pytest.fixture(scope="module")
+def noisy_scene(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("synth") / "noisy"
+    generate_scene(out, frames=6, seed=3, progress=False, workers=1)
+    return out
+
+
+def test_scene_opens_with_the_readers(clean_scene):
+    s = load_scene(clean_scene)
+    assert list(s.cameras) == ["c0", "c1", "c2", "c3", "c4"]
+    assert s.rig.configs == CONFIGS
+    assert set(s.rig.configs) == {"mono-1", "mono-2", "mono-3", "stereo-10", "stereo-30",
+                                  "stereo-40", "tri-I", "tri-L", "tri-T"}
+    assert [(c.id, c.name) for c in s.classes] == [(1, "pedestrian"), (2, "bicyclist"), (3, "car")]
+    assert s.splits == split_ranges(6, 1)
+    assert abs(s.fps - 1 / 0.075) < 1e-9
+    gen = s.extra["generator"]
+    assert gen["seed"] == 3 and gen["noise"]["enabled"] is False
+    assert set(s.extra["class_sizes"]) == {"pedestrian", "bicyclist", "car"}
+    assert len(s.ground_points) == 184
+    gt = read_poses(s.gt_path, known_classes=[c.name for c in s.classes])
+    assert gt.size is not None and (gt.size > 0).all()
+    assert gt.frame.min() == 0 and gt.frame.max() == s.splits["test"][1]
+    ids_by_cam = {}
+    for c in s.cameras:
+        m = read_mots(s.masks_path(c), known_classes=[1, 2, 3])
+        assert (m.height, m.width) == (720, 1280) and len(m) > 0
+        ids_by_cam[c] = set(zip(m.frame.tolist(), m.track_id.tolist()))
+        # each detection is a road user of that frame in the truth, with the same class
+        truth = {(f, t): k for f, t, k in zip(gt.frame, gt.track_id, gt.cls)}
+        names = {1: "pedestrian", 2: "bicyclist", 3: "car"}
+        for f, t, k in zip(m.frame, m.track_id, m.class_id):
+            assert truth[(f, t)] == names[k]
+    # late fusion needs the same id for the same road user in every camera
+    common = set.intersection(*ids_by_cam.values())
+    assert len(common) > 0.8 * len(ids_by_cam["c1"])
+
+
+def test_stereo_baselines_match_names():
+    rig = make_device()
+    c = {n: cam.center for n, cam in rig.cameras.items()}
+    for cfg, base in (("stereo-10", 0.10), ("stereo-30", 0.30), ("stereo-40", 0.40)):
+        a, b = rig.configs[cfg]
+        assert abs(np.linalg.norm(c[a] - c[b]) - base) < 1e-9
+    i0, i1, i2 = (c[n] for n in rig.configs["tri-I"])
+    assert np.linalg.norm(np.cross(i1 - i0, i2 - i0)) < 1e-12  # collinear
+    l0, l1, l2 = (c[n] for n in rig.configs["tri-L"])
+    assert abs(np.dot(l0 - l1, l2 - l1)) < 1e-12  # right angle at the middle lens
+
+
+def test_ground_truth_projects_inside_its_mask(clean_scene):
+    s = load_scene(clean_scene)
+    gt = read_poses(s.gt_path)
+    key = {(f, t): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
+    hits = n = 0
+    for c, cam in s.cameras.items():
+        m = read_mots(s.masks_path(c))
+        area, _, _ = rle_stats(m.rles, m.height, m.width)
+        for f, t, r, a in zip(m.frame, m.track_id, m.rles, area):
+            if a < 200:
+                continue
+            i = key[(f, t)]
+            centre = gt.xyz[i] + [0, 0, 0.5 * gt.size[i, 2]]
+            uv, _, _ = cam.project_points(centre)
+            x, y = np.floor(uv[0]).astype(int)
+            if not (0 <= x < m.width and 0 <= y < m.height):
+                continue
+            mask = decode(r, m.height, m.width)
+            n += 1
+            hits += bool(mask[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].any())
+    assert n > 50
+    assert hits / n > 0.93  # misses: the centre hidden behind a nearer road user
+
+
+def test_same_seed_same_bytes(tmp_path):
+    a, b, c = tmp_path / "a" / "s", tmp_path / "b" / "s", tmp_path / "c" / "s"  # name is in scene.json
+    generate_scene(a, frames=4, seed=9, progress=False, workers=1)
+    generate_scene(b, frames=4, seed=9, progress=False, workers=2)  # process count must not matter
+    generate_scene(c, frames=4, seed=10, progress=False, workers=1)
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert {str(f) for f in files} >= {"scene.json", "ground_points.csv", "gt/poses.csv",
+                                       "masks/c0.txt", "masks/c4.txt"}
+    assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for f in files:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+    assert (a / "masks/c1.txt").read_bytes() != (c / "masks/c1.txt").read_bytes()
+
+
+def test_ground_points_lie_on_the_rendered_surface(clean_scene):
+    s = load_scene(clean_scene)
+    p = s.ground_points
+    assert np.abs(p[:, 2] - J.true_height(p[:, :2])).max() < 1e-12
+    near_curb = np.abs(J.curb_distance(p[:, :2])) < 0.5
+    assert near_curb.mean() > 0.5  # denser along the curb edges, as in the paper
+    assert J.on_sidewalk(p[:, :2]).any() and (~J.on_sidewalk(p[:, :2])).any()
+    # and road users stand on the same surface
+    gt = read_poses(s.gt_path)
+    assert np.abs(gt.xyz[:, 2] - J.true_height(gt.xyz[:, :2])).max() < 1e-12
+
+
+def test_surface_has_curbs_and_a_slope():
+    assert abs(J.true_height(np.array([[20.0, 9.0]]))[0] - J.true_height(np.array([[20.0, 5.0]]))[0]
+               - J.CURB) < 1e-9
+    assert J.true_height(np.array([[0.0, 0.0]]))[0] < 0.01
+    z = J.true_height(np.array([[30.0, 0.0], [40.0, 0.0]]))
+    assert 0.3 < z[1] - z[0] < 0.5  # about 4 % along the east arm
+
+
+def test_noise_changes_masks_but_keeps_ids(clean_scene, noisy_scene):
+    a = read_mots(clean_scene / "masks" / "c1.txt")
+    b = read_mots(noisy_scene / "masks" / "c1.txt")
+    assert len(b) <= len(a) * 1.05 and len(b) > 0.6 * len(a)
+    pa = set(zip(a.frame.tolist(), a.track_id.tolist()))
+    pb = set(zip(b.frame.tolist(), b.track_id.tolist()))
+    assert pb <= pa  # noise never invents road users
+    assert a.rles != b.rles
+    s = json.loads((noisy_scene / "scene.json").read_text())
+    assert s["extra"]["generator"]["noise"] == NoiseConfig().to_dict()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.data())
+def test_crop_rle_matches_pycocotools(h, w, data):
+    x0 = data.draw(st.integers(0, w - 1))
+    y0 = data.draw(st.integers(0, h - 1))
+    x1 = data.draw(st.integers(x0 + 1, w))
+    y1 = data.draw(st.integers(y0 + 1, h))
+    seed = data.draw(st.integers(0, 2 ** 31))
+    m = np.zeros((h, w), bool)
+    m[y0:y1, x0:x1] = np.random.default_rng(seed).random((y1 - y0, x1 - x0)) < 0.5
+    assert rle_from_crop_t(m[y0:y1, x0:x1].T.copy(), x0, y0, h, w) == encode(m)
+
+
+# --- bad input ------------------------------------------------------------------------------
+def test_validation_before_any_work(tmp_path):
+    out = tmp_path / "s"
+    with pytest.raises(InputError, match="--frames"):
+        generate_scene(out, frames=0, progress=False)
+    with pytest.raises(InputError, match="--rig"):
+        generate_scene(out, rig="nope", frames=2, progress=False)
+    with pytest.raises(InputError, match="--preset"):
+        generate_scene(out, preset="huge", progress=False)
+    with pytest.raises(InputError, match="population"):
+        generate_scene(out, frames=2, population={"car": -1}, progress=False)
+    with pytest.raises(InputError, match="noise.miss_rate"):
+        generate_scene(out, frames=2, noise=NoiseConfig(miss_rate=1.5), progress=False)
+    # a rig looking at the sky sees no road
+    from seg2pose.camera import Camera
+    sky = Camera.look_at("up", np.array([0.0, 0.0, 10.0]), np.array([0.0, 50.0, 40.0]), 900, 1280, 720)
+    rig_file = tmp_path / "sky.json"
+    rig_file.write_text(json.dumps({"cameras": [sky.to_dict()]}))
+    with pytest.raises(InputError, match="sees the road"):
+        generate_scene(out, rig=rig_file, frames=2, progress=False)
+    assert not out.exists()
+
+
+def test_never_overwrites_without_force_and_interruptions_leave_nothing(tmp_path, monkeypatch):
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(S2PError, match="--force"):
+        generate_scene(out, frames=2, progress=False)
+    assert (out / "keep.txt").read_text() == "mine"
+
+    import seg2pose.synth.generate as G
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(G, "_mask_task", boom)
+    with pytest.raises(KeyboardInterrupt):
+        generate_scene(out, frames=2, progress=False, force=True, workers=1)
+    assert (out / "keep.txt").read_text() == "mine"  # the old scene is untouched
+    assert [p.name for p in tmp_path.iterdir()] == ["s"]  # no partial folder left behind
+    monkeypatch.undo()
+    generate_scene(out, frames=2, progress=False, force=True, workers=1)
+    assert not (out / "keep.txt").exists() and (out / "scene.json").exists()
+
+
+def test_cli_synth(tmp_path):
+    from typer.testing import CliRunner
+
+    from seg2pose.cli import app
+
+    r = CliRunner().invoke(app, ["synth", str(tmp_path / "s"), "--frames", "2", "--quiet", "--workers", "1"])
+    assert r.exit_code == 0, r.output
+    assert load_scene(tmp_path / "s").splits["train"] == (0, 1)
+    r = CliRunner().invoke(app, ["synth", str(tmp_path / "s"), "--frames", "2", "--quiet"])
+    assert r.exit_code != 0 and "--force" in str(r.exception)
+
+
+# --- rough models -------------------------------------------------------------------------
+@pytest.mark.parametrize("cls", ["car", "pedestrian", "bicyclist"])
+def test_rough_models_nonempty_and_truth_projects_near_them(cls, clean_scene):
+    s = load_scene(clean_scene)
+    cam = s.cameras["c2"]
+    rng = np.random.default_rng(5)
+    rles, xyz, hd = render_rough_examples(cam, s.ground, cls, 40, rng)
+    assert len(rles) == 40 and xyz.shape == (40, 3) and hd.shape == (40,)
+    area, _, box = rle_stats(rles, cam.height, cam.width)
+    assert (area > 0).all()
+    cen = mask_centers(rles, cam.height, cam.width)
+    assert cam.in_image(cen).all()
+    assert np.allclose(xyz[:, 2], s.ground.height(xyz[:, :2]))  # on the scene's ground points
+    uv, _, _ = cam.project_points(xyz)
+    inside = cam.in_image(uv)
+    # the contact point projects into (a few pixels around) the mask's box
+    pad = 3
+    within = ((uv[:, 0] >= box[:, 0] - pad) & (uv[:, 0] <= box[:, 2] + pad)
+              & (uv[:, 1] >= box[:, 1] - pad) & (uv[:, 1] <= box[:, 3] + pad))
+    assert within[inside].all()
+    # same rng state -> same examples
+    again = render_rough_examples(cam, s.ground, cls, 40, np.random.default_rng(5))
+    assert again[0] == rles
+
+
+def test_rough_region_is_respected(clean_scene):
+    s = load_scene(clean_scene)
+    cam = s.cameras["c1"]
+    _, xyz, _ = render_rough_examples(cam, s.ground, "car", 20, np.random.default_rng(0),
+                                      region_xy=(0.0, 10.0, -5.0, 5.0))
+    assert (xyz[:, 0] >= 0).all() and (xyz[:, 0] <= 10).all() and (np.abs(xyz[:, 1]) <= 5).all()
+    with pytest.raises(InputError, match="region_xy"):
+        render_rough_examples(cam, s.ground, "car", 5, np.random.default_rng(0), region_xy=(1, 0, 0, 1))
