@@ -32,6 +32,8 @@ def miss_reasons(status: np.ndarray) -> list[str]:
     return [MISS_REASONS.get(int(c), f"status {int(c)}") for c in np.asarray(status).reshape(-1)]
 
 
+SCAN_STEP = 0.25  # metres along the ground between samples that bracket the first crossing
+MAX_SCAN = 256  # samples per ray at most (grazing rays)
 _CHUNK = 8192  # queries per block: bounds memory at CHUNK x n_points floats
 
 
@@ -89,15 +91,20 @@ class GroundSurface:
         return z, g
 
     def intersect_rays(self, origins: np.ndarray, dirs: np.ndarray, h: np.ndarray | float = 0.0,
-                       tol: float = 1e-7, max_iter: int = 60) -> tuple[np.ndarray, np.ndarray]:
-        """Intersect rays with the surface raised by ``h``: points X with X_z = z(X_xy) + h.
+                       tol: float = 1e-7, max_iter: int = 60, step: float = SCAN_STEP
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """Intersect rays with the surface raised by ``h``: the first point X along each ray
+        (nearest its origin) with X_z = z(X_xy) + h.
 
         origins: (M, 3) or (3,) metres; dirs: (M, 3) (need not be unit); h: (M,) or scalar metres.
         Returns X (M, 3) metres (NaN rows for misses) and status (M,) int8, see MISS_REASONS.
 
-        Starts from the plane at the points' mean height + h, then Newton steps along the ray,
-        safeguarded by bisection inside a bracket [0, s_hi] whose ends are above and below the
-        raised surface, so it converges for every downward ray from above the surface.
+        The surface lies between the points' lowest and highest z, so a crossing can only
+        happen on the part of the ray between those heights (+ h). That part is scanned in
+        steps of at most ``step`` metres top-down (eq. (1) varies on the scale of metres) to
+        bracket the first crossing; then Newton steps along the ray, started at the crossing of
+        the plane at the points' mean height + h (the paper's plane start) when it lies in the
+        bracket, safeguarded by bisection. Every downward ray from above the surface converges.
         """
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         M = len(dirs)
@@ -119,33 +126,53 @@ class GroundSurface:
             return X, status
         o, d, hh = o[ok], dirs[ok], h[ok]
         dz = d[:, 2]
-        # f(s) = o_z + s d_z - z(o_xy + s d_xy) - h; f(0) > 0, and f(s_hi) < 0 since z >= z_min.
-        lo = np.zeros(len(o))
-        hi = (self.z_min + hh - 1.0 - o[:, 2]) / dz
-        s = np.clip((self.z_mean + hh - o[:, 2]) / dz, lo, hi)  # plane at the mean height
-        done = np.zeros(len(o), dtype=bool)
+        n = len(o)
+
+        def f_at(s: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            p = o[rows] + s[:, None] * d[rows]
+            return p[:, 2] - self.height(p[:, :2]) - hh[rows]
+
+        # f(s) = o_z + s d_z - z(o_xy + s d_xy) - h: > 0 for s < s_a (above the highest point),
+        # < 0 at s_b (1 mm below the lowest point).
+        s_a = np.maximum((self.z_max + hh - o[:, 2]) / dz, 0.0)
+        s_b = (self.z_min + hh - 1e-3 - o[:, 2]) / dz
+        horiz = (s_b - s_a) * np.linalg.norm(d[:, :2], axis=1)
+        k = np.clip(np.ceil(horiz / step).astype(np.int64), 1, MAX_SCAN)
+        rows = np.repeat(np.arange(n), k)
+        j = np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k) + 1  # 1..k per ray
+        s_samp = s_a[rows] + (s_b - s_a)[rows] * j / k[rows]
+        f_samp = f_at(s_samp, rows)
+        f_samp[j == k[rows]] = -1.0  # s_b is below the surface by construction
+        # first sample per ray at or below the surface
+        below = np.flatnonzero(f_samp <= 0)
+        first = below[np.r_[True, rows[below][1:] != rows[below][:-1]]]
+        hi = s_samp[first]
+        jf = j[first]
+        lo = np.where(jf > 1, s_samp[np.maximum(first - 1, 0)], s_a)
+        s_plane = (self.z_mean + hh - o[:, 2]) / dz  # the plane at the mean height
+        s = np.where((s_plane > lo) & (s_plane < hi), s_plane, 0.5 * (lo + hi))
+        done = np.zeros(n, dtype=bool)
         for _ in range(max_iter):
-            act = ~done
-            if not act.any():
+            act = np.flatnonzero(~done)
+            if not len(act):
                 break
             sa = s[act]
             p = o[act] + sa[:, None] * d[act]
             z, g = self.height_and_gradient(p[:, :2])
             f = p[:, 2] - z - hh[act]
             fp = dz[act] - np.einsum("mk,mk->m", g, d[act, :2])
-            # keep the bracket: f > 0 above the surface (lo side), f < 0 below (hi side)
-            lo_a, hi_a = lo[act], hi[act]
-            lo_a = np.where(f > 0, sa, lo_a)
-            hi_a = np.where(f <= 0, sa, hi_a)
+            # keep the bracket: f > 0 above the surface (lo side), f <= 0 on/below (hi side)
+            lo_a = np.where(f > 0, sa, lo[act])
+            hi_a = np.where(f <= 0, sa, hi[act])
             with np.errstate(divide="ignore", invalid="ignore"):
                 s_new = sa - f / fp
-            bad = ~np.isfinite(s_new) | (s_new < lo_a) | (s_new > hi_a)
+            bad = ~np.isfinite(s_new) | (s_new <= lo_a) | (s_new >= hi_a)
             s_new = np.where(bad, 0.5 * (lo_a + hi_a), s_new)
             hit = np.abs(f) < tol
             s_new = np.where(hit, sa, s_new)  # converged: keep the point where f was measured
-            conv = hit | (np.abs(s_new - sa) < tol * 1e-2) | (hi_a - lo_a < tol)
+            conv = hit | (hi_a - lo_a < tol * 1e-2)
             lo[act], hi[act], s[act] = lo_a, hi_a, s_new
-            done[np.flatnonzero(act)[conv]] = True
+            done[act[conv]] = True
         Xok = o + s[:, None] * d
         idx = np.flatnonzero(ok)
         X[idx] = Xok
