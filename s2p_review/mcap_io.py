@@ -18,7 +18,8 @@ Topics (log time = frame / fps, in nanoseconds)::
     /world/ground                foxglove.SceneUpdate: the ground surface mesh, first frame
     /s2p/poses                   JSON: {"frame", "rows": [{frame, track_id, class, x, y, z,
                                  heading, l, w, h}]} per frame, every field, floats exact
-    /s2p/views                   JSON: the run's views.csv rows per frame
+    /s2p/views                   JSON: the run's views.csv rows per frame, each with its row
+                                 number in the file (the import restores the file's order)
 Attachments: scene.json, the ground points file, run.json (bytes as on disk).
 """
 
@@ -297,12 +298,13 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
         if run.views is not None:
             v = run.views
             sel = np.flatnonzero((v.frame >= first) & (v.frame <= last))
+            sel = sel[np.argsort(v.frame[sel], kind="stable")]  # by frame; "row" keeps file order
             vf = v.frame[sel]
             for idx in np.split(sel, np.flatnonzero(np.diff(vf)) + 1) if len(sel) else []:
                 f = int(v.frame[idx[0]])
-                rows = [[int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
+                rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
                          *[_num(x) for x in (*v.uv[i], *v.xn[i], *v.dxy[i])]] for i in idx]
-                out.write_json("/s2p/views", VIEW_SCHEMA, {"frame": f, "columns": VIEW_COLUMNS,
+                out.write_json("/s2p/views", VIEW_SCHEMA, {"frame": f, "columns": ["row"] + VIEW_COLUMNS,
                                                           "rows": rows}, _ns(f, fps))
 
         # Foxglove views of the road users, per frame
@@ -408,10 +410,9 @@ def _pose_table(frames_msgs: list[dict], with_size: bool) -> PoseTable:
 
 def _views_text(frames_msgs: list[dict]) -> str:
     lines = [",".join(VIEW_COLUMNS)]
-    for m in frames_msgs:
-        for r in m["rows"]:
-            lines.append(",".join([str(r[0]), str(r[1]), r[2], r[3]] +
-                                  [repr(_unnum(x)) for x in r[4:]]))
+    rows = sorted((r for m in frames_msgs for r in m["rows"]), key=lambda r: r[0])  # file order
+    for r in rows:
+        lines.append(",".join([str(r[1]), str(r[2]), r[3], r[4]] + [repr(_unnum(x)) for x in r[5:]]))
     return "\n".join(lines) + "\n"
 
 
