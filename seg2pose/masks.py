@@ -26,7 +26,8 @@ def encode(mask: np.ndarray) -> bytes:
 
 def decode(rle: bytes, height: int, width: int) -> np.ndarray:
     """Compressed RLE counts -> (H, W) uint8 mask."""
-    return mask_util.decode({"size": [height, width], "counts": rle})
+    # the list form: pycocotools' single-dict path warns under numpy 2
+    return mask_util.decode([{"size": [int(height), int(width)], "counts": rle}])[:, :, 0]
 
 
 def decode_counts(rles: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
