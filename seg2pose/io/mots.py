@@ -133,7 +133,8 @@ def _check_rles(rles: list[bytes], linenos: list[int], h: int, w: int, path: Pat
 
 
 def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
-              frame_range: tuple[int, int] | None = None) -> Iterator[tuple[int, MaskTable]]:
+              frame_range: tuple[int, int] | None = None,
+              check_rles: bool = True) -> Iterator[tuple[int, MaskTable]]:
     """Stream a MOTS txt file frame by frame: yields (frame, MaskTable of that frame).
 
     frame_range: (first, last) inclusive; frames outside are skipped (and reading stops after
@@ -150,7 +151,8 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
 
     def flush():
         h, w = size
-        _check_rles([r[5] for r in rows], linenos, h, w, path)
+        if check_rles:  # False: the caller decodes the runs itself and checks them in bulk
+            _check_rles([r[5] for r in rows], linenos, h, w, path)
         a = np.array([r[:3] for r in rows], dtype=np.int64)
         return MaskTable(a[:, 0], a[:, 1], a[:, 2], h, w, [r[5] for r in rows])
 
