@@ -44,7 +44,8 @@ def run_cmd(
 def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth (gt/poses.csv)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default SCENE/models)"),
-    arch: str = typer.Option("paper", "--arch", help="paper (Figure 3) or lite (CPU)"),
+    arch: Optional[str] = typer.Option(None, "--arch",
+                                       help="paper (Figure 3, the default) or lite (CPU; --quick/--demo)"),
     quick: bool = typer.Option(False, "--quick", help="short CPU protocol (lite, fewer epochs/runs)"),
     demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation",
@@ -57,6 +58,8 @@ def train_cmd(
     lr: Optional[float] = typer.Option(None, "--lr"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--per-class",
                                                  help="one model per camera with a class input"),
+    share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--per-camera",
+                                                 help="one model for all cameras (lenses of one device)"),
     device: Optional[str] = typer.Option(None, "--device"),
     seed: Optional[int] = typer.Option(None, "--seed", help="first of the runs' seeds"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
@@ -71,12 +74,11 @@ def train_cmd(
     elif quick:
         cfg = TrainConfig.quick()
     else:
-        cfg = TrainConfig.paper(arch=arch)
-    if quick or demo:
-        if arch != "paper":
-            cfg = cfg.replace(arch=arch)
+        cfg = TrainConfig.paper()
+    if arch is not None:
+        cfg = cfg.replace(arch=arch)
     over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
-                                  share_classes=share_classes, device=device, seed=seed).items()
+                                  share_classes=share_classes, share_cameras=share_cameras, device=device, seed=seed).items()
             if v is not None}
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
     out_dir = train_scene(scene, out, cfg,

@@ -302,7 +302,7 @@ class Checkpoint:
         if arch is not None and meta.get("arch") != arch:
             raise InputError(f"checkpoint is arch {meta.get('arch')!r}, expected {arch!r}",
                              file=path, field="arch")
-        if camera is not None and meta.get("camera") != camera:
+        if camera is not None and meta.get("camera") not in (camera, "*"):
             raise InputError(f"checkpoint is for camera {meta.get('camera')!r}, expected {camera!r}",
                              file=path, field="camera")
         cfg = NetConfig.from_dict(meta["net"])

@@ -89,9 +89,9 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 
 
 def model_filename(camera: str, cls: str) -> str:
-    """``<camera>__<class>.safetensors``; ``<camera>__all.safetensors`` for a model serving all
-    classes of a camera."""
-    return f"{camera}__{'all' if cls == '*' else cls}.safetensors"
+    """``<camera>__<class>.safetensors``; ``all`` in place of the camera or the class for a
+    model serving all cameras (of one device) or all classes."""
+    return f"{'all' if camera == '*' else camera}__{'all' if cls == '*' else cls}.safetensors"
 
 
 @dataclass
@@ -112,7 +112,8 @@ class ModelSet:
         cache: dict[Path, object] = {}
         for cam in cameras:
             for c in classes:
-                for name in (model_filename(cam, c), model_filename(cam, "*")):
+                for name in (model_filename(cam, c), model_filename(cam, "*"),
+                             model_filename("*", c), model_filename("*", "*")):
                     p = models_dir / name
                     if p.exists():
                         if p not in cache:
@@ -210,10 +211,12 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     from seg2pose.examples import crop_runs
 
     usable = np.isfinite(normal[:, 0])
+    groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
     for (mcam, c), ck in models.models.items():
-        if mcam != cam:
-            continue
-        sel = np.flatnonzero(usable & (names == c))
+        if mcam == cam:
+            groups.setdefault(id(ck), (ck, []))[1].append(c)
+    for ck, cls_of_model in groups.values():
+        sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
         for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
             idx = sel[s:s + batch]
             crops = crop_runs([table.rles[i] for i in idx], table.height, table.width, uv[idx])

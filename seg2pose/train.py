@@ -54,6 +54,7 @@ class TrainConfig:
     rough_val_per_class: int = 256   # zero-annotation validation pool
     zero_annotation: bool = False
     share_classes: bool = False      # one model per camera with a class one-hot input
+    share_cameras: bool = False      # one model for all cameras (lenses of one device)
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
     center_method: str = "bbox"
@@ -283,14 +284,21 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
         gt = gt.take(np.argsort(gt.frame, kind="stable"))
     fp = scene.fingerprint()
     out.mkdir(parents=True, exist_ok=True)
-    for cam in cams:
-        camera = scene.cameras[cam]
+    if cfg.share_cameras:
+        sizes = {(scene.cameras[c].width, scene.cameras[c].height) for c in cams}
+        if len(sizes) > 1:
+            raise S2PError(f"--share-cameras needs one image size for all cameras, got {sorted(sizes)}")
+        groups = [("*", cams)]
+    else:
+        groups = [(c, [c]) for c in cams]
+    for gkey, gcams in groups:
+        camera = scene.cameras[gcams[0]]
         norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
                                        cfg.residual_scale)
         keys = ["*"] if cfg.share_classes else cls_list
         todo = []
         for k in keys:
-            path = out / model_filename(cam, k)
+            path = out / model_filename(gkey, k)
             if path.exists() and not cfg.force and not path.with_name(path.name + ".state.pt").exists():
                 meta = Checkpoint.load(path)
                 if meta.info.get("complete"):
@@ -301,37 +309,42 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
             todo.append((k, path))
         if not todo:
             continue
-        rng = np.random.default_rng([cfg.seed, sum(map(ord, cam))])
-        train_ex = val_ex = ExampleSet.empty(crop // factor, factor)
+        rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
+        empty = ExampleSet.empty(crop // factor, factor)
+        tr_parts, va_parts = [], []
         if gt is not None:
-            _say(f"camera {cam}: building examples from the annotated masks")
-            has_splits = "train" in scene.splits
-            train_ex = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop,
-                                          factor, cfg.center_method, cfg.max_train_per_class, rng=rng)
-            if has_splits and "val" in scene.splits:
-                val_ex = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
+            for cam in gcams:
+                _say(f"camera {cam}: building examples from the annotated masks")
+                has_splits = "train" in scene.splits
+                tr = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop, factor,
+                                        cfg.center_method, cfg.max_train_per_class, rng=rng)
+                if has_splits and "val" in scene.splits:
+                    va = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
                                             cfg.max_val_per_class, rng=rng)
-            else:
-                _say(f"camera {cam}: no val split; holding out 15% of the training examples")
-                train_ex, val_ex = _holdout(train_ex, 0.15, rng)
+                else:
+                    _say(f"camera {cam}: no val split; holding out 15% of the training examples")
+                    tr, va = _holdout(tr, 0.15, rng)
+                tr_parts.append(tr)
+                va_parts.append(va)
+        train_ex = ExampleSet.concat(tr_parts) if tr_parts else empty
+        val_ex = ExampleSet.concat(va_parts) if va_parts else empty
+
+        def rough_pool(classes_: list[str], n: int) -> ExampleSet:
+            return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
+                                                     cfg.center_method)
+                                      for cam in gcams for c in classes_])
+
         for k, path in todo:
             kcls = cls_list if k == "*" else [k]
-            tr = train_ex if k == "*" else train_ex.select_class(k)
-            va = val_ex if k == "*" else val_ex.select_class(k)
-            if k == "*":
-                tr = tr.take(np.flatnonzero(np.isin(tr.cls, kcls)))
-                va = va.take(np.flatnonzero(np.isin(va.cls, kcls)))
-            use_rough = cfg.zero_annotation or cfg.rough_every > 0
+            tr = train_ex.take(np.flatnonzero(np.isin(train_ex.cls, kcls)))
+            va = val_ex.take(np.flatnonzero(np.isin(val_ex.cls, kcls)))
             rough = None
-            if use_rough:
-                per = cfg.rough_per_class
-                rough = ExampleSet.concat([rough_examples(scene, cam, c, per, rng, crop, factor,
-                                                          cfg.center_method) for c in kcls])
+            if cfg.zero_annotation or cfg.rough_every > 0:
+                rough = rough_pool(kcls, cfg.rough_per_class)
             if cfg.zero_annotation or len(va) == 0:
                 if not cfg.zero_annotation:
                     _say(f"warning: {path.stem}: no annotated validation examples; validating on rough models")
-                va = ExampleSet.concat([rough_examples(scene, cam, c, cfg.rough_val_per_class, rng,
-                                                       crop, factor, cfg.center_method) for c in kcls])
+                va = rough_pool(kcls, cfg.rough_val_per_class)
             if len(tr) == 0 and not cfg.zero_annotation:
                 if rough is None or len(rough) == 0:
                     _say(f"warning: {path.stem}: no training examples at all; skipped")
@@ -342,9 +355,9 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
                 continue
             _say(f"{path.stem}: {len(tr)} annotated + {0 if rough is None else len(rough)} rough "
                  f"training examples, {len(va)} validation")
-            ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=norm, camera=cam, cls=k,
+            ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=norm, camera=gkey, cls=k,
                             scene_fingerprint=fp, classes=all_classes if k == "*" else [],
-                            info={"zero_annotation": cfg.zero_annotation,
+                            info={"zero_annotation": cfg.zero_annotation, "cameras": gcams,
                                   "train_config": asdict(cfg), "n_train": len(tr),
                                   "n_rough": 0 if rough is None else len(rough), "n_val": len(va)})
             shared = k == "*"
