@@ -80,7 +80,7 @@ def vehicle_route(rng: np.random.Generator, bike: bool) -> tuple[Route, str]:
     mv = rng.choice(["straight", "right", "left"], p=[0.6, 0.2, 0.2])
     exit_arm = ARMS[{"straight": ai + 2, "right": ai + 1, "left": ai + 3}[mv] % 4]
     if bike:
-        b_in = J.ROAD_HALF - 0.5
+        b_in = J.ROAD_HALF - 0.4
         b_out = -b_in
         v_turn = 3.5 if mv == "right" else 4.5
     else:
@@ -213,22 +213,116 @@ class Visit:
     t0: float            # s, start time
 
 
-def _sample(s_of_t_s: np.ndarray, s_of_t_t: np.ndarray, xy: np.ndarray, s_nodes: np.ndarray,
-            t0: float, dt: float, stride: float) -> tuple[np.ndarray, ...]:
-    """Positions at frame times within [t0, t0 + duration]."""
-    f0 = int(np.ceil(t0 / dt - 1e-9))
-    f1 = int(np.floor((t0 + s_of_t_t[-1]) / dt + 1e-9))
-    frames = np.arange(f0, f1 + 1)
-    tt = frames * dt - t0
-    s = np.interp(tt, s_of_t_t, s_of_t_s)
+def _pose_at(s: np.ndarray, xy: np.ndarray, s_nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, 2) and headings (n,) at arc lengths s (n,) along a polyline."""
     p = np.column_stack([np.interp(s, s_nodes, xy[:, 0]), np.interp(s, s_nodes, xy[:, 1])])
     seg = np.diff(xy, axis=0)
     ang = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
-    # heading: the segment direction, blended over 1 m around the vertices (no snapping)
+    # heading: the segment direction, interpolated between segment midpoints (no snapping)
     mids = 0.5 * (s_nodes[1:] + s_nodes[:-1])
     hd = np.interp(s, mids, ang) if len(mids) > 1 else np.full(len(s), ang[0])
-    hd = (hd + np.pi) % (2 * np.pi) - np.pi
-    return frames, p, hd, 2 * np.pi * s / stride
+    return p, (hd + np.pi) % (2 * np.pi) - np.pi
+
+
+def _hold(s_g: np.ndarray, t_g: np.ndarray, s_hold: float, dwell: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Insert a stationary period of ``dwell`` seconds at arc length ``s_hold`` into t(s)."""
+    if dwell <= 1e-6:
+        return s_g, t_g
+    t_a = float(np.interp(s_hold, s_g, t_g))
+    k = int(np.searchsorted(s_g, s_hold, side="right"))
+    t = np.where(s_g > s_hold, t_g + dwell, t_g)
+    return np.insert(s_g, k, [s_hold, s_hold]), np.insert(t, k, [t_a, t_a + dwell])
+
+
+@dataclass
+class Traj:
+    """A scheduled road user: start time, t(s) table, path, footprint half sizes (metres)."""
+
+    t0: float
+    s_g: np.ndarray
+    t_g: np.ndarray
+    xy: np.ndarray
+    s_nodes: np.ndarray
+    half: tuple[float, float]  # half length, half width
+    vehicle: bool
+
+    @property
+    def t1(self) -> float:
+        return self.t0 + float(self.t_g[-1])
+
+    def at(self, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arc length, position and heading at absolute times tt; NaN outside the visit."""
+        s = np.interp(tt - self.t0, self.t_g, self.s_g)
+        p, h = _pose_at(s, self.xy, self.s_nodes)
+        out = (tt < self.t0) | (tt > self.t1)
+        p[out] = np.nan
+        return s, p, h
+
+    def grid(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Poses on the shared conflict-check time grid k * GRID_DT: (k0, s, xy, heading,
+        bounding box (4,) of the positions)."""
+        g = getattr(self, "_grid", None)
+        if g is None:
+            k0 = int(np.ceil(self.t0 / GRID_DT))
+            k1 = int(np.floor(self.t1 / GRID_DT))
+            s, p, h = self.at(np.arange(k0, k1 + 1) * GRID_DT)
+            box = np.array([p[:, 0].min(), p[:, 0].max(), p[:, 1].min(), p[:, 1].max()]) \
+                if len(p) else np.array([np.inf, -np.inf, np.inf, -np.inf])
+            g = self._grid = (k0, s, p, h, box)
+        return g
+
+
+GRID_DT = 0.2  # s, time step of the conflict checks
+
+
+def _overlap(c1, h1, half1, c2, h2, half2) -> np.ndarray:
+    """(T,) bool: oriented rectangles overlap (separating axis test), vectorised over time."""
+    d = c2 - c1
+    out = np.zeros(len(d), bool)
+    reach = np.hypot(*half1) + np.hypot(*half2)
+    with np.errstate(invalid="ignore"):
+        near = np.flatnonzero(np.einsum("ij,ij->i", d, d) < reach * reach)  # NaN -> False
+    if len(near) == 0:
+        return out
+    d, h1, h2 = d[near], h1[near], h2[near]
+    u1 = np.stack([np.cos(h1), np.sin(h1)], -1)
+    v1 = np.stack([-u1[:, 1], u1[:, 0]], -1)
+    u2 = np.stack([np.cos(h2), np.sin(h2)], -1)
+    v2 = np.stack([-u2[:, 1], u2[:, 0]], -1)
+    sep = np.zeros(len(d), bool)
+    for ax in (u1, v1, u2, v2):
+        r1 = half1[0] * np.abs((u1 * ax).sum(1)) + half1[1] * np.abs((v1 * ax).sum(1))
+        r2 = half2[0] * np.abs((u2 * ax).sum(1)) + half2[1] * np.abs((v2 * ax).sum(1))
+        sep |= np.abs((d * ax).sum(1)) > r1 + r2
+    out[near] = ~sep
+    return out
+
+
+def _first_conflict(me: Traj, others: list[Traj], margin: float) -> tuple[float, float] | None:
+    """(time, my arc length) of the first overlap with an earlier-scheduled road user."""
+    k0, s, p, h, box = me.grid()
+    if len(s) == 0:
+        return None
+    k1 = k0 + len(s)
+    half = (me.half[0] + margin, me.half[1] + 0.05)  # keep the margin mostly fore and aft
+    reach = 6.0  # m: more than any two half-diagonals
+    best = None
+    for o in others:
+        if not me.vehicle and not o.vehicle:
+            continue  # pedestrians pass each other
+        ok0, os_, op, oh, obox = o.grid()
+        a, b = max(k0, ok0), min(k1, ok0 + len(os_))
+        if a >= b or (best is not None and a >= best):
+            continue
+        if (obox[0] > box[1] + reach or obox[1] < box[0] - reach or obox[2] > box[3] + reach
+                or obox[3] < box[2] - reach):
+            continue
+        hit = np.flatnonzero(_overlap(p[a - k0:b - k0], h[a - k0:b - k0], half,
+                                      op[a - ok0:b - ok0], oh[a - ok0:b - ok0], o.half))
+        if len(hit) and (best is None or a + hit[0] < best):
+            best = a + int(hit[0])
+    return None if best is None else (best * GRID_DT, float(s[best - k0]))
 
 
 @dataclass
@@ -245,7 +339,10 @@ class TrafficConfig:
 
 
 def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Visit]:
-    """All visits that overlap frames [0, n_frames), in order of start time (deterministic)."""
+    """All visits that overlap frames [0, n_frames), sorted by first frame (deterministic).
+
+    Road users are scheduled in order of start time; each yields to the ones scheduled before
+    it (waits at its stop line or curb, or starts later) so that no two overlap."""
     rng = np.random.default_rng([seed, 11])
     t_end = n_frames * dt
     heap: list[tuple[float, int, str]] = []
@@ -256,66 +353,75 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Vi
             heap.append((t, k, cls))
             k += 1
     heapq.heapify(heap)
-    lane_last: dict[tuple, tuple] = {}   # lane -> (s_grid, t_grid, t0, length, shared_s)
     queue: dict[tuple, tuple[float, int]] = {}  # lane -> (green time the queue waits for, count)
+    active: list[Traj] = []
     visits: list[Visit] = []
     while heap:
         t0, slot, cls = heapq.heappop(heap)
         if t0 >= t_end:
             continue
+        active = [a for a in active if a.t1 >= t0]
         if cls == "pedestrian":
-            v = _pedestrian_visit(rng, t0, dt)
+            tr, stride = _pedestrian_traj(rng, t0, active)
         else:
-            v = _vehicle_visit(rng, cls, t0, dt, lane_last, queue)
-        dur = (v.frames[-1] * dt - v.t0) if len(v.frames) else 0.0
-        if len(v.frames) and v.frames[-1] >= 0:
-            keep = (v.frames >= 0) & (v.frames < n_frames)
-            if keep.any():
-                visits.append(Visit(cls, v.frames[keep], v.xy[keep], v.heading[keep],
-                                    v.phase[keep], v.t0))
-        t_next = v.t0 + max(dur, 1.0) + rng.exponential(cfg.mean_pause_s.get(cls, 30.0))
+            tr, stride = _vehicle_traj(rng, cls, t0, active, queue)
+        active.append(tr)
+        f0 = max(int(np.ceil(tr.t0 / dt - 1e-9)), 0)
+        f1 = min(int(np.floor(tr.t1 / dt + 1e-9)), n_frames - 1)
+        if f1 >= f0:
+            frames = np.arange(f0, f1 + 1)
+            s, p, h = tr.at(frames * dt)
+            visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0))
+        t_next = max(tr.t1, t0 + 1.0) + rng.exponential(cfg.mean_pause_s.get(cls, 30.0))
         heapq.heappush(heap, (t_next, slot, cls))
-    visits.sort(key=lambda v: (v.frames[0], v.t0))
+    visits.sort(key=lambda v: (int(v.frames[0]), v.t0))
     return visits
 
 
-def _vehicle_visit(rng, cls, t0, dt, lane_last, queue) -> Visit:
+YIELD_STEP = 1.0  # s
+MAX_YIELD_STEPS = 90  # then the road user goes anyway (rare; counted in the scene's extra)
+
+
+def _vehicle_traj(rng, cls, t0, active, queue) -> tuple[Traj, float]:
     bike = cls == "bicyclist"
     route, arm = vehicle_route(rng, bike)
     lane = (arm, bike, round(float(route.xy[0, 0]), 2), round(float(route.xy[0, 1]), 2))
     v_cruise = rng.uniform(4.0, 6.5) if bike else rng.uniform(8.0, 12.5)
     acc, dec = (1.0, 1.5) if bike else (2.0, 3.0)
-    length = 1.8 if bike else 4.8
-    gap = (length + 2.0)
-    # free run: does it reach the stop line on red?
-    s_g, t_g = _profile(route, v_cruise, acc, dec, None)
-    t_arr = t0 + np.interp(route.stop_s, s_g, t_g)
-    g = green_start(arm, t_arr)
-    if g > t_arr + 1e-6:
-        # red: stop behind the cars already queued for this green
-        qg, qn = queue.get(lane, (None, 0))
-        n_ahead = qn if qg == g else 0
+    # footprint half sizes: about the largest shapes' length, typical widths (lane neighbours,
+    # 1.35 m apart for a bicyclist beside a car in the outer lane, must not count as conflicts)
+    half = (0.95, 0.3) if bike else (2.6, 0.95)
+    gap = 2 * half[0] + 2.0
+    stop_s = route.stop_s - half[0]  # the centre's arc length when the front is at the line
+    shift = extra = 0.0
+    s_free, t_free = _profile(route, v_cruise, acc, dec, None)
+    for _ in range(MAX_YIELD_STEPS):
+        start = t0 + shift
+        t_arr = start + float(np.interp(stop_s, s_free, t_free))
+        g = green_start(arm, t_arr)
+        red = g > t_arr + 1e-6
+        n_ahead = 0
+        if red or extra > 0:
+            qg, qn = queue.get(lane, (None, 0))
+            n_ahead = qn if (red and qg == g) else 0
+            stop = max(stop_s - n_ahead * gap, 1.0)
+            s_g, t_g = _profile(route, v_cruise, acc, dec, stop)
+            wait = g + 0.8 + 1.2 * n_ahead - (start + float(np.interp(stop, s_g, t_g))) if red else 0.0
+            s_g, t_g = _hold(s_g, t_g, stop, max(wait, 0.0) + extra)
+        else:
+            stop = stop_s
+            s_g, t_g = s_free, t_free
+        tr = Traj(start, s_g, t_g, route.xy, route.s, half, True)
+        c = _first_conflict(tr, active, margin=0.3)
+        if c is None:
+            break
+        if c[1] < stop - 0.5:
+            shift += YIELD_STEP   # the conflict is on the approach: arrive later
+        else:
+            extra += YIELD_STEP   # in or past the junction: wait longer at the stop line
+    if red:
         queue[lane] = (g, n_ahead + 1)
-        stop = route.stop_s - n_ahead * gap
-        s_g, t_g = _profile(route, v_cruise, acc, dec, max(stop, 1.0))
-        t_stop = np.interp(stop, s_g, t_g)
-        dwell = max(0.0, g + 0.8 + 1.2 * n_ahead - (t0 + t_stop))
-        t_g = t_g + np.where(s_g > stop + 1e-9, dwell, 0.0)
-    # never closer than ``gap`` to the previous vehicle of this lane while sharing it: start later
-    prev = lane_last.get(lane)
-    if prev is not None:
-        ps, pt, pt0, _, pshared = prev
-        for _ in range(60):
-            tt = np.linspace(t0, t0 + t_g[-1], 200)
-            s_me = np.interp(tt - t0, t_g, s_g)
-            s_prev = np.interp(tt - pt0, pt, ps, left=-1e9, right=1e9)
-            shared = (s_me < pshared)
-            if not np.any(shared & (s_prev - s_me < gap)):
-                break
-            t0 += 0.5
-    lane_last[lane] = (s_g, t_g, t0, length, route.shared_s)
-    frames, p, hd, ph = _sample(s_g, t_g, route.xy, route.s, t0, dt, stride=1e9)
-    return Visit(cls, frames, p, hd, ph, t0)
+    return tr, 1e9
 
 
 def _densify(xy: np.ndarray, step: float) -> np.ndarray:
@@ -327,30 +433,42 @@ def _densify(xy: np.ndarray, step: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _pedestrian_visit(rng, t0, dt) -> Visit:
-    nodes, waits = pedestrian_route(rng)
-    s_wait = _polyline(nodes)[waits] if waits else np.zeros(0)
-    xy = _offset(_densify(nodes, 0.5), rng.uniform(-1.1, 1.1))
+def _pedestrian_traj(rng, t0, active) -> tuple[Traj, float]:
+    nodes, _ = pedestrian_route(rng)
+    # sideways offset from the walking line: not too near the road, where turning bicyclists pass
+    xy = _offset(_densify(nodes, 0.5), rng.uniform(-0.6, 1.1))
     s_nodes = _polyline(xy)
-    s_wait = s_wait * (s_nodes[-1] / max(_polyline(nodes)[-1], 1e-9))  # offset changes lengths
+    # wait at the curb: the last point at least 0.6 m inside the sidewalk before each crossing
+    d = J.curb_distance(xy)
+    leave = np.flatnonzero((d[:-1] > 0) & (d[1:] <= 0))
+    inside = np.flatnonzero(d > 0.6)
+    s_wait = np.array([s_nodes[inside[inside <= i][-1]] for i in leave if (inside <= i).any()])
     speed = rng.uniform(1.05, 1.6)
-    s = s_nodes.copy()
-    t = s / speed
-    # waits: at the curb before each crossing; sometimes a pause anywhere; some standers
-    stops = [(sw, rng.uniform(0.0, 8.0)) for sw in s_wait]
+    stride = rng.uniform(1.2, 1.5)
+    # holds: at the curb before each crossing; sometimes a pause anywhere; some standers
+    holds = [[float(sw), float(rng.uniform(0.0, 8.0))] for sw in s_wait]
     u = rng.random()
-    if u < 0.12:      # a stander: stays for most of the visit
-        stops.append((rng.uniform(0, s_nodes[-1]), rng.uniform(40.0, 150.0)))
-    elif u < 0.35:    # a pause: chatting, looking at a phone
-        stops.append((rng.uniform(0, s_nodes[-1]), rng.uniform(5.0, 30.0)))
-    for s_stop, dwell in stops:
-        if dwell < 1e-3:
-            continue
-        t_a = np.interp(s_stop, s, t)
-        k = int(np.searchsorted(s, s_stop, side="right"))
-        t = np.where(s > s_stop, t + dwell, t)
-        s = np.insert(s, k, [s_stop, s_stop])
-        t = np.insert(t, k, [t_a, t_a + dwell])
-    t = t + np.arange(len(t)) * 1e-9  # strictly increasing for interpolation
-    frames, p, hd, ph = _sample(s, t, xy, s_nodes, t0, dt, stride=rng.uniform(1.2, 1.5))
-    return Visit("pedestrian", frames, p, hd, ph, t0)
+    # standing still happens on the sidewalk, never on the road
+    walk = s_nodes[J.curb_distance(xy) > 0.5]
+    if u < 0.12 and len(walk):      # a stander: stays for most of the visit
+        holds.append([float(walk[rng.integers(len(walk))]), float(rng.uniform(40.0, 150.0))])
+    elif u < 0.35 and len(walk):    # a pause: chatting, looking at a phone
+        holds.append([float(walk[rng.integers(len(walk))]), float(rng.uniform(5.0, 30.0))])
+    holds.sort()
+    shift = 0.0
+    for _ in range(MAX_YIELD_STEPS):
+        s_g, t_g = s_nodes.copy(), s_nodes / speed
+        for s_h, dwell in holds:
+            s_g, t_g = _hold(s_g, t_g, s_h, dwell)
+        t_g = t_g + np.arange(len(t_g)) * 1e-9  # strictly increasing for interpolation
+        tr = Traj(t0 + shift, s_g, t_g, xy, s_nodes, (0.2, 0.3), False)
+        c = _first_conflict(tr, active, margin=0.2)
+        if c is None:
+            break
+        # wait longer at the last curb before the conflict, or start later
+        before = [h for h in holds if h[0] <= c[1] - 0.3]
+        if before:
+            before[-1][1] += YIELD_STEP
+        else:
+            shift += YIELD_STEP
+    return tr, stride
