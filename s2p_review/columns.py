@@ -63,6 +63,49 @@ def projected_edges(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarr
     return uv[idx][:, EDGES].reshape(-1, 2, 2), idx
 
 
+def strips_arrow(points: np.ndarray, offsets: np.ndarray, batch_cls):
+    """Many line strips as one Arrow list array of the type of ``batch_cls`` (e.g.
+    rr.components.LineStrip2DBatch), built from all points (P, dim) and strip offsets (S+1,)
+    without a Python loop over strips (rerun's own conversion walks the strips one by one).
+    Rerun takes an Arrow array of the right type as it is."""
+    import pyarrow as pa
+
+    dim = points.shape[1]
+    inner = pa.FixedSizeListArray.from_arrays(
+        pa.array(np.ascontiguousarray(points, dtype=np.float32).ravel()), dim)
+    arr = pa.ListArray.from_arrays(pa.array(np.asarray(offsets, np.int32)), inner)
+    return arr.cast(batch_cls._ARROW_DATATYPE)
+
+
+def segments_arrow(segs: np.ndarray, batch_cls):
+    """(S, K, dim) strips of K points each as an Arrow array (see ``strips_arrow``)."""
+    s, k = segs.shape[:2]
+    return strips_arrow(segs.reshape(s * k, -1), np.arange(s + 1) * k, batch_cls)
+
+
+def trail_points(track_id: np.ndarray, frame: np.ndarray, xyz: np.ndarray, length: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Trails of all rows at once: for row i, the track's positions over its last ``length``
+    rows up to and including row i (rows of a track taken in frame order). Returns points
+    (P, 3) and offsets (N+1,) so that row i's trail is points[offsets[i]:offsets[i+1]]."""
+    n = len(track_id)
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros(1, np.int64)
+    order = np.lexsort((frame, track_id))
+    tid = track_id[order]
+    start = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]])
+    first_of = np.repeat(start, np.diff(np.r_[start, n]))
+    i = np.arange(n)
+    lo_sorted = np.maximum(first_of, i - length + 1)
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
+    lo[order], hi[order] = lo_sorted, i  # in the caller's row order, as positions in ``order``
+    cnt = hi - lo + 1
+    offsets = np.r_[0, np.cumsum(cnt)]
+    pos = np.arange(offsets[-1]) - np.repeat(offsets[:-1], cnt) + np.repeat(lo, cnt)
+    return xyz[order][pos], offsets
+
+
 def trail_strips(track_id: np.ndarray, frame: np.ndarray, xyz: np.ndarray, length: int
                  ) -> list[np.ndarray]:
     """For each row (rows sorted by frame), the track's positions (K, 3) over its last
@@ -81,30 +124,55 @@ def trail_strips(track_id: np.ndarray, frame: np.ndarray, xyz: np.ndarray, lengt
     return out
 
 
+class BadMask(ValueError):
+    """A mask whose runs do not cover height*width pixels; ``index`` is its position."""
+
+    def __init__(self, index: int, total: int, expected: int):
+        super().__init__(f"RLE covers {total} pixels but height*width = {expected}")
+        self.index = index
+
+
 def paint_masks(rles: Sequence[bytes], values: np.ndarray, slot: np.ndarray, height: int,
-                width: int, n_slots: int, dtype=np.uint8) -> np.ndarray:
+                width: int, n_slots: int, dtype=np.uint8, check: bool = False) -> np.ndarray:
     """Paint many masks into a stack of label images straight from their RLE runs.
 
     rles: N compressed COCO RLE strings; values: (N,) label of each mask (class id or instance
     id); slot: (N,) index of the image each mask goes to. Returns (n_slots, height, width)
     images, 0 = background; a mask later in the list is painted over earlier ones. Pixels:
-    row-major, (row, col) as in the image."""
-    out = np.zeros(n_slots * height * width, dtype=dtype)
+    row-major, (row, col) as in the image. check: raise BadMask when a mask's runs do not add
+    up to height*width."""
+    hw = height * width
+    # paint into column-major images (slot, col, row): an RLE run is then one contiguous range
+    out = np.zeros(n_slots * hw, dtype=dtype)
     if len(rles) == 0:
         return out.reshape(n_slots, height, width)
     counts, offsets = decode_counts(rles)
     n = len(rles)
-    owner = np.repeat(np.arange(n), np.diff(offsets))
+    per = np.diff(offsets)
+    if check:
+        total = np.bincount(np.repeat(np.arange(n), per), weights=counts, minlength=n)
+        bad = np.flatnonzero(total != hw)
+        if len(bad):
+            raise BadMask(int(bad[0]), int(total[bad[0]]), hw)
+    owner = np.repeat(np.arange(n), per)
     k = np.arange(len(counts)) - offsets[owner]
     cs = np.cumsum(counts)
     before = np.concatenate([[0], cs])[offsets[:-1]]
-    start = cs - counts - np.repeat(before, np.diff(offsets))
+    start = cs - counts - np.repeat(before, per)
     fg = (k % 2) == 1  # runs alternate background / foreground, starting with background
     own, st, ln = owner[fg], start[fg], counts[fg]
-    total = int(ln.sum())
-    # column-major pixel index p of every foreground pixel
-    p = np.arange(total) - np.repeat(np.cumsum(ln) - ln, ln) + np.repeat(st, ln)
-    col, row = np.divmod(p, height)
-    m = np.repeat(own, ln)
-    out[np.asarray(slot, np.int64)[m] * (height * width) + row * width + col] = np.asarray(values)[m]
-    return out.reshape(n_slots, height, width)
+    ln_cs = np.cumsum(ln)
+    # flat index of each foreground pixel = its run's start (in its slot) + position in the run
+    shift = st + np.asarray(slot, np.int64)[own] * hw - (ln_cs - ln)
+    it = np.int32 if n_slots * hw < 2**31 else np.int64  # int32 halves the memory traffic
+    idx = np.arange(int(ln_cs[-1]) if len(ln) else 0, dtype=it)
+    idx += np.repeat(shift.astype(it), ln)
+    out[idx] = np.repeat(np.asarray(values).astype(dtype)[own], ln)
+    # back to row-major (slot, row, col); cv2's transpose is ~3x faster than numpy's here
+    import cv2
+
+    cm = out.reshape(n_slots, width, height)
+    rm = np.empty((n_slots, height, width), dtype=dtype)
+    for j in range(n_slots):
+        cv2.transpose(cm[j], dst=rm[j])
+    return rm

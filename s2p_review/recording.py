@@ -103,12 +103,14 @@ def log_masks(rec, scene: Scene, cam: str, first: int, last: int, every: int) ->
         format=rr.components.ImageFormat(width=w, height=h, channel_datatype="U8"),
         opacity=0.6, draw_order=5.0), static=True)
     frames_all = np.arange(first, last + 1, every, dtype=np.int64)
+    # runs are checked per batch in paint_masks (one decode instead of one per frame)
     stream = iter(iter_mots(path, known_classes=[c.id for c in scene.classes],
-                            frame_range=(first, last)))
+                            frame_range=(first, last), check_rles=False))
     pending = next(stream, None)
     for lo in range(0, len(frames_all), MASK_BATCH):
         fr = frames_all[lo:lo + MASK_BATCH]
         rles: list[bytes] = []
+        where: list[tuple[int, int]] = []  # (frame, track id) of each mask, for messages
         vals, slots = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
         while pending is not None and pending[0] <= fr[-1]:
             f, t = pending
@@ -117,10 +119,18 @@ def log_masks(rec, scene: Scene, cam: str, first: int, last: int, every: int) ->
                                  file=path)
             if (f - first) % every == 0:
                 rles += t.rles
+                where += [(f, int(k)) for k in t.track_id]
                 vals.append(t.class_id)
                 slots.append(np.full(len(t), int(np.searchsorted(fr, f))))
             pending = next(stream, None)
-        imgs = C.paint_masks(rles, np.concatenate(vals), np.concatenate(slots), h, w, len(fr))
+        try:
+            imgs = C.paint_masks(rles, np.concatenate(vals), np.concatenate(slots), h, w, len(fr),
+                                 check=True)
+        except C.BadMask as e:
+            f, k = where[e.index]
+            raise InputError(f"frame {f}, track {k}: {e}", file=path) from None
+        except InputError as e:
+            raise InputError(f"frames {fr[0]}..{fr[-1]}: {e}", file=path) from None
         rec.send_columns(ent, indexes=_times(fr, scene.fps),
                          columns=rr.SegmentationImage.columns(buffer=imgs.reshape(len(fr), -1)))
     return len(frames_all)
@@ -205,11 +215,12 @@ def log_trails(rec, ent: str, table: PoseTable, scene: Scene, first: int, last: 
     t = table.take(np.argsort(table.frame, kind="stable"))
     ok = np.isfinite(t.xyz).all(axis=1)
     t = t.take(ok)
-    strips = C.trail_strips(t.track_id, t.frame, t.xyz + [0, 0, 0.05], length)
+    pts, offs = C.trail_points(t.track_id, t.frame, t.xyz + [0, 0, 0.05], length)
+    strips = C.strips_arrow(pts, offs, rr.components.LineStrip3DBatch)
+    rec.log(ent, rr.LineStrips3D.from_fields(radii=0.04), static=True)
     rec.send_columns(ent, indexes=_times(np.arange(first, last + 1), scene.fps),
                      columns=rr.LineStrips3D.columns(strips=strips,
-                                                     colors=L.class_colors(t.cls, scene.classes),
-                                                     radii=[0.04] * len(strips))
+                                                     colors=L.class_colors(t.cls, scene.classes))
                      .partition(C.frame_lengths(t.frame, first, last)))
 
 
@@ -220,14 +231,16 @@ def log_projected(rec, ent: str, camera, table: PoseTable, sizes: np.ndarray, sc
     order = np.argsort(table.frame, kind="stable")
     t, sz = table.take(order), sizes[order]
     segs, idx = C.projected_edges(camera, t.xyz, t.heading, sz)
-    cols = (np.tile(np.array(color, np.uint8), (len(idx), 1)) if color is not None
-            else L.class_colors(t.cls[idx], scene.classes))
     lengths = C.frame_lengths(t.frame[idx], first, last) * 12
+    # constant look (width, draw order, and the colour of truth) once, statically
+    rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0, radii=0.75,
+                                             colors=color if color is not None else None), static=True)
+    extra = {} if color is not None else {
+        "colors": np.repeat(L.class_colors(t.cls[idx], scene.classes), 12, axis=0)}
     rec.send_columns(ent, indexes=_times(np.arange(first, last + 1), scene.fps),
-                     columns=rr.LineStrips2D.columns(strips=segs, colors=np.repeat(cols, 12, axis=0),
-                                                     radii=[0.75] * len(segs))
+                     columns=rr.LineStrips2D.columns(
+                         strips=C.segments_arrow(segs, rr.components.LineStrip2DBatch), **extra)
                      .partition(lengths))
-    rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0), static=True)
 
 
 def log_views(rec, run: Run, scene: Scene, cameras: list[str], first: int, last: int) -> None:

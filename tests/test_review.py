@@ -360,3 +360,41 @@ def test_run_json_meta_roundtrip(tiny):
     _, base, _, _ = tiny
     meta = json.loads((base / "run.json").read_text())
     assert meta["method"] == "baseline" and meta["cameras"] == ["c0", "c1"]
+
+
+def test_trail_points_match_trail_strips():
+    rng = np.random.default_rng(3)
+    frame = np.sort(rng.integers(0, 30, 200))
+    tid = rng.integers(0, 6, 200)
+    xyz = rng.normal(size=(200, 3))
+    pts, offs = C.trail_points(tid, frame, xyz, length=7)
+    strips = C.trail_strips(tid, frame, xyz, length=7)
+    assert len(offs) == 201
+    for i, s in enumerate(strips):
+        np.testing.assert_array_equal(pts[offs[i]:offs[i + 1]], s)
+
+
+def test_strips_arrow_is_rerun_type():
+    import rerun as rr
+
+    segs = np.arange(24, dtype=float).reshape(3, 2, 4)[:, :, :2].copy()
+    arr = C.segments_arrow(segs, rr.components.LineStrip2DBatch)
+    assert arr.type == rr.components.LineStrip2DBatch._ARROW_DATATYPE
+    assert arr.to_pylist()[1] == [list(map(float, p)) for p in segs[1]]
+
+
+def test_bad_rle_in_masks_named(tiny, tmp_path):
+    import shutil
+
+    from seg2pose.io.scene import load_scene
+
+    scene, base, _, _ = tiny
+    copy = tmp_path / "scene"
+    shutil.copytree(scene.root, copy, ignore=shutil.ignore_patterns("out", "video"))
+    lines = (copy / "masks" / "c0.txt").read_text().splitlines()
+    parts = lines[7].split()
+    lines[7] = " ".join(parts[:5] + ["0" + parts[5]])  # a leading zero-length run: too few pixels
+    (copy / "masks" / "c0.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"c0.txt: frame 2, track 7: RLE covers"):
+        record(load_scene(copy), [base], tmp_path / "bad.rrd")
+    assert not (tmp_path / "bad.rrd").exists()

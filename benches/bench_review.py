@@ -1,0 +1,235 @@
+"""Benchmark: write a review recording (.rrd) of a 1,000-frame, 3-camera, 20-road-user run with
+masks, once with column logging (``s2p_review.record``: rr.send_columns over whole frame
+ranges) and once with one ``rr.log`` call per entity per frame (the naive way).
+
+Prints seconds, MB/s and .rrd bytes per frame for both, the speed-up, and peak memory.
+
+    .venv/bin/python benches/bench_review.py [--frames 1000] [--width 640] [--height 360]
+
+The scene is built once (masks rendered from boxes with cv2) and cached under the system temp
+folder; building it is not timed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+
+def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int, seed: int = 0):
+    """A 3-camera junction with n_users road users driving straight lines (wrapping around)."""
+    import cv2
+
+    from seg2pose.camera import Camera, Rig
+    from seg2pose.io.mots import MaskTable, write_mots
+    from seg2pose.io.poses import PoseTable, write_poses
+    from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
+    from seg2pose.masks import encode, mask_centers
+    from seg2pose.normal import normal_positions
+    from s2p_review.columns import box_corners
+
+    marker = root / "built.json"
+    want = {"n_frames": n_frames, "n_users": n_users, "w": width, "h": height, "seed": seed, "v": 2}
+    if marker.exists() and json.loads(marker.read_text()) == want:
+        return load_scene(root), root / "run"
+    shutil.rmtree(root, ignore_errors=True)
+    rng = np.random.default_rng(seed)
+    gx, gy = np.meshgrid(np.linspace(-30, 30, 7), np.linspace(-30, 30, 7))
+    pts = np.stack([gx.ravel(), gy.ravel(), 0.01 * gx.ravel() + 0.005 * gy.ravel()], axis=1)
+    f = 0.8 * width
+    cams = {f"c{i}": Camera.look_at(f"c{i}", [30 * np.cos(a), 30 * np.sin(a), 10.0], [0, 0, 0], f,
+                                    width, height)
+            for i, a in enumerate(np.deg2rad([-90, 30, 150]))}
+    scene = Scene(root=root, name="bench", fps=10.0, rig=Rig(cams, {"tri": list(cams)}),
+                  ground_points=pts, classes=[ClassSpec(**c) for c in DEFAULT_CLASSES])
+    scene.save(root)
+    scene = load_scene(root)
+    sizes = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.75), "car": (4.5, 1.8, 1.5)}
+    cls = rng.choice(["pedestrian", "bicyclist", "car"], n_users)
+    speed = np.array([{"pedestrian": 0.14, "bicyclist": 0.4, "car": 0.9}[c] for c in cls])
+    ang = rng.uniform(0, 2 * np.pi, n_users)
+    start = rng.uniform(-15, 15, (n_users, 2))
+    fr = np.repeat(np.arange(n_frames), n_users)
+    uid = np.tile(np.arange(n_users), n_frames)
+    s = (fr * speed[uid]) % 40 - 20  # position along the line, wrapping inside the junction
+    xy = start[uid] * 0.3 + s[:, None] * np.stack([np.cos(ang[uid]), np.sin(ang[uid])], 1)
+    z = scene.ground.height(xy)
+    size = np.array([sizes[c] for c in cls[uid]])
+    gt = PoseTable(fr, uid + 1, cls[uid], np.c_[xy, z], ang[uid], size)
+    (root / "gt").mkdir(exist_ok=True)
+    write_poses(root / "gt" / "poses.csv", gt)
+    cid = {"pedestrian": 1, "bicyclist": 2, "car": 3}
+    view_lines = ["frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy"]
+    for name, cam in scene.cameras.items():
+        corners = box_corners(gt.xyz, gt.heading, gt.size)
+        uv, _, front = cam.project_points(corners.reshape(-1, 3))
+        uv = uv.reshape(-1, 8, 2)
+        ok = front.reshape(-1, 8).all(1) & cam.in_image(uv.reshape(-1, 2)).reshape(-1, 8).any(1)
+        keep, rles = [], []
+        m = np.zeros((height, width), np.uint8)
+        for i in np.flatnonzero(ok):
+            m[:] = 0
+            cv2.fillConvexPoly(m, cv2.convexHull(np.round(uv[i] - 0.5).astype(np.int32)), 1)
+            if m.any():
+                keep.append(i)
+                rles.append(encode(m))
+        keep = np.array(keep)
+        mt = MaskTable(gt.frame[keep], gt.track_id[keep], [cid[c] for c in gt.cls[keep]], height, width, rles)
+        write_mots(scene.masks_path(name), mt)
+        c = mask_centers(rles, height, width)
+        hts = np.array([0.9 if k != "car" else 0.75 for k in gt.cls[keep]])
+        xn, _ = normal_positions(cam, scene.ground, c, hts)
+        xn = np.nan_to_num(xn)
+        for j, i in enumerate(keep):
+            view_lines.append(f"{gt.frame[i]},{gt.track_id[i]},{name},{gt.cls[i]},{c[j, 0]},{c[j, 1]},"
+                              f"{xn[j, 0]},{xn[j, 1]},{xn[j, 2]},0.1,-0.1")
+    run = root / "run"
+    run.mkdir()
+    est = PoseTable(gt.frame, gt.track_id, gt.cls, gt.xyz + rng.normal(0, 0.3, gt.xyz.shape) * [1, 1, 0],
+                    gt.heading, gt.size)
+    write_poses(run / "poses.csv", est)
+    (run / "views.csv").write_text("\n".join(view_lines) + "\n")
+    (run / "run.json").write_text(json.dumps({"scene": str(root), "cameras": list(cams),
+                                              "method": "seg2posenet"}))
+    marker.write_text(json.dumps(want))
+    return load_scene(root), run
+
+
+def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
+    """The same content as ``record``, one rr.log per entity per frame."""
+    import rerun as rr
+
+    from seg2pose.io.mots import iter_mots
+    from seg2pose.io.poses import read_poses
+    from seg2pose.evaluate import per_frame_errors
+    from s2p_review import columns as C
+    from s2p_review import layout as L
+    from s2p_review.recording import RecordOptions, _with_size, log_static
+    from s2p_review.runs import load_run
+
+    run = load_run(run_dir, scene)
+    gt = read_poses(scene.gt_path)
+    cams = list(scene.cameras)
+    rec = rr.RecordingStream("s2p-bench")
+    rec.save(rrd, default_blueprint=L.blueprint(cams, [run.name]))
+    log_static(rec, scene, cams, RecordOptions())
+    poses, v = run.poses, run.views
+    psz, gsz = _with_size(poses, scene), _with_size(gt, scene)
+    frames = np.arange(int(poses.frame.min()), int(poses.frame.max()) + 1)
+    pf = {f: np.flatnonzero(poses.frame == f) for f in frames}
+    gf = {f: np.flatnonzero(gt.frame == f) for f in frames}
+    streams = {c: iter(iter_mots(scene.masks_path(c))) for c in cams}
+    pending = {c: next(streams[c], None) for c in cams}
+    ef, emean, _ = per_frame_errors(poses, gt)
+    err = dict(zip(ef.tolist(), emean.tolist()))
+    trails = C.trail_strips(poses.track_id, poses.frame, poses.xyz, L.TRAIL_FRAMES)
+    for f in frames:
+        rec.set_time(L.TIMELINE, sequence=int(f))
+        rec.set_time(L.TIME, duration=f / scene.fps)
+        i, g = pf[f], gf[f]
+        t = poses.take(i)
+        rec.log(f"world/road_users/{run.name}", rr.Boxes3D(
+            **C.box_columns(t.xyz, t.heading, psz[i]), colors=L.class_colors(t.cls, scene.classes),
+            labels=L.labels(t.cls, t.track_id)))
+        rec.log(f"world/road_users/{run.name}/trails", rr.LineStrips3D([trails[k] for k in i]))
+        rec.log("world/gt", rr.Boxes3D(**C.box_columns(gt.xyz[g], gt.heading[g], gsz[g]),
+                                       colors=L.GT_COLOR))
+        if f in err:
+            rec.log(f"metrics/error/{run.name}/mean", rr.Scalars(err[f]))
+        for c in cams:
+            cam = scene.cameras[c]
+            p = pending[c]
+            rles, vals = [], np.zeros(0, np.int64)
+            if p is not None and p[0] == f:
+                rles, vals = p[1].rles, p[1].class_id
+                pending[c] = next(streams[c], None)
+            img = C.paint_masks(rles, vals, np.zeros(len(rles), np.int64), cam.height, cam.width, 1)[0]
+            rec.log(f"{L.cam_path(c)}/masks", rr.SegmentationImage(img))
+            segs, _ = C.projected_edges(cam, t.xyz, t.heading, psz[i])
+            rec.log(f"{L.cam_path(c)}/poses/{run.name}", rr.LineStrips2D(segs))
+            sel = (v.frame == f) & (v.camera == c)
+            rec.log(f"{L.cam_path(c)}/normal/{run.name}", rr.Points2D(v.uv[sel]))
+            rec.log(f"world/estimates/{run.name}/{c}", rr.Points3D(v.xn[sel]))
+            rec.log(f"world/estimates/{run.name}/{c}/residuals",
+                    rr.Arrows3D(origins=v.xn[sel], vectors=np.c_[v.dxy[sel], np.zeros(sel.sum())]))
+    rec.flush()
+    rec.disconnect()
+
+
+def _time_rerun_calls() -> dict:
+    """Wrap RecordingStream.log / send_columns / flush to add up the time spent inside them."""
+    import rerun as rr
+
+    acc = {"s": 0.0}
+
+    def wrap(fn):
+        def timed(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                acc["s"] += time.perf_counter() - t
+        return timed
+
+    for name in ("log", "send_columns", "flush"):
+        setattr(rr.RecordingStream, name, wrap(getattr(rr.RecordingStream, name)))
+    return acc
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=1000)
+    ap.add_argument("--users", type=int, default=20)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=360)
+    ap.add_argument("--skip-per-frame", action="store_true")
+    a = ap.parse_args()
+    import rerun  # noqa: F401 - imported before timing: both ways pay it once per process
+
+    from s2p_review.recording import record
+
+    cache = Path(tempfile.gettempdir()) / f"s2p-bench-review-{a.frames}-{a.users}-{a.width}x{a.height}"
+    t0 = time.perf_counter()
+    scene, run = build_scene(cache, a.frames, a.users, a.width, a.height)
+    print(f"scene: {a.frames} frames, 3 cameras {a.width}x{a.height}, {a.users} road users "
+          f"(built/loaded in {time.perf_counter() - t0:.1f} s, cached in {cache})")
+    out = Path(tempfile.mkdtemp(prefix="s2p-bench-"))
+    results = {}
+    timer = _time_rerun_calls()
+    timer["s"] = 0.0
+    t = time.perf_counter()
+    record(scene, [run], out / "columns.rrd")
+    results["columns (send_columns)"] = (time.perf_counter() - t, timer["s"], (out / "columns.rrd").stat().st_size)
+    if not a.skip_per_frame:
+        timer["s"] = 0.0
+        t = time.perf_counter()
+        log_per_frame(scene, run, out / "per_frame.rrd")
+        results["per-frame rr.log"] = (time.perf_counter() - t, timer["s"], (out / "per_frame.rrd").stat().st_size)
+    raw = a.frames * 3 * a.width * a.height  # mask bytes logged (uint8 class ids)
+    print("whole recording = reading the scene and run, decoding masks, building arrays, and the "
+          "Rerun calls;\nRerun calls = time inside log / send_columns / flush only")
+    for k, (sec, rr_sec, size) in results.items():
+        print(f"{k:24s} whole {sec:6.2f} s  Rerun calls {rr_sec:6.2f} s  {size / 1e6 / sec:6.1f} MB/s "
+              f"written  {raw / 1e6 / sec:6.1f} MB/s of masks  {size / a.frames / 1e3:6.1f} kB/frame "
+              f"({size / 1e6:.1f} MB .rrd)")
+    if len(results) == 2:
+        (c, cr, _), (p, pr, _) = results.values()
+        print(f"speed-up columns vs per-frame: whole recording {p / c:.1f}x, Rerun calls {pr / cr:.1f}x")
+    print(f"peak memory (max RSS): {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+    shutil.rmtree(out, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
