@@ -59,15 +59,29 @@ class GroundSurface:
         self.alpha = float(alpha)
         self.z_min, self.z_max = float(pts[:, 2].min()), float(pts[:, 2].max())
         self.z_mean = float(pts[:, 2].mean())
+        # precomputed for eq. (1): centred xy, alpha |x_i|^2, and the moments for the gradient
+        self._origin = pts[:, :2].mean(axis=0)
+        self._pxy = pts[:, :2] - self._origin
+        self._alpha_sq = self.alpha * np.einsum("nk,nk->n", self._pxy, self._pxy)
+        zc = pts[:, 2]
+        self._moments = np.column_stack([zc, self._pxy, zc[:, None] * self._pxy])
 
-    def _weights(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Normalised weights (M, n) and offsets x_i - x (M, n, 2)."""
-        diff = self.points[None, :, :2] - xy[:, None, :]
-        e = -self.alpha * np.einsum("mnk,mnk->mn", diff, diff)
-        e -= e.max(axis=1, keepdims=True)  # shift: the largest weight is exp(0) = 1, never 0/0
-        w = np.exp(e)
-        w /= w.sum(axis=1, keepdims=True)
-        return w, diff
+    def _weights(self, xy: np.ndarray) -> np.ndarray:
+        """Normalised weights (M, n) of the ground points for queries xy (M, 2) metres.
+
+        -alpha d_i^2 = alpha (2 x.x_i - |x_i|^2) - alpha |x|^2; the last term is the same for
+        every point of a query and cancels in the normalisation, so it is dropped, and the
+        exponents are shifted by their per-query maximum (the largest weight is exp(0) = 1):
+        no 0/0 far from all points, no overflow for huge queries, and one BLAS product instead
+        of an (M, n, 2) difference array. Coordinates are taken relative to the points' mean
+        so that survey coordinates (e.g. 6e6 m northings) keep full precision."""
+        q = xy - self._origin
+        e = q @ (2 * self.alpha * self._pxy.T)
+        e -= self._alpha_sq
+        e -= e.max(axis=1, keepdims=True)
+        np.exp(e, out=e)
+        e /= e.sum(axis=1, keepdims=True)
+        return e
 
     def height(self, xy: np.ndarray) -> np.ndarray:
         """Ground height z (M,) metres at top-down positions xy (M, 2) metres."""
@@ -77,17 +91,20 @@ class GroundSurface:
                             ) -> tuple[np.ndarray, np.ndarray | None]:
         """z (M,) and dz/d(x, y) (M, 2) at xy (M, 2).
 
-        dz/dx = 2 alpha sum_i w_i (z_i - z)(x_i - x), with w the normalised weights."""
+        dz/dx = 2 alpha sum_i w_i (z_i - z)(x_i - x) = 2 alpha (sum_i w_i z_i x_i - z sum_i w_i x_i)
+        (the x terms cancel since the weights sum to 1), with w the normalised weights."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         z = np.empty(len(xy))
         g = np.empty((len(xy), 2)) if gradient else None
         for s in range(0, len(xy), _CHUNK):
-            w, diff = self._weights(xy[s:s + _CHUNK])
-            zc = w @ self.points[:, 2]
-            z[s:s + _CHUNK] = zc
+            w = self._weights(xy[s:s + _CHUNK])
             if gradient:
-                dz = self.points[None, :, 2] - zc[:, None]
-                g[s:s + _CHUNK] = 2 * self.alpha * np.einsum("mn,mnk->mk", w * dz, diff)
+                m = w @ self._moments  # (M, 5): z, x, y, z*x, z*y
+                zc = m[:, 0]
+                g[s:s + _CHUNK] = 2 * self.alpha * (m[:, 3:5] - zc[:, None] * m[:, 1:3])
+            else:
+                zc = w @ self.points[:, 2]
+            z[s:s + _CHUNK] = zc
         return z, g
 
     def intersect_rays(self, origins: np.ndarray, dirs: np.ndarray, h: np.ndarray | float = 0.0,

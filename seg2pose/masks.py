@@ -16,6 +16,7 @@ from seg2pose.errors import InputError
 
 CROP_SIZE = 420  # paper 3.3
 _DECODE_CHUNK = 64  # masks decoded at once by crop_masks
+_STATS_CHUNK = 2048  # masks per block in rle_stats
 
 
 def encode(mask: np.ndarray) -> bytes:
@@ -109,6 +110,9 @@ def rle_stats(rles: Sequence[bytes], height: int, width: int
     without decoding any mask. Centroid = mean of pixel centres (x, y); bbox = (x0, y0, x1, y1)
     in corner coordinates (x1, y1 exclusive). Empty masks give NaN centroids and boxes."""
     n = len(rles)
+    if n > _STATS_CHUNK:  # bounded memory: the run arrays are ~10 int64 per RLE character
+        parts = [rle_stats(rles[s:s + _STATS_CHUNK], height, width) for s in range(0, n, _STATS_CHUNK)]
+        return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
     h = int(height)
     owner, a, ln = _runs(rles)
     b = a + ln

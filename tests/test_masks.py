@@ -125,3 +125,14 @@ def test_iou_and_bicyclist_merge():
     merged, match = merge_bicyclists(P, B, h, w, min_overlap=0.05)
     assert match.tolist() == [0, -1]
     assert np.array_equal(decode(merged[0], h, w), person | bike)
+
+
+def test_rle_stats_in_chunks_equals_one_block(monkeypatch):
+    import seg2pose.masks as M
+
+    rles = [encode(m) for m in random_masks(5, 11, 17, 23)]
+    want = M.rle_stats(rles, 17, 23)
+    monkeypatch.setattr(M, "_STATS_CHUNK", 3)
+    got = M.rle_stats(rles, 17, 23)
+    for a, b in zip(got, want):
+        assert np.array_equal(a, b, equal_nan=True)
