@@ -1,0 +1,162 @@
+"""Simple RGB frames of a synthetic scene, written to ``video/<camera>.mp4``.
+
+A textured static background (asphalt, lane markings, stop lines, zebra crossings, paved
+sidewalks with curbs, grass), computed once per camera by casting every pixel's ray onto the
+true surface; per frame, the road users' shadows (parts projected onto the ground along the
+sun direction) and their Lambert-shaded faces in painter's order, then sensor noise. Good
+enough for the background-subtraction path and for review; not photorealistic.
+
+Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seg2pose.camera import Camera
+from seg2pose.synth import junction as J
+from seg2pose.synth.raster import SHIFT, project_parts
+from seg2pose.synth.shapes import BODY, FACES, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL
+from seg2pose.synth.world import World
+
+SUN = np.array([0.45, 0.3, -1.0]) / np.linalg.norm([0.45, 0.3, -1.0])  # direction of the light
+NOISE_SIGMA = 3.0  # grey levels of sensor noise
+
+
+def _hash_noise(x: np.ndarray, y: np.ndarray, scale: float) -> np.ndarray:
+    """A cheap deterministic texture in [-1, 1] from world coordinates (metres)."""
+    a = np.sin(x * 12.9898 * scale + y * 78.233 * scale) * 43758.5453
+    return 2.0 * (a - np.floor(a)) - 1.0
+
+
+def background(camera: Camera) -> np.ndarray:
+    """(H, W, 3) uint8 BGR image of the empty junction seen by ``camera``."""
+    H, W = camera.height, camera.width
+    v, u = np.mgrid[0:H, 0:W]
+    uv = np.column_stack([u.ravel() + 0.5, v.ravel() + 0.5])
+    X = J.ray_ground_points(camera.center, camera.unproject(uv))
+    sky = ~np.isfinite(X[:, 0])
+    Xg = np.where(sky[:, None], 0.0, X)
+    x, y = Xg[:, 0], Xg[:, 1]
+    d = J.curb_distance(Xg[:, :2])
+    img = np.empty((len(x), 3), np.float32)
+    road = d < 0
+    img[:] = (150, 152, 148)                      # sidewalk paving
+    tiles = ((np.floor(x / 0.6) + np.floor(y / 0.6)) % 2) == 0
+    img[~road & tiles] *= 0.93
+    img[road] = (78, 80, 84)                      # asphalt
+    grass = d > J.SIDEWALK
+    img[grass] = (60, 115, 70)
+    curb = np.abs(d) < 0.18
+    img[curb] = (185, 185, 182)
+    # road markings, per arm in arm coordinates (a along the arm, b across)
+    for arm, th in J.ARM_ANGLES.items():
+        c, s = np.cos(th), np.sin(th)
+        a = x * c + y * s
+        b = -x * s + y * c
+        on_arm = road & (a > J.ROAD_HALF) & (np.abs(b) < J.ROAD_HALF)
+        beyond = a > J.ROAD_HALF + J.CROSSWALK[1] + 1.0
+        centre = on_arm & beyond & (np.abs(b) < 0.08)
+        lanes = on_arm & beyond & (np.abs(np.abs(b) - J.LANE) < 0.06) & ((a % 6.0) < 3.0)
+        stop = on_arm & (np.abs(a - (J.ROAD_HALF + J.CROSSWALK[1] + 1.0)) < 0.2) & (b > 0)
+        zebra = on_arm & (a > J.ROAD_HALF + J.CROSSWALK[0]) & (a < J.ROAD_HALF + J.CROSSWALK[1]) \
+            & ((b % 1.0) < 0.5)
+        img[centre | lanes | stop | zebra] = (215, 215, 215)
+    tex = _hash_noise(x, y, 1.0)[:, None] * 9.0
+    img += tex
+    # farther ground fades towards a haze colour
+    dist = np.linalg.norm(Xg - camera.center, axis=1)
+    fog = np.clip((dist - 40.0) / 80.0, 0, 0.6)[:, None]
+    img = img * (1 - fog) + np.array([200, 195, 190]) * fog
+    img[sky] = (225, 200, 170)
+    return np.clip(img, 0, 255).astype(np.uint8).reshape(H, W, 3)
+
+
+def _part_colours(world: World, tracks: np.ndarray, kinds: np.ndarray, owner: np.ndarray
+                  ) -> np.ndarray:
+    """(P, 3) float BGR base colour of each part."""
+    own = world.colour[tracks[owner] - 1].astype(np.float32)
+    col = own.copy()
+    col[kinds == GLASS] = (70, 55, 45)
+    col[kinds == WHEEL] = (25, 25, 25)
+    col[kinds == SKIN] = (120, 150, 200)
+    # trousers: a darker shade derived from the track id (deterministic)
+    legs = kinds == LEGS
+    col[legs] = np.stack([40 + (tracks[owner[legs]] * 37) % 60,
+                          35 + (tracks[owner[legs]] * 17) % 40,
+                          30 + (tracks[owner[legs]] * 23) % 50], 1)
+    col[(kinds == BODY) | (kinds == TOP) | (kinds == FRAME)] = own[(kinds == BODY) | (kinds == TOP) | (kinds == FRAME)]
+    return col
+
+
+def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray) -> np.ndarray:
+    """One RGB (BGR) frame (H, W, 3) uint8 without sensor noise."""
+    img = bg.copy()
+    r, wv, owner = world.frame_parts(f)
+    if len(owner) == 0:
+        return img
+    tracks = world.track[r]
+    kinds = world.part_kinds(f)
+    # shadows: every vertex slides along the sun direction down to its road user's ground
+    ground_z = world.xyz[r][owner, 2][:, None]
+    t = (ground_z - wv[:, :, 2]) / SUN[2]
+    sh = wv + t[:, :, None] * SUN
+    uv_s, ok_s = project_parts(camera, sh)
+    shadow = np.zeros(img.shape[:2], np.uint8)
+    pts = np.clip(np.round((uv_s - 0.5) * (1 << SHIFT)), -2**28, 2**28).astype(np.int32)
+    for p in pts[ok_s]:
+        cv2.fillConvexPoly(shadow, cv2.convexHull(p), 1, cv2.LINE_8, SHIFT)
+    m = shadow.astype(bool)
+    img[m] = (img[m] * 0.55).astype(np.uint8)
+    # road users: parts far to near (by part centre), visible faces Lambert-shaded
+    uv, ok = project_parts(camera, wv)
+    cen = wv.mean(axis=1)
+    depth = np.linalg.norm(cen - camera.center, axis=1)
+    agent_depth = np.linalg.norm(world.xyz[r] - camera.center, axis=1)
+    order = np.lexsort((-depth, -agent_depth[owner]))
+    fv = wv[:, FACES]                              # (P, 6, 4, 3)
+    n = np.cross(fv[:, :, 1] - fv[:, :, 0], fv[:, :, 3] - fv[:, :, 0])
+    fc = fv.mean(axis=2)
+    n *= np.sign(np.einsum("pfk,pfk->pf", n, fc - cen[:, None]))[..., None]  # outwards
+    nn = np.linalg.norm(n, axis=2, keepdims=True)
+    n = n / np.maximum(nn, 1e-12)
+    facing = np.einsum("pfk,pfk->pf", n, fc - camera.center) < 0
+    light = 0.45 + 0.55 * np.clip(-np.einsum("pfk,k->pf", n, SUN), 0, 1)
+    col = _part_colours(world, tracks, kinds, owner)
+    fpts = np.clip(np.round((uv[:, FACES] - 0.5) * (1 << SHIFT)), -2**28, 2**28).astype(np.int32)
+    for p in order:
+        if not ok[p]:
+            continue
+        for k in np.flatnonzero(facing[p] & (nn[p, :, 0] > 1e-9)):
+            c = tuple(float(v) for v in np.clip(col[p] * light[p, k], 0, 255))
+            cv2.fillConvexPoly(img, np.ascontiguousarray(fpts[p, k]), c, cv2.LINE_8, SHIFT)
+    return img
+
+
+def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: int,
+                fps: float, frames: range | None = None) -> None:
+    """Render every frame of ``world`` for ``camera`` into an mp4 (mp4v) at ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bg = background(camera)
+    rng = np.random.default_rng([seed, 201, cam_index])
+    bank = [rng.normal(0, NOISE_SIGMA, size=bg.shape) for _ in range(6)]
+    pos = [np.clip(b, 0, 255).astype(np.uint8) for b in bank]
+    neg = [np.clip(-b, 0, 255).astype(np.uint8) for b in bank]
+    tmp = path.with_name(f".{path.stem}.partial.mp4")  # renamed when complete
+    wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
+                         (camera.width, camera.height))
+    if not wr.isOpened():
+        raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
+    try:
+        for f in (frames if frames is not None else range(world.n_frames)):
+            img = render_frame(camera, world, f, bg)
+            k = int(rng.integers(len(bank)))
+            img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
+            wr.write(img)
+    finally:
+        wr.release()
+    tmp.replace(path)
