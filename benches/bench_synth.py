@@ -40,7 +40,7 @@ def twenty_in_view(cam, n_frames: int, seed: int = 0):
     visits = []
     classes = ["pedestrian"] * 8 + ["bicyclist"] * 4 + ["car"] * 8
     frames = np.arange(n_frames)
-    for cls in classes:
+    for member, cls in enumerate(classes):
         while True:
             xy0 = rng.uniform([-8, -8], [30, 30])
             hd = rng.uniform(-np.pi, np.pi)
@@ -50,7 +50,7 @@ def twenty_in_view(cam, n_frames: int, seed: int = 0):
             uv, _, front = cam.project_points(X)
             if front.all() and cam.in_image(uv).all():
                 break
-        visits.append(Visit(cls, frames, xy, np.full(n_frames, hd), frames * 0.3, 0.0))
+        visits.append(Visit(cls, frames, xy, np.full(n_frames, hd), frames * 0.3, 0.0, member))
     return build_world(visits, n_frames, seed)
 
 

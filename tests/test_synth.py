@@ -348,3 +348,78 @@ def test_rough_region_is_respected(clean_scene):
     assert (xyz[:, 0] >= 0).all() and (xyz[:, 0] <= 10).all() and (np.abs(xyz[:, 1]) <= 5).all()
     with pytest.raises(InputError, match="region_xy"):
         render_rough_examples(cam, s.ground, "car", 5, np.random.default_rng(0), region_xy=(1, 0, 0, 1))
+
+
+def small_rig_file(tmp_path) -> Path:
+    """One 320x180 camera where the device's middle lens is (cheap to render)."""
+    from seg2pose.camera import Camera
+    small = Camera.look_at("v", np.array([-12.0, -12.0, 10.0]), np.array([1.0, 1.0, 0.0]), 225.0, 320, 180)
+    rig_file = tmp_path / "rig.json"
+    rig_file.write_text(json.dumps({"cameras": [small.to_dict()], "configs": {"mono-1": ["v"]}}))
+    return rig_file
+
+
+def test_road_users_keep_their_id_and_size(tmp_path):
+    out = tmp_path / "s"
+    pop = {"pedestrian": 3, "bicyclist": 1, "car": 4}
+    generate_scene(out, frames=600, seed=1, population=pop, progress=False, workers=1,
+                   noise=NoiseConfig.off(), rig=small_rig_file(tmp_path))
+    gt = read_poses(out / "gt" / "poses.csv")
+    ids = np.unique(gt.track_id)
+    assert len(ids) <= sum(pop.values())  # the population, not one id per pass
+    for t in ids:
+        m = gt.track_id == t
+        assert len(set(gt.cls[m])) == 1
+        assert np.ptp(gt.size[m], axis=0).max() == 0.0
+    # no frame lists a road user twice
+    pairs = np.stack([gt.frame, gt.track_id], 1)
+    assert len(np.unique(pairs, axis=0)) == len(pairs)
+    s = json.loads((out / "scene.json").read_text())
+    assert s["extra"]["generator"]["ids"] == "road_user"
+    assert sum(s["extra"]["road_users"].values()) == len(ids)
+    # someone came back: a gap in the frames of one id
+    gaps = [np.diff(gt.frame[gt.track_id == t]).max(initial=1) for t in ids]
+    assert max(gaps) > 1
+
+
+def test_moving_road_users_head_where_they_go(clean_scene):
+    gt = read_poses(clean_scene / "gt" / "poses.csv")
+    o = np.lexsort((gt.frame, gt.track_id))
+    t, f, xy, h = gt.track_id[o], gt.frame[o], gt.xyz[o, :2], gt.heading[o]
+    same = (t[1:] == t[:-1]) & (f[1:] == f[:-1] + 1)
+    step = xy[1:] - xy[:-1]
+    moving = same & (np.linalg.norm(step, axis=1) > 0.05)
+    assert moving.sum() > 100
+    ang = np.arctan2(step[moving, 1], step[moving, 0])
+    err = np.angle(np.exp(1j * (ang - h[:-1][moving])))
+    assert np.percentile(np.abs(err), 95) < 0.35
+
+
+def test_video_frames(tmp_path):
+    import cv2
+
+    from seg2pose.synth.rig import load_rig
+    rig_file = small_rig_file(tmp_path)
+    small = load_rig(rig_file).cameras["v"]
+    out = tmp_path / "s"
+    generate_scene(out, frames=3, seed=2, rig=rig_file, video=True, progress=False, workers=1)
+    cap = cv2.VideoCapture(str(out / "video" / "v.mp4"))
+    frames = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        frames.append(img)
+    assert len(frames) == 3 * 3 + 2 and frames[0].shape == (180, 320, 3)
+    # road users are drawn where their masks are: the masked pixels differ from the empty scene
+    from seg2pose.synth.video import background
+    bg = background(small).astype(int)
+    m = read_mots(out / "masks" / "v.txt")
+    f0 = m.take(m.frame == 0)
+    if len(f0):
+        fg = np.zeros((180, 320), bool)
+        for r in f0.rles:
+            fg |= decode(r, 180, 320).astype(bool)
+        diff = np.abs(frames[0].astype(int) - bg).sum(axis=2)
+        assert diff[fg].mean() > 3 * diff[~fg].mean()
+    assert not list(tmp_path.glob("**/.*partial*"))

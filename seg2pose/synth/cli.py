@@ -18,6 +18,7 @@ def register(app: typer.Typer) -> None:
         video: bool = typer.Option(False, "--video", help="also render RGB frames to video/<camera>.mp4"),
         preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds) or paper (3 x 7,000 frames, section 4.1)"),
         no_noise: bool = typer.Option(False, "--no-noise", help="perfect silhouettes instead of Mask R-CNN-like masks"),
+        ids: str = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (paper); visit: a new id for every pass"),
         workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
         force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
         quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
@@ -32,5 +33,5 @@ def register(app: typer.Typer) -> None:
         t = time.perf_counter()
         path = generate_scene(out, preset=preset, frames=frames, seed=seed, rig=rig, video=video,
                               force=force, noise=NoiseConfig.off() if no_noise else None,
-                              progress=not quiet, workers=workers)
+                              progress=not quiet, workers=workers, ids=ids)
         typer.echo(f"wrote scene {path} in {time.perf_counter() - t:.1f} s")

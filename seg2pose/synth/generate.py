@@ -30,7 +30,7 @@ from seg2pose.synth.render import FrameRenderer
 from seg2pose.synth.rig import load_rig
 from seg2pose.synth.shapes import CLASS_NAMES, TYPICAL_SIZES
 from seg2pose.synth.traffic import TrafficConfig, simulate
-from seg2pose.synth.world import World, build_world
+from seg2pose.synth.world import build_world
 
 DT = 0.075  # s between frames (paper 4.1)
 PRESETS = {
@@ -131,14 +131,17 @@ def _run_tasks(fn, tasks: list, workers: int, progress, desc: str, unit: str):
 def generate_scene(out: Path, *, preset: str = "small", frames: int | None = None, seed: int = 0,
                    rig=None, video: bool = False, force: bool = False,
                    noise: NoiseConfig | None = None, progress: bool = True,
-                   workers: int | None = None, population: dict | None = None) -> Path:
+                   workers: int | None = None, population: dict | None = None,
+                   ids: str = "road_user") -> Path:
     """Generate a synthetic scene folder at ``out`` and return its path.
 
     preset: "small" (3 x 240 frames, seconds) or "paper" (3 x 7,000 frames 0.075 s apart, 150
     dropped between splits, paper 4.1); frames: frames per split (overrides the preset);
     rig: device name (see ``rig.DEVICES``), a rig JSON file or a Rig; noise: detector noise
     (default on, ``NoiseConfig.off()`` for perfect silhouettes); population: class -> number of
-    road users (overrides the preset); workers: processes (default: up to 2, one per core).
+    road users (overrides the preset); workers: processes (default: up to 2, one per core);
+    ids: "road_user" (a road user keeps its track id and shape each time it comes back, as the
+    paper's 83 road users) or "visit" (a new track id for every pass through the scene).
     """
     out = Path(out)
     # --- validate everything before any work ---------------------------------------------------
@@ -159,6 +162,8 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
         if not isinstance(v, (int, np.integer)) or v < 0:
             raise InputError(f"population of {k} must be an integer >= 0, got {v!r}",
                              field=f"population.{k}")
+    if ids not in ("road_user", "visit"):
+        raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="--ids")
     if sum(pop.values()) == 0:
         raise InputError("population is empty: no road users to render", field="population")
     rig_obj = load_rig(rig)
@@ -179,7 +184,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     visits = simulate(traffic, n_frames, DT, seed)
     if not visits:
         raise S2PError("the simulation produced no road users; raise --frames or the population")
-    world = build_world(visits, n_frames, seed)
+    world = build_world(visits, n_frames, seed, ids=ids)
     rng = np.random.default_rng([seed, 31])
     ground = J.sample_ground_points(rng, visible_fn(rig_obj))
 
@@ -195,7 +200,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
             "generator": {
                 "name": "seg2pose.synth", "version": 1, "preset": preset, "seed": seed,
                 "frames_per_split": per_split, "gap": gap, "dt": DT, "rig": rig_obj.name,
-                "video": bool(video), "noise": noise.to_dict(), "traffic": traffic.to_dict(),
+                "video": bool(video), "ids": ids, "noise": noise.to_dict(), "traffic": traffic.to_dict(),
                 "ground_points": {"n": len(ground), "curb_share": 0.6},
                 "surface": {"lane_m": J.LANE, "curb_m": J.CURB, "sidewalk_m": J.SIDEWALK,
                             "corner_radius_m": J.CORNER_R, "slope": J.SLOPE,

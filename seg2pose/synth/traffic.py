@@ -2,8 +2,8 @@
 
 Each class has a population of road users (the paper's 43 pedestrians, 12 bicyclists and 28
 cars at paper scale). A population member alternates between a *visit* (a route through the
-modelled area, from one arm's far end to another's) and a pause "elsewhere in town". Every
-visit is a new track (a new ``track_id``), as a tracker would see a road user that re-enters.
+modelled area, from one arm's far end to another's) and a pause "elsewhere in town", like
+CARLA's road users wandering around the map; it keeps its identity (and shape) on every visit.
 
 - Cars keep to lanes (two per direction, right-hand traffic), turn right from the outer lane
   and left from the inner one, slow down in turns, stop at red lights (a two-phase signal),
@@ -203,7 +203,7 @@ def _profile(route: Route, v_cruise: float, acc: float, dec: float,
 
 @dataclass
 class Visit:
-    """One road user's pass through the scene: sampled at its frames."""
+    """One pass of a road user through the scene, sampled at its frames."""
 
     cls: str
     frames: np.ndarray   # (n,) int
@@ -211,6 +211,7 @@ class Visit:
     heading: np.ndarray  # (n,) radians
     phase: np.ndarray    # (n,) gait phase, radians
     t0: float            # s, start time
+    member: int = -1     # the population member (road user) making this visit
 
 
 def _pose_at(s: np.ndarray, xy: np.ndarray, s_nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -371,7 +372,7 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Vi
         if f1 >= f0:
             frames = np.arange(f0, f1 + 1)
             s, p, h = tr.at(frames * dt)
-            visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0))
+            visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0, slot))
         t_next = max(tr.t1, t0 + 1.0) + rng.exponential(cfg.mean_pause_s.get(cls, 30.0))
         heapq.heappush(heap, (t_next, slot, cls))
     visits.sort(key=lambda v: (int(v.frames[0]), v.t0))

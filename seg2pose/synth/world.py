@@ -74,37 +74,47 @@ PALETTE = {  # BGR
 }
 
 
-def build_world(visits: list[Visit], n_frames: int, seed: int) -> World:
-    """Shapes for every visit (one track each) and the frame-sorted pose table."""
-    rng = np.random.default_rng([seed, 21])
+def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_user") -> World:
+    """Shapes and the frame-sorted pose table.
+
+    ids: "road_user" = one track id per population member, kept over all its visits (the
+    paper's 83 road users; a re-entering road user has its old id and shape), or "visit" = a
+    new id and shape for every visit (as a tracker would see re-entries). Ids are 1, 2, ...
+    in order of first appearance."""
+    if ids not in ("road_user", "visit"):
+        raise ValueError(f"ids must be 'road_user' or 'visit', got {ids!r}")
+    if not visits:
+        raise ValueError("no road users")
     cls_idx = {n: i for i, n in enumerate(CLASS_NAMES)}
+    keys = [v.member if ids == "road_user" else k for k, v in enumerate(visits)]
+    first = {}
+    for k, v in zip(keys, visits):
+        first[k] = min(first.get(k, (1 << 62, 0)), (int(v.frames[0]), k))
+    order_keys = sorted(first, key=lambda k: first[k])
+    tid = {k: i + 1 for i, k in enumerate(order_keys)}
+    cls_of = {k: v.cls for k, v in zip(keys, visits)}
     verts, swing, kind, counts, sizes, colours = [], [], [], [], [], []
-    F, T, C, XY, H, PH = [], [], [], [], [], []
-    for k, v in enumerate(visits, start=1):
-        sh = MAKERS[v.cls](rng)
+    for k in order_keys:
+        # one random stream per road user: its shape does not depend on the others
+        rng = np.random.default_rng([seed, 21, int(k) + 1, 0 if ids == "road_user" else 1])
+        sh = MAKERS[cls_of[k]](rng)
         verts.append(sh.verts)
         swing.append(sh.swing)
         kind.append(sh.kind)
         counts.append(len(sh.verts))
         sizes.append(sh.size)
-        pal = PALETTE[v.cls]
+        pal = PALETTE[cls_of[k]]
         colours.append(pal[int(rng.integers(len(pal)))])
-        F.append(v.frames)
-        T.append(np.full(len(v.frames), k))
-        C.append(np.full(len(v.frames), cls_idx[v.cls]))
-        XY.append(v.xy)
-        H.append(v.heading)
-        PH.append(v.phase)
-    if not visits:
-        raise ValueError("no road users")
-    frame = np.concatenate(F).astype(np.int64)
-    track = np.concatenate(T).astype(np.int64)
+    frame = np.concatenate([v.frames for v in visits]).astype(np.int64)
+    track = np.concatenate([np.full(len(v.frames), tid[k]) for k, v in zip(keys, visits)]).astype(np.int64)
     order = np.lexsort((track, frame))
-    xy = np.concatenate(XY)[order]
+    xy = np.concatenate([v.xy for v in visits])[order]
     xyz = np.column_stack([xy, J.true_height(xy)])
     frame = frame[order]
-    return World(frame=frame, track=track[order], cls=np.concatenate(C).astype(np.int8)[order],
-                 xyz=xyz, heading=np.concatenate(H)[order], phase=np.concatenate(PH)[order],
+    cls = np.concatenate([np.full(len(v.frames), cls_idx[v.cls]) for v in visits]).astype(np.int8)
+    return World(frame=frame, track=track[order], cls=cls[order],
+                 xyz=xyz, heading=np.concatenate([v.heading for v in visits])[order],
+                 phase=np.concatenate([v.phase for v in visits])[order],
                  frame_ptr=np.searchsorted(frame, np.arange(n_frames + 1)),
                  verts=np.concatenate(verts), swing=np.concatenate(swing),
                  kind=np.concatenate(kind), part_ptr=np.concatenate([[0], np.cumsum(counts)]),
