@@ -32,6 +32,9 @@ def miss_reasons(status: np.ndarray) -> list[str]:
     return [MISS_REASONS.get(int(c), f"status {int(c)}") for c in np.asarray(status).reshape(-1)]
 
 
+TABLE_STEP = 0.25  # metres between the nodes of the scan's height table
+TABLE_MARGIN = 10.0  # metres around the ground points covered by the table
+TABLE_CELLS = 1_000_000  # table size cap (the step grows for very large areas)
 SCAN_STEP = 0.25  # metres along the ground between samples that bracket the first crossing
 MAX_SCAN = 256  # samples per ray at most (grazing rays)
 _CHUNK = 8192  # queries per block: bounds memory at CHUNK x n_points floats
@@ -65,6 +68,7 @@ class GroundSurface:
         self._alpha_sq = self.alpha * np.einsum("nk,nk->n", self._pxy, self._pxy)
         zc = pts[:, 2]
         self._moments = np.column_stack([zc, self._pxy, zc[:, None] * self._pxy])
+        self._tab = None  # height table for ray scans, built on first use
 
     def _weights(self, xy: np.ndarray) -> np.ndarray:
         """Normalised weights (M, n) of the ground points for queries xy (M, 2) metres.
@@ -107,6 +111,38 @@ class GroundSurface:
             z[s:s + _CHUNK] = zc
         return z, g
 
+    def _table(self):
+        """A lazily built table of eq. (1) on a regular grid over the points' extent plus
+        ``TABLE_MARGIN`` metres (at most ~1e6 cells): origin (2,), spacing, heights (ny, nx)."""
+        if self._tab is None:
+            lo = self.points[:, :2].min(axis=0) - TABLE_MARGIN
+            hi = self.points[:, :2].max(axis=0) + TABLE_MARGIN
+            res = max(TABLE_STEP, float(np.sqrt(np.prod(hi - lo) / TABLE_CELLS)))
+            nx, ny = (np.ceil((hi - lo) / res).astype(int) + 1)
+            gx, gy = np.meshgrid(lo[0] + res * np.arange(nx), lo[1] + res * np.arange(ny))
+            zt = self.height(np.column_stack([gx.ravel(), gy.ravel()])).reshape(ny, nx)
+            self._tab = (lo, res, zt)
+        return self._tab
+
+    def height_lookup(self, xy: np.ndarray) -> np.ndarray:
+        """Approximate z (M,) at xy (M, 2) metres: bilinear interpolation in a table of eq. (1)
+        (errors of a few millimetres on kerbs); exact eq. (1) outside the table. For scans."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        lo, res, zt = self._table()
+        ny, nx = zt.shape
+        g = (xy - lo) / res
+        inside = (g[:, 0] >= 0) & (g[:, 0] < nx - 1) & (g[:, 1] >= 0) & (g[:, 1] < ny - 1)
+        z = np.empty(len(xy))
+        if not inside.all():
+            z[~inside] = self.height(xy[~inside])
+        gi = g[inside]
+        i0 = np.floor(gi).astype(np.int64)
+        fx, fy = gi[:, 0] - i0[:, 0], gi[:, 1] - i0[:, 1]
+        c, r = i0[:, 0], i0[:, 1]
+        z[inside] = ((zt[r, c] * (1 - fx) + zt[r, c + 1] * fx) * (1 - fy)
+                     + (zt[r + 1, c] * (1 - fx) + zt[r + 1, c + 1] * fx) * fy)
+        return z
+
     def intersect_rays(self, origins: np.ndarray, dirs: np.ndarray, h: np.ndarray | float = 0.0,
                        tol: float = 1e-7, max_iter: int = 60, step: float = SCAN_STEP
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -145,9 +181,10 @@ class GroundSurface:
         dz = d[:, 2]
         n = len(o)
 
-        def f_at(s: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        def f_at(s: np.ndarray, rows: np.ndarray, exact: bool = True) -> np.ndarray:
             p = o[rows] + s[:, None] * d[rows]
-            return p[:, 2] - self.height(p[:, :2]) - hh[rows]
+            z = self.height(p[:, :2]) if exact else self.height_lookup(p[:, :2])
+            return p[:, 2] - z - hh[rows]
 
         # f(s) = o_z + s d_z - z(o_xy + s d_xy) - h: > 0 for s < s_a (above the highest point),
         # < 0 at s_b (1 mm below the lowest point).
@@ -158,7 +195,7 @@ class GroundSurface:
         rows = np.repeat(np.arange(n), k)
         j = np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k) + 1  # 1..k per ray
         s_samp = s_a[rows] + (s_b - s_a)[rows] * j / k[rows]
-        f_samp = f_at(s_samp, rows)
+        f_samp = f_at(s_samp, rows, exact=False)  # tabulated surface: cheap, mm-accurate
         f_samp[j == k[rows]] = -1.0  # s_b is below the surface by construction
         # first sample per ray at or below the surface
         below = np.flatnonzero(f_samp <= 0)
@@ -166,6 +203,13 @@ class GroundSurface:
         hi = s_samp[first]
         jf = j[first]
         lo = np.where(jf > 1, s_samp[np.maximum(first - 1, 0)], s_a)
+        # the table is approximate: make the bracket exact (f(lo) > 0 >= f(hi)), widening it to
+        # the safe ends s_a / s_b where the table was off by its few millimetres
+        all_rows = np.arange(n)
+        f_hi = f_at(hi, all_rows)
+        hi = np.where(f_hi <= 0, hi, s_b)
+        f_lo = f_at(lo, all_rows)
+        lo, hi = np.where(f_lo > 0, lo, s_a), np.where(f_lo > 0, hi, lo)
         s_plane = (self.z_mean + hh - o[:, 2]) / dz  # the plane at the mean height
         s = np.where((s_plane > lo) & (s_plane < hi), s_plane, 0.5 * (lo + hi))
         done = np.zeros(n, dtype=bool)

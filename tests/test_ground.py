@@ -119,3 +119,14 @@ def test_mesh():
     v, t = g.mesh(n=5, margin=0)
     assert v.shape == (25, 3) and t.shape == (32, 3) and t.max() == 24
     assert np.allclose(v[:, 2], g.height(v[:, :2]))
+
+
+def test_height_lookup_table_close_to_eq1():
+    g = random_ground(4)
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-40, 40, (2000, 2))  # inside and outside the table
+    assert np.max(np.abs(g.height_lookup(q) - g.height(q))) < 0.01
+    # at table nodes it is exact
+    lo, res, zt = g._table()
+    node = lo + res * np.array([[3, 5], [10, 2]])
+    assert np.allclose(g.height_lookup(node), g.height(node), atol=1e-12)

@@ -122,10 +122,30 @@ def closer_share(views: list, ground, height: float) -> tuple[float, int]:
     return (closer / n if n else float("nan")), n
 
 
+def subsample_views(views: list, max_n: int, seed: int = 0) -> list:
+    """At most ``max_n`` detections in total, drawn uniformly (the share of 'closer' is a
+    median-like statistic: 20,000 detections pin it to about +-0.4 %)."""
+    total = sum(len(c) for _, c, _ in views)
+    if total <= max_n:
+        return views
+    rng = np.random.default_rng(seed)
+    keep = np.zeros(total, bool)
+    keep[rng.choice(total, max_n, replace=False)] = True
+    out, a = [], 0
+    for cam, cen, txy in views:
+        k = keep[a:a + len(cen)]
+        a += len(cen)
+        if k.any():
+            out.append((cam, cen[k], txy[k]))
+    return out
+
+
 def update_default_heights(scene, split: str | None = "train", center: str | None = None,
-                           log=typer.echo, write: bool = True) -> dict[str, dict]:
+                           log=typer.echo, write: bool = True, max_per_class: int = 20000
+                           ) -> dict[str, dict]:
     """Paper 3.2: per-class default heights by bisection on ``split``, written back into the
-    scene's scene.json (atomically; other fields kept as they are).
+    scene's scene.json (atomically; other fields kept as they are). At most
+    ``max_per_class`` matched detections per class are used (a uniform sample).
 
     Returns per class name {"old", "new", "closer_share", "n"}; classes without matched masks
     keep their height (n = 0)."""
@@ -133,7 +153,8 @@ def update_default_heights(scene, split: str | None = "train", center: str | Non
     from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE
     from seg2pose.normal import default_height_bisection
 
-    views = collect_height_views(scene, split, center)
+    views = {k: subsample_views(v, max_per_class) for k, v in
+             collect_height_views(scene, split, center).items()}
     report: dict[str, dict] = {}
     for c in scene.classes:
         v = views.get(c.name, [])
