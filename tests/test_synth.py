@@ -423,3 +423,48 @@ def test_video_frames(tmp_path):
         diff = np.abs(frames[0].astype(int) - bg).sum(axis=2)
         assert diff[fg].mean() > 3 * diff[~fg].mean()
     assert not list(tmp_path.glob("**/.*partial*"))
+
+
+def test_cli_noise_knobs_and_distortion(tmp_path):
+    from typer.testing import CliRunner
+
+    from seg2pose.cli import app
+
+    out = tmp_path / "s"
+    r = CliRunner().invoke(app, ["synth", str(out), "--frames", "2", "--quiet", "--workers", "1",
+                                 "--noise", "miss_rate=0.5", "--noise", "min_area=10",
+                                 "--distortion", "-0.05,0.01"])
+    assert r.exit_code == 0, r.output
+    s = load_scene(out)
+    gen = s.extra["generator"]
+    assert gen["noise"]["miss_rate"] == 0.5 and gen["noise"]["min_area"] == 10
+    assert gen["distortion"] == [-0.05, 0.01]
+    cam = s.cameras["c1"]
+    assert cam.distortion is not None and cam.distortion.k1 == -0.05
+    bad = CliRunner().invoke(app, ["synth", str(tmp_path / "t"), "--noise", "speed=3"])
+    assert bad.exit_code != 0 and "--noise" in str(bad.exception)
+    bad = CliRunner().invoke(app, ["synth", str(tmp_path / "t"), "--distortion", "5,0"])
+    assert bad.exit_code != 0 and "--distortion" in str(bad.exception)
+    assert not (tmp_path / "t").exists()
+
+
+def test_truth_inside_masks_with_lens_distortion(tmp_path):
+    out = tmp_path / "d"
+    generate_scene(out, frames=2, seed=4, noise=NoiseConfig.off(), progress=False, workers=1,
+                   distortion=(-0.08, 0.0))
+    s = load_scene(out)
+    gt = read_poses(s.gt_path)
+    key = {(f, t): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
+    cam = s.cameras["c1"]
+    m = read_mots(s.masks_path("c1"))
+    area, _, _ = rle_stats(m.rles, m.height, m.width)
+    hits = n = 0
+    for f, t, r, a in zip(m.frame, m.track_id, m.rles, area):
+        i = key[(f, t)]
+        uv, _, _ = cam.project_points(gt.xyz[i] + [0, 0, 0.5 * gt.size[i, 2]])
+        x, y = np.floor(uv[0]).astype(int)
+        if a < 200 or not (0 <= x < m.width and 0 <= y < m.height):
+            continue
+        n += 1
+        hits += bool(decode(r, m.height, m.width)[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].any())
+    assert n > 10 and hits / n > 0.9

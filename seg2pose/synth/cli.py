@@ -7,6 +7,27 @@ from typing import Optional
 
 import typer
 
+from seg2pose.errors import InputError
+
+NOISE_KEYS = ["miss_rate", "min_area", "small_area", "small_miss", "merge_rate", "class_confusion",
+              "dilate_px", "mask_resolution", "boundary_jitter", "fragment_rate"]
+
+
+def parse_noise(items: list[str]) -> dict:
+    """["miss_rate=0.05", ...] -> {"miss_rate": 0.05, ...} (ints for pixel counts)."""
+    out = {}
+    for it in items:
+        key, sep, val = it.partition("=")
+        key = key.strip()
+        if not sep or key not in NOISE_KEYS:
+            raise InputError(f"expected KEY=VALUE with KEY one of {', '.join(NOISE_KEYS)}, got {it!r}",
+                             field="--noise")
+        try:
+            out[key] = int(val) if key in ("min_area", "small_area", "mask_resolution") else float(val)
+        except ValueError:
+            raise InputError(f"{key} needs a number, got {val!r}", field="--noise") from None
+    return out
+
 
 def register(app: typer.Typer) -> None:
     @app.command()
@@ -18,6 +39,8 @@ def register(app: typer.Typer) -> None:
         video: bool = typer.Option(False, "--video", help="also render RGB frames to video/<camera>.mp4"),
         preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds) or paper (3 x 7,000 frames, section 4.1)"),
         no_noise: bool = typer.Option(False, "--no-noise", help="perfect silhouettes instead of Mask R-CNN-like masks"),
+        noise: list[str] = typer.Option([], "--noise", help="a detector-noise knob KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
+        distortion: Optional[str] = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (off by default)"),
         ids: str = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (paper); visit: a new id for every pass"),
         workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
         force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
@@ -30,8 +53,19 @@ def register(app: typer.Typer) -> None:
         from seg2pose.synth.generate import generate_scene
         from seg2pose.synth.noise import NoiseConfig
 
+        cfg = NoiseConfig.off() if no_noise else NoiseConfig()
+        if noise:
+            cfg = NoiseConfig.from_dict({**cfg.to_dict(), **parse_noise(noise)})
+        dist = None
+        if distortion:
+            try:
+                dist = tuple(float(v) for v in distortion.split(","))
+            except ValueError:
+                raise InputError(f"expected K1,K2 numbers, got {distortion!r}", field="--distortion") from None
+            if len(dist) == 1:
+                dist = (dist[0], 0.0)
         t = time.perf_counter()
         path = generate_scene(out, preset=preset, frames=frames, seed=seed, rig=rig, video=video,
-                              force=force, noise=NoiseConfig.off() if no_noise else None,
-                              progress=not quiet, workers=workers, ids=ids)
+                              force=force, noise=cfg, progress=not quiet, workers=workers,
+                              ids=ids, distortion=dist)
         typer.echo(f"wrote scene {path} in {time.perf_counter() - t:.1f} s")

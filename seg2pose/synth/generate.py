@@ -132,7 +132,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
                    rig=None, video: bool = False, force: bool = False,
                    noise: NoiseConfig | None = None, progress: bool = True,
                    workers: int | None = None, population: dict | None = None,
-                   ids: str = "road_user") -> Path:
+                   ids: str = "road_user", distortion: tuple[float, float] | None = None) -> Path:
     """Generate a synthetic scene folder at ``out`` and return its path.
 
     preset: "small" (3 x 240 frames, seconds) or "paper" (3 x 7,000 frames 0.075 s apart, 150
@@ -141,7 +141,8 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     (default on, ``NoiseConfig.off()`` for perfect silhouettes); population: class -> number of
     road users (overrides the preset); workers: processes (default: up to 2, one per core);
     ids: "road_user" (a road user keeps its track id and shape each time it comes back, as the
-    paper's 83 road users) or "visit" (a new track id for every pass through the scene).
+    paper's 83 road users) or "visit" (a new track id for every pass through the scene);
+    distortion: optional radial lens distortion (k1, k2) of the named devices (off by default).
     """
     out = Path(out)
     # --- validate everything before any work ---------------------------------------------------
@@ -166,7 +167,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
         raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="--ids")
     if sum(pop.values()) == 0:
         raise InputError("population is empty: no road users to render", field="population")
-    rig_obj = load_rig(rig)
+    rig_obj = load_rig(rig, distortion)
     check_sees_road(rig_obj)
     check_writable(out, force)
     if out.exists() and not out.is_dir():
@@ -200,6 +201,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
             "generator": {
                 "name": "seg2pose.synth", "version": 1, "preset": preset, "seed": seed,
                 "frames_per_split": per_split, "gap": gap, "dt": DT, "rig": rig_obj.name,
+                "distortion": list(distortion) if distortion else None,
                 "video": bool(video), "ids": ids, "noise": noise.to_dict(), "traffic": traffic.to_dict(),
                 "ground_points": {"n": len(ground), "curb_share": 0.6},
                 "surface": {"lane_m": J.LANE, "curb_m": J.CURB, "sidewalk_m": J.SIDEWALK,

@@ -75,16 +75,21 @@ def make_device(name: str = "device", *, focal: float = FOCAL, width: int = WIDT
     return Rig(cameras=cams, configs={k: list(v) for k, v in CONFIGS.items()}, name=name)
 
 
-def load_rig(spec: "str | Path | Rig | None") -> Rig:
+def load_rig(spec: "str | Path | Rig | None", distortion: tuple[float, float] | None = None) -> Rig:
     """A rig from a device name, a JSON file ({"cameras": [...], "configs": {...}} in
-    scene.json's format), or a Rig (returned as is). None = the default device."""
+    scene.json's format), or a Rig (returned as is). None = the default device.
+    distortion: (k1, k2) for the named devices (a JSON rig carries its own)."""
+    if distortion is not None:
+        if len(distortion) != 2 or not all(np.isfinite(distortion)) or abs(distortion[0]) > 1 \
+                or abs(distortion[1]) > 1:
+            raise InputError(f"expected k1,k2 with |k| <= 1, got {distortion}", field="--distortion")
     if spec is None:
-        return make_device()
+        return make_device(distortion=distortion)
     if isinstance(spec, Rig):
         return spec
     s = str(spec)
     if s in DEVICES:
-        return make_device(s)
+        return make_device(s, distortion=distortion)
     p = Path(s)
     if p.suffix.lower() == ".json" or p.exists():
         if not p.exists():
