@@ -40,8 +40,8 @@ def register(app: typer.Typer) -> None:
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
         frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame)"),
         camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
-        mask_every: int = typer.Option(1, "--mask-every", min=1, help="log masks every k-th frame (smaller files)"),
-        video_every: int = typer.Option(1, "--video-every", min=1, help="log video frames every k-th frame"),
+        mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
+        video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
         no_masks: bool = typer.Option(False, "--no-masks", help="leave masks out"),
         no_video: bool = typer.Option(False, "--no-video", help="leave video frames out"),
         force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
@@ -56,6 +56,8 @@ def register(app: typer.Typer) -> None:
                              cameras=list(camera) or None, masks=not no_masks, video=not no_video)
         out = record(s, list(run), save, spawn=spawn, connect=connect, frames=parse_frames(frames),
                      force=force, options=opts, screenshot=screenshot, screenshot_frame=frame)
+        for note in opts.notes:
+            typer.echo(f"note: {note}")
         if out is not None:
             typer.echo(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB); open it with:  rerun {out}")
         if screenshot is not None:
@@ -67,16 +69,19 @@ def register(app: typer.Typer) -> None:
         run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
         out: Path = typer.Option(..., "-o", "--out", help="output .mcap file"),
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the run's frames"),
-        mask_every: int = typer.Option(1, "--mask-every", min=1, help="export masks every k-th frame"),
-        video_every: int = typer.Option(1, "--video-every", min=1, help="export video frames every k-th frame"),
+        mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="export masks every k-th frame (default: automatic, as for `s2p review`)"),
+        video_every: int | None = typer.Option(None, "--video-every", min=1, help="export video frames every k-th frame (default: automatic)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
     ) -> None:
         """Export a scene and a run as MCAP (Foxglove schemas + lossless s2p records)."""
         from seg2pose.io.scene import load_scene
         from s2p_review.mcap_io import export_mcap
 
+        notes: list = []
         p = export_mcap(load_scene(scene), run, out, force=force, frames=parse_frames(frames),
-                        mask_every=mask_every, video_every=video_every)
+                        mask_every=mask_every, video_every=video_every, notes=notes)
+        for note in notes:
+            typer.echo(f"note: {note}")
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
 
     @app.command("import-mcap")

@@ -71,24 +71,40 @@ def annotation_context(classes):
     return rr.AnnotationContext(infos)
 
 
-def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True):
-    """The 3D world on the left; one 2D view per camera and the error plot on the right."""
+def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
+    """(position, look target) in metres for the 3D view: over the ground points' centre, seen
+    from behind the cameras and above, far enough to take in the whole area."""
+    g = scene.ground_points
+    target = np.r_[g[:, :2].mean(axis=0), g[:, 2].mean()]
+    extent = float(max(np.ptp(g[:, 0]), np.ptp(g[:, 1]), 10.0))
+    away = scene.rig.center[:2] - target[:2]
+    n = np.linalg.norm(away)
+    away = away / n if n > 1e-6 else np.array([0.0, -1.0])
+    pos = target + np.r_[away * 1.1 * extent, 0.8 * extent]
+    return pos, target
+
+
+def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None):
+    """The 3D world over the error plot on the left; one 2D view per camera on the right.
+    eye: (position, look target) of the 3D view, metres (see ``default_eye``)."""
     import rerun.blueprint as rrb
 
     cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
+    extra = {}
+    if eye is not None:
+        extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
     world = rrb.Spatial3DView(origin="world", name="world",
                               contents=["+ world/**"],
-                              line_grid=rrb.LineGrid3D(visible=False))
-    right: list = []
-    if cams:
-        # at most 3 camera views per row keeps each image readable
-        rows = [cams[i:i + 3] for i in range(0, len(cams), 3)]
-        right.append(rrb.Vertical(*[rrb.Horizontal(*r) for r in rows]) if len(rows) > 1
-                     else rrb.Horizontal(*rows[0]))
-    if with_metrics:
-        right.append(rrb.TimeSeriesView(origin="metrics", name="error (m) vs frame"))
-    body = rrb.Horizontal(world, rrb.Vertical(*right, row_shares=[3, 1][:len(right)]),
-                          column_shares=[3, 4]) if right else world
+                              line_grid=rrb.LineGrid3D(visible=False), **extra)
+    # left: the world over the error plot; right: the cameras stacked (16:9 images use the
+    # width of a half screen better stacked than side by side), a grid beyond three
+    left = rrb.Vertical(world, rrb.TimeSeriesView(origin="metrics", name="error (m) vs frame"),
+                        row_shares=[3, 1]) if with_metrics else world
+    if not cams:
+        body = left
+    else:
+        right = rrb.Vertical(*cams) if len(cams) <= 3 else rrb.Grid(*cams, grid_columns=2)
+        body = rrb.Horizontal(left, right, column_shares=[1, 1])
     return rrb.Blueprint(body, rrb.TimePanel(state="collapsed"),
                          rrb.SelectionPanel(state="hidden"),
                          rrb.BlueprintPanel(state="hidden"),

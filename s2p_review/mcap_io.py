@@ -241,21 +241,27 @@ def _image_annotations(camera, table: PoseTable, sizes, scene: Scene, inst: np.n
 
 
 def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False, *,
-                frames: tuple[int, int] | None = None, mask_every: int = 1,
-                video_every: int = 1, cameras: list[str] | None = None) -> Path:
+                frames: tuple[int, int] | None = None, mask_every: int | None = None,
+                video_every: int | None = None, cameras: list[str] | None = None,
+                notes: list | None = None) -> Path:
     """Write ``scene`` and the run in ``run_dir`` to ``out_path`` (.mcap), atomically.
     frames: (first, last) inclusive (default: the run's frames); mask_every / video_every:
-    export masks / video every k-th frame only. Returns out_path."""
+    export masks / video every k-th frame only (None: automatic, as for recordings, see
+    s2p_review.recording.RecordOptions); notes: gets what was decided. Returns out_path."""
     import cv2
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-    from s2p_review.recording import _video_frames, _with_size, resolve_frames
+    from s2p_review.recording import RecordOptions, _video_frames, _with_size, resolve_frames
 
     out_path = check_writable(Path(out_path), force)
     run = load_run(Path(run_dir), scene, scene_last_frame(scene))
     first, last = resolve_frames(scene, [run], frames)
     cams = list(cameras) if cameras else (run.cameras or list(scene.cameras))
+    ro = RecordOptions(mask_every=mask_every, video_every=video_every)
+    mask_every, video_every = ro.resolve(scene, first, last, cams)
+    if notes is not None:
+        notes.extend(ro.notes)
     fps = scene.fps
     dt = _ns(1, fps)
     poses = run.poses.in_frames((first, last))

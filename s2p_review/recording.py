@@ -8,7 +8,7 @@ ranges; masks (the bulk of the data) go in batches of frames to bound memory.
 from __future__ import annotations
 
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,19 +27,45 @@ DEFAULT_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.75),
                  "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.5, 3.2)}
 
 
+IMAGE_BUDGET_PX = 160e6  # pixels of masks (and of video) logged by default: a few MB of .rrd
+
+
+def auto_every(n_frames: int, cams: list[str], scene: Scene, budget_px: float = IMAGE_BUDGET_PX) -> int:
+    """The smallest cadence k that keeps n_frames / k images per camera within ``budget_px``."""
+    px = sum(scene.cameras[c].width * scene.cameras[c].height for c in cams) * n_frames
+    return max(1, int(np.ceil(px / budget_px)))
+
+
 @dataclass
 class RecordOptions:
     """What to log. mask_every / video_every: log masks / video frames every k-th frame only
-    (a viewer shows the latest one, so a smaller file costs some lag); cameras: the cameras to
-    show (None = the runs' cameras, or all); trail: frames of trail behind each road user."""
+    (a viewer shows the latest one, so a smaller file costs some lag); None = automatic: every
+    frame while the images stay within IMAGE_BUDGET_PX pixels, else the smallest cadence that
+    does. cameras: the cameras to show (None = the runs' cameras, or all); trail: frames of
+    trail behind each road user. ``notes`` collects what was decided (for the CLI to print)."""
 
-    mask_every: int = 1
-    video_every: int = 1
+    mask_every: int | None = None
+    video_every: int | None = None
     cameras: list[str] | None = None
     masks: bool = True
     video: bool = True
     trail: int = L.TRAIL_FRAMES
     image_plane_distance: float = 2.0
+    notes: list = field(default_factory=list)
+
+    def resolve(self, scene: Scene, first: int, last: int, cams: list[str]) -> tuple[int, int]:
+        """(mask_every, video_every) for this recording; automatic ones are noted."""
+        n = last - first + 1
+        out = []
+        has_video = any(scene.video_path(c) is not None for c in cams)
+        for what, k in (("masks", self.mask_every), ("video", self.video_every)):
+            if k is None:
+                k = auto_every(n, cams, scene)
+                if k > 1 and (what == "masks" or has_video):
+                    self.notes.append(f"{what}: every {k}th frame (keeps the file small; "
+                                      f"--{what.rstrip('s')}-every 1 for all)")
+            out.append(max(1, int(k)))
+        return out[0], out[1]
 
 
 def _rr():
@@ -77,7 +103,8 @@ def log_static(rec, scene: Scene, cameras: list[str], opts: RecordOptions) -> No
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     g = scene.ground_points
     rec.log("world/ground/points", rr.Points3D(g, radii=0.08, colors=(150, 150, 150)), static=True)
-    verts, tris = scene.ground.mesh(n=48)
+    extent = float(max(np.ptp(g[:, 0]), np.ptp(g[:, 1])))
+    verts, tris = scene.ground.mesh(n=48, margin=max(2.0, 0.15 * extent))
     rec.log("world/ground/mesh", rr.Mesh3D(vertex_positions=verts, triangle_indices=tris,
                                            albedo_factor=(90, 90, 90, 255)), static=True)
     for name in cameras:
@@ -331,11 +358,12 @@ def log_all(rec, scene: Scene, runs: list[Run], first: int, last: int, cameras: 
     """Log everything to ``rec``; returns counts for the caller's summary."""
     stats = {"frames": last - first + 1, "mask_rows": 0, "video_rows": 0, "runs": [r.name for r in runs]}
     log_static(rec, scene, cameras, opts)
+    mask_every, video_every = opts.resolve(scene, first, last, cameras)
     for cam in cameras:
         if opts.video:
-            stats["video_rows"] += log_video(rec, scene, cam, first, last, max(1, opts.video_every))
+            stats["video_rows"] += log_video(rec, scene, cam, first, last, video_every)
         if opts.masks:
-            stats["mask_rows"] += log_masks(rec, scene, cam, first, last, max(1, opts.mask_every))
+            stats["mask_rows"] += log_masks(rec, scene, cam, first, last, mask_every)
     gt = None
     if scene.gt_path.exists():
         gt = read_poses(scene.gt_path).in_frames((first, last))
@@ -412,7 +440,7 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
         raise S2PError("nothing to do: pass --save FILE.rrd, --spawn, --connect URL or --screenshot FILE.png")
     loaded, first, last, cams = prepare(scene, runs, frames, opts.cameras)
     bp = L.blueprint(cams, [r.name for r in loaded],
-                     with_metrics=scene.gt_path.exists() and bool(loaded))
+                     with_metrics=scene.gt_path.exists() and bool(loaded), eye=L.default_eye(scene))
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in loaded) if loaded else "scene")
     viewers = []
@@ -429,13 +457,17 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
             sinks.append(rr.GrpcSink(shot.url))
         if rrd_path is not None:
             with atomic_path(rrd_path) as tmp:
-                rec.set_sinks(rr.FileSink(tmp), *sinks, default_blueprint=bp)
+                rec.set_sinks(rr.FileSink(tmp), *sinks)
+                # active, not only default: a viewer that remembers an older s2p layout (other
+                # cameras) would otherwise keep showing that one
+                rec.send_blueprint(bp, make_active=True, make_default=True)
                 rec.send_recording_name(title)
                 log_all(rec, scene, loaded, first, last, cams, opts)
                 rec.flush()
                 rec.disconnect()  # closes the file before it is renamed
         else:
-            rec.set_sinks(*sinks, default_blueprint=bp)
+            rec.set_sinks(*sinks)
+            rec.send_blueprint(bp, make_active=True, make_default=True)
             rec.send_recording_name(title)
             log_all(rec, scene, loaded, first, last, cams, opts)
             rec.flush()

@@ -86,9 +86,21 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
             raise ViewerError(f"cannot run a headless viewer: {problem}")
         _ensure_runtime_dir()
     port = port or free_port()
-    client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
-                                executable_path=rerun_executable(),
-                                detach_process=not headless)
+    saved = {k: os.environ.get(k) for k in ("XDG_DATA_HOME", "XDG_CONFIG_HOME")}
+    if headless:  # a throw-away viewer must not read or write the user's saved layouts
+        state = tempfile.mkdtemp(prefix="s2p-viewer-state-")
+        os.environ["XDG_DATA_HOME"] = os.path.join(state, "data")
+        os.environ["XDG_CONFIG_HOME"] = os.path.join(state, "config")
+    try:
+        client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
+                                    executable_path=rerun_executable(),
+                                    detach_process=not headless)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     deadline = time.monotonic() + timeout
     while True:
         try:

@@ -398,3 +398,15 @@ def test_bad_rle_in_masks_named(tiny, tmp_path):
     with pytest.raises(InputError, match=r"c0.txt: frame 2, track 7: RLE covers"):
         record(load_scene(copy), [base], tmp_path / "bad.rrd")
     assert not (tmp_path / "bad.rrd").exists()
+
+
+def test_auto_cadence(tiny):
+    from s2p_review.recording import auto_every
+
+    scene = tiny[0]
+    px = 160 * 120 * 2
+    assert auto_every(1000, ["c0", "c1"], scene, budget_px=px * 100) == 10
+    assert auto_every(1000, ["c0", "c1"], scene, budget_px=px * 1000) == 1
+    assert auto_every(1001, ["c0"], scene, budget_px=px / 2 * 100) == 11
+    opts = RecordOptions()
+    assert opts.resolve(scene, 0, 19, ["c0", "c1"]) == (1, 1) and opts.notes == []
