@@ -210,7 +210,9 @@ def main() -> None:
     timer = _time_rerun_calls()
     timer["s"] = 0.0
     t = time.perf_counter()
-    record(scene, [run], out / "columns.rrd")
+    from s2p_review.recording import RecordOptions
+
+    record(scene, [run], out / "columns.rrd", options=RecordOptions(mask_every=1))
     results["columns (send_columns)"] = (time.perf_counter() - t, timer["s"], (out / "columns.rrd").stat().st_size)
     if not a.skip_per_frame:
         timer["s"] = 0.0
