@@ -200,43 +200,53 @@ def _poses_in_frame(table: PoseTable, ns: int):
     return msg
 
 
-def _outlines(mask_stack_ids: np.ndarray, ids: np.ndarray) -> list[np.ndarray]:
-    """Outer contour (K, 2) pixels of each id's region in an instance image (H, W)."""
+def _outlines(inst: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> list[np.ndarray | None]:
+    """Outer contour (K, 2) pixels (pixel centres) of each id's region in an instance image
+    (H, W), searched only inside the mask's bounding box (N, 4: x0, y0, x1, y1 exclusive) and
+    simplified to within half a pixel; None for a mask hidden by others."""
     import cv2
 
-    out = []
-    for i in ids:
-        m = (mask_stack_ids == i).astype(np.uint8)
+    out: list = []
+    for i, b in zip(ids, boxes):
+        if not np.isfinite(b).all():
+            out.append(None)
+            continue
+        x0, y0, x1, y1 = (int(v) for v in b)
+        m = (inst[y0:y1, x0:x1] == i).astype(np.uint8)
         cs, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        if cs:
-            c = max(cs, key=len)[:, 0, :].astype(float) + 0.5  # pixel centres
-            out.append(c)
+        if not cs:
+            out.append(None)
+            continue
+        c = cv2.approxPolyDP(max(cs, key=len), 0.5, True)[:, 0, :].astype(float)
+        out.append(c + [x0 + 0.5, y0 + 0.5])
     return out
 
 
 def _image_annotations(camera, table: PoseTable, sizes, scene: Scene, inst: np.ndarray | None,
-                       inst_ids: np.ndarray, inst_cls: list[str], ns: int):
+                       inst_ids: np.ndarray, inst_cls: list[str], ns: int,
+                       boxes: np.ndarray | None = None):
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
     from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 
     msg = ImageAnnotations()
     segs, idx = C.projected_edges(camera, table.xyz, table.heading, sizes)
     cols = L.class_colors(table.cls[idx], scene.classes)
+    from foxglove_schemas_protobuf.Point2_pb2 import Point2
+
     for k in range(len(idx)):
         pa = msg.points.add(timestamp=_ts(ns), type=PointsAnnotation.LINE_LIST, thickness=2.0)
         pa.outline_color.CopyFrom(_color(cols[k]))
-        for p in segs[k * 12:(k + 1) * 12].reshape(-1, 2):
-            q = pa.points.add()
-            q.x, q.y = float(p[0]), float(p[1])
+        pa.points.extend(Point2(x=x, y=y) for x, y in segs[k * 12:(k + 1) * 12].reshape(-1, 2).tolist())
     if inst is not None:
+        from foxglove_schemas_protobuf.Point2_pb2 import Point2
+
         by_name = {c.name: c for c in scene.classes}
-        for i, c in zip(inst_ids, _outlines(inst, inst_ids)):
-            name = inst_cls[list(inst_ids).index(i)]
+        for name, c in zip(inst_cls, _outlines(inst, inst_ids, boxes)):
+            if c is None:
+                continue
             pa = msg.points.add(timestamp=_ts(ns), type=PointsAnnotation.LINE_LOOP, thickness=1.0)
             pa.outline_color.CopyFrom(_color(L.class_color(name, by_name[name].id if name in by_name else 0)))
-            for p in c:
-                q = pa.points.add()
-                q.x, q.y = float(p[0]), float(p[1])
+            pa.points.extend(Point2(x=x, y=y) for x, y in c.tolist())
     return msg
 
 
@@ -348,8 +358,12 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
                 ns = _ns(f, fps)
                 t = masks.get(f)
                 inst, ids, cls = None, np.zeros(0, np.int64), []
+                boxes = None
                 if t is not None:
+                    from seg2pose.masks import rle_stats
+
                     ids = t.track_id + 1
+                    boxes = rle_stats(t.rles, h, w)[2]
                     inst = C.paint_masks(t.rles, ids, np.zeros(len(t), np.int64), h, w, 1,
                                          dtype=np.uint16)[0]
                     cls = [by_id.get(int(c), "unknown") for c in t.class_id]
@@ -358,7 +372,8 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
                                        encoding="mono16", step=2 * w,
                                        data=inst.astype("<u2").tobytes()), ns)
                 sel = pidx.get(f, np.zeros(0, np.int64))
-                ann = _image_annotations(cam, poses.take(sel), psz[sel], scene, inst, ids, cls, ns)
+                ann = _image_annotations(cam, poses.take(sel), psz[sel], scene, inst, ids, cls, ns,
+                                         boxes)
                 out.write(f"/cameras/{name}/annotations", ann, ns)
             vp = scene.video_path(name)
             if vp is not None:

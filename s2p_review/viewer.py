@@ -46,6 +46,11 @@ def free_port() -> int:
 
 def vulkan_problem() -> str | None:
     """Why a viewer cannot render here, or None when a Vulkan driver seems present."""
+    import ctypes.util
+
+    if ctypes.util.find_library("vulkan") is None:
+        return ("no Vulkan loader (libvulkan.so.1; on Debian/Ubuntu: apt-get install libvulkan1 "
+                "mesa-vulkan-drivers, or `make viewer-deps` as root)")
     icd_dirs = [Path("/usr/share/vulkan/icd.d"), Path("/etc/vulkan/icd.d")]
     if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
         return None

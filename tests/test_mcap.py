@@ -215,3 +215,29 @@ def test_empty_pose_table_round_trip(tmp_path):
 
     t = _pose_table([], with_size=True)
     assert isinstance(t, PoseTable) and len(t) == 0 and t.size is not None
+
+
+def test_image_annotations_outline_masks(exported):
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+    from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+    from mcap.reader import make_reader
+
+    from seg2pose.io.mots import read_mots
+    from seg2pose.masks import rle_stats
+
+    scene, _, out, _ = exported
+    with open(out, "rb") as f:
+        msgs = [m for _s, _c, m in make_reader(f).iter_messages(topics=["/cameras/c1/annotations"])]
+    ann = ImageAnnotations()
+    ann.ParseFromString(msgs[6].data)
+    loops = [p for p in ann.points if p.type == PointsAnnotation.LINE_LOOP]
+    lists = [p for p in ann.points if p.type == PointsAnnotation.LINE_LIST]
+    mt = read_mots(scene.masks_path("c1"), frame_range=(6, 6))
+    assert len(loops) == len(mt) and len(lists) == 3
+    assert all(len(p.points) == 24 for p in lists)  # 12 edges
+    boxes = rle_stats(mt.rles, mt.height, mt.width)[2]
+    for p, b in zip(loops, boxes):
+        xy = np.array([[q.x, q.y] for q in p.points])
+        assert len(xy) >= 3
+        assert (xy[:, 0] >= b[0]).all() and (xy[:, 0] <= b[2]).all()
+        assert (xy[:, 1] >= b[1]).all() and (xy[:, 1] <= b[3]).all()
