@@ -78,12 +78,13 @@ def rle_from_crop_t(crop_t: np.ndarray, x0: int, y0: int, height: int, width: in
     wc, hc = crop_t.shape
     pad = np.zeros((wc, hc + 2), np.int8)
     pad[:, 1:-1] = crop_t
-    d = np.diff(pad, axis=1)
-    cs, rs = np.nonzero(d == 1)
-    ce, re = np.nonzero(d == -1)
+    # transitions, column by column: every column starts and ends with background, so they
+    # alternate run start (+1), run end (-1)
+    idx = np.flatnonzero(np.diff(pad, axis=1))
+    col, row = np.divmod(idx, hc + 1)
     H = int(height)
-    start = (x0 + cs).astype(np.int64) * H + y0 + rs
-    end = (x0 + ce).astype(np.int64) * H + y0 + re
+    lin = (x0 + col).astype(np.int64) * H + y0 + row
+    start, end = lin[0::2], lin[1::2]
     if len(start) == 0:
         counts = [H * int(width)]
     else:

@@ -28,7 +28,6 @@ class FrameRenderer:
         self.seed = seed
         self.W, self.H = camera.width, camera.height
         self.buf_t = np.zeros((self.W, self.H), np.uint16)
-        self.margin = int(np.ceil(3 * noise.dilate_px)) + 3 if noise.enabled else 0
 
     def visible(self, f: int) -> tuple[slice, list[Det]]:
         """Frame f's noise-free visible masks: (row slice, detections with crops)."""

@@ -43,9 +43,30 @@ def rough_model(cls: str, scale: float = 1.0) -> np.ndarray:
                      field="cls")
 
 
+_REGION_CACHE: dict[bytes, tuple[float, float, float, float]] = {}
+
+
 def visible_region(camera: Camera, ground: GroundSurface, max_distance: float = MAX_DISTANCE
                    ) -> tuple[float, float, float, float]:
-    """(xmin, xmax, ymin, ymax) metres of the ground the camera sees (up to ``max_distance``)."""
+    """(xmin, xmax, ymin, ymax) metres of the ground the camera sees (up to ``max_distance``).
+    Cached per calibration and ground (training asks for a few examples at a time)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for a in (camera.K, camera.R, camera.t, ground.points):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    h.update(repr((camera.width, camera.height, ground.alpha, float(max_distance),
+                   camera.distortion.to_dict() if camera.distortion else None)).encode())
+    key = h.digest()
+    if key not in _REGION_CACHE:
+        if len(_REGION_CACHE) > 64:
+            _REGION_CACHE.clear()
+        _REGION_CACHE[key] = _visible_region(camera, ground, max_distance)
+    return _REGION_CACHE[key]
+
+
+def _visible_region(camera: Camera, ground: GroundSurface, max_distance: float
+                    ) -> tuple[float, float, float, float]:
     u, v = np.meshgrid(np.linspace(0, camera.width, 41), np.linspace(0, camera.height, 25))
     uv = np.column_stack([u.ravel(), v.ravel()])
     X, _ = ground.intersect_rays(camera.center, camera.unproject(uv), 0.0)
