@@ -361,7 +361,12 @@ def log_all(rec, scene: Scene, runs: list[Run], first: int, last: int, cameras: 
     mask_every, video_every = opts.resolve(scene, first, last, cameras)
     for cam in cameras:
         if opts.video:
-            stats["video_rows"] += log_video(rec, scene, cam, first, last, video_every)
+            n = log_video(rec, scene, cam, first, last, video_every)
+            want = len(range(first, last + 1, video_every))
+            if scene.video_path(cam) is not None and n < want:
+                opts.notes.append(f"video of {cam} ({scene.video_path(cam)}) has only {n} of the "
+                                  f"{want} frames asked for; the rest is shown without video")
+            stats["video_rows"] += n
         if opts.masks:
             stats["mask_rows"] += log_masks(rec, scene, cam, first, last, mask_every)
     gt = None

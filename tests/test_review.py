@@ -410,3 +410,22 @@ def test_auto_cadence(tiny):
     assert auto_every(1001, ["c0"], scene, budget_px=px / 2 * 100) == 11
     opts = RecordOptions()
     assert opts.resolve(scene, 0, 19, ["c0", "c1"]) == (1, 1) and opts.notes == []
+
+
+def test_short_video_is_noted(tiny, tmp_path):
+    import shutil
+
+    import cv2
+
+    from seg2pose.io.scene import load_scene
+
+    scene, base, _, _ = tiny
+    copy = tmp_path / "scene"
+    shutil.copytree(scene.root, copy, ignore=shutil.ignore_patterns("out"))
+    vw = cv2.VideoWriter(str(copy / "video" / "c1.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for _ in range(5):
+        vw.write(np.zeros((120, 160, 3), np.uint8))
+    vw.release()
+    opts = RecordOptions(mask_every=1, video_every=1)
+    record(load_scene(copy), [base], tmp_path / "v.rrd", options=opts)
+    assert any("c1" in n and "only 5 of the 20" in n for n in opts.notes), opts.notes
