@@ -56,8 +56,8 @@ def decode_counts(rles: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
     if len(ends) and (ends - starts).max() >= 12:  # 12 chars = 60 bits; more overflows int64
         raise InputError("RLE string has a run length value longer than 12 characters")
     pos = np.arange(buf.size) - np.repeat(starts, ends - starts + 1)  # char index within value
-    val = np.zeros(len(ends), np.int64)
-    np.add.at(val, np.repeat(np.arange(len(ends)), ends - starts + 1), (buf & 0x1F) << (5 * pos))
+    # a value's chars are consecutive: one exact integer segment sum per value
+    val = np.add.reduceat((buf & 0x1F) << (5 * pos), starts) if len(ends) else np.zeros(0, np.int64)
     neg = (buf[ends] & 0x10) != 0
     nbits = 5 * (ends - starts + 1)
     val = np.where(neg, val | (-1 << nbits), val)

@@ -17,6 +17,8 @@ from seg2pose.errors import InputError
 from seg2pose.io.atomic import atomic_open
 from seg2pose.masks import decode_counts
 
+_BLOCK = 2048  # detections checked together by iter_mots (whole frames; frames are yielded one by one)
+
 
 @dataclass
 class MaskTable:
@@ -149,12 +151,17 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
     linenos: list[int] = []
     last_frame = -1
 
-    def flush():
+    def emit():
+        """Check a block of whole frames at once (one vectorised RLE check instead of one per
+        frame), then yield it frame by frame."""
         h, w = size
+        rles = [r[5] for r in rows]
         if check_rles:  # False: the caller decodes the runs itself and checks them in bulk
-            _check_rles([r[5] for r in rows], linenos, h, w, path)
+            _check_rles(rles, linenos, h, w, path)
         a = np.array([r[:3] for r in rows], dtype=np.int64)
-        return MaskTable(a[:, 0], a[:, 1], a[:, 2], h, w, [r[5] for r in rows])
+        cuts = np.flatnonzero(np.diff(a[:, 0])) + 1
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(a)]):
+            yield int(a[lo, 0]), MaskTable(a[lo:hi, 0], a[lo:hi, 1], a[lo:hi, 2], h, w, rles[lo:hi])
 
     with open(path, "rb") as f:
         for lineno, raw in enumerate(f, start=1):
@@ -176,14 +183,14 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
                     continue
                 if frame > frame_range[1]:
                     break
-            if cur is not None and frame != cur:
-                yield cur, flush()
+            if cur is not None and frame != cur and len(rows) >= _BLOCK:
+                yield from emit()
                 rows, linenos = [], []
             cur = frame
             rows.append(row)
             linenos.append(lineno)
     if rows:
-        yield cur, flush()
+        yield from emit()
 
 
 def read_mots(path: str | Path, known_classes: Iterable[int] | None = None,
