@@ -429,3 +429,28 @@ def test_short_video_is_noted(tiny, tmp_path):
     opts = RecordOptions(mask_every=1, video_every=1)
     record(load_scene(copy), [base], tmp_path / "v.rrd", options=opts)
     assert any("c1" in n and "only 5 of the 20" in n for n in opts.notes), opts.notes
+
+
+def test_views_without_normal_position_are_left_out_in_3d(tiny, tmp_path):
+    import shutil
+
+    import rerun.chunk as rc
+
+    scene, _, s2pn, _ = tiny
+    run = tmp_path / "run-nan"
+    shutil.copytree(s2pn, run)
+    lines = (run / "views.csv").read_text().splitlines()
+    parts = lines[1].split(",")  # frame 0, camera c0
+    parts[6:9] = ["nan", "nan", "nan"]
+    lines[1] = ",".join(parts)
+    (run / "views.csv").write_text("\n".join(lines) + "\n")
+    out = record(scene, [run], tmp_path / "n.rrd", frames=(0, 1),
+                 options=RecordOptions(masks=False, video=False))
+    pts = arrows = None
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path == "/world/estimates/run-nan/c0" and not ch.is_static:
+            pts = ch.to_record_batch().column("Points3D:positions").to_pylist()
+        if ch.entity_path == "/world/estimates/run-nan/c0/residuals" and not ch.is_static:
+            arrows = ch.to_record_batch().column("Arrows3D:origins").to_pylist()
+    assert [len(p) for p in pts] == [2, 3] and [len(a) for a in arrows] == [2, 3]
+    assert np.isfinite(np.array(pts[0])).all()
