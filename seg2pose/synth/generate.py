@@ -182,7 +182,8 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
 
     # --- simulate -------------------------------------------------------------------------------
     traffic = TrafficConfig(population=pop, mean_pause_s=dict(p["mean_pause_s"]))
-    visits = simulate(traffic, n_frames, DT, seed)
+    sim_stats: dict = {}
+    visits = simulate(traffic, n_frames, DT, seed, stats=sim_stats)
     if not visits:
         raise S2PError("the simulation produced no road users; raise --frames or the population")
     world = build_world(visits, n_frames, seed, ids=ids)
@@ -203,6 +204,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
                 "frames_per_split": per_split, "gap": gap, "dt": DT, "rig": rig_obj.name,
                 "distortion": list(distortion) if distortion else None,
                 "video": bool(video), "ids": ids, "noise": noise.to_dict(), "traffic": traffic.to_dict(),
+                "traffic_stats": sim_stats,
                 "ground_points": {"n": len(ground), "curb_share": 0.6},
                 "surface": {"lane_m": J.LANE, "curb_m": J.CURB, "sidewalk_m": J.SIDEWALK,
                             "corner_radius_m": J.CORNER_R, "slope": J.SLOPE,

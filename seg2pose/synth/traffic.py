@@ -247,6 +247,7 @@ class Traj:
     s_nodes: np.ndarray
     half: tuple[float, float]  # half length, half width
     vehicle: bool
+    gave_up: bool = False      # still in conflict after MAX_YIELD_STEPS
 
     @property
     def t1(self) -> float:
@@ -339,11 +340,14 @@ class TrafficConfig:
                 "warmup_s": self.warmup_s}
 
 
-def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Visit]:
+def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
+             stats: dict | None = None) -> list[Visit]:
     """All visits that overlap frames [0, n_frames), sorted by first frame (deterministic).
 
     Road users are scheduled in order of start time; each yields to the ones scheduled before
-    it (waits at its stop line or curb, or starts later) so that no two overlap."""
+    it (waits at its stop line or curb, or starts later) so that no two overlap. ``stats``, when
+    given, receives counts: visits, and yields that gave up after MAX_YIELD_STEPS (those road
+    users may overlap another one)."""
     rng = np.random.default_rng([seed, 11])
     t_end = n_frames * dt
     heap: list[tuple[float, int, str]] = []
@@ -357,6 +361,7 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Vi
     queue: dict[tuple, tuple[float, int]] = {}  # lane -> (green time the queue waits for, count)
     active: list[Traj] = []
     visits: list[Visit] = []
+    gave_up = 0
     while heap:
         t0, slot, cls = heapq.heappop(heap)
         if t0 >= t_end:
@@ -367,6 +372,7 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Vi
         else:
             tr, stride = _vehicle_traj(rng, cls, t0, active, queue)
         active.append(tr)
+        gave_up += int(tr.gave_up)
         f0 = max(int(np.ceil(tr.t0 / dt - 1e-9)), 0)
         f1 = min(int(np.floor(tr.t1 / dt + 1e-9)), n_frames - 1)
         if f1 >= f0:
@@ -376,6 +382,8 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int) -> list[Vi
         t_next = max(tr.t1, t0 + 1.0) + rng.exponential(cfg.mean_pause_s.get(cls, 30.0))
         heapq.heappush(heap, (t_next, slot, cls))
     visits.sort(key=lambda v: (int(v.frames[0]), v.t0))
+    if stats is not None:
+        stats.update(visits=len(visits), yield_gave_up=gave_up)
     return visits
 
 
@@ -416,6 +424,7 @@ def _vehicle_traj(rng, cls, t0, active, queue) -> tuple[Traj, float]:
         c = _first_conflict(tr, active, margin=0.3)
         if c is None:
             break
+        tr.gave_up = True
         if c[1] < stop - 0.5:
             shift += YIELD_STEP   # the conflict is on the approach: arrive later
         else:
@@ -466,6 +475,7 @@ def _pedestrian_traj(rng, t0, active) -> tuple[Traj, float]:
         c = _first_conflict(tr, active, margin=0.2)
         if c is None:
             break
+        tr.gave_up = True
         # wait longer at the last curb before the conflict, or start later
         before = [h for h in holds if h[0] <= c[1] - 0.3]
         if before:
