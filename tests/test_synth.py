@@ -277,6 +277,14 @@ def test_validation_before_any_work(tmp_path):
     rig_file.write_text(json.dumps({"cameras": [sky.to_dict()]}))
     with pytest.raises(InputError, match="sees the road"):
         generate_scene(out, rig=rig_file, frames=2, progress=False)
+    # a camera with a negative image size is refused, naming the field
+    d = sky.to_dict()
+    d["width"] = -1280
+    rig_file.write_text(json.dumps({"cameras": [d]}))
+    with pytest.raises(InputError, match="width"):
+        generate_scene(out, rig=rig_file, frames=2, progress=False)
+    with pytest.raises(InputError, match="--frames"):
+        generate_scene(out, frames=-5, progress=False)
     assert not out.exists()
 
 
