@@ -52,6 +52,7 @@ class RecordOptions:
     trail: int = L.TRAIL_FRAMES
     image_plane_distance: float = 2.0
     notes: list = field(default_factory=list)
+    resolved: tuple[int, int] = (1, 1)  # (mask_every, video_every) used by the last recording
 
     def resolve(self, scene: Scene, first: int, last: int, cams: list[str]) -> tuple[int, int]:
         """(mask_every, video_every) for this recording; automatic ones are noted."""
@@ -62,7 +63,7 @@ class RecordOptions:
             if k is None:
                 k = auto_every(n, cams, scene)
                 if k > 1 and (what == "masks" or has_video):
-                    self.notes.append(f"{what}: every {k}th frame (keeps the file small; "
+                    self.notes.append(f"{what}: one frame in {k} (keeps the file small; "
                                       f"--{what.rstrip('s')}-every 1 for all)")
             out.append(max(1, int(k)))
         return out[0], out[1]
@@ -307,8 +308,10 @@ def log_views(rec, run: Run, scene: Scene, cameras: list[str], first: int, last:
                              .partition(len3))
 
 
-def log_errors(rec, run: Run, gt: PoseTable, scene: Scene, first: int, last: int) -> bool:
-    """Per-frame mean error and per-class errors (metres) from seg2pose.evaluate."""
+def log_errors(rec, run: Run, gt: PoseTable, scene: Scene, first: int, last: int,
+               shade: float = 1.0) -> bool:
+    """Per-frame mean error and per-class errors (metres) from seg2pose.evaluate; ``shade``
+    (0..1] darkens the run's line colours so that runs compared in one plot stay apart."""
     rr = _rr()
     try:
         from seg2pose.evaluate import per_frame_errors
@@ -324,6 +327,7 @@ def log_errors(rec, run: Run, gt: PoseTable, scene: Scene, first: int, last: int
         cid = by_name[name].id if name in by_name else 0
         series[name] = (err, L.class_color(name, cid))
     for key, (err, color) in series.items():
+        color = tuple(int(round(c * shade)) for c in color)
         ent = f"metrics/error/{run.name}/{L.safe_name(key)}"
         ok = np.isfinite(err)
         if not ok.any():
@@ -362,6 +366,7 @@ def log_all(rec, scene: Scene, runs: list[Run], first: int, last: int, cameras: 
     stats = {"frames": last - first + 1, "mask_rows": 0, "video_rows": 0, "runs": [r.name for r in runs]}
     log_static(rec, scene, cameras, opts)
     mask_every, video_every = opts.resolve(scene, first, last, cameras)
+    opts.resolved = (mask_every, video_every)
     for cam in cameras:
         if opts.video:
             n = log_video(rec, scene, cam, first, last, video_every)
@@ -396,7 +401,8 @@ def log_all(rec, scene: Scene, runs: list[Run], first: int, last: int, cameras: 
             log_views(rec, Run(run.path, run.name, run.meta, poses, run.views.take(vsel)), scene,
                       run_cams, first, last)
         if gt is not None:
-            stats["metrics"] |= log_errors(rec, run, gt, scene, first, last)
+            stats["metrics"] |= log_errors(rec, run, gt, scene, first, last,
+                                           shade=(1.0, 0.55, 0.8, 0.4)[runs.index(run) % 4])
     return stats
 
 
@@ -480,7 +486,9 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
             log_all(rec, scene, loaded, first, last, cams, opts)
             rec.flush()
         if screenshot is not None:
-            frame = screenshot_frame if screenshot_frame is not None else (first + last) // 2
+            k = opts.resolved[0] if opts.masks else 1  # a frame that has masks, not a stale one
+            frame = (screenshot_frame if screenshot_frame is not None
+                     else first + ((last - first) // 2) // k * k)
             V.screenshot_when_loaded(viewers[0], Path(screenshot), frame=frame, force=force)
     finally:
         for v in viewers:
