@@ -90,6 +90,11 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
         if problem:
             raise ViewerError(f"cannot run a headless viewer: {problem}")
         _ensure_runtime_dir()
+    elif sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or
+                                                   os.environ.get("WAYLAND_DISPLAY")):
+        raise ViewerError("no display to open the viewer on (DISPLAY / WAYLAND_DISPLAY unset); "
+                          "use --save FILE.rrd and open it with `rerun FILE.rrd` where there is "
+                          "one, or --screenshot FILE.png")
     port = port or free_port()
     saved = {k: os.environ.get(k) for k in ("XDG_DATA_HOME", "XDG_CONFIG_HOME")}
     if headless:  # a throw-away viewer must not read or write the user's saved layouts
@@ -100,6 +105,8 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
         client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
                                     executable_path=rerun_executable(),
                                     detach_process=not headless)
+    except (ConnectionError, RuntimeError, OSError) as e:
+        raise ViewerError(f"the viewer did not start on port {port}: {e}") from None
     finally:
         for k, v in saved.items():
             if v is None:

@@ -454,3 +454,15 @@ def test_views_without_normal_position_are_left_out_in_3d(tiny, tmp_path):
             arrows = ch.to_record_batch().column("Arrows3D:origins").to_pylist()
     assert [len(p) for p in pts] == [2, 3] and [len(a) for a in arrows] == [2, 3]
     assert np.isfinite(np.array(pts[0])).all()
+
+
+def test_spawn_without_display_is_a_clear_error(tiny, monkeypatch):
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("display variables are a Linux matter")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    scene, base, _, root = tiny
+    with pytest.raises(S2PError, match="no display"):
+        record(scene, [base], spawn=True)
