@@ -118,6 +118,11 @@ def load_run(path: Path, scene: Scene, scene_last_frame: int | None = None) -> R
         raise InputError(f"invalid JSON: {e.msg}", file=meta_path, line=e.lineno) from None
     if not isinstance(meta, dict):
         raise InputError("expected a JSON object", file=meta_path)
+    fp = meta.get("scene_fingerprint")
+    if fp and fp != scene.fingerprint():
+        raise InputError(f"the run was made on another scene: its scene fingerprint is {fp}, "
+                         f"{scene.root} has {scene.fingerprint()} (other calibration or ground "
+                         f"points)", file=meta_path, field="scene_fingerprint")
     cams = meta.get("cameras") or []
     if not isinstance(cams, list):
         raise InputError("expected a list of camera names", file=meta_path, field="cameras")

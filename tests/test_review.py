@@ -466,3 +466,13 @@ def test_spawn_without_display_is_a_clear_error(tiny, monkeypatch):
     scene, base, _, root = tiny
     with pytest.raises(S2PError, match="no display"):
         record(scene, [base], spawn=True)
+
+
+def test_run_of_another_scene_is_rejected(tiny):
+    scene, _, _, root = tiny
+    bad = make_run(scene, root / "other-scene")
+    meta = json.loads((bad / "run.json").read_text())
+    meta["scene_fingerprint"] = "0123456789abcdef"
+    (bad / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="another scene"):
+        load_run(bad, scene, scene_last_frame(scene))
