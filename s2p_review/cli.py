@@ -38,7 +38,8 @@ def register(app: typer.Typer) -> None:
         connect: str | None = typer.Option(None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
         screenshot: Path | None = typer.Option(None, "--screenshot", help="run a headless viewer and save a PNG of it here"),
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
-        frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame)"),
+        frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame) and for a spawned or connected viewer"),
+        follow: bool = typer.Option(False, "--follow", help="make a spawned or connected viewer follow the newest frame"),
         camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
         mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
@@ -55,7 +56,8 @@ def register(app: typer.Typer) -> None:
         opts = RecordOptions(mask_every=mask_every, video_every=video_every,
                              cameras=list(camera) or None, masks=not no_masks, video=not no_video)
         out = record(s, list(run), save, spawn=spawn, connect=connect, frames=parse_frames(frames),
-                     force=force, options=opts, screenshot=screenshot, screenshot_frame=frame)
+                     force=force, options=opts, screenshot=screenshot, screenshot_frame=frame,
+                     follow=follow)
         for note in opts.notes:
             typer.echo(f"note: {note}")
         if out is not None:

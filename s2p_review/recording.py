@@ -430,13 +430,16 @@ def prepare(scene: Scene, runs: list[Path], frames, cameras) -> tuple[list[Run],
 def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spawn: bool = False,
            connect: str | None = None, frames: tuple[int, int] | None = None, force: bool = False,
            options: RecordOptions | None = None, screenshot: Path | None = None,
-           screenshot_frame: int | None = None) -> Path | None:
+           screenshot_frame: int | None = None, follow: bool = False) -> Path | None:
     """Record ``scene`` with ``runs`` (run folders) to Rerun.
 
     rrd_path: write an .rrd there (atomically; refuses to overwrite without ``force``);
     spawn: open the native desktop viewer; connect: stream to a running viewer at this URL
     (``rerun+http://host:port/proxy``); frames: (first, last) inclusive, default the runs'
-    frames; screenshot: also run a headless viewer and save a PNG of it there.
+    frames; screenshot: also run a headless viewer and save a PNG of it there;
+    screenshot_frame: the time cursor for the screenshot and for a spawned or connected viewer
+    (default: the middle frame for screenshots, the viewer's choice otherwise); follow: make a
+    spawned or connected viewer follow the newest frame instead.
     Returns the .rrd path (or None when none was written)."""
     from s2p_review import viewer as V
 
@@ -460,10 +463,13 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
     viewers = []
     try:
         sinks = []
+        live = []  # viewers to drive after logging (time cursor / follow)
         if spawn:
             client = V.spawn_viewer(headless=False)
+            live.append(client)
             sinks.append(rr.GrpcSink(client.url))
         if connect is not None:
+            live.append(V.connect_viewer(connect))
             sinks.append(rr.GrpcSink(connect))
         if screenshot is not None:
             shot = V.spawn_viewer(headless=True)
@@ -485,12 +491,20 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
             rec.send_recording_name(title)
             log_all(rec, scene, loaded, first, last, cams, opts)
             rec.flush()
+        for client in live:
+            if follow:
+                V.wait_loaded(client)
+                V.follow(client)
+            elif screenshot_frame is not None:
+                V.wait_loaded(client, min_end=screenshot_frame)
+                V.set_frame(client, screenshot_frame)
         if screenshot is not None:
             k = opts.resolved[0] if opts.masks else 1  # a frame that has masks, not a stale one
             frame = (screenshot_frame if screenshot_frame is not None
                      else first + ((last - first) // 2) // k * k)
             V.screenshot_when_loaded(viewers[0], Path(screenshot), frame=frame, force=force)
     finally:
+        rec.disconnect()  # before the viewers go: no "connection severed" noise
         for v in viewers:
             V.stop(v)
     return rrd_path

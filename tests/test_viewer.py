@@ -154,3 +154,13 @@ def test_cli_screenshot_and_take_screenshot(data):
     assert max(_decode(png2.read_bytes()).shape[:2]) == 800
     with pytest.raises(Exception, match="--force"):
         V.take_screenshot(root / "s.rrd", png2)
+
+
+def test_connect_sets_time_cursor(viewer, data):
+    _, video, runs, _ = data
+    _fresh(viewer)
+    record(video, runs[:1], connect=viewer.url, screenshot_frame=11,
+           options=RecordOptions(masks=False, video=False))
+    st = viewer.get_state()
+    rec = next(r for r in st.recordings if r.store_id == st.active_recording)
+    assert rec.current_timeline == "frame" and rec.current_time == 11
