@@ -51,14 +51,20 @@ def box_columns(xyz: np.ndarray, heading: np.ndarray, size: np.ndarray) -> dict:
 def projected_edges(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Box edges as 2D segments (M*12, 2, 2) pixels for the boxes fully in front of ``camera``
-    with at least one corner in the image; also the (M,) indices of those boxes."""
+    with at least one corner in the image and none far outside it (half an image beyond the
+    border: a box beside the camera would draw lines across the whole view); also the (M,)
+    indices of those boxes."""
     n = len(xyz)
     if n == 0:
         return np.zeros((0, 2, 2)), np.zeros(0, np.int64)
     corners = box_corners(xyz, heading, size).reshape(-1, 3)
     uv, _, front = camera.project_points(corners)
     uv = uv.reshape(n, 8, 2)
-    keep = front.reshape(n, 8).all(axis=1) & camera.in_image(uv.reshape(-1, 2)).reshape(n, 8).any(axis=1)
+    w, h = camera.width, camera.height
+    near = ((uv[..., 0] > -0.5 * w) & (uv[..., 0] < 1.5 * w) &
+            (uv[..., 1] > -0.5 * h) & (uv[..., 1] < 1.5 * h)).all(axis=1)
+    keep = (front.reshape(n, 8).all(axis=1) & near &
+            camera.in_image(uv.reshape(-1, 2)).reshape(n, 8).any(axis=1))
     idx = np.flatnonzero(keep)
     return uv[idx][:, EDGES].reshape(-1, 2, 2), idx
 

@@ -476,3 +476,13 @@ def test_run_of_another_scene_is_rejected(tiny):
     (bad / "run.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match="another scene"):
         load_run(bad, scene, scene_last_frame(scene))
+
+
+def test_projected_edges_skip_boxes_far_outside(tiny):
+    scene = tiny[0]
+    cam = scene.cameras["c0"]
+    # one box at the scene centre (in view), one right beside the camera (corners far outside)
+    c = cam.center
+    xyz = np.array([[0.0, 0.0, 0.0], [c[0] + 1.0, c[1] + 1.0, c[2] - 1.0]])
+    segs, idx = C.projected_edges(cam, xyz, np.zeros(2), np.array([[4.0, 2.0, 1.5]] * 2))
+    assert list(idx) == [0] and segs.shape == (12, 2, 2)
