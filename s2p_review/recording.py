@@ -445,8 +445,6 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
 
     rr = _rr()
     opts = options or RecordOptions()
-    if opts.cameras is None:
-        opts.cameras = None
     if rrd_path is not None:
         rrd_path = check_writable(Path(rrd_path), force)
     if screenshot is not None:
