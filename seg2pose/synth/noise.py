@@ -102,14 +102,6 @@ def _box(d: Det) -> tuple[int, int, int, int]:
     return d.x0, d.y0, d.x0 + d.crop.shape[0], d.y0 + d.crop.shape[1]
 
 
-def _box_iou(a, b) -> float:
-    ix = max(0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    ua = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / ua if ua > 0 else 0.0
-
-
 def _shape_noise(d: Det, cfg: NoiseConfig, rng: np.random.Generator, width: int, height: int
                  ) -> Det:
     # room for dilation and for the resampled boundary (up to a grid cell) to spill outwards
@@ -126,14 +118,15 @@ def _shape_noise(d: Det, cfg: NoiseConfig, rng: np.random.Generator, width: int,
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * abs(r) + 1, 2 * abs(r) + 1))
         m = cv2.dilate(m, k) if r > 0 else cv2.erode(m, k)
     wc, hc = m.shape
-    soft = m.astype(np.float32)
-    if cfg.mask_resolution:
-        res = cfg.mask_resolution
-        small = cv2.resize(soft, (res, res), interpolation=cv2.INTER_AREA)
-        soft = cv2.resize(small, (hc, wc), interpolation=cv2.INTER_LINEAR)
+    # the smooth jitter field is added on the coarse grid, so one upsampling does both
+    res = cfg.mask_resolution
+    small = cv2.resize(m.astype(np.float32), (res, res), interpolation=cv2.INTER_AREA) if res \
+        else m.astype(np.float32)
     if cfg.boundary_jitter > 0:
         field = rng.normal(0.0, cfg.boundary_jitter, size=(6, 6)).astype(np.float32)
-        soft = soft + cv2.resize(field, (hc, wc), interpolation=cv2.INTER_CUBIC)
+        small = small + cv2.resize(field, (small.shape[1], small.shape[0]),
+                                   interpolation=cv2.INTER_CUBIC)
+    soft = cv2.resize(small, (hc, wc), interpolation=cv2.INTER_LINEAR) if res else small
     return Det(soft > 0.5, x0, y0, d.track_id, d.cls, d.depth)
 
 
@@ -160,17 +153,22 @@ def apply_noise(dets: list[Det], cfg: NoiseConfig, rng: np.random.Generator, wid
     dets = list(dets)
     # 1. merges of overlapping neighbours
     if cfg.merge_rate > 0 and len(dets) > 1:
-        boxes = [_box(d) for d in dets]
+        b = np.array([_box(d) for d in dets], float)
+        ix = np.clip(np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
+        iy = np.clip(np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
+        inter = ix * iy
+        area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+        iou = inter / np.maximum(area[:, None] + area[None, :] - inter, 1e-9)
         gone: set[int] = set()
-        for i in range(len(dets)):
-            for j in range(i + 1, len(dets)):
-                if i in gone or j in gone:
-                    continue
-                if _box_iou(boxes[i], boxes[j]) > 0.05 and rng.random() < cfg.merge_rate:
-                    u = _union(dets[i], dets[j])
-                    keep, drop = (i, j) if dets[i].depth <= dets[j].depth else (j, i)
-                    dets[keep] = u
-                    gone.add(drop)
+        for i, j in zip(*np.nonzero(np.triu(iou > 0.05, 1))):
+            i, j = int(i), int(j)
+            if i in gone or j in gone:
+                continue
+            if rng.random() < cfg.merge_rate:
+                u = _union(dets[i], dets[j])
+                keep, drop = (i, j) if dets[i].depth <= dets[j].depth else (j, i)
+                dets[keep] = u
+                gone.add(drop)
         dets = [d for k, d in enumerate(dets) if k not in gone]
     out = []
     for d in dets:

@@ -76,11 +76,11 @@ def rle_from_crop_t(crop_t: np.ndarray, x0: int, y0: int, height: int, width: in
 
     crop_t: (w_c, h_c) bool, the *transposed* crop whose top-left image pixel is (x0, y0)."""
     wc, hc = crop_t.shape
-    pad = np.zeros((wc, hc + 2), np.int8)
+    pad = np.zeros((wc, hc + 2), bool)
     pad[:, 1:-1] = crop_t
     # transitions, column by column: every column starts and ends with background, so they
-    # alternate run start (+1), run end (-1)
-    idx = np.flatnonzero(np.diff(pad, axis=1))
+    # alternate run start, run end
+    idx = np.flatnonzero(pad[:, 1:] ^ pad[:, :-1])
     col, row = np.divmod(idx, hc + 1)
     H = int(height)
     lin = (x0 + col).astype(np.int64) * H + y0 + row
@@ -89,9 +89,10 @@ def rle_from_crop_t(crop_t: np.ndarray, x0: int, y0: int, height: int, width: in
         counts = [H * int(width)]
     else:
         # runs that end at a column's last row and go on at the next column's first row are one
-        join = end[:-1] == start[1:]
-        start = start[np.r_[True, ~join]]
-        end = end[np.r_[~join, True]]
+        keep = np.ones(len(start) + 1, bool)
+        keep[1:-1] = end[:-1] != start[1:]
+        start = start[keep[:-1]]
+        end = end[keep[1:]]
         c = np.empty(2 * len(start) + 1, np.int64)
         c[0] = start[0]
         c[1:-1:2] = end - start
@@ -99,9 +100,3 @@ def rle_from_crop_t(crop_t: np.ndarray, x0: int, y0: int, height: int, width: in
         c[-1] = H * int(width) - end[-1]
         counts = c.tolist() if c[-1] else c[:-1].tolist()  # pycocotools drops a last 0 run
     return mask_util.frPyObjects({"size": [H, int(width)], "counts": counts}, H, int(width))["counts"]
-
-
-def mask_crops_to_rles(crops: list[tuple[np.ndarray, int, int]], height: int, width: int
-                       ) -> list[bytes]:
-    """Many transposed crops (crop_t, x0, y0) -> compressed RLE strings."""
-    return [rle_from_crop_t(c, x0, y0, height, width) for c, x0, y0 in crops]
