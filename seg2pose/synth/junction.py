@@ -22,7 +22,7 @@ CURB_RAMP = 0.04      # m, horizontal width of the curb's face (a steep ramp, no
 SIDEWALK = 3.5        # m, sidewalk width (the walking line is in its middle)
 CORNER_R = 3.0        # m, curb radius at the corners
 CROSSWALK = (1.0, 4.0)  # m, crosswalk span along the arm, measured from the carriageway edge
-STAGE = 60.0          # m, routes start and end this far from the centre along an arm
+STAGE = 80.0          # m, routes start and end this far from the centre along an arm (out of view)
 SLOPE = 0.04          # rise per metre along the east arm, beyond SLOPE_START
 SLOPE_START = 12.0    # m
 
