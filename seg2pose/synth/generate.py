@@ -91,6 +91,9 @@ def _mask_task(args: tuple[str, int, int]) -> tuple[str, int, int, str, int]:
     st = _STATE
     r = st["renderers"].get(cam_name)
     if r is None:
+        if st.get("forked"):
+            import cv2
+            cv2.setNumThreads(1)  # one process per core already; no oversubscription
         idx = st["cam_names"].index(cam_name)
         r = FrameRenderer(st["rig"].cameras[cam_name], idx, st["world"], st["noise"], st["seed"])
         st["renderers"][cam_name] = r
@@ -120,6 +123,7 @@ def _run_tasks(fn, tasks: list, workers: int, progress, desc: str, unit: str):
                 bar.update(1)
         else:
             ctx = mp.get_context("fork")
+            _STATE["forked"] = True
             with ctx.Pool(workers) as pool:
                 for res in pool.imap(fn, tasks):
                     yield res
