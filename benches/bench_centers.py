@@ -7,6 +7,7 @@ error (ground plane, per view, before fusion) on the test split of synthetic sce
 truth, with and without detector noise:
 
     .venv/bin/python benches/bench_centers.py [--frames 600] [--seeds 1 2] [--workdir /tmp/s2p-centers]
+        [--kinds noise exact] [--fused mono-1 stereo-40 tri-T]
 
 Prints one table per scene and a summary; docs/NORMAL_POSITIONS.md records the outcome.
 """
@@ -58,18 +59,40 @@ def test_errors(scene, center: str, heights: dict[str, float]) -> dict[str, np.n
     return {k: np.concatenate(v) for k, v in errs.items()}
 
 
+def fused_errors(scene, center: str, heights: dict[str, float], configs: list[str],
+                 workdir: Path) -> dict[str, float]:
+    """Mean error of the fused baseline (``s2p run --baseline``) per configuration, test split."""
+    from seg2pose.evaluate import evaluate
+    from seg2pose.pipeline import run_scene
+
+    for c in scene.classes:
+        c.default_height = heights[c.name]
+    gt = read_poses(scene.gt_path)
+    out = {}
+    for cfg in configs:
+        run = workdir / f"run-{scene.root.name}-{center}-{cfg}"
+        run_scene(scene, run, config=cfg, baseline=True, split="test", force=True,
+                  center_method=center, progress=False)
+        est = read_poses(run / "poses.csv")
+        out[cfg] = evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range("test")).mean_error
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=600, help="frames per split")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/s2p-centers"))
+    ap.add_argument("--fused", nargs="*", default=["mono-1", "stereo-40", "tri-T"],
+                    help="configurations for the fused baseline (s2p run --baseline)")
+    ap.add_argument("--kinds", nargs="+", default=["noise", "exact"])
     args = ap.parse_args()
     from seg2pose.synth.generate import generate_scene
     from seg2pose.synth.noise import NoiseConfig
 
     summary = {m: {"noise": [], "exact": []} for m in CENTER_METHODS}
     for seed in args.seeds:
-        for kind in ("noise", "exact"):
+        for kind in args.kinds:
             path = args.workdir / f"{kind}-{seed}-{args.frames}"
             if not (path / "scene.json").exists():
                 t0 = time.perf_counter()
@@ -87,6 +110,10 @@ def main() -> None:
                 allv = np.concatenate(list(errs.values()))
                 print(f"{m:>9} {'all':>11} {'':>9} {len(allv):>7} {allv.mean():>8.4f} {np.median(allv):>9.4f}")
                 summary[m][kind].append(allv.mean())
+                if args.fused:
+                    fe = fused_errors(scene, m, hs, args.fused, args.workdir)
+                    print(f"{m:>9} fused baseline mean m: "
+                          + "  ".join(f"{k} {v:.4f}" for k, v in fe.items()))
     print("\nmean normal-position error over all test detections (m), per scene:")
     for m in CENTER_METHODS:
         print(f"  {m:>9}: detector noise {np.round(summary[m]['noise'], 4).tolist()}  "
