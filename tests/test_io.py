@@ -413,3 +413,19 @@ def test_heights_bisection_writes_scene_json(tmp_path):
     d = json.loads((tmp_path / "scene.json").read_text())
     assert [c["default_height"] for c in d["classes"]] == [rep["pedestrian"]["new"], rep["car"]["new"]]
     assert any("pedestrian: 0.300 m ->" in ln for ln in lines)
+
+
+def test_iter_mots_blocks_keep_frames_whole(tmp_path, monkeypatch):
+    import seg2pose.io.mots as M
+
+    t = masks_table()
+    write_mots(tmp_path / "m.txt", t)
+    monkeypatch.setattr(M, "_BLOCK", 2)  # blocks end only at frame boundaries
+    got = [(f, len(x), x.frame.tolist()) for f, x in iter_mots(tmp_path / "m.txt")]
+    assert got == [(0, 3, [0, 0, 0]), (1, 3, [1, 1, 1]), (3, 3, [3, 3, 3])]
+    lines = (tmp_path / "m.txt").read_text().splitlines()
+    parts = lines[7].split()
+    lines[7] = " ".join(parts[:5] + [RLE])  # a 2x3 mask's runs on a 24x32 line
+    (tmp_path / "m.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"m.txt:8: RLE covers 6 pixels but height\*width = 768"):
+        list(iter_mots(tmp_path / "m.txt"))
