@@ -71,6 +71,14 @@ class EvalResult:
     classes: np.ndarray = field(default_factory=lambda: np.zeros(0, object), repr=False)
     frames: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     bin_size: float = BIN_SIZE
+    # absolute heading differences (K,) radians in [0, pi], NaN where either heading is unknown
+    heading_errors: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    @property
+    def mean_heading_error_deg(self) -> float:
+        """Mean absolute heading error in degrees over pairs where both headings are known."""
+        e = self.heading_errors[np.isfinite(self.heading_errors)]
+        return float(np.degrees(e.mean())) if len(e) else float("nan")
 
     @property
     def recall(self) -> float:
@@ -91,6 +99,7 @@ class EvalResult:
             "recall": num(self.recall),
             "mean_error": num(self.mean_error), "median_error": num(self.median_error),
             "per_class": {k: num(v) for k, v in self.per_class.items()},
+            "mean_heading_error_deg": num(self.mean_heading_error_deg),
             "bin_size": float(self.bin_size),
             "bins": [{"lo": float(lo), "hi": float(hi), "count": int(c), "mean_error": num(m)}
                      for lo, hi, c, m in self.bins],
@@ -125,11 +134,12 @@ def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZ
     distances = np.linalg.norm(gt.xyz[ig, :2] - origin, axis=1)
     classes = gt.cls[ig]
     per_class = {str(c): _nan_mean(errors[classes == c]) for c in sorted(set(classes.tolist()))}
+    dh = np.abs(np.angle(np.exp(1j * (est.heading[ie] - gt.heading[ig]))))
     return EvalResult(n_est=len(est), n_gt=len(gt), n_matched=len(ie),
                       mean_error=_nan_mean(errors), per_class=per_class,
                       bins=_distance_bins(errors, distances, bin_size), errors=errors,
                       distances=distances, classes=classes, frames=gt.frame[ig],
-                      bin_size=float(bin_size))
+                      bin_size=float(bin_size), heading_errors=dh)
 
 
 def per_frame_errors(est: PoseTable, gt: PoseTable

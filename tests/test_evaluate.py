@@ -107,3 +107,13 @@ def test_format_table_and_plot(tmp_path):
     plot_error_vs_distance({"baseline": a, "perfect": b}, out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert isinstance(a, EvalResult)
+
+
+def test_heading_error():
+    gt = table([(0, 1, "car", 0, 0), (1, 1, "car", 0, 0), (2, 1, "car", 0, 0)])
+    gt.heading[:] = [3.1, 0.0, 1.0]
+    est = table([(0, 1, "car", 0, 0), (1, 1, "car", 0, 0), (2, 1, "car", 0, 0)])
+    est.heading[:] = [-3.1, np.pi / 2, np.nan]  # wraps: 0.0832 rad; 90 deg; unknown
+    r = evaluate(est, gt, origin_xy=(0, 0))
+    assert r.mean_heading_error_deg == pytest.approx((np.degrees(2 * np.pi - 6.2) + 90) / 2)
+    assert r.to_dict()["mean_heading_error_deg"] == pytest.approx(r.mean_heading_error_deg)
