@@ -125,6 +125,14 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
     n = len(rles)
     m = crop // factor
     out = np.zeros((n, m, m), np.uint8)
+    if n:
+        from seg2pose.masks import rle_stats
+
+        _, _, box = rle_stats(rles, height, width)
+        big = int((np.nanmax(box[:, 2:] - box[:, :2], axis=1) > crop).sum())
+        if big:
+            print(f"note: {big} of {n} masks are larger than the {crop}x{crop} crop; they are "
+                  "cropped around their centre", file=sys.stderr)
     for s in range(0, n, batch):
         c = crop_runs(rles[s:s + batch], height, width, centers[s:s + batch], size=crop)
         out[s:s + batch] = _block_counts(c, factor)

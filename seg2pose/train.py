@@ -72,18 +72,20 @@ class TrainConfig:
 
     @classmethod
     def quick(cls) -> "TrainConfig":
-        """A CPU protocol of minutes per camera (lite, shared classes, one run)."""
+        """The CPU protocol of docs/RESULTS.md: one lite model for all lenses and classes, one
+        run of 30 epochs (about 10 minutes on 2 cores)."""
         return cls(arch="lite", runs=1, lr=1e-3, lr_schedule="cosine", batch_size=32,
-                   batches_per_epoch=64, epochs=30, rough_per_class=768, rough_val_per_class=200,
-                   share_classes=True, max_train_per_class=4000, max_val_per_class=800)
+                   batches_per_epoch=64, epochs=30, rough_per_class=300, rough_val_per_class=40,
+                   share_classes=True, share_cameras=True, max_val_per_class=100)
 
     @classmethod
     def demo(cls) -> "TrainConfig":
-        """The demo's protocol: lite models for five lenses and three classes in ~3 minutes on
-        a 2-core CPU."""
+        """The demo's protocol: lite, one model for all five lenses and three classes, in
+        about 2-3 minutes on a 2-core CPU."""
         return cls(arch="lite", runs=1, lr=2e-3, lr_schedule="cosine", batch_size=32,
-                   batches_per_epoch=32, epochs=8, rough_per_class=150, rough_val_per_class=60,
-                   share_classes=True, max_train_per_class=700, max_val_per_class=200)
+                   batches_per_epoch=48, epochs=12, rough_per_class=60, rough_val_per_class=20,
+                   share_classes=True, share_cameras=True, max_train_per_class=600,
+                   max_val_per_class=40)
 
 
 def _say(msg: str) -> None:
