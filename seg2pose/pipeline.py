@@ -272,6 +272,84 @@ def format_views(v: dict[str, np.ndarray]) -> str:
     return buf.getvalue()
 
 
+def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
+                  models: ModelSet | None, center_method: str = "bbox", chunk_frames: int = 32,
+                  progress: bool = True) -> tuple[dict[str, np.ndarray], int]:
+    """Per-view estimates of all detections of ``cams`` (streamed in lockstep, ``chunk_frames``
+    frames per network batch group): the columns of views.csv, and the number of frames."""
+    from tqdm import tqdm
+
+    warn = _Warn()
+    rows = ViewRows()
+
+    def flush(chunk: dict[str, list[MaskTable]]) -> None:
+        for cam, tables in chunk.items():
+            if not tables:
+                continue
+            t = MaskTable.concat(tables)
+            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
+            rows.add(t.frame, t.track_id, cam, names, uv, normal, residual)
+
+    chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
+    nframes = 0
+    bar = tqdm(total=None if frame_range is None else frame_range[1] - frame_range[0] + 1,
+               desc=f"s2p run {'baseline' if models is None else 'seg2posenet'}", unit="frame",
+               disable=not progress, leave=False)
+    for _, tables in iter_frames(scene, cams, frame_range):
+        for cam, t in tables.items():
+            chunk[cam].append(t)
+        nframes += 1
+        bar.update(1)
+        if nframes % chunk_frames == 0:
+            flush(chunk)
+            chunk = {c: [] for c in cams}
+    flush(chunk)
+    bar.close()
+    return rows.arrays(), nframes
+
+
+def select_views(views: dict[str, np.ndarray], cams: list[str]) -> dict[str, np.ndarray]:
+    """The rows of ``views`` seen by the cameras ``cams``."""
+    keep = np.isin(views["camera"], cams)
+    return {k: v[keep] for k, v in views.items()}
+
+
+def write_run(scene: Scene, run_dir: Path, views: dict[str, np.ndarray], cams: list[str],
+              config: str | None, models: ModelSet | None, split: str | None,
+              center_method: str, n_frames: int, force: bool = False) -> Path:
+    """Fuse per-view estimates and write the run folder (poses.csv, views.csv, run.json)."""
+    run_dir = Path(run_dir)
+    poses = fuse(views, scene)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in ("poses.csv", "views.csv", "run.json"):
+        check_writable(run_dir / name, force)
+    write_poses(run_dir / "poses.csv", poses)
+    atomic_write_text(run_dir / "views.csv", format_views(views))
+    fr = scene.split_range(split)
+    meta = {
+        "scene": str(scene.root.resolve()), "scene_fingerprint": scene.fingerprint(),
+        "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
+        "center_method": center_method,
+        "models": {} if models is None else {
+            f"{c}/{k}": {"path": str(p), **{kk: models.models[(c, k)].info.get(kk)
+                                            for kk in ("val_loss", "epoch", "seed")}}
+            for (c, k), p in models.paths.items() if c in cams},
+        "split": split, "frame_range": None if fr is None else list(fr),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "n_frames": n_frames, "n_views": int(len(views["frame"])), "n_poses": len(poses),
+    }
+    atomic_write_text(run_dir / "run.json", json.dumps(meta, indent=1) + "\n")
+    return run_dir
+
+
+def _load_models(scene: Scene, cams: list[str], models_dir, arch, device) -> ModelSet:
+    from seg2pose.net import pick_device
+
+    return ModelSet.load(Path(models_dir) if models_dir else scene.root / "models", cams,
+                         [c.name for c in scene.classes], arch=arch,
+                         fingerprint=scene.fingerprint(), device=pick_device(device))
+
+
 def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = "bbox",
@@ -288,63 +366,11 @@ def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None
         raise S2PError(f"{run_dir} exists and is not empty; pass --force to overwrite it")
     cams = [c.name for c in scene.rig.select(config)]
     frame_range = scene.split_range(split)
-    models = None
-    if not baseline:
-        from seg2pose.net import pick_device
-        dev = pick_device(device)
-        models = ModelSet.load(Path(models_dir) if models_dir else scene.root / "models", cams,
-                               [c.name for c in scene.classes], arch=arch,
-                               fingerprint=scene.fingerprint(), device=dev)
-    warn = _Warn()
-    rows = ViewRows()
-
-    def flush(chunk: dict[str, list[MaskTable]]) -> None:
-        for cam, tables in chunk.items():
-            if not tables:
-                continue
-            t = MaskTable.concat(tables)
-            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
-            rows.add(t.frame, t.track_id, cam, names, uv, normal, residual)
-
-    from tqdm import tqdm
-
-    first_last = frame_range
-    chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
-    nframes = 0
-    bar = tqdm(total=None if frame_range is None else frame_range[1] - frame_range[0] + 1,
-               desc=f"s2p run {'baseline' if baseline else 'seg2posenet'}", unit="frame",
-               disable=not progress, leave=False)
-    for frame, tables in iter_frames(scene, cams, frame_range):
-        for cam, t in tables.items():
-            chunk[cam].append(t)
-        nframes += 1
-        bar.update(1)
-        if nframes % chunk_frames == 0:
-            flush(chunk)
-            chunk = {c: [] for c in cams}
-    flush(chunk)
-    bar.close()
-    views = rows.arrays()
-    poses = fuse(views, scene)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    for name in ("poses.csv", "views.csv", "run.json"):
-        check_writable(run_dir / name, force)
-    write_poses(run_dir / "poses.csv", poses)
-    atomic_write_text(run_dir / "views.csv", format_views(views))
-    meta = {
-        "scene": str(scene.root.resolve()), "scene_fingerprint": scene.fingerprint(),
-        "config": config, "cameras": cams, "method": "baseline" if baseline else "seg2posenet",
-        "center_method": center_method,
-        "models": {} if models is None else {
-            f"{c}/{k}": {"path": str(p), **{kk: models.models[(c, k)].info.get(kk)
-                                            for kk in ("val_loss", "epoch", "seed")}}
-            for (c, k), p in models.paths.items()},
-        "split": split, "frame_range": None if first_last is None else list(first_last),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "n_frames": nframes, "n_views": int(len(views["frame"])), "n_poses": len(poses),
-    }
-    atomic_write_text(run_dir / "run.json", json.dumps(meta, indent=1) + "\n")
-    return run_dir
+    models = None if baseline else _load_models(scene, cams, models_dir, arch, device)
+    views, nframes = compute_views(scene, cams, frame_range, models, center_method,
+                                   chunk_frames, progress)
+    return write_run(scene, run_dir, views, cams, config, models, split, center_method,
+                     nframes, force=True)
 
 
 def read_views(path: str | Path) -> dict[str, np.ndarray]:
@@ -413,12 +439,19 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
         raise InputError("the scene defines no camera configurations", file=scene.root / "scene.json",
                          field="configs")
     results = {}
+    # a view's estimate does not depend on the configuration it is fused in: compute every
+    # camera's views once per method, then fuse per configuration
+    all_cams = [c for c in scene.cameras if any(c in scene.rig.configs[k] for k in configs)]
     for baseline in ([False, True] if not baseline_only else [True]):
+        models = None if baseline else _load_models(scene, all_cams, models_dir, None, None)
+        views, nframes = compute_views(scene, all_cams, scene.split_range(split), models,
+                                       progress=progress)
         for cfg in configs:
             name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
-            run_scene(scene, rd, config=cfg, baseline=baseline, models_dir=models_dir,
-                      split=split, force=True, progress=progress)
+            cams = scene.rig.configs[cfg]
+            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, "bbox",
+                      nframes, force=True)
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)
     s2pn = [r.mean_error for k, r in results.items() if k.endswith("S2PN")]

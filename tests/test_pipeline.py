@@ -199,12 +199,19 @@ def test_eval_equals_hand_computation(tmp_path):
 
 
 def test_paper_table_baseline_only(tiny, tmp_path):
-    from seg2pose.pipeline import paper_table
+    from seg2pose.pipeline import paper_table, run_scene
 
     out, text = paper_table(tiny, out_dir=tmp_path / "pt", baseline_only=True, progress=False)
     d = json.loads((out / "results.json").read_text())
     assert set(d["results"]) == {"mono-1 baseline", "stereo-20 baseline", "tri-I baseline"}
     assert (out / "error_vs_distance.png").stat().st_size > 1000
     assert "tri-I baseline" in text
+    # views computed once and fused per configuration = a direct run of that configuration
+    direct = run_scene(tiny, tmp_path / "direct", config="stereo-20", baseline=True,
+                       split="test", progress=False)
+    a = read_poses(direct / "poses.csv")
+    b = read_poses(out / "runs" / "stereo-20-baseline" / "poses.csv")
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.track_id, b.track_id)
     with pytest.raises(S2PError):
         paper_table(tiny, out_dir=tmp_path / "pt", baseline_only=True, progress=False)
