@@ -157,7 +157,7 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
                 pending[c] = next(streams[c], None)
             img = C.paint_masks(rles, vals, np.zeros(len(rles), np.int64), cam.height, cam.width, 1)[0]
             rec.log(f"{L.cam_path(c)}/masks", rr.SegmentationImage(img))
-            segs, _ = C.projected_edges(cam, t.xyz, t.heading, psz[i])
+            segs, _ = C.projected_paths(cam, t.xyz, t.heading, psz[i])
             rec.log(f"{L.cam_path(c)}/poses/{run.name}", rr.LineStrips2D(segs))
             sel = (v.frame == f) & (v.camera == c)
             rec.log(f"{L.cam_path(c)}/normal/{run.name}", rr.Points2D(v.uv[sel]))

@@ -19,6 +19,8 @@ _SY = np.array([1, -1, -1, 1, 1, -1, -1, 1]) * 0.5
 _SZ = np.array([0, 0, 0, 0, 1, 1, 1, 1], dtype=float)
 EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4],
                   [0, 4], [1, 5], [2, 6], [3, 7]])
+# one polyline over all 12 edges (three are drawn twice): 16 points instead of 12 segments
+PATH = np.array([0, 1, 2, 3, 0, 4, 5, 1, 5, 6, 2, 6, 7, 3, 7, 4])
 
 
 def frame_lengths(frame: np.ndarray, first: int, last: int) -> np.ndarray:
@@ -48,15 +50,14 @@ def box_columns(xyz: np.ndarray, heading: np.ndarray, size: np.ndarray) -> dict:
     return {"centers": centers, "half_sizes": size / 2, "quaternions": quats}
 
 
-def projected_edges(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Box edges as 2D segments (M*12, 2, 2) pixels for the boxes fully in front of ``camera``
-    with at least one corner in the image and none far outside it (half an image beyond the
-    border: a box beside the camera would draw lines across the whole view); also the (M,)
-    indices of those boxes."""
+def _project_boxes(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (M, 8, 2) pixels of the boxes fully in front of ``camera`` with at least one
+    corner in the image and none far outside it (half an image beyond the border: a box beside
+    the camera would draw lines across the whole view); also their (M,) indices."""
     n = len(xyz)
     if n == 0:
-        return np.zeros((0, 2, 2)), np.zeros(0, np.int64)
+        return np.zeros((0, 8, 2)), np.zeros(0, np.int64)
     corners = box_corners(xyz, heading, size).reshape(-1, 3)
     uv, _, front = camera.project_points(corners)
     uv = uv.reshape(n, 8, 2)
@@ -66,7 +67,23 @@ def projected_edges(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarr
     keep = (front.reshape(n, 8).all(axis=1) & near &
             camera.in_image(uv.reshape(-1, 2)).reshape(n, 8).any(axis=1))
     idx = np.flatnonzero(keep)
-    return uv[idx][:, EDGES].reshape(-1, 2, 2), idx
+    return uv[idx], idx
+
+
+def projected_edges(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Box edges as 2D segments (M*12, 2, 2) pixels of the boxes ``camera`` sees (see
+    ``_project_boxes``); also the (M,) indices of those boxes."""
+    uv, idx = _project_boxes(camera, xyz, heading, size)
+    return uv[:, EDGES].reshape(-1, 2, 2), idx
+
+
+def projected_paths(camera, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Each seen box as one 16-point polyline (M, 16, 2) pixels over its 12 edges; also the
+    (M,) indices of those boxes. A third of the data of ``projected_edges``."""
+    uv, idx = _project_boxes(camera, xyz, heading, size)
+    return uv[:, PATH], idx
 
 
 def strips_arrow(points: np.ndarray, offsets: np.ndarray, batch_cls):

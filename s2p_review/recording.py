@@ -258,13 +258,13 @@ def log_projected(rec, ent: str, camera, table: PoseTable, sizes: np.ndarray, sc
     rr = _rr()
     order = np.argsort(table.frame, kind="stable")
     t, sz = table.take(order), sizes[order]
-    segs, idx = C.projected_edges(camera, t.xyz, t.heading, sz)
-    lengths = C.frame_lengths(t.frame[idx], first, last) * 12
+    segs, idx = C.projected_paths(camera, t.xyz, t.heading, sz)
+    lengths = C.frame_lengths(t.frame[idx], first, last)
     # constant look (width, draw order, and the colour of truth) once, statically
     rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0, radii=0.75,
                                              colors=color if color is not None else None), static=True)
     extra = {} if color is not None else {
-        "colors": np.repeat(L.class_colors(t.cls[idx], scene.classes), 12, axis=0)}
+        "colors": L.class_colors(t.cls[idx], scene.classes)}
     rec.send_columns(ent, indexes=_times(np.arange(first, last + 1), scene.fps),
                      columns=rr.LineStrips2D.columns(
                          strips=C.segments_arrow(segs, rr.components.LineStrip2DBatch), **extra)

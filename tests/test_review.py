@@ -486,3 +486,9 @@ def test_projected_edges_skip_boxes_far_outside(tiny):
     xyz = np.array([[0.0, 0.0, 0.0], [c[0] + 1.0, c[1] + 1.0, c[2] - 1.0]])
     segs, idx = C.projected_edges(cam, xyz, np.zeros(2), np.array([[4.0, 2.0, 1.5]] * 2))
     assert list(idx) == [0] and segs.shape == (12, 2, 2)
+
+
+def test_box_path_covers_all_edges():
+    pairs = {tuple(sorted(p)) for p in zip(C.PATH[:-1], C.PATH[1:])}
+    assert pairs == {tuple(sorted(e)) for e in C.EDGES.tolist()}
+    assert len(C.PATH) == 16
