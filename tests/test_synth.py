@@ -96,6 +96,11 @@ def test_occlusion_nearer_road_user_wins(cam):
     assert not ((dets[2] ^ (far_ref & ~near_ref)) & ~band).any()
     assert not (dets[1] & dets[2]).any()
     assert dets[2].sum() < far_ref.sum() - 200
+    # the detector-noise model knows how much of each road user is hidden
+    _, dd = FrameRenderer(cam, 0, w, NoiseConfig(), 0).visible(0)
+    vis = {d.track_id: d.visible for d in dd}
+    assert vis[1] == 1.0
+    assert abs(vis[2] - dets[2].sum() / far_ref.sum()) < 0.02
     # reversed input order gives the same masks
     w2 = one_frame_world([box, tall], pos[::-1], cls=[0, 0])
     dets2 = {t: decode(r, cam.height, cam.width).astype(bool)

@@ -9,7 +9,8 @@ import typer
 
 from seg2pose.errors import InputError
 
-NOISE_KEYS = ["miss_rate", "min_area", "small_area", "small_miss", "merge_rate", "class_confusion",
+NOISE_KEYS = ["miss_rate", "min_area", "small_area", "small_miss", "occlusion_miss", "merge_rate",
+              "class_confusion",
               "dilate_px", "mask_resolution", "boundary_jitter", "fragment_rate"]
 
 

@@ -5,7 +5,8 @@ Applied per camera and frame to the visible instance masks (crops of the instanc
 1. merges: two road users whose boxes overlap are, with ``merge_rate``, detected as one mask
    (the union) that carries the nearer one's id and class; the farther one is lost;
 2. missed detections: masks under ``min_area`` pixels always, others with ``miss_rate`` plus
-   up to ``small_miss`` more for masks smaller than ``small_area`` pixels;
+   up to ``small_miss`` more for masks smaller than ``small_area`` pixels, plus up to
+   ``occlusion_miss`` more for road users less than half visible (occluded by nearer ones);
 3. class confusion: pedestrian <-> bicyclist with ``class_confusion``;
 4. shape: dilation/erosion by a random radius (normal, ``dilate_px`` pixels), then the mask is
    resampled through a ``mask_resolution`` x ``mask_resolution`` grid (Mask R-CNN's mask head)
@@ -35,6 +36,7 @@ class NoiseConfig:
     min_area: int = 40           # pixels
     small_area: int = 600        # pixels
     small_miss: float = 0.25
+    occlusion_miss: float = 0.5  # extra miss probability at 0 % visible, falling to 0 at 50 %
     merge_rate: float = 0.15
     class_confusion: float = 0.02
     dilate_px: float = 1.0       # std of the dilation (+) / erosion (-) radius, pixels
@@ -45,7 +47,7 @@ class NoiseConfig:
     @classmethod
     def off(cls) -> "NoiseConfig":
         return cls(enabled=False, miss_rate=0.0, min_area=1, small_area=0, small_miss=0.0,
-                   merge_rate=0.0, class_confusion=0.0, dilate_px=0.0, mask_resolution=0,
+                   occlusion_miss=0.0, merge_rate=0.0, class_confusion=0.0, dilate_px=0.0, mask_resolution=0,
                    boundary_jitter=0.0, fragment_rate=0.0)
 
     def to_dict(self) -> dict:
@@ -60,7 +62,8 @@ class NoiseConfig:
         return cls(**d)
 
     def validate(self) -> None:
-        for name in ("miss_rate", "small_miss", "merge_rate", "class_confusion", "fragment_rate"):
+        for name in ("miss_rate", "small_miss", "occlusion_miss", "merge_rate", "class_confusion",
+                     "fragment_rate"):
             v = getattr(self, name)
             if not (0.0 <= v <= 1.0):
                 raise InputError(f"must be a probability in [0, 1], got {v}", field=f"noise.{name}")
@@ -85,6 +88,7 @@ class Det:
     track_id: int
     cls: int
     depth: float
+    visible: float = 1.0  # share of the road user's silhouette not hidden by nearer ones
 
 
 def _union(a: Det, b: Det) -> Det:
@@ -95,7 +99,7 @@ def _union(a: Det, b: Det) -> Det:
     for d in (a, b):
         m[d.x0 - x0:d.x0 - x0 + d.crop.shape[0], d.y0 - y0:d.y0 - y0 + d.crop.shape[1]] |= d.crop
     near = a if a.depth <= b.depth else b
-    return Det(m, x0, y0, near.track_id, near.cls, near.depth)
+    return Det(m, x0, y0, near.track_id, near.cls, near.depth, near.visible)
 
 
 def _box(d: Det) -> tuple[int, int, int, int]:
@@ -127,7 +131,7 @@ def _shape_noise(d: Det, cfg: NoiseConfig, rng: np.random.Generator, width: int,
         small = small + cv2.resize(field, (small.shape[1], small.shape[0]),
                                    interpolation=cv2.INTER_CUBIC)
     soft = cv2.resize(small, (hc, wc), interpolation=cv2.INTER_LINEAR) if res else small
-    return Det(soft > 0.5, x0, y0, d.track_id, d.cls, d.depth)
+    return Det(soft > 0.5, x0, y0, d.track_id, d.cls, d.depth, d.visible)
 
 
 def _fragment(d: Det, rng: np.random.Generator) -> Det:
@@ -142,7 +146,7 @@ def _fragment(d: Det, rng: np.random.Generator) -> Det:
     keep = d.crop & side
     if not keep.any():
         keep = d.crop & ~side
-    return Det(keep, d.x0, d.y0, d.track_id, d.cls, d.depth)
+    return Det(keep, d.x0, d.y0, d.track_id, d.cls, d.depth, d.visible)
 
 
 def apply_noise(dets: list[Det], cfg: NoiseConfig, rng: np.random.Generator, width: int,
@@ -177,12 +181,13 @@ def apply_noise(dets: list[Det], cfg: NoiseConfig, rng: np.random.Generator, wid
         p_miss = cfg.miss_rate
         if cfg.small_area > 0:
             p_miss += cfg.small_miss * max(0.0, 1.0 - area / cfg.small_area)
+        p_miss += cfg.occlusion_miss * max(0.0, 1.0 - 2.0 * d.visible)
         u = rng.random()
         if area < cfg.min_area or u < p_miss:
             continue
         # 3. class confusion between the two classes a detector mixes up
         if d.cls in (0, 1) and rng.random() < cfg.class_confusion:
-            d = Det(d.crop, d.x0, d.y0, d.track_id, 1 - d.cls, d.depth)
+            d = Det(d.crop, d.x0, d.y0, d.track_id, 1 - d.cls, d.depth, d.visible)
         # 4. shape
         d = _shape_noise(d, cfg, rng, width, height)
         # 5. fragments

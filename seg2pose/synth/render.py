@@ -49,16 +49,25 @@ class FrameRenderer:
         buf = self.buf_t
         buf.fill(0)
         fill_parts(buf, uv[sel], owner[sel] + 1)
-        for a in np.unique(owner[sel]):
-            pts = uv[sel][owner[sel] == a].reshape(-1, 2)
+        solo = self.noise.enabled and self.noise.occlusion_miss > 0
+        uv_sel, own_sel = uv[sel], owner[sel]
+        for a in np.unique(own_sel):
+            mine = own_sel == a
+            pts = uv_sel[mine].reshape(-1, 2)
             box = bbox_of(pts, self.W, self.H)
             if box is None:
                 continue
             x0, y0, x1, y1 = box
             crop = buf[x0:x1, y0:y1] == a + 1
-            if crop.any():
-                dets.append(Det(crop, x0, y0, int(w.track[r][a]), int(w.cls[r][a]),
-                                float(depth[a])))
+            n_vis = int(np.count_nonzero(crop))
+            if n_vis == 0:
+                continue
+            vis = 1.0
+            if solo:  # the road user drawn alone in its box: how much of it is hidden?
+                alone = np.zeros(crop.shape, np.uint8)
+                fill_parts(alone, uv_sel[mine] - np.array([x0, y0]), np.ones(int(mine.sum()), np.int64))
+                vis = n_vis / max(int(np.count_nonzero(alone)), n_vis)
+            dets.append(Det(crop, x0, y0, int(w.track[r][a]), int(w.cls[r][a]), float(depth[a]), vis))
         return r, dets
 
     def render(self, f: int) -> list[tuple[int, int, bytes]]:
