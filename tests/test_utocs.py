@@ -125,3 +125,34 @@ def test_cli_import(utocs, tmp_path):
     assert r.exit_code == 0, r.output
     assert "imported 2 cameras" in r.output
     assert not (tmp_path / "sc" / "video").exists()
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=5),
+    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=6), kids, max_size=4),
+    max_leaves=15)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.sampled_from(["cameras", "position", "record", "bytes"]), json_values, st.binary(max_size=100))
+def test_fuzz_utocs_inputs_raise_own_errors(utocs, tmp_path, where, value, data):
+    from seg2pose.io.utocs import read_cameras_json, read_positions
+
+    if where == "cameras":
+        d = {"instrinsics": {"f": F, "Cx": CX, "Cy": CY}, "cams": [dict(CAMS[0])]}
+        d["cams"][0]["pitch"] = value
+        (utocs / "cameras.json").write_text(json.dumps(d))
+    elif where == "position":
+        (utocs / "positions" / "000001.json").write_text(json.dumps(value))
+    elif where == "record":
+        (utocs / "positions" / "000001.json").write_text(json.dumps([{**USERS[0], "id": value}]))
+    else:
+        (utocs / "positions" / "000001.json").write_bytes(data)
+    try:
+        read_cameras_json(utocs / "cameras.json")
+        read_positions(utocs / "positions")
+    except S2PError:
+        pass
