@@ -10,8 +10,8 @@ Applied per camera and frame to the visible instance masks (crops of the instanc
 3. class confusion: pedestrian <-> bicyclist with ``class_confusion``;
 4. shape: dilation/erosion by a random radius (normal, ``dilate_px`` pixels), then the mask is
    resampled through a ``mask_resolution`` x ``mask_resolution`` grid (Mask R-CNN's mask head)
-   and thresholded with a smooth random field of amplitude ``boundary_jitter`` added, which
-   rounds corners, loses thin parts and makes the boundary wander;
+   and thresholded with a smooth random field of amplitude ``boundary_jitter`` added along the
+   soft boundary, which rounds corners, loses thin parts and makes the boundary wander;
 5. fragments: with ``fragment_rate`` only the part of the mask on one side of a random cut
    through it is detected.
 
@@ -41,7 +41,7 @@ class NoiseConfig:
     class_confusion: float = 0.02
     dilate_px: float = 1.0       # std of the dilation (+) / erosion (-) radius, pixels
     mask_resolution: int = 28
-    boundary_jitter: float = 0.18
+    boundary_jitter: float = 0.25
     fragment_rate: float = 0.02
 
     @classmethod
@@ -128,8 +128,9 @@ def _shape_noise(d: Det, cfg: NoiseConfig, rng: np.random.Generator, width: int,
         else m.astype(np.float32)
     if cfg.boundary_jitter > 0:
         field = rng.normal(0.0, cfg.boundary_jitter, size=(6, 6)).astype(np.float32)
-        small = small + cv2.resize(field, (small.shape[1], small.shape[0]),
-                                   interpolation=cv2.INTER_CUBIC)
+        field = cv2.resize(field, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_CUBIC)
+        # only where the mask is uncertain (its soft boundary): no islands far out, no holes
+        small = small + field * (4.0 * small * (1.0 - small))
     soft = cv2.resize(small, (hc, wc), interpolation=cv2.INTER_LINEAR) if res else small
     return Det(soft > 0.5, x0, y0, d.track_id, d.cls, d.depth, d.visible)
 
