@@ -117,7 +117,7 @@ def _run_tasks(fn, tasks: list, workers: int, progress, desc: str, unit: str):
 
     bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress, leave=False)
     try:
-        if workers <= 1:
+        if workers <= 1 or "fork" not in mp.get_all_start_methods():  # the world is shared by fork
             for t in tasks:
                 yield fn(t)
                 bar.update(1)
