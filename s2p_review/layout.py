@@ -84,9 +84,11 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
     return pos, target
 
 
-def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None):
+def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
+              fps: float | None = None):
     """The 3D world over the error plot on the left; one 2D view per camera on the right.
-    eye: (position, look target) of the 3D view, metres (see ``default_eye``)."""
+    eye: (position, look target) of the 3D view, metres (see ``default_eye``); fps: frames
+    per second of the ``frame`` timeline, so that playback runs in real time."""
     import rerun.blueprint as rrb
 
     cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
@@ -105,7 +107,7 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     else:
         right = rrb.Vertical(*cams) if len(cams) <= 3 else rrb.Grid(*cams, grid_columns=2)
         body = rrb.Horizontal(left, right, column_shares=[1, 1])
-    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed"),
+    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed", timeline=TIMELINE, fps=fps),
                          rrb.SelectionPanel(state="hidden"),
                          rrb.BlueprintPanel(state="hidden"),
                          auto_views=False, collapse_panels=False)

@@ -455,7 +455,8 @@ def record(scene: Scene, runs: list[Path], rrd_path: Path | None = None, *, spaw
         raise S2PError("nothing to do: pass --save FILE.rrd, --spawn, --connect URL or --screenshot FILE.png")
     loaded, first, last, cams = prepare(scene, runs, frames, opts.cameras)
     bp = L.blueprint(cams, [r.name for r in loaded],
-                     with_metrics=scene.gt_path.exists() and bool(loaded), eye=L.default_eye(scene))
+                     with_metrics=scene.gt_path.exists() and bool(loaded), eye=L.default_eye(scene),
+                     fps=scene.fps)
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in loaded) if loaded else "scene")
     viewers = []
