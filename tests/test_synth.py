@@ -125,7 +125,8 @@ def test_truncation_at_image_border(cam):
 @pytest.fixture(scope="module")
 def clean_scene(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("synth") / "clean"
-    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1)
+    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1,
+                   match="all")
     return out
 
 
@@ -146,7 +147,7 @@ def test_scene_opens_with_the_readers(clean_scene):
     assert s.splits == split_ranges(6, 1)
     assert abs(s.fps - 1 / 0.075) < 1e-9
     gen = s.extra["generator"]
-    assert gen["seed"] == 3 and gen["noise"]["enabled"] is False
+    assert gen["seed"] == 3 and gen["noise"]["enabled"] is False and gen["match"] == "all"
     assert set(s.extra["class_sizes"]) == {"pedestrian", "bicyclist", "car"}
     assert len(s.ground_points) == 184
     gt = read_poses(s.gt_path, known_classes=[c.name for c in s.classes])
@@ -481,3 +482,25 @@ def test_truth_inside_masks_with_lens_distortion(tmp_path):
         n += 1
         hits += bool(decode(r, m.height, m.width)[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].any())
     assert n > 10 and hits / n > 0.9
+
+
+def test_center_matching_keeps_only_masks_covering_the_centre(clean_scene, tmp_path):
+    out = tmp_path / "m"
+    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1)
+    s = load_scene(out)
+    assert s.extra["generator"]["match"] == "center"
+    gt = read_poses(s.gt_path)
+    key = {(f, t): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
+    for c in ("c0", "c4"):
+        allm = read_mots(clean_scene / "masks" / f"{c}.txt")
+        kept = read_mots(s.masks_path(c))
+        all_rows = {(f, t): r for f, t, r in zip(allm.frame, allm.track_id, allm.rles)}
+        dropped = set(all_rows) - set(zip(kept.frame, kept.track_id))
+        assert 0 < len(dropped) < 0.3 * len(all_rows)
+        cam = s.cameras[c]
+        for (f, t), r in all_rows.items():
+            i = key[(f, t)]
+            uv, _, _ = cam.project_points(gt.xyz[i] + [0, 0, 0.5 * gt.size[i, 2]])
+            x, y = np.floor(uv[0]).astype(int)
+            inside = 0 <= x < cam.width and 0 <= y < cam.height and decode(r, cam.height, cam.width)[y, x]
+            assert bool(inside) == ((f, t) not in dropped)

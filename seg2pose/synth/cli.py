@@ -43,6 +43,7 @@ def register(app: typer.Typer) -> None:
         noise: list[str] = typer.Option([], "--noise", help="a detector-noise knob KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
         distortion: Optional[str] = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (off by default)"),
         ids: str = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (paper); visit: a new id for every pass"),
+        match: str = typer.Option("center", "--match", help="center: keep a mask only when the road user's true 3D centre projects inside it (paper 4.1's association); all: every visible mask"),
         workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
         force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
         quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
@@ -68,5 +69,5 @@ def register(app: typer.Typer) -> None:
         t = time.perf_counter()
         path = generate_scene(out, preset=preset, frames=frames, seed=seed, rig=rig, video=video,
                               force=force, noise=cfg, progress=not quiet, workers=workers,
-                              ids=ids, distortion=dist)
+                              ids=ids, distortion=dist, match=match)
         typer.echo(f"wrote scene {path} in {time.perf_counter() - t:.1f} s")

@@ -26,7 +26,7 @@ from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
 from seg2pose.synth import junction as J
 from seg2pose.synth.noise import NoiseConfig
-from seg2pose.synth.render import FrameRenderer
+from seg2pose.synth.render import MATCH_RULES, FrameRenderer
 from seg2pose.synth.rig import load_rig
 from seg2pose.synth.shapes import CLASS_NAMES, TYPICAL_SIZES
 from seg2pose.synth.traffic import TrafficConfig, simulate
@@ -95,7 +95,8 @@ def _mask_task(args: tuple[str, int, int]) -> tuple[str, int, int, str, int]:
             import cv2
             cv2.setNumThreads(1)  # one process per core already; no oversubscription
         idx = st["cam_names"].index(cam_name)
-        r = FrameRenderer(st["rig"].cameras[cam_name], idx, st["world"], st["noise"], st["seed"])
+        r = FrameRenderer(st["rig"].cameras[cam_name], idx, st["world"], st["noise"], st["seed"],
+                          st["match"])
         st["renderers"][cam_name] = r
     text, n = r.mots_lines(f0, f1)
     return cam_name, f0, f1, text, n
@@ -136,7 +137,8 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
                    rig=None, video: bool = False, force: bool = False,
                    noise: NoiseConfig | None = None, progress: bool = True,
                    workers: int | None = None, population: dict | None = None,
-                   ids: str = "road_user", distortion: tuple[float, float] | None = None) -> Path:
+                   ids: str = "road_user", distortion: tuple[float, float] | None = None,
+                   match: str = "center") -> Path:
     """Generate a synthetic scene folder at ``out`` and return its path.
 
     preset: "small" (3 x 240 frames, seconds) or "paper" (3 x 7,000 frames 0.075 s apart, 150
@@ -146,7 +148,10 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     road users (overrides the preset); workers: processes (default: up to 2, one per core);
     ids: "road_user" (a road user keeps its track id and shape each time it comes back, as the
     paper's 83 road users) or "visit" (a new track id for every pass through the scene);
-    distortion: optional radial lens distortion (k1, k2) of the named devices (off by default).
+    distortion: optional radial lens distortion (k1, k2) of the named devices (off by default);
+    match: "center" (paper 4.1: a detection is kept, with its road user's id, only when the
+    projection of the road user's true 3D centre falls inside its mask; truncated or hidden
+    road users whose centre is not covered drop out) or "all" (every visible mask).
     """
     out = Path(out)
     # --- validate everything before any work ---------------------------------------------------
@@ -167,6 +172,8 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
         if not isinstance(v, (int, np.integer)) or v < 0:
             raise InputError(f"population of {k} must be an integer >= 0, got {v!r}",
                              field=f"population.{k}")
+    if match not in MATCH_RULES:
+        raise InputError(f"unknown match rule {match!r}; use {' or '.join(MATCH_RULES)}", field="--match")
     if ids not in ("road_user", "visit"):
         raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="--ids")
     if sum(pop.values()) == 0:
@@ -207,7 +214,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
                 "name": "seg2pose.synth", "version": 1, "preset": preset, "seed": seed,
                 "frames_per_split": per_split, "gap": gap, "dt": DT, "rig": rig_obj.name,
                 "distortion": list(distortion) if distortion else None,
-                "video": bool(video), "ids": ids, "noise": noise.to_dict(), "traffic": traffic.to_dict(),
+                "video": bool(video), "ids": ids, "match": match, "noise": noise.to_dict(), "traffic": traffic.to_dict(),
                 "traffic_stats": sim_stats,
                 "ground_points": {"n": len(ground), "curb_share": 0.6},
                 "surface": {"lane_m": J.LANE, "curb_m": J.CURB, "sidewalk_m": J.SIDEWALK,
@@ -223,7 +230,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
         write_poses(tmp / "gt" / "poses.csv", world.poses())
         _STATE.clear()
         _STATE.update(world=world, rig=rig_obj, cam_names=cams, noise=noise, seed=seed,
-                      renderers={}, tmp=tmp)
+                      renderers={}, tmp=tmp, match=match)
         tasks = [(c, f0, min(f0 + CHUNK, n_frames)) for c in cams for f0 in range(0, n_frames, CHUNK)]
         files = {}
         with contextlib.ExitStack() as stack:

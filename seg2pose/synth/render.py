@@ -16,11 +16,17 @@ from seg2pose.synth.raster import bbox_of, fill_parts, project_parts, rle_from_c
 from seg2pose.synth.world import World
 
 
+MATCH_RULES = ("all", "center")
+
+
 class FrameRenderer:
     """Renders one camera's masks frame by frame (reuses its buffer)."""
 
     def __init__(self, camera: Camera, cam_index: int, world: World, noise: NoiseConfig,
-                 seed: int):
+                 seed: int, match: str = "all"):
+        if match not in MATCH_RULES:
+            raise ValueError(f"match must be one of {MATCH_RULES}, got {match!r}")
+        self.match = match
         self.cam = camera
         self.cam_index = cam_index
         self.world = world
@@ -72,12 +78,33 @@ class FrameRenderer:
 
     def render(self, f: int) -> list[tuple[int, int, bytes]]:
         """Frame f's detections as (track_id, class_id, RLE), sorted by track id."""
-        _, dets = self.visible(f)
+        r, dets = self.visible(f)
         rng = np.random.default_rng([self.seed, 101, self.cam_index, f])
         dets = apply_noise(dets, self.noise, rng, self.W, self.H)
+        if self.match == "center" and dets:
+            dets = self._matched(r, dets)
         dets.sort(key=lambda d: d.track_id)
         return [(d.track_id, d.cls + 1, rle_from_crop_t(d.crop, d.x0, d.y0, self.H, self.W))
                 for d in dets]
+
+    def _matched(self, r: slice, dets: list[Det]) -> list[Det]:
+        """Paper 4.1's association: a detection keeps its road user's id only when the
+        projection of the road user's true 3D centre (mid-height above the ground contact
+        point) falls inside the mask; the others would not be matched and are left out."""
+        w = self.world
+        centre = w.xyz[r] + np.outer(0.5 * w.size[w.track[r] - 1, 2], [0.0, 0.0, 1.0])
+        uv, _, front = self.cam.project_points(centre)
+        px = {int(t): (int(np.floor(u)), int(np.floor(v))) if ok else None
+              for t, (u, v), ok in zip(w.track[r], uv, front)}
+        out = []
+        for d in dets:
+            p = px.get(d.track_id)
+            if p is None:
+                continue
+            i, j = p[0] - d.x0, p[1] - d.y0
+            if 0 <= i < d.crop.shape[0] and 0 <= j < d.crop.shape[1] and d.crop[i, j]:
+                out.append(d)
+        return out
 
     def mots_lines(self, f0: int, f1: int) -> tuple[str, int]:
         """MOTS text for frames [f0, f1) and the number of detections."""

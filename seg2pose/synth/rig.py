@@ -47,10 +47,12 @@ CONFIGS = {
     "tri-T": ["c0", "c2", "c4"],
 }
 # named devices: pole position (x, y), height, look-at target, focal length
+# (tilted so that the top of the image sees about 50-60 m far: beyond that, a pixel spans
+# metres of ground at grazing angles and no detector-based method is meaningful)
 DEVICES = {
-    "device": dict(pole=(-12.0, -12.0), height=10.0, target=(1.0, 1.0, 0.0)),
-    "device-8m": dict(pole=(-12.0, -12.0), height=8.0, target=(0.0, 0.0, 0.0)),
-    "device-12m": dict(pole=(-12.0, -12.0), height=12.0, target=(2.0, 2.0, 0.0)),
+    "device": dict(pole=(-12.0, -12.0), height=10.0, target=(-1.0, -1.0, 0.0)),
+    "device-8m": dict(pole=(-12.0, -12.0), height=8.0, target=(-3.0, -3.0, 0.0)),
+    "device-12m": dict(pole=(-12.0, -12.0), height=12.0, target=(1.0, 1.0, 0.0)),
 }
 
 
