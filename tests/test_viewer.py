@@ -79,6 +79,9 @@ def test_views_report_no_warnings(viewer, data):
 
 def test_time_cursor(viewer, data):
     _, video, runs, _ = data
+    _fresh(viewer)
+    record(video, runs, connect=viewer.url, options=RecordOptions(masks=False, video=False))
+    V.wait_loaded(viewer, min_end=N_FRAMES - 1)
     V.set_frame(viewer, 5)
     st = viewer.get_state()
     rec = next(r for r in st.recordings if r.store_id == st.active_recording)
