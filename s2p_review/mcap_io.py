@@ -224,7 +224,9 @@ def _outlines(inst: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> list[np.n
 
 def _image_annotations(camera, table: PoseTable, sizes, scene: Scene, inst: np.ndarray | None,
                        inst_ids: np.ndarray, inst_cls: list[str], ns: int,
-                       boxes: np.ndarray | None = None):
+                       boxes: np.ndarray | None = None, centres: list | None = None):
+    """Projected boxes (LINE_LIST, class colours), mask outlines (LINE_LOOP) and the views'
+    mask centres (POINTS) of one camera and frame, pixels."""
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
     from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 
@@ -237,10 +239,12 @@ def _image_annotations(camera, table: PoseTable, sizes, scene: Scene, inst: np.n
         pa = msg.points.add(timestamp=_ts(ns), type=PointsAnnotation.LINE_LIST, thickness=2.0)
         pa.outline_color.CopyFrom(_color(cols[k]))
         pa.points.extend(Point2(x=x, y=y) for x, y in segs[k * 12:(k + 1) * 12].reshape(-1, 2).tolist())
+    by_name = {c.name: c for c in scene.classes}
+    for uv, name in centres or []:
+        pa = msg.points.add(timestamp=_ts(ns), type=PointsAnnotation.POINTS, thickness=6.0)
+        pa.outline_color.CopyFrom(_color(L.class_color(name, by_name[name].id if name in by_name else 0)))
+        pa.points.add(x=float(uv[0]), y=float(uv[1]))
     if inst is not None:
-        from foxglove_schemas_protobuf.Point2_pb2 import Point2
-
-        by_name = {c.name: c for c in scene.classes}
         for name, c in zip(inst_cls, _outlines(inst, inst_ids, boxes)):
             if c is None:
                 continue
@@ -354,11 +358,16 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
                 for f, t in iter_mots(mp, frame_range=(first, last)):
                     if (f - first) % max(1, mask_every) == 0:
                         masks[f] = t
-            for f in range(first, last + 1, max(1, mask_every)):
+            centres = {}
+            if run.views is not None:
+                v = run.views
+                for i in np.flatnonzero(v.camera == name):
+                    centres.setdefault(int(v.frame[i]), []).append((v.uv[i], str(v.cls[i])))
+            for f in range(first, last + 1):
                 ns = _ns(f, fps)
-                t = masks.get(f)
-                inst, ids, cls = None, np.zeros(0, np.int64), []
-                boxes = None
+                on = (f - first) % max(1, mask_every) == 0
+                t = masks.get(f) if on else None
+                inst, ids, cls, boxes = None, np.zeros(0, np.int64), [], None
                 if t is not None:
                     from seg2pose.masks import rle_stats
 
@@ -367,13 +376,15 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
                     inst = C.paint_masks(t.rles, ids, np.zeros(len(t), np.int64), h, w, 1,
                                          dtype=np.uint16)[0]
                     cls = [by_id.get(int(c), "unknown") for c in t.class_id]
+                if on and mp.exists():  # an empty image too: no stale masks in a viewer
+                    img = inst if inst is not None else np.zeros((h, w), np.uint16)
                     out.write(f"/cameras/{name}/masks",
                               RawImage(timestamp=_ts(ns), frame_id=name, width=w, height=h,
                                        encoding="mono16", step=2 * w,
-                                       data=inst.astype("<u2").tobytes()), ns)
+                                       data=img.astype("<u2").tobytes()), ns)
                 sel = pidx.get(f, np.zeros(0, np.int64))
                 ann = _image_annotations(cam, poses.take(sel), psz[sel], scene, inst, ids, cls, ns,
-                                         boxes)
+                                         boxes, centres.get(f, []))
                 out.write(f"/cameras/{name}/annotations", ann, ns)
             vp = scene.video_path(name)
             if vp is not None:

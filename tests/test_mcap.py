@@ -235,6 +235,13 @@ def test_image_annotations_outline_masks(exported):
     mt = read_mots(scene.masks_path("c1"), frame_range=(6, 6))
     assert len(loops) == len(mt) and len(lists) == 3
     assert all(len(p.points) == 24 for p in lists)  # 12 edges
+    from s2p_review.runs import read_views
+
+    v = read_views(exported[1] / "views.csv")
+    sel = (v.frame == 6) & (v.camera == "c1")
+    pts = [p for p in ann.points if p.type == PointsAnnotation.POINTS]
+    got = sorted((p.points[0].x, p.points[0].y) for p in pts)
+    np.testing.assert_allclose(got, sorted(map(tuple, v.uv[sel])))
     boxes = rle_stats(mt.rles, mt.height, mt.width)[2]
     for p, b in zip(loops, boxes):
         xy = np.array([[q.x, q.y] for q in p.points])
