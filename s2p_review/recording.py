@@ -62,7 +62,8 @@ class RecordOptions:
         for what, k in (("masks", self.mask_every), ("video", self.video_every)):
             if k is None:
                 k = auto_every(n, cams, scene)
-                if k > 1 and (what == "masks" or has_video):
+                wanted = self.masks if what == "masks" else (self.video and has_video)
+                if k > 1 and wanted:
                     self.notes.append(f"{what}: one frame in {k} (keeps the file small; "
                                       f"--{what.rstrip('s')}-every 1 for all)")
             out.append(max(1, int(k)))
