@@ -14,6 +14,20 @@ from typing import IO, Iterator
 from seg2pose.errors import S2PError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _temp_sibling(path: Path, suffix: str) -> tuple[int, str]:
+    """mkstemp in the target's folder, with the permissions a plain open() would give
+    (mkstemp makes 0600 files, which other users of a shared scene folder could not read)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.chmod(tmp, 0o666 & ~_umask())
+    return fd, tmp
+
+
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse to overwrite an existing file or folder unless ``force``."""
     path = Path(path)
@@ -27,7 +41,7 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Open a temporary sibling of ``path`` for writing; rename it to ``path`` on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = _temp_sibling(path, ".tmp")
     try:
         with os.fdopen(fd, mode, **kwargs) as f:
             yield f
@@ -55,7 +69,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary sibling path for libraries that write files themselves; renamed on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    fd, tmp = _temp_sibling(path, path.suffix or ".tmp")
     os.close(fd)
     try:
         yield Path(tmp)

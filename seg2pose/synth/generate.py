@@ -244,12 +244,6 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
             (tmp / "video").mkdir()
             for _ in _run_tasks(_video_task, cams, workers, progress, "video", "camera"):
                 pass
-        # atomic writes create private (0600) files; a scene folder is for sharing
-        umask = os.umask(0)
-        os.umask(umask)
-        for f in tmp.rglob("*"):
-            if f.is_file():
-                os.chmod(f, 0o666 & ~umask)
         # swap into place: the old scene (with --force) goes only after the new one is complete
         if out.exists():
             trash = out.parent / f".{out.name}.old-{os.getpid()}"
