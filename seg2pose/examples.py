@@ -9,6 +9,8 @@ the mask's normal position (a residual in metres, x and y). Two sources:
 - rough: rasterised rough 3D models at random positions and headings (3.5,
   ``seg2pose.synth.rough.render_rough_examples``); they need only the calibration and the
   ground points, so they also make a training set without annotations (``--zero-annotation``).
+  Optionally made detector-like (``detector_like``: Mask R-CNN's 28x28 mask resolution and a
+  one-pixel dilation), since clean silhouettes differ from what a detector delivers.
 
 Crops are stored at the network's resolution (``NetConfig.input_size``) as uint8 counts of
 covered pixels per downsampling block, so a few thousand lite examples take tens of MB.
@@ -216,9 +218,40 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
                          cls[ok], False, crop, factor)
 
 
+def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Generator,
+                  resolution: int = 28, dilate_p: float = 0.5) -> list[bytes]:
+    """Make clean rasterised masks look like Mask R-CNN output: the box content resampled to
+    ``resolution`` x ``resolution`` and back (bilinear, threshold 0.5: Mask R-CNN's 28x28 mask
+    head), then dilated by one pixel with probability ``dilate_p``. One loop step per mask
+    (OpenCV does the pixels)."""
+    import cv2
+
+    from seg2pose.masks import decode, encode, rle_stats
+
+    _, _, box = rle_stats(rles, height, width)
+    out = []
+    kernel = np.ones((3, 3), np.uint8)
+    for r, b in zip(rles, box):
+        if not np.isfinite(b[0]):
+            out.append(r)
+            continue
+        x0, y0, x1, y1 = (int(v) for v in b)
+        m = decode(r, height, width)
+        sub = m[y0:y1, x0:x1].astype(np.float32)
+        small = cv2.resize(sub, (resolution, resolution), interpolation=cv2.INTER_AREA)
+        back = (cv2.resize(small, (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR) >= 0.5)
+        full = np.zeros((height, width), np.uint8)
+        full[y0:y1, x0:x1] = back
+        if rng.random() < dilate_p:
+            py0, py1, px0, px1 = max(y0 - 1, 0), min(y1 + 1, height), max(x0 - 1, 0), min(x1 + 1, width)
+            full[py0:py1, px0:px1] = cv2.dilate(full[py0:py1, px0:px1], kernel)
+        out.append(encode(full) if full.any() else r)
+    return out
+
+
 def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
                    crop: int, factor: int, center_method: str = "bbox",
-                   max_residual: float = 2.5) -> ExampleSet:
+                   max_residual: float = 2.5, detector_noise: bool = False) -> ExampleSet:
     """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
     and headings on the ground, rasterised; target = true position - normal position."""
     try:
@@ -228,6 +261,8 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
     cam = scene.cameras[camera]
     heights = {c.name: c.default_height for c in scene.classes}
     rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng)
+    if detector_noise and len(rles):
+        rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:
         return ExampleSet.empty(crop // factor, factor)
     centers = mask_centers(rles, cam.height, cam.width, center_method)

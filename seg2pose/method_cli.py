@@ -50,6 +50,8 @@ def train_cmd(
     demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation",
                                          help="train on rough-model examples only (no ground truth)"),
+    rough_noise: Optional[bool] = typer.Option(None, "--rough-noise/--rough-clean",
+                                               help="make rough-model masks detector-like (28x28 mask head, 1 px dilation)"),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="comma-separated camera names"),
     classes: Optional[str] = typer.Option(None, "--classes", help="comma-separated class names"),
     epochs: Optional[int] = typer.Option(None, "--epochs"),
@@ -78,7 +80,7 @@ def train_cmd(
     if arch is not None:
         cfg = cfg.replace(arch=arch)
     over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
-                                  share_classes=share_classes, share_cameras=share_cameras, device=device, seed=seed).items()
+                                  share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, device=device, seed=seed).items()
             if v is not None}
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
     out_dir = train_scene(scene, out, cfg,
