@@ -347,9 +347,12 @@ class Checkpoint:
     @torch.no_grad()
     def predict(self, crops: np.ndarray, centers: np.ndarray, normal_xy: np.ndarray,
                 class_names: np.ndarray | None = None, batch: int = 64,
-                device: torch.device | None = None) -> np.ndarray:
+                device: torch.device | None = None, origin_xy: np.ndarray | None = None
+                ) -> np.ndarray:
         """Residuals (N, 2) metres for full-resolution crops (N, crop, crop) uint8, crop
-        centres (N, 2) pixels and normal positions (N, 2) metres."""
+        centres (N, 2) pixels and normal positions (N, 2) metres. ``origin_xy`` (2,): the
+        camera centre, needed to apply a radial calibration (``info["radial_offset"]``, per
+        class, metres along the camera-to-road-user direction, subtracted)."""
         device = device or next(self.net.parameters()).device
         vec = self.norm.vector(centers, normal_xy)
         if self.net.cfg.n_classes:
@@ -361,7 +364,15 @@ class Checkpoint:
             with autocast(device):
                 y = self.net(x[:, None].to(device), torch.from_numpy(vec[s:s + batch]).to(device))
             out[s:s + batch] = y.float().cpu().numpy()
-        return out * self.norm.residual_scale
+        out = out * self.norm.residual_scale
+        offsets = self.info.get("radial_offset") or {}
+        if offsets and origin_xy is not None and len(out):
+            u = np.asarray(normal_xy, float) - np.asarray(origin_xy, float)[:2]
+            u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
+            names = np.asarray(class_names if class_names is not None else [self.cls] * len(out))
+            off = np.array([offsets.get(str(c), 0.0) for c in names])
+            out = out - off[:, None] * u
+        return out
 
 
 def check_finite_loss(loss: float, where: str) -> None:

@@ -220,7 +220,8 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
             idx = sel[s:s + batch]
             crops = crop_runs([table.rles[i] for i in idx], table.height, table.width, uv[idx])
-            residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch)
+            residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch,
+                                       origin_xy=camera.center[:2])
     return names, uv, normal, residual
 
 

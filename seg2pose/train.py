@@ -54,6 +54,7 @@ class TrainConfig:
     rough_per_class: int = 2048      # size of the pre-rendered rough pool per camera and class
     rough_val_per_class: int = 256   # zero-annotation validation pool
     zero_annotation: bool = False
+    radial_calibration: bool = True  # zero-annotation only: see calibrate_radial
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
@@ -262,6 +263,68 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 
 
 # ----------------------------------------------------------------------------------------------
+# zero-annotation radial calibration
+
+
+def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
+                     max_per_class: int = 1500, center_method: str = "bbox") -> dict[str, float]:
+    """Per-class radial offsets of a zero-annotation model from *unlabelled* masks.
+
+    The default heights of 3.2 make the normal positions unbiased along the viewing direction
+    (about half closer than the truth, half further). Rough models are not the real road
+    users, so a network trained on them alone learns a radial bias that the real ones do not
+    have. This finds, per class, the median radial component of the model's residuals over
+    the masks of ``split`` (no ground truth used) and stores it in the checkpoint as
+    ``radial_offset``; ``Checkpoint.predict`` subtracts it. Returns the offsets (metres)."""
+    from seg2pose.examples import crop_runs
+    from seg2pose.io.mots import iter_mots
+    from seg2pose.masks import mask_centers
+    from seg2pose.normal import normal_positions
+
+    ck = Checkpoint.load(path)
+    ck.info.pop("radial_offset", None)
+    cams = ck.info.get("cameras") or [ck.camera]
+    heights = {c.name: c.default_height for c in scene.classes}
+    by_id = scene.class_by_id()
+    classes = ck.classes or [ck.cls]
+    radial: dict[str, list[np.ndarray]] = {c: [] for c in classes}
+    rng = np.random.default_rng(0)
+    for cam in cams:
+        camera = scene.cameras[cam]
+        rles, names = [], []
+        for _, t in iter_mots(scene.masks_path(cam), list(by_id), scene.split_range(split)):
+            for r, c in zip(t.rles, t.class_id):
+                if by_id[int(c)].name in radial:
+                    rles.append(r)
+                    names.append(by_id[int(c)].name)
+        names = np.array(names, object)
+        for c in classes:
+            sel = np.flatnonzero(names == c)
+            if len(sel) > max_per_class // len(cams):
+                sel = rng.choice(sel, max_per_class // len(cams), replace=False)
+            if not len(sel):
+                continue
+            rl = [rles[i] for i in sel]
+            uv = mask_centers(rl, camera.height, camera.width, center_method)
+            n, _ = normal_positions(camera, scene.ground, uv, heights[c])
+            ok = np.flatnonzero(np.isfinite(n[:, 0]))
+            if not len(ok):
+                continue
+            res = np.concatenate([ck.predict(crop_runs([rl[i] for i in ok[s:s + 64]], camera.height,
+                                                       camera.width, uv[ok[s:s + 64]]),
+                                             uv[ok[s:s + 64]], n[ok[s:s + 64], :2],
+                                             names[sel][ok[s:s + 64]])
+                                  for s in range(0, len(ok), 64)])
+            u = n[ok, :2] - camera.center[:2]
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            radial[c].append(np.sum(res * u, axis=1))
+    offsets = {c: float(np.median(np.concatenate(v))) for c, v in radial.items() if v}
+    ck.info["radial_offset"] = offsets
+    ck.save(path)
+    return offsets
+
+
+# ----------------------------------------------------------------------------------------------
 # a scene
 
 
@@ -384,4 +447,9 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
             train_model(None if cfg.zero_annotation else _Data.of(tr, norm, all_classes, shared),
                         None if rough is None else _Data.of(rough, norm, all_classes, shared),
                         _Data.of(va, norm, all_classes, shared), net_cfg, cfg, ck, path, progress)
+            if cfg.zero_annotation and cfg.radial_calibration:
+                off = calibrate_radial(scene, path, "train" if "train" in scene.splits else None,
+                                       center_method=cfg.center_method)
+                _say(f"{path.stem}: radial calibration from unlabelled masks (m): "
+                     + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
     return out

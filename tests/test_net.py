@@ -143,3 +143,17 @@ def test_weights_of_other_arch_are_refused(tmp_path):
               metadata={"s2p": json.dumps(meta)})
     with pytest.raises(InputError, match="do not fit arch 'paper'"):
         Checkpoint.load(path)
+
+
+def test_radial_offset_is_subtracted_along_the_viewing_direction():
+    torch.manual_seed(0)
+    ck = Checkpoint(make_net("lite"), Normalisation(320, 240), camera="c0", cls="car")
+    crops = np.zeros((2, 420, 420), np.uint8)
+    crops[:, 200:220, 190:230] = 1
+    cen = np.array([[100.0, 100], [200, 150]])
+    nxy = np.array([[10.0, 0], [0, -20]])
+    names = np.array(["car", "car"], object)
+    plain = ck.predict(crops, cen, nxy, names, origin_xy=np.zeros(2))
+    ck.info["radial_offset"] = {"car": 0.25}
+    cal = ck.predict(crops, cen, nxy, names, origin_xy=np.zeros(2))
+    np.testing.assert_allclose(plain - cal, [[0.25, 0], [0, -0.25]], atol=1e-6)

@@ -154,6 +154,8 @@ def test_no_ground_truth_needs_zero_annotation(tmp_path, fake_rough):
                       cameras=["c1"], progress=False)
     meta = json.loads((out / "c1__all.json").read_text())
     assert meta["zero_annotation"] is True and meta["n_train"] == 0 and meta["n_rough"] == 72
+    # radial calibration from the unlabelled train-split masks (no ground truth exists here)
+    assert set(meta["radial_offset"]) == {"pedestrian", "bicyclist", "car"}
 
 
 def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
