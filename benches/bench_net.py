@@ -94,7 +94,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="short budgets (about 1 minute on a CPU)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--arch", default="lite,paper")
+    ap.add_argument("--arch", default="lite,lite2,paper")
     ap.add_argument("--device", default=None, help="cpu, cuda or both (default: both if CUDA)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
