@@ -58,6 +58,7 @@ def train_cmd(
     runs: Optional[int] = typer.Option(None, "--runs", help="best-of-N runs (paper: 4)"),
     batches: Optional[int] = typer.Option(None, "--batches", help="batches per epoch (paper: 64)"),
     lr: Optional[float] = typer.Option(None, "--lr"),
+    rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--per-class",
                                                  help="one model per camera with a class input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--per-camera",
@@ -79,7 +80,7 @@ def train_cmd(
         cfg = TrainConfig.paper()
     if arch is not None:
         cfg = cfg.replace(arch=arch)
-    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
+    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough,
                                   share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, device=device, seed=seed).items()
             if v is not None}
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
