@@ -29,7 +29,9 @@ The ``lite`` architecture (for CPUs)
 The same crop downsampled by 3 (420 -> 140, each pixel the covered fraction of a 3x3 block),
 blocks of one 3x3 convolution + ReLU + 2x2 max-pool, widths 8-16-24-32-48 (140 -> 4x4), a 4x4
 convolution to 64, then the same head (concat, three dense layers of 64, 2.5 tanh). About 1/200
-of the paper arch's multiply-adds.
+of the paper arch's multiply-adds. ``lite2`` is the same trunk on the crop downsampled by 2
+(210 -> 6x6 before the head); in the one CPU run made with it (lr 1e-3) it did not learn
+(docs/RESULTS.md), so ``lite`` is the CPU choice.
 
 Input normalisation (``Normalisation``; recorded in every checkpoint's metadata)
 -----------------------------------------------------------------------------------
