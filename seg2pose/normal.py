@@ -42,18 +42,27 @@ def normal_positions(camera: Camera, ground: GroundSurface, centers: np.ndarray,
     return X, status
 
 
+def closer_share(views: list[tuple[Camera, np.ndarray, np.ndarray]], ground: GroundSurface,
+                 height: float) -> tuple[float, int]:
+    """Share of normal positions (at ``height``) closer to their camera, in the ground plane,
+    than the true positions, and the number of detections whose ray hit the surface.
+
+    views: per camera, (camera, centers (N, 2) pixels, truth_xy (N, 2) metres)."""
+    closer = n = 0
+    for cam, cen, txy in views:
+        X, _ = normal_positions(cam, ground, cen, height)
+        ok = np.isfinite(X[:, 0])
+        c = cam.center[:2]
+        closer += int(np.sum(np.linalg.norm(X[ok, :2] - c, axis=1)
+                             < np.linalg.norm(np.asarray(txy)[ok] - c, axis=1)))
+        n += int(ok.sum())
+    return (closer / n if n else float("nan")), n
+
+
 def fraction_closer(camera: Camera, ground: GroundSurface, centers: np.ndarray,
                     truth_xy: np.ndarray, height: float) -> float:
-    """Share of detections whose normal position (at ``height``) is closer to the camera, in
-    the ground plane, than the true position (N, 2) metres."""
-    X, _ = normal_positions(camera, ground, centers, height)
-    c = camera.center[:2]
-    ok = np.isfinite(X[:, 0])
-    if not ok.any():
-        return float("nan")
-    d_n = np.linalg.norm(X[ok, :2] - c, axis=1)
-    d_t = np.linalg.norm(np.asarray(truth_xy)[ok] - c, axis=1)
-    return float(np.mean(d_n < d_t))
+    """``closer_share`` for one camera's detections."""
+    return closer_share([(camera, centers, truth_xy)], ground, height)[0]
 
 
 def default_height_bisection(views: list[tuple[Camera, np.ndarray, np.ndarray]],
@@ -67,15 +76,8 @@ def default_height_bisection(views: list[tuple[Camera, np.ndarray, np.ndarray]],
     with the height and bisection applies.
     """
     def share(h: float) -> float:
-        n_close = n = 0
-        for cam, cen, txy in views:
-            X, _ = normal_positions(cam, ground, cen, h)
-            ok = np.isfinite(X[:, 0])
-            c = cam.center[:2]
-            n_close += int(np.sum(np.linalg.norm(X[ok, :2] - c, axis=1)
-                                  < np.linalg.norm(np.asarray(txy)[ok] - c, axis=1)))
-            n += int(ok.sum())
-        return n_close / max(n, 1)
+        value, n = closer_share(views, ground, h)
+        return value if n else 0.0
 
     a, b = lo, hi
     while b - a > tol:

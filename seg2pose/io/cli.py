@@ -106,22 +106,6 @@ def collect_height_views(scene, split: str | None = "train", center: str | None 
     return views
 
 
-def closer_share(views: list, ground, height: float) -> tuple[float, int]:
-    """Share of normal positions (at ``height``) closer to their camera than the truth, and
-    the number of detections whose ray hit the surface."""
-    from seg2pose.normal import normal_positions
-
-    closer = n = 0
-    for cam, cen, txy in views:
-        X, _ = normal_positions(cam, ground, cen, height)
-        ok = np.isfinite(X[:, 0])
-        c = cam.center[:2]
-        closer += int(np.sum(np.linalg.norm(X[ok, :2] - c, axis=1)
-                             < np.linalg.norm(txy[ok] - c, axis=1)))
-        n += int(ok.sum())
-    return (closer / n if n else float("nan")), n
-
-
 def subsample_views(views: list, max_n: int, seed: int = 0) -> list:
     """At most ``max_n`` detections in total, drawn uniformly (the share of 'closer' is a
     median-like statistic: 20,000 detections pin it to about +-0.4 %)."""
@@ -151,7 +135,7 @@ def update_default_heights(scene, split: str | None = "train", center: str | Non
     keep their height (n = 0)."""
     from seg2pose.io.atomic import atomic_write_text
     from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE
-    from seg2pose.normal import default_height_bisection
+    from seg2pose.normal import closer_share, default_height_bisection
 
     views = {k: subsample_views(v, max_per_class) for k, v in
              collect_height_views(scene, split, center).items()}
