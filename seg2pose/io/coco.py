@@ -24,6 +24,7 @@ import numpy as np
 from pycocotools import mask as mask_util
 
 from seg2pose.errors import InputError
+from seg2pose.io.text import load_json
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.mots import MaskTable
 from seg2pose.masks import decode_counts
@@ -66,16 +67,7 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
     """Read COCO RLE JSON into a MaskTable (sorted by frame, stable). ``size`` (height, width)
     is needed only for an empty file; every record must have the same size."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("masks file not found", file=path)
-    try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text", file=path) from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
-    except RecursionError:
-        raise InputError("JSON nested too deeply", file=path) from None
+    data = load_json(path, "masks file")
     recs, image_frames = _records(data, path)
     kc = set(known_classes) if known_classes is not None else None
     frames, tids, cids, rles, scores = [], [], [], [], []

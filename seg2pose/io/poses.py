@@ -16,6 +16,7 @@ from typing import Iterable
 import numpy as np
 
 from seg2pose.errors import InputError
+from seg2pose.io.text import read_text
 from seg2pose.io.atomic import atomic_write_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
@@ -105,13 +106,8 @@ def write_poses(path: str | Path, table: PoseTable) -> None:
 def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> PoseTable:
     """Read a pose CSV; errors name the file, line and column."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("pose file not found", file=path)
     kc = set(known_classes) if known_classes is not None else None
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text", file=path) from None
+    text = read_text(path, "pose file")
     reader = csv.reader(io.StringIO(text))
     try:
         return _parse_poses(reader, path, kc)

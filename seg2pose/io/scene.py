@@ -31,6 +31,7 @@ import numpy as np
 
 from seg2pose.camera import Camera, Rig
 from seg2pose.errors import InputError
+from seg2pose.io.text import read_text, load_json
 from seg2pose.ground import GroundSurface
 from seg2pose.io.atomic import atomic_write_text
 
@@ -135,12 +136,7 @@ class Scene:
 def read_ground_points(path: str | Path) -> np.ndarray:
     """Ground points CSV: ``x,y,z`` per line (metres), an optional header line."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("ground points file not found", file=path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text", file=path) from None
+    text = read_text(path, "ground points file")
     reader = csv.reader(io.StringIO(text))
     try:
         pts, lines = _parse_ground_points(reader, path)
@@ -200,12 +196,7 @@ def load_scene(root: str | Path) -> Scene:
     path = root / SCENE_FILE
     if not path.exists():
         raise InputError(f"no {SCENE_FILE} here (is this a scene folder?)", file=path)
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text", file=path) from None
+    d = load_json(path)
     if not isinstance(d, dict):
         raise InputError("expected a JSON object", file=path)
     version = _req(d, "version", path)

@@ -20,7 +20,6 @@ Positions are the bottom centre of each road user's box; l, w, h are taken as fu
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import shutil
@@ -31,6 +30,7 @@ import numpy as np
 
 from seg2pose.camera import Camera, Rig
 from seg2pose.errors import InputError
+from seg2pose.io.text import load_json
 from seg2pose.io.atomic import check_writable
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
@@ -93,7 +93,7 @@ def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[Utoc
     """(f, Cx, Cy) and the cameras of a UTOCS cameras.json."""
     if not path.exists():
         raise InputError("cameras.json not found (is this a UTOCS folder?)", file=path)
-    d = _load_json(path)
+    d = load_json(path)
     if not isinstance(d, dict):
         raise InputError("expected a JSON object", file=path)
     intr = d.get("instrinsics", d.get("intrinsics"))
@@ -116,17 +116,6 @@ def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[Utoc
     return (f, cx, cy), cams
 
 
-def _load_json(path: Path):
-    try:
-        return json.loads(path.read_bytes().decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text", file=path) from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
-    except RecursionError:
-        raise InputError("JSON nested too deeply", file=path) from None
-
-
 def read_utocs_ground(path: Path) -> np.ndarray:
     """UTOCS ground points (n, 3) in CARLA coordinates (validated like a scene's)."""
     from seg2pose.io.scene import read_ground_points
@@ -146,7 +135,7 @@ def read_positions(folder: Path) -> tuple[PoseTable, list[str], int]:
     frames, tids, types, nums = [], [], [], []
     seen: list[str] = []
     for frame, p in files:
-        recs = _load_json(p)
+        recs = load_json(p)
         if not isinstance(recs, list):
             raise InputError("expected a JSON list of road users", file=p)
         for i, r in enumerate(recs):
