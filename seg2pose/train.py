@@ -85,7 +85,7 @@ class TrainConfig:
     @classmethod
     def demo(cls) -> "TrainConfig":
         """The demo's protocol: lite, one model for all five lenses and three classes, in
-        about 2.5-3 minutes on a 2-core CPU (docs/RESULTS.md)."""
+        about 2 minutes of training on a 2-core CPU (docs/RESULTS.md)."""
         return cls(arch="lite", runs=1, lr=1.5e-3, lr_schedule="cosine", batch_size=32,
                    batches_per_epoch=64, epochs=18, rough_per_class=100, rough_val_per_class=20,
                    share_classes=True, share_cameras=True, max_train_per_class=1000,
