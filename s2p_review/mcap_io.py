@@ -29,13 +29,12 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.atomic import atomic_path, check_writable, temp_sibling_dir
 from seg2pose.io.mots import iter_mots
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
@@ -472,8 +471,7 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
     table = _pose_table(rec["poses"], with_size)
 
     # build in a temporary sibling folder, then move into place: nothing half-written
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    tmp = temp_sibling_dir(out_dir)
     try:
         (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)

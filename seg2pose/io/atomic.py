@@ -28,6 +28,16 @@ def _temp_sibling(path: Path, suffix: str) -> tuple[int, str]:
     return fd, tmp
 
 
+def temp_sibling_dir(path: str | Path) -> Path:
+    """A new empty folder beside ``path`` to build a whole output folder in before renaming
+    it into place (mkdtemp's 0700 widened to what mkdir would give)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~_umask())
+    return tmp
+
+
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse to overwrite an existing file or folder unless ``force``."""
     path = Path(path)
