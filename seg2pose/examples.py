@@ -28,7 +28,7 @@ from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.masks import mask_centers
-from seg2pose.normal import normal_positions
+from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
 
 
 @dataclass
@@ -144,7 +144,7 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
 
 
 def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
-                       crop: int, factor: int, center_method: str = "bbox",
+                       crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                        max_per_class: int | None = None, max_residual: float = 2.5,
                        rng: np.random.Generator | None = None) -> ExampleSet:
     """Masks of ``camera`` in ``split`` matched to the truth (4.1), as examples.
@@ -250,7 +250,7 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
 
 
 def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
-                   crop: int, factor: int, center_method: str = "bbox",
+                   crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                    max_residual: float = 2.5, detector_noise: bool = False) -> ExampleSet:
     """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
     and headings on the ground, rasterised; target = true position - normal position."""

@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from seg2pose.normal import DEFAULT_CENTER_METHOD
+
 
 def register(app: typer.Typer) -> None:
     app.command("train")(train_cmd)
@@ -23,7 +25,9 @@ def run_cmd(
     baseline: bool = typer.Option(False, "--baseline", help="normal positions only, no network"),
     models: Optional[Path] = typer.Option(None, "--models", help="checkpoint folder (default SCENE/models)"),
     split: Optional[str] = typer.Option(None, "--split", help="only this split's frames (train/val/test)"),
-    center: str = typer.Option("bbox", "--center", help="mask centre: bbox (paper) or centroid"),
+    center: str = typer.Option(DEFAULT_CENTER_METHOD, "--center",
+                               help="mask centre: bbox (paper section 5) or centroid (3.2); "
+                                    "the default was chosen by measurement, docs/NORMAL_POSITIONS.md"),
     arch: Optional[str] = typer.Option(None, "--arch", help="require checkpoints of this arch (lite|paper)"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device (default: cuda if present)"),
     force: bool = typer.Option(False, "--force", help="overwrite an existing run folder"),

@@ -34,7 +34,7 @@ from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
-from seg2pose.normal import fuse_views, headings_from_tracks, normal_positions
+from seg2pose.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
 
 # l, w, h metres, used when the scene does not give class sizes in extra["class_sizes"]
 DEFAULT_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.7),
@@ -274,7 +274,7 @@ def format_views(v: dict[str, np.ndarray]) -> str:
 
 
 def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
-                  models: ModelSet | None, center_method: str = "bbox", chunk_frames: int = 32,
+                  models: ModelSet | None, center_method: str = DEFAULT_CENTER_METHOD, chunk_frames: int = 32,
                   progress: bool = True) -> tuple[dict[str, np.ndarray], int]:
     """Per-view estimates of all detections of ``cams`` (streamed in lockstep, ``chunk_frames``
     frames per network batch group): the columns of views.csv, and the number of frames."""
@@ -353,7 +353,7 @@ def _load_models(scene: Scene, cams: list[str], models_dir, arch, device) -> Mod
 
 def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
-              split: str | None = None, force: bool = False, center_method: str = "bbox",
+              split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
               progress: bool = True) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
@@ -451,7 +451,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
             name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
             cams = scene.rig.configs[cfg]
-            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, "bbox",
+            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
                       nframes, force=True)
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)
