@@ -31,7 +31,10 @@ blocks of one 3x3 convolution + ReLU + 2x2 max-pool, widths 8-16-24-32-48 (140 -
 convolution to 64, then the same head (concat, three dense layers of 64, 2.5 tanh). About 1/200
 of the paper arch's multiply-adds. ``lite2`` is the same trunk on the crop downsampled by 2
 (210 -> 6x6 before the head); in the one CPU run made with it (lr 1e-3) it did not learn
-(docs/RESULTS.md), so ``lite`` is the CPU choice.
+(docs/RESULTS.md), so ``lite`` is the CPU choice. ``lite-hr`` is the lite trunk on a
+full-resolution 140x140 crop centred on the mask centre (no downsampling, same cost as
+``lite``; larger masks are cut around their centre); ``Checkpoint.predict`` cuts it from the
+centre of the pipeline's 420 crops.
 
 Input normalisation (``Normalisation``; recorded in every checkpoint's metadata)
 -----------------------------------------------------------------------------------
@@ -111,6 +114,15 @@ class NetConfig:
                    convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
 
     @classmethod
+    def lite_hr(cls, n_classes: int = 0) -> "NetConfig":
+        """The lite trunk on a full-resolution 140x140 crop centred on the mask centre (no
+        downsampling): the same cost as ``lite``, 3x the resolution, 1/9 of the field of view.
+        Masks larger than 140 px are cut around their centre (as the paper does at 420)."""
+        return cls(arch="lite-hr", crop=140, downsample=1,
+                   stages=((8, 3, True), (16, 3, True), (24, 3, True), (32, 3, True), (48, 3, True)),
+                   convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
+
+    @classmethod
     def named(cls, arch: str, n_classes: int = 0) -> "NetConfig":
         if arch == "paper":
             return cls.paper(n_classes)
@@ -118,7 +130,10 @@ class NetConfig:
             return cls.lite(n_classes)
         if arch == "lite2":
             return cls.lite2(n_classes)
-        raise InputError(f"unknown arch {arch!r}; use 'paper', 'lite' or 'lite2'", field="--arch")
+        if arch in ("lite-hr", "lite_hr"):
+            return cls.lite_hr(n_classes)
+        raise InputError(f"unknown arch {arch!r}; use 'paper', 'lite', 'lite2' or 'lite-hr'",
+                         field="--arch")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -173,6 +188,19 @@ class Normalisation:
         d = dict(d)
         d["center_xy"] = tuple(d["center_xy"])
         return cls(**d)
+
+
+def center_cut(crops: np.ndarray, size: int) -> np.ndarray:
+    """The central size x size part of (N, S, S) crops (S >= size). For crops made by
+    ``crop_runs`` / ``crop_masks`` at the same centres, this equals cropping at ``size``
+    directly when S - size is even (``crop_origin`` rounds centre - size/2)."""
+    s = crops.shape[-1]
+    if s == size:
+        return crops
+    if s < size or (s - size) % 2:
+        raise ValueError(f"cannot cut a {size}x{size} crop from the centre of {s}x{s} crops")
+    o = (s - size) // 2
+    return crops[..., o:o + size, o:o + size]
 
 
 def downsample_crops(crops: np.ndarray, factor: int) -> np.ndarray:
@@ -351,7 +379,8 @@ class Checkpoint:
                 class_names: np.ndarray | None = None, batch: int = 64,
                 device: torch.device | None = None, origin_xy: np.ndarray | None = None
                 ) -> np.ndarray:
-        """Residuals (N, 2) metres for full-resolution crops (N, crop, crop) uint8, crop
+        """Residuals (N, 2) metres for full-resolution crops (N, S, S) uint8 (S >= the model's
+        crop, usually the pipeline's 420; larger crops are cut around their centre), crop
         centres (N, 2) pixels and normal positions (N, 2) metres. ``origin_xy`` (2,): the
         camera centre, needed to apply a radial calibration (``info["radial_offset"]``, per
         class, metres along the camera-to-road-user direction, subtracted)."""
@@ -362,7 +391,8 @@ class Checkpoint:
         out = np.zeros((len(crops), 2), np.float32)
         self.net.eval()
         for s in range(0, len(crops), batch):
-            x = torch.from_numpy(downsample_crops(crops[s:s + batch], self.net.cfg.downsample))
+            x = torch.from_numpy(downsample_crops(center_cut(crops[s:s + batch], self.net.cfg.crop),
+                                                  self.net.cfg.downsample))
             with autocast(device):
                 y = self.net(x[:, None].to(device), torch.from_numpy(vec[s:s + batch]).to(device))
             out[s:s + batch] = y.float().cpu().numpy()

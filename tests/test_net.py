@@ -157,3 +157,37 @@ def test_radial_offset_is_subtracted_along_the_viewing_direction():
     ck.info["radial_offset"] = {"car": 0.25}
     cal = ck.predict(crops, cen, nxy, names, origin_xy=np.zeros(2))
     np.testing.assert_allclose(plain - cal, [[0.25, 0], [0, -0.25]], atol=1e-6)
+
+
+def test_lite_hr_shapes_and_centre_cut_of_pipeline_crops():
+    """lite-hr: the lite trunk on a full-resolution 140x140 crop; Checkpoint.predict cuts it
+    from the centre of the pipeline's 420 crops, which equals cropping at 140 directly."""
+    from seg2pose.examples import crop_runs
+    from seg2pose.masks import encode, mask_centers
+    from seg2pose.net import center_cut
+
+    net = make_net("lite-hr", n_classes=3)
+    assert net.cfg.arch == "lite-hr" and net.cfg.crop == 140 and net.cfg.downsample == 1
+    assert net.cfg.input_size == 140 and net.cfg.final_size == 4
+    assert make_net("lite").n_params() + 3 * 64 == net.n_params()  # same trunk (+ class inputs)
+    s = _shapes(net, 140, 7)
+    assert s["pool"] == [(8, 70, 70), (16, 35, 35), (24, 17, 17), (32, 8, 8), (48, 4, 4)]
+    assert s["head"] == (64, 1, 1) and s["relu_dense"][0] == ((71,), (64,)) and s["y"] == (1, 2)
+    # centre cut of 420 crops == 140 crops at the same (non-integer) centres, incl. image borders
+    h, w = 120, 200
+    masks = np.zeros((3, h, w), np.uint8)
+    masks[0, 30:70, 50:61] = 1
+    masks[1, 0:119, 150:200] = 1          # touches the border, taller than half the crop
+    masks[2, 5:8, 3:4] = 1
+    rles = [encode(m) for m in masks]
+    cen = mask_centers(rles, h, w, "bbox") + np.array([[0.3, -0.2], [0.5, 0.5], [-0.4, 0.0]])
+    big = crop_runs(rles, h, w, cen, size=420)
+    np.testing.assert_array_equal(center_cut(big, 140), crop_runs(rles, h, w, cen, size=140))
+    ck = Checkpoint(net, Normalisation(w, h), camera="c0", cls="*",
+                    classes=["pedestrian", "bicyclist", "car"])
+    names = np.array(["pedestrian", "car", "bicyclist"], object)
+    nxy = np.zeros((3, 2))
+    np.testing.assert_allclose(ck.predict(big, cen, nxy, names),
+                               ck.predict(center_cut(big, 140), cen, nxy, names), atol=1e-6)
+    with pytest.raises(ValueError):
+        center_cut(big[:, :139, :139], 140)
