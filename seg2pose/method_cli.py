@@ -49,7 +49,8 @@ def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth (gt/poses.csv)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default SCENE/models)"),
     arch: Optional[str] = typer.Option(None, "--arch",
-                                       help="paper (Figure 3, the default) or lite (CPU; --quick/--demo)"),
+                                       help="paper (Figure 3, the default), lite (crop /3, CPU; --quick/--demo), "
+                                            "lite2 (crop /2) or lite-hr (full-resolution 140 px crop)"),
     quick: bool = typer.Option(False, "--quick", help="short CPU protocol (lite, fewer epochs/runs)"),
     demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation",

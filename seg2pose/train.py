@@ -35,6 +35,7 @@ import torch
 from seg2pose.errors import S2PError
 from seg2pose.examples import ExampleSet, annotated_examples, rough_examples
 from seg2pose.io.scene import Scene, load_scene
+from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, autocast,
                           check_finite_loss, pick_device)
 from seg2pose.pipeline import model_filename
@@ -61,7 +62,7 @@ class TrainConfig:
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
     loss: str = "mse"                # "mse" (squared error / 2) or "euclid" (distance, = the metric)
-    center_method: str = "bbox"
+    center_method: str = DEFAULT_CENTER_METHOD
     residual_scale: float = 1.0
     device: str | None = None
     threads: int = 2
@@ -267,7 +268,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 
 
 def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
-                     max_per_class: int = 1500, center_method: str = "bbox") -> dict[str, float]:
+                     max_per_class: int = 1500, center_method: str = DEFAULT_CENTER_METHOD) -> dict[str, float]:
     """Per-class radial offsets of a zero-annotation model from *unlabelled* masks.
 
     The default heights of 3.2 make the normal positions unbiased along the viewing direction
