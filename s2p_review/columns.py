@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from seg2pose.masks import decode_counts
+from seg2pose.masks import foreground_runs
 
 # corner order of a box: bottom 0-3, top 4-7; edges as index pairs
 _SX = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * 0.5
@@ -169,21 +169,11 @@ def paint_masks(rles: Sequence[bytes], values: np.ndarray, slot: np.ndarray, hei
     out = np.zeros(n_slots * hw, dtype=dtype)
     if len(rles) == 0:
         return out.reshape(n_slots, height, width)
-    counts, offsets = decode_counts(rles)
-    n = len(rles)
-    per = np.diff(offsets)
+    own, st, ln, total = foreground_runs(rles)
     if check:
-        total = np.bincount(np.repeat(np.arange(n), per), weights=counts, minlength=n)
         bad = np.flatnonzero(total != hw)
         if len(bad):
             raise BadMask(int(bad[0]), int(total[bad[0]]), hw)
-    owner = np.repeat(np.arange(n), per)
-    k = np.arange(len(counts)) - offsets[owner]
-    cs = np.cumsum(counts)
-    before = np.concatenate([[0], cs])[offsets[:-1]]
-    start = cs - counts - np.repeat(before, per)
-    fg = (k % 2) == 1  # runs alternate background / foreground, starting with background
-    own, st, ln = owner[fg], start[fg], counts[fg]
     ln_cs = np.cumsum(ln)
     # flat index of each foreground pixel = its run's start (in its slot) + position in the run
     shift = st + np.asarray(slot, np.int64)[own] * hw - (ln_cs - ln)

@@ -90,7 +90,7 @@ def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
     vertical segments, clipped to the crop, and drawn with a +1/-1 difference array summed down
     the rows. Costs O(crop area) per mask instead of O(image area): several times faster for
     HD images."""
-    from seg2pose.masks import _runs, crop_origin
+    from seg2pose.masks import crop_origin, foreground_runs
 
     n = len(rles)
     h = int(height)
@@ -98,7 +98,7 @@ def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
     if n == 0:
         return diff[:, :size].astype(np.uint8)
     org = crop_origin(centers, size)
-    owner, start, length = _runs(rles)
+    owner, start, length, _ = foreground_runs(rles)
     end = start + length
     c0, c1 = start // h, (end - 1) // h
     k = c1 - c0 + 1                       # pieces per run (a run may wrap over columns)

@@ -91,17 +91,22 @@ def _index_sums(n: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
     return col_sum, row_sum
 
 
-def _runs(rles: Sequence[bytes]):
+def foreground_runs(rles: Sequence[bytes]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The foreground runs of many RLE masks: owner (R,) mask index, start (R,) column-major
+    linear pixel index within its mask, length (R,) pixels; plus totals (N,), the pixels each
+    mask's runs cover (height*width for a valid mask)."""
     counts, offsets = decode_counts(rles)
-    n = len(rles)
-    owner = np.repeat(np.arange(n), np.diff(offsets))
+    per = np.diff(offsets)
+    owner = np.repeat(np.arange(len(rles)), per)
     k = np.arange(len(counts)) - offsets[owner]
     # run start positions: exclusive cumulative sum within each mask
-    cs = np.cumsum(counts)
-    before = np.concatenate([[0], cs])[offsets[:-1]]
-    start = cs - counts - np.repeat(before, np.diff(offsets))
-    fg = (k % 2) == 1
-    return owner[fg], start[fg], counts[fg]
+    cs = np.concatenate([[0], np.cumsum(counts)])
+    before = cs[offsets[:-1]]
+    totals = cs[offsets[1:]] - before
+    start = cs[1:] - counts - np.repeat(before, per)
+    fg = (k % 2) == 1  # runs alternate background / foreground, starting with background
+    return owner[fg], start[fg], counts[fg], totals
 
 
 def rle_stats(rles: Sequence[bytes], height: int, width: int
@@ -114,7 +119,7 @@ def rle_stats(rles: Sequence[bytes], height: int, width: int
         parts = [rle_stats(rles[s:s + _STATS_CHUNK], height, width) for s in range(0, n, _STATS_CHUNK)]
         return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
     h = int(height)
-    owner, a, ln = _runs(rles)
+    owner, a, ln, _ = foreground_runs(rles)
     b = a + ln
     area = np.bincount(owner, weights=ln, minlength=n)
     cb, rb = _index_sums(b, h)
