@@ -23,8 +23,6 @@ from s2p_review import layout as L
 from s2p_review.runs import Run, load_run, scene_last_frame
 
 MASK_BATCH = 64  # frames per send_columns call for images (bounds memory)
-DEFAULT_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.75),
-                 "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.5, 3.2)}
 
 
 IMAGE_BUDGET_PX = 160e6  # pixels of masks (and of video) logged by default: a few MB of .rrd
@@ -83,18 +81,10 @@ def _times(frames: np.ndarray, fps: float):
             rr.TimeColumn(L.TIME, duration=frames / float(fps))]
 
 
-def class_sizes(scene: Scene) -> dict[str, tuple[float, float, float]]:
-    """l, w, h per class: scene.extra["class_sizes"] over the built-in defaults."""
-    sizes = dict(DEFAULT_SIZES)
-    for k, v in (scene.extra.get("class_sizes") or {}).items():
-        sizes[str(k)] = tuple(float(x) for x in v)[:3]
-    return sizes
-
-
 def _with_size(table: PoseTable, scene: Scene) -> np.ndarray:
     if table.size is not None:
         return np.nan_to_num(table.size, nan=1.0)
-    sizes = class_sizes(scene)
+    sizes = scene.class_sizes()
     return np.array([sizes.get(c, (1.0, 1.0, 1.0)) for c in table.cls], float).reshape(-1, 3)
 
 

@@ -36,23 +36,7 @@ from seg2pose.io.scene import Scene, load_scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
 from seg2pose.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
 
-# l, w, h metres, used when the scene does not give class sizes in extra["class_sizes"]
-DEFAULT_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.7),
-                 "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.55, 3.2)}
 VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
-
-
-def class_sizes(scene: Scene) -> dict[str, tuple[float, float, float]]:
-    """Class name -> (l, w, h) metres: scene.extra['class_sizes'] over the built-in defaults."""
-    sizes = dict(DEFAULT_SIZES)
-    extra = scene.extra.get("class_sizes") or {}
-    for k, v in extra.items():
-        try:
-            sizes[str(k)] = tuple(float(x) for x in v)[:3]
-        except (TypeError, ValueError):
-            raise InputError("expected [l, w, h] numbers", file=scene.root / "scene.json",
-                             field=f"extra.class_sizes.{k}") from None
-    return sizes
 
 
 def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
@@ -257,7 +241,7 @@ def fuse(views: dict[str, np.ndarray], scene: Scene) -> PoseTable:
     tracked = out_tid >= 0
     heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
     out_cls = cls[first]
-    sizes = class_sizes(scene)
+    sizes = scene.class_sizes()
     size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
     table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size)
     return table.sorted()

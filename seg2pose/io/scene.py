@@ -44,6 +44,11 @@ DEFAULT_CLASSES = [
 ]
 
 
+# l, w, h metres, used when scene.json gives no extra["class_sizes"]
+DEFAULT_CLASS_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.7),
+                       "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.55, 3.2)}
+
+
 @dataclass
 class ClassSpec:
     id: int
@@ -78,6 +83,17 @@ class Scene:
 
     def class_by_name(self) -> dict[str, ClassSpec]:
         return {c.name: c for c in self.classes}
+
+    def class_sizes(self) -> dict[str, tuple[float, float, float]]:
+        """Class name -> typical (l, w, h) metres: extra['class_sizes'] over the defaults."""
+        sizes = dict(DEFAULT_CLASS_SIZES)
+        for k, v in (self.extra.get("class_sizes") or {}).items():
+            try:
+                sizes[str(k)] = tuple(float(x) for x in v)[:3]
+            except (TypeError, ValueError):
+                raise InputError("expected [l, w, h] numbers", file=self.root / SCENE_FILE,
+                                 field=f"extra.class_sizes.{k}") from None
+        return sizes
 
     def masks_path(self, camera: str) -> Path:
         return self.root / "masks" / f"{camera}.txt"
