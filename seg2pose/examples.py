@@ -27,6 +27,7 @@ from seg2pose.errors import S2PError
 from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
+from seg2pose.features import N_GEO, scene_geometry
 from seg2pose.masks import mask_centers
 from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
 
@@ -35,7 +36,8 @@ from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
 class ExampleSet:
     """N examples of one camera. crops (N, S, S) uint8: covered pixels per factor x factor block;
     centers (N, 2) pixels; normal (N, 2) normal position x, y metres; target (N, 2) residual
-    metres (truth - normal); cls (N,) class names; rough (N,) bool (a rough-model example)."""
+    metres (truth - normal); cls (N,) class names; rough (N,) bool (a rough-model example);
+    geo (N, N_GEO) float32 mask geometry (``seg2pose.features``; used when the net has n_geo)."""
 
     crops: np.ndarray
     factor: int
@@ -44,13 +46,18 @@ class ExampleSet:
     target: np.ndarray
     cls: np.ndarray
     rough: np.ndarray
+    geo: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.geo is None:
+            self.geo = np.zeros((len(self.target), N_GEO), np.float32)
 
     def __len__(self) -> int:
         return len(self.target)
 
     def take(self, idx) -> "ExampleSet":
         return ExampleSet(self.crops[idx], self.factor, self.centers[idx], self.normal[idx],
-                          self.target[idx], self.cls[idx], self.rough[idx])
+                          self.target[idx], self.cls[idx], self.rough[idx], self.geo[idx])
 
     def crops_float(self, idx) -> np.ndarray:
         """(B, 1, S, S) float32 network input in [0, 1] for the examples ``idx``."""
@@ -67,7 +74,7 @@ class ExampleSet:
         return cls(np.concatenate([s.crops for s in sets]), sets[0].factor,
                    np.concatenate([s.centers for s in sets]), np.concatenate([s.normal for s in sets]),
                    np.concatenate([s.target for s in sets]), np.concatenate([s.cls for s in sets]),
-                   np.concatenate([s.rough for s in sets]))
+                   np.concatenate([s.rough for s in sets]), np.concatenate([s.geo for s in sets]))
 
     def select_class(self, name: str) -> "ExampleSet":
         return self.take(np.flatnonzero(self.cls == name))
@@ -122,8 +129,10 @@ def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
 
 def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarray,
                   normal_xy: np.ndarray, target: np.ndarray, cls: np.ndarray, rough: bool,
-                  crop: int, factor: int, batch: int = 64) -> ExampleSet:
-    """Crop and downsample masks (bounded memory: ``batch`` full-resolution crops at a time)."""
+                  crop: int, factor: int, batch: int = 64, geo: np.ndarray | None = None
+                  ) -> ExampleSet:
+    """Crop and downsample masks (bounded memory: ``batch`` full-resolution crops at a time);
+    ``geo`` (N, N_GEO): the masks' geometry features (zeros when None)."""
     n = len(rles)
     m = crop // factor
     out = np.zeros((n, m, m), np.uint8)
@@ -140,7 +149,8 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
         out[s:s + batch] = _block_counts(c, factor)
     return ExampleSet(out, factor, np.asarray(centers, float).reshape(-1, 2),
                       np.asarray(normal_xy, float).reshape(-1, 2), np.asarray(target, float).reshape(-1, 2),
-                      np.asarray(cls, object).reshape(-1), np.full(n, bool(rough)))
+                      np.asarray(cls, object).reshape(-1), np.full(n, bool(rough)),
+                      None if geo is None else np.asarray(geo, np.float32).reshape(n, N_GEO))
 
 
 def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
@@ -214,8 +224,10 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         print(f"note: camera {camera}, split {split}: {dropped} of {len(ok)} matched masks dropped "
               f"(normal position missing or residual > {max_residual} m)", file=sys.stderr)
     ok = np.flatnonzero(ok)
-    return make_examples([rles[i] for i in ok], h, w, centers[ok], normal[ok, :2], target[ok],
-                         cls[ok], False, crop, factor)
+    rles = [rles[i] for i in ok]
+    geo = scene_geometry(scene, camera, rles, h, w, centers[ok], normal[ok, :2], cls[ok])
+    return make_examples(rles, h, w, centers[ok], normal[ok, :2], target[ok],
+                         cls[ok], False, crop, factor, geo=geo)
 
 
 def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Generator,
@@ -270,6 +282,8 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
     target = np.asarray(xyz, float)[:, :2] - normal[:, :2]
     ok = np.flatnonzero(np.isfinite(target).all(axis=1)
                         & (np.linalg.norm(target, axis=1) <= max_residual))
-    return make_examples([rles[i] for i in ok], cam.height, cam.width, centers[ok],
-                         normal[ok, :2], target[ok], np.full(len(ok), cls, object), True,
-                         crop, factor)
+    rles = [rles[i] for i in ok]
+    names = np.full(len(ok), cls, object)
+    geo = scene_geometry(scene, camera, rles, cam.height, cam.width, centers[ok], normal[ok, :2], names)
+    return make_examples(rles, cam.height, cam.width, centers[ok],
+                         normal[ok, :2], target[ok], names, True, crop, factor, geo=geo)

@@ -68,7 +68,11 @@ def train_cmd(
                                                  help="one model per camera with a class input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--per-camera",
                                                  help="one model for all cameras (lenses of one device)"),
+    geometry: Optional[bool] = typer.Option(None, "--geometry/--no-geometry",
+                                            help="also feed the network exact mask-geometry cues (box size, foot and top "
+                                                 "points, expected height, border cuts; seg2pose/features.py)"),
     device: Optional[str] = typer.Option(None, "--device"),
+    threads: Optional[int] = typer.Option(None, "--threads", help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="first of the runs' seeds"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
 ) -> None:
@@ -86,7 +90,8 @@ def train_cmd(
     if arch is not None:
         cfg = cfg.replace(arch=arch)
     over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough,
-                                  share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, device=device, seed=seed).items()
+                                  share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, geometry=geometry, device=device, threads=threads,
+                                  seed=seed).items()
             if v is not None}
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
     out_dir = train_scene(scene, out, cfg,

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +79,7 @@ class NetConfig:
     head_channels: int = 71      # output of the final (valid) convolution
     n_vec: int = 4               # (x_p, y_p, x_n, y_n)
     n_classes: int = 0           # class one-hot appended to the vector (0 = per-class model)
+    n_geo: int = 0               # mask-geometry features appended after it (seg2pose.features)
     hidden: int = 148
     n_dense: int = 3
     out_scale: float = 2.5       # the "2.5 tanh(x)" of Figure 3
@@ -123,17 +124,14 @@ class NetConfig:
                    convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
 
     @classmethod
-    def named(cls, arch: str, n_classes: int = 0) -> "NetConfig":
-        if arch == "paper":
-            return cls.paper(n_classes)
-        if arch == "lite":
-            return cls.lite(n_classes)
-        if arch == "lite2":
-            return cls.lite2(n_classes)
-        if arch in ("lite-hr", "lite_hr"):
-            return cls.lite_hr(n_classes)
-        raise InputError(f"unknown arch {arch!r}; use 'paper', 'lite', 'lite2' or 'lite-hr'",
-                         field="--arch")
+    def named(cls, arch: str, n_classes: int = 0, n_geo: int = 0) -> "NetConfig":
+        """The named arch; ``n_geo`` > 0 appends that many mask-geometry features to the vector."""
+        makers = {"paper": cls.paper, "lite": cls.lite, "lite2": cls.lite2, "lite-hr": cls.lite_hr,
+                  "lite_hr": cls.lite_hr}
+        if arch not in makers:
+            raise InputError(f"unknown arch {arch!r}; use 'paper', 'lite', 'lite2' or 'lite-hr'",
+                             field="--arch")
+        return replace(makers[arch](n_classes), n_geo=int(n_geo))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -144,6 +142,7 @@ class NetConfig:
     def from_dict(cls, d: dict) -> "NetConfig":
         d = dict(d)
         d["stages"] = tuple(tuple(s) for s in d["stages"])
+        d.setdefault("n_geo", 0)  # checkpoints from before the geometry features
         return cls(**d)
 
 
@@ -232,8 +231,8 @@ class ConvBlock(nn.Sequential):
 
 
 class Seg2PoseNet(nn.Module):
-    """crops (B, 1, S, S) float in [0, 1], vec (B, n_vec + n_classes) -> (B, 2) normalised
-    residual in (-out_scale, out_scale)."""
+    """crops (B, 1, S, S) float in [0, 1], vec (B, n_vec + n_classes + n_geo) -> (B, 2)
+    normalised residual in (-out_scale, out_scale)."""
 
     def __init__(self, cfg: NetConfig):
         super().__init__()
@@ -248,7 +247,7 @@ class Seg2PoseNet(nn.Module):
             raise ValueError(f"crop of {cfg.input_size} px is too small for {len(cfg.stages)} stages")
         self.head_conv = nn.Sequential(nn.Conv2d(c, cfg.head_channels, f), nn.ReLU())
         dense: list[nn.Module] = []
-        d = cfg.head_channels + cfg.n_vec + cfg.n_classes
+        d = cfg.head_channels + cfg.n_vec + cfg.n_classes + cfg.n_geo
         for _ in range(cfg.n_dense):
             dense += [nn.Linear(d, cfg.hidden), nn.ReLU()]
             d = cfg.hidden
@@ -257,7 +256,7 @@ class Seg2PoseNet(nn.Module):
 
     def forward(self, crops: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
         x = self.head_conv(self.trunk(crops)).flatten(1)          # (B, head_channels)
-        x = torch.cat([x, vec.to(x.dtype)], dim=1)                  # (B, head + 4 [+ classes])
+        x = torch.cat([x, vec.to(x.dtype)], dim=1)                  # (B, head + 4 [+ cls, geo])
         return self.cfg.out_scale * torch.tanh(self.out(self.dense(x)).float())
 
     def n_params(self) -> int:
@@ -377,17 +376,23 @@ class Checkpoint:
     @torch.no_grad()
     def predict(self, crops: np.ndarray, centers: np.ndarray, normal_xy: np.ndarray,
                 class_names: np.ndarray | None = None, batch: int = 64,
-                device: torch.device | None = None, origin_xy: np.ndarray | None = None
-                ) -> np.ndarray:
+                device: torch.device | None = None, origin_xy: np.ndarray | None = None,
+                geo: np.ndarray | None = None) -> np.ndarray:
         """Residuals (N, 2) metres for full-resolution crops (N, S, S) uint8 (S >= the model's
         crop, usually the pipeline's 420; larger crops are cut around their centre), crop
         centres (N, 2) pixels and normal positions (N, 2) metres. ``origin_xy`` (2,): the
         camera centre, needed to apply a radial calibration (``info["radial_offset"]``, per
-        class, metres along the camera-to-road-user direction, subtracted)."""
+        class, metres along the camera-to-road-user direction, subtracted). ``geo`` (N, n_geo):
+        the masks' geometry features (``seg2pose.features``), required when the net uses them."""
         device = device or next(self.net.parameters()).device
         vec = self.norm.vector(centers, normal_xy)
         if self.net.cfg.n_classes:
             vec = np.hstack([vec, self.class_onehot(np.asarray(class_names))])
+        if self.net.cfg.n_geo:
+            if geo is None or np.shape(geo) != (len(vec), self.net.cfg.n_geo):
+                raise S2PError(f"this model needs ({len(vec)}, {self.net.cfg.n_geo}) mask-geometry "
+                               f"features, got {None if geo is None else np.shape(geo)}")
+            vec = np.hstack([vec, np.asarray(geo, np.float32)])
         out = np.zeros((len(crops), 2), np.float32)
         self.net.eval()
         for s in range(0, len(crops), batch):

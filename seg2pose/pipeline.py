@@ -193,6 +193,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
     from seg2pose.examples import crop_runs
+    from seg2pose.features import scene_geometry
 
     usable = np.isfinite(normal[:, 0])
     groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
@@ -203,9 +204,12 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
         for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
             idx = sel[s:s + batch]
-            crops = crop_runs([table.rles[i] for i in idx], table.height, table.width, uv[idx])
+            rles = [table.rles[i] for i in idx]
+            crops = crop_runs(rles, table.height, table.width, uv[idx])
+            geo = (scene_geometry(scene, cam, rles, table.height, table.width, uv[idx],
+                                  normal[idx, :2], names[idx]) if ck.net.cfg.n_geo else None)
             residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch,
-                                       origin_xy=camera.center[:2])
+                                       origin_xy=camera.center[:2], geo=geo)
     return names, uv, normal, residual
 
 

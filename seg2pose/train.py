@@ -34,6 +34,7 @@ import torch
 
 from seg2pose.errors import S2PError
 from seg2pose.examples import ExampleSet, annotated_examples, rough_examples
+from seg2pose.features import GEO_VERSION, N_GEO
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, autocast,
@@ -59,6 +60,7 @@ class TrainConfig:
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
+    geometry: bool = False           # append the mask-geometry features (seg2pose.features)
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
     loss: str = "mse"                # "mse" (squared error / 2) or "euclid" (distance, = the metric)
@@ -106,11 +108,12 @@ class _Data:
     """An example set with its network vectors precomputed."""
 
     ex: ExampleSet
-    vec: np.ndarray  # (N, 4 + n_classes) float32
+    vec: np.ndarray  # (N, 4 + n_classes [+ n_geo]) float32
     y: np.ndarray    # (N, 2) float32 normalised target
 
     @classmethod
-    def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool) -> "_Data":
+    def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool,
+           geometry: bool = False) -> "_Data":
         v = norm.vector(ex.centers, ex.normal)
         if shared:
             onehot = np.zeros((len(ex), len(classes)), np.float32)
@@ -118,6 +121,8 @@ class _Data:
             for i, c in enumerate(ex.cls):
                 onehot[i, idx[c]] = 1
             v = np.hstack([v, onehot])
+        if geometry:
+            v = np.hstack([v, ex.geo])
         return cls(ex, v.astype(np.float32), (ex.target / norm.residual_scale).astype(np.float32))
 
 
@@ -360,7 +365,8 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
     bad = [c for c in cls_list if c not in all_classes]
     if bad:
         raise S2PError(f"unknown classes {bad}; the scene has {all_classes}")
-    net_cfg = NetConfig.named(cfg.arch, len(all_classes) if cfg.share_classes else 0)
+    net_cfg = NetConfig.named(cfg.arch, len(all_classes) if cfg.share_classes else 0,
+                              N_GEO if cfg.geometry else 0)
     crop, factor = net_cfg.crop, net_cfg.downsample
     gt = None if cfg.zero_annotation else read_poses(scene.gt_path, all_classes)
     if gt is not None:
@@ -443,11 +449,14 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
                             scene_fingerprint=fp, classes=all_classes if k == "*" else [],
                             info={"zero_annotation": cfg.zero_annotation, "cameras": gcams,
                                   "train_config": asdict(cfg), "n_train": len(tr),
+                                  "geometry": GEO_VERSION if cfg.geometry else None,
                                   "n_rough": 0 if rough is None else len(rough), "n_val": len(va)})
-            shared = k == "*"
-            train_model(None if cfg.zero_annotation else _Data.of(tr, norm, all_classes, shared),
-                        None if rough is None else _Data.of(rough, norm, all_classes, shared),
-                        _Data.of(va, norm, all_classes, shared), net_cfg, cfg, ck, path, progress)
+            def data(ex: ExampleSet) -> _Data:
+                return _Data.of(ex, norm, all_classes, k == "*", cfg.geometry)
+
+            train_model(None if cfg.zero_annotation else data(tr),
+                        None if rough is None else data(rough), data(va), net_cfg, cfg, ck, path,
+                        progress)
             if cfg.zero_annotation and cfg.radial_calibration:
                 off = calibrate_radial(scene, path, "train" if "train" in scene.splits else None,
                                        center_method=cfg.center_method)

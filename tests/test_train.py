@@ -181,3 +181,45 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     with pytest.raises(S2PError, match="arch"):
         run_scene(tiny, tmp_path / "run2", config="mono-1", models_dir=out, arch="paper",
                   progress=False)
+
+
+def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, fake_rough):
+    """--geometry: the net's vector gains the 14 mask-geometry features; the pipeline computes
+    them for each detection exactly as the training examples had them (same mask -> same
+    features), and a geometry model refuses to predict without them."""
+    from seg2pose.examples import annotated_examples
+    from seg2pose.features import N_GEO, scene_geometry
+    from seg2pose.io.mots import read_mots
+    from seg2pose.io.poses import read_poses
+    from seg2pose.net import Checkpoint
+    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.train import train_scene
+
+    out = train_scene(tiny, tmp_path / "m", tiny_config(geometry=True, epochs=2), cameras=["c1"],
+                      progress=False)
+    ck = Checkpoint.load(out / "c1__all.safetensors")
+    assert ck.net.cfg.n_geo == N_GEO and ck.info["geometry"] == "geo1"
+    ex = annotated_examples(tiny, "c1", read_poses(tiny.gt_path), "test", 420, 3)
+    assert np.abs(ex.geo).sum() > 0
+    run = run_scene(tiny, tmp_path / "run", config="mono-1", models_dir=out, split="test",
+                    progress=False)
+    v = read_views(run / "views.csv")
+    # the pipeline's normal positions and centres for the matched masks equal the examples'
+    m = read_mots(tiny.masks_path("c1"))
+    keys = [(round(u, 6), round(w, 6)) for u, w in v["uv"]]
+    rows = {k: i for i, k in enumerate(keys)}
+    once = {k for k in keys if keys.count(k) == 1}  # masks with a unique centre, to pair them
+    sel = [j for j, (u, w) in enumerate(ex.centers) if (round(u, 6), round(w, 6)) in once]
+    assert len(sel) > 0.8 * len(ex)
+    ex = ex.take(np.array(sel))
+    hit = [rows[(round(u, 6), round(w, 6))] for u, w in ex.centers]
+    np.testing.assert_allclose(v["normal"][hit, :2], ex.normal, atol=1e-9)
+    fr = {k: i for i, k in enumerate(zip(m.frame, m.track_id))}
+    idx = [fr[(v["frame"][h], v["track_id"][h])] for h in hit]
+    geo = scene_geometry(tiny, "c1", [m.rles[i] for i in idx], m.height, m.width,
+                         v["uv"][hit], v["normal"][hit, :2], ex.cls)
+    np.testing.assert_array_equal(geo, ex.geo)
+    assert np.abs(v["residual"]).max() > 0
+    with pytest.raises(S2PError, match="mask-geometry"):
+        ck.predict(np.zeros((1, 420, 420), np.uint8), np.zeros((1, 2)), np.zeros((1, 2)),
+                   np.array(["car"]))

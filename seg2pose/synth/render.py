@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.camera import Camera
+from seg2pose.masks import rle_contains
 from seg2pose.synth.noise import Det, NoiseConfig, apply_noise
 from seg2pose.synth.raster import bbox_of, fill_parts, project_parts, rle_from_crop_t
 from seg2pose.synth.world import World
@@ -81,30 +82,30 @@ class FrameRenderer:
         r, dets = self.visible(f)
         rng = np.random.default_rng([self.seed, 101, self.cam_index, f])
         dets = apply_noise(dets, self.noise, rng, self.W, self.H)
-        if self.match == "center" and dets:
-            dets = self._matched(r, dets)
         dets.sort(key=lambda d: d.track_id)
-        return [(d.track_id, d.cls + 1, rle_from_crop_t(d.crop, d.x0, d.y0, self.H, self.W))
-                for d in dets]
+        out = [(d.track_id, d.cls + 1, rle_from_crop_t(d.crop, d.x0, d.y0, self.H, self.W))
+               for d in dets]
+        if self.match == "center" and out:
+            out = self._matched(r, out)
+        return out
 
-    def _matched(self, r: slice, dets: list[Det]) -> list[Det]:
+    def _matched(self, r: slice, out: list[tuple[int, int, bytes]]) -> list[tuple[int, int, bytes]]:
         """Paper 4.1's association: a detection keeps its road user's id only when the
         projection of the road user's true 3D centre (mid-height above the ground contact
-        point) falls inside the mask; the others would not be matched and are left out."""
+        point) falls inside the mask as written (after noise, clipped to the image) and the
+        mask has the road user's class; the others would not be matched and are left out.
+        A centre projecting outside the image is never covered (a truncated road user whose
+        centre is off-image has no matched mask in the paper's protocol either)."""
         w = self.world
         centre = w.xyz[r] + np.outer(0.5 * w.size[w.track[r] - 1, 2], [0.0, 0.0, 1.0])
         uv, _, front = self.cam.project_points(centre)
-        px = {int(t): (int(np.floor(u)), int(np.floor(v))) if ok else None
-              for t, (u, v), ok in zip(w.track[r], uv, front)}
-        out = []
-        for d in dets:
-            p = px.get(d.track_id)
-            if p is None:
-                continue
-            i, j = p[0] - d.x0, p[1] - d.y0
-            if 0 <= i < d.crop.shape[0] and 0 <= j < d.crop.shape[1] and d.crop[i, j]:
-                out.append(d)
-        return out
+        uv = np.where(front[:, None], uv, np.nan)
+        row = {int(t): k for k, t in enumerate(w.track[r])}
+        k = np.array([row.get(tid, -1) for tid, _, _ in out])
+        pts = np.where((k >= 0)[:, None], uv[np.maximum(k, 0)], np.nan)
+        same = np.array([kk >= 0 and int(w.cls[r][kk]) + 1 == cid for kk, (_, cid, _) in zip(k, out)])
+        cover = rle_contains([o[2] for o in out], self.H, self.W, np.arange(len(out)), pts)
+        return [o for o, keep in zip(out, cover & same) if keep]
 
     def mots_lines(self, f0: int, f1: int) -> tuple[str, int]:
         """MOTS text for frames [f0, f1) and the number of detections."""
