@@ -156,8 +156,12 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
 def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
                        crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                        max_per_class: int | None = None, max_residual: float = 2.5,
-                       rng: np.random.Generator | None = None) -> ExampleSet:
+                       rng: np.random.Generator | None = None, augment: int = 0) -> ExampleSet:
     """Masks of ``camera`` in ``split`` matched to the truth (4.1), as examples.
+
+    ``augment`` = K adds K changed copies of every mask (occlusion cuts, 1 px boundary changes:
+    ``seg2pose.augment``) with their normal positions and targets recomputed from the changed
+    mask, so they are labelled exactly (the truth does not move).
 
     Streams the masks a few hundred frames at a time; gt must be sorted by frame (as
     read_poses returns it). ``max_per_class`` keeps a random subset per class (CPU budgets);
@@ -214,6 +218,20 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
     rles = [keep_rles[i] for i in idx]
     cls, truth = cls[idx], truth[idx]
     h, w = size
+    if augment:
+        from seg2pose.augment import augment_masks
+
+        rng = rng or np.random.default_rng(0)
+        extra_rles, extra_cls, extra_truth = [], [], []
+        for _ in range(int(augment)):
+            new, changed = augment_masks(rles, h, w, rng)
+            sel = np.flatnonzero(changed)
+            extra_rles += [new[i] for i in sel]
+            extra_cls.append(cls[sel])
+            extra_truth.append(truth[sel])
+        rles = rles + extra_rles
+        cls = np.concatenate([cls, *extra_cls])
+        truth = np.concatenate([truth, *extra_truth])
     centers = mask_centers(rles, h, w, center_method)
     hts = np.array([heights[c] for c in cls])
     normal, _ = normal_positions(cam, scene.ground, centers, hts)

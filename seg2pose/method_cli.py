@@ -71,6 +71,9 @@ def train_cmd(
     geometry: Optional[bool] = typer.Option(None, "--geometry/--no-geometry",
                                             help="also feed the network exact mask-geometry cues (box size, foot and top "
                                                  "points, expected height, border cuts; seg2pose/features.py)"),
+    augment: Optional[int] = typer.Option(None, "--augment",
+                                          help="K changed copies of every annotated training mask (occlusion cuts, "
+                                               "1 px boundary changes; labels stay exact: seg2pose/augment.py)"),
     device: Optional[str] = typer.Option(None, "--device"),
     threads: Optional[int] = typer.Option(None, "--threads", help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="first of the runs' seeds"),
@@ -90,7 +93,7 @@ def train_cmd(
     if arch is not None:
         cfg = cfg.replace(arch=arch)
     over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough,
-                                  share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, geometry=geometry, device=device, threads=threads,
+                                  share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, geometry=geometry, augment=augment, device=device, threads=threads,
                                   seed=seed).items()
             if v is not None}
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)

@@ -61,6 +61,7 @@ class TrainConfig:
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)
+    augment: int = 0                 # changed copies per annotated training mask (seg2pose.augment)
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
     loss: str = "mse"                # "mse" (squared error / 2) or "euclid" (distance, = the metric)
@@ -406,7 +407,8 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
                 _say(f"camera {cam}: building examples from the annotated masks")
                 has_splits = "train" in scene.splits
                 tr = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop, factor,
-                                        cfg.center_method, cfg.max_train_per_class, rng=rng)
+                                        cfg.center_method, cfg.max_train_per_class, rng=rng,
+                                        augment=cfg.augment if has_splits else 0)
                 if has_splits and "val" in scene.splits:
                     va = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
                                             cfg.max_val_per_class, rng=rng)
