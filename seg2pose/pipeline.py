@@ -192,9 +192,6 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     if big.any():
         warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
-    from seg2pose.examples import crop_runs
-    from seg2pose.features import scene_geometry
-
     usable = np.isfinite(normal[:, 0])
     groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
     for (mcam, c), ck in models.models.items():
@@ -202,15 +199,33 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
             groups.setdefault(id(ck), (ck, []))[1].append(c)
     for ck, cls_of_model in groups.values():
         sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
-        for s in range(0, len(sel), batch):  # bounded memory: one batch of full crops at a time
-            idx = sel[s:s + batch]
-            rles = [table.rles[i] for i in idx]
-            crops = crop_runs(rles, table.height, table.width, uv[idx])
-            geo = (scene_geometry(scene, cam, rles, table.height, table.width, uv[idx],
-                                  normal[idx, :2], names[idx]) if ck.net.cfg.n_geo else None)
-            residual[idx] = ck.predict(crops, uv[idx], normal[idx, :2], names[idx], batch=batch,
-                                       origin_xy=camera.center[:2], geo=geo)
+        residual[sel] = predict_residuals(scene, cam, ck, [table.rles[i] for i in sel],
+                                          table.height, table.width, uv[sel], normal[sel, :2],
+                                          names[sel], batch)
     return names, uv, normal, residual
+
+
+def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int, width: int,
+                      uv: np.ndarray, normal_xy: np.ndarray, names: np.ndarray, batch: int = 64
+                      ) -> np.ndarray:
+    """Seg2PoseNet residuals (N, 2) metres of checkpoint ``ck`` for N masks of camera ``cam``
+    with centres uv (N, 2) pixels, normal positions (N, 2) metres and class names (N,): crops
+    straight from the RLE runs and, when the model uses them, the mask-geometry features;
+    one batch of full-resolution crops at a time (bounded memory)."""
+    from seg2pose.examples import crop_runs
+    from seg2pose.features import scene_geometry
+
+    out = np.zeros((len(rles), 2))
+    center = scene.cameras[cam].center[:2]
+    for s in range(0, len(rles), batch):
+        sl = slice(s, s + batch)
+        part = rles[sl]
+        crops = crop_runs(part, height, width, uv[sl])
+        geo = (scene_geometry(scene, cam, part, height, width, uv[sl], normal_xy[sl], names[sl])
+               if ck.net.cfg.n_geo else None)
+        out[sl] = ck.predict(crops, uv[sl], normal_xy[sl], names[sl], batch=batch,
+                             origin_xy=center, geo=geo)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, autocast,
                           check_finite_loss, pick_device)
-from seg2pose.pipeline import model_filename
+from seg2pose.pipeline import model_filename, predict_residuals
 
 
 @dataclass(frozen=True)
@@ -285,7 +285,6 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
     have. This finds, per class, the median radial component of the model's residuals over
     the masks of ``split`` (no ground truth used) and stores it in the checkpoint as
     ``radial_offset``; ``Checkpoint.predict`` subtracts it. Returns the offsets (metres)."""
-    from seg2pose.examples import crop_runs
     from seg2pose.io.mots import iter_mots
     from seg2pose.masks import mask_centers
     from seg2pose.normal import normal_positions
@@ -319,11 +318,8 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
             ok = np.flatnonzero(np.isfinite(n[:, 0]))
             if not len(ok):
                 continue
-            res = np.concatenate([ck.predict(crop_runs([rl[i] for i in ok[s:s + 64]], camera.height,
-                                                       camera.width, uv[ok[s:s + 64]]),
-                                             uv[ok[s:s + 64]], n[ok[s:s + 64], :2],
-                                             names[sel][ok[s:s + 64]])
-                                  for s in range(0, len(ok), 64)])
+            res = predict_residuals(scene, cam, ck, [rl[i] for i in ok], camera.height,
+                                    camera.width, uv[ok], n[ok, :2], names[sel][ok])
             u = n[ok, :2] - camera.center[:2]
             u /= np.linalg.norm(u, axis=1, keepdims=True)
             radial[c].append(np.sum(res * u, axis=1))
