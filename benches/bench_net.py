@@ -35,7 +35,7 @@ def _timeit(fn, budget_s: float, min_iters: int = 2) -> float:
 
 
 def bench_cell(arch: str, device: torch.device, dtype: str, batch: int, train: bool,
-               budget: float) -> float:
+               budget: float, compile_net: bool = False) -> float:
     torch.manual_seed(0)
     net = make_net(arch).to(device)
     s = net.cfg.input_size
@@ -46,6 +46,8 @@ def bench_cell(arch: str, device: torch.device, dtype: str, batch: int, train: b
         net = net.to(memory_format=torch.channels_last)
         x = x.to(memory_format=torch.channels_last)
     ac = torch.autocast(device.type, dtype=torch.bfloat16, enabled=dtype == "bf16")
+    if compile_net:  # fuses the ReLUs/pools into the convolutions' epilogues (GPU: max-autotune)
+        net = torch.compile(net, mode="max-autotune" if device.type == "cuda" else "default")
     if train:
         opt = torch.optim.Adam(net.parameters(), lr=5e-5)
         net.train()
@@ -94,7 +96,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="short budgets (about 1 minute on a CPU)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--arch", default="lite,lite2,paper")
+    ap.add_argument("--arch", default="lite,lite2,lite-hr,paper")
+    ap.add_argument("--compile", action="store_true", help="torch.compile the network first "
+                    "(the warm-up is excluded from the timing)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="inference batch (default: 64 lite / 4 paper on the CPU; 256 / 64 on CUDA)")
     ap.add_argument("--device", default=None, help="cpu, cuda or both (default: both if CUDA)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -107,19 +113,21 @@ def main() -> None:
     print(f"input path (RLE -> 420x420 crop -> downsample /3), 1280x720 masks: "
           f"{bench_crops(runs=True):.0f} crops/s from RLE runs, "
           f"{bench_crops(runs=False):.0f} crops/s with a full pycocotools decode")
-    print(f"{'device':<28} {'arch':<6} {'dtype':<5} {'batch':>5} {'infer crops/s':>14} {'train crops/s':>14}")
+    print(f"{'device':<28} {'arch':<7} {'dtype':<5} {'batch':>5} {'infer crops/s':>14} {'train crops/s':>14}")
     for dev in devices:
         name = "cpu" if dev.type == "cpu" else f"cuda ({torch.cuda.get_device_name(dev)})"
         for arch in args.arch.split(","):
             for dtype in ("fp32", "bf16"):
+                small = arch != "paper"
                 if dev.type == "cpu":
-                    batch, tbatch = (64, 16) if arch == "lite" else (4, 4)
-                    b = budget if arch == "lite" else budget / 2
+                    batch, tbatch = (64, 16) if small else (4, 4)
+                    b = budget if small else budget / 2
                 else:
                     batch, tbatch, b = 64 if arch == "paper" else 256, 16 if arch == "paper" else 64, budget
-                inf = bench_cell(arch, dev, dtype, batch, False, b)
-                trn = bench_cell(arch, dev, dtype, tbatch, True, b)
-                print(f"{name:<28} {arch:<6} {dtype:<5} {batch:>5} {inf:>14.1f} {trn:>14.1f}"
+                batch = args.batch or batch
+                inf = bench_cell(arch, dev, dtype, batch, False, b, args.compile)
+                trn = bench_cell(arch, dev, dtype, tbatch, True, b, args.compile)
+                print(f"{name:<28} {arch:<7} {dtype:<5} {batch:>5} {inf:>14.1f} {trn:>14.1f}"
                       f"   (train batch {tbatch})", flush=True)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak RSS {peak:.0f} MB")
