@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -23,7 +23,9 @@ def run_cmd(
     config: Optional[str] = typer.Option(None, "--config", "-c",
                                          help="camera configuration (default: all cameras)"),
     baseline: bool = typer.Option(False, "--baseline", help="normal positions only, no network"),
-    models: Optional[Path] = typer.Option(None, "--models", help="checkpoint folder (default SCENE/models)"),
+    models: Optional[List[Path]] = typer.Option(None, "--models",
+                                                help="checkpoint folder (default SCENE/models); repeat it to "
+                                                     "average the residuals of several folders' models"),
     split: Optional[str] = typer.Option(None, "--split", help="only this split's frames (train/val/test)"),
     center: str = typer.Option(DEFAULT_CENTER_METHOD, "--center",
                                help="mask centre: bbox (paper section 5) or centroid (3.2); "
@@ -125,7 +127,9 @@ def eval_cmd(
 
 def paper_table_cmd(
     scene: Path = typer.Argument(..., help="scene folder with gt/poses.csv"),
-    models: Optional[Path] = typer.Option(None, "--models", help="checkpoint folder (default SCENE/models)"),
+    models: Optional[List[Path]] = typer.Option(None, "--models",
+                                                help="checkpoint folder (default SCENE/models); repeat it to "
+                                                     "average several folders' models"),
     split: str = typer.Option("test", "--split"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="output folder (default SCENE/out/paper-table)"),
     configs: Optional[str] = typer.Option(None, "--configs", help="comma-separated configurations (default all)"),

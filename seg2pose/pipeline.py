@@ -78,16 +78,42 @@ def model_filename(camera: str, cls: str) -> str:
     return f"{'all' if camera == '*' else camera}__{'all' if cls == '*' else cls}.safetensors"
 
 
+@dataclass(eq=False)
+class Ensemble:
+    """Checkpoints from several model folders for one (camera, class): their residuals are
+    averaged (model averaging; e.g. an annotated and a zero-annotation model, or runs with
+    other seeds). ``info`` is the first member's."""
+
+    members: tuple
+
+    @property
+    def info(self) -> dict:
+        return self.members[0].info
+
+
 @dataclass
 class ModelSet:
-    """The checkpoints a run uses, looked up by (camera, class name)."""
+    """The checkpoints a run uses, looked up by (camera, class name): a Checkpoint each, or an
+    Ensemble when several model folders are given."""
 
-    models: dict[tuple[str, str], object] = field(default_factory=dict)  # -> Checkpoint
-    paths: dict[tuple[str, str], Path] = field(default_factory=dict)
+    models: dict[tuple[str, str], object] = field(default_factory=dict)  # -> Checkpoint | Ensemble
+    paths: dict[tuple[str, str], Path | list[Path]] = field(default_factory=dict)
 
     @classmethod
-    def load(cls, models_dir: Path, cameras: list[str], classes: list[str], arch: str | None = None,
-             fingerprint: str | None = None, device=None) -> "ModelSet":
+    def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
+             arch: str | None = None, fingerprint: str | None = None, device=None) -> "ModelSet":
+        """The models of one folder, or of several folders as ensembles (residuals averaged)."""
+        if isinstance(models_dir, (list, tuple)):
+            if len(models_dir) == 1:
+                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device)
+            sets = [cls.load(d, cameras, classes, arch, fingerprint, device) for d in models_dir]
+            ms, made = cls(), {}
+            for key in sets[0].models:
+                members = tuple(s.models[key] for s in sets)
+                ids = tuple(map(id, members))  # one Ensemble per distinct member set (shared models)
+                ms.models[key] = made.setdefault(ids, Ensemble(members))
+                ms.paths[key] = [s.paths[key] for s in sets]
+            return ms
         from seg2pose.net import Checkpoint
 
         models_dir = Path(models_dir)
@@ -211,7 +237,11 @@ def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int
     """Seg2PoseNet residuals (N, 2) metres of checkpoint ``ck`` for N masks of camera ``cam``
     with centres uv (N, 2) pixels, normal positions (N, 2) metres and class names (N,): crops
     straight from the RLE runs and, when the model uses them, the mask-geometry features;
-    one batch of full-resolution crops at a time (bounded memory)."""
+    one batch of full-resolution crops at a time (bounded memory). An Ensemble gives the mean
+    of its members' residuals."""
+    if isinstance(ck, Ensemble):
+        return np.mean([predict_residuals(scene, cam, m, rles, height, width, uv, normal_xy, names,
+                                          batch) for m in ck.members], axis=0)
     from seg2pose.examples import crop_runs
     from seg2pose.features import scene_geometry
 
@@ -335,7 +365,8 @@ def write_run(scene: Scene, run_dir: Path, views: dict[str, np.ndarray], cams: l
         "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
         "center_method": center_method,
         "models": {} if models is None else {
-            f"{c}/{k}": {"path": str(p), **{kk: models.models[(c, k)].info.get(kk)
+            f"{c}/{k}": {"path": [str(x) for x in p] if isinstance(p, list) else str(p),
+                         **{kk: models.models[(c, k)].info.get(kk)
                                             for kk in ("val_loss", "epoch", "seed")}}
             for (c, k), p in models.paths.items() if c in cams},
         "split": split, "frame_range": None if fr is None else list(fr),
@@ -349,7 +380,11 @@ def write_run(scene: Scene, run_dir: Path, views: dict[str, np.ndarray], cams: l
 def _load_models(scene: Scene, cams: list[str], models_dir, arch, device) -> ModelSet:
     from seg2pose.net import pick_device
 
-    return ModelSet.load(Path(models_dir) if models_dir else scene.root / "models", cams,
+    if isinstance(models_dir, (list, tuple)):
+        dirs = [Path(d) for d in models_dir] or [scene.root / "models"]
+    else:
+        dirs = Path(models_dir) if models_dir else scene.root / "models"
+    return ModelSet.load(dirs, cams,
                          [c.name for c in scene.classes], arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device))
 
@@ -362,7 +397,8 @@ def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
-    models_dir: checkpoints (default SCENE/models); split: a named frame range of the scene."""
+    models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
+    averaged (Ensemble); split: a named frame range of the scene."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     run_dir = Path(run_dir)
@@ -468,7 +504,9 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
     atomic_write_text(out / "table.txt", text)
     atomic_write_text(out / "results.json", json.dumps(
         {"scene": str(scene.root), "split": split,
-         "models": None if baseline_only else str(models_dir or scene.root / "models"),
+         "models": None if baseline_only else (
+             [str(d) for d in models_dir] if isinstance(models_dir, (list, tuple)) and models_dir
+             else str(models_dir or scene.root / "models")),
          "results": {k: r.to_dict() for k, r in results.items()}}, indent=1) + "\n")
     plot_error_vs_distance(results, out / "error_vs_distance.png",
                            title=f"{scene.name}: mean error by distance ({split} split)")

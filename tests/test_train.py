@@ -223,3 +223,22 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     with pytest.raises(S2PError, match="mask-geometry"):
         ck.predict(np.zeros((1, 420, 420), np.uint8), np.zeros((1, 2)), np.zeros((1, 2)),
                    np.array(["car"]))
+
+
+def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_rough):
+    """`s2p run --models A --models B`: each view's residual is the mean of A's and B's."""
+    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.train import train_scene
+
+    a = train_scene(tiny, tmp_path / "a", tiny_config(epochs=1, batches_per_epoch=3), cameras=["c1"],
+                    progress=False)
+    b = train_scene(tiny, tmp_path / "b", tiny_config(epochs=1, batches_per_epoch=3, seed=7,
+                                                      geometry=True), cameras=["c1"], progress=False)
+    runs = {k: read_views(run_scene(tiny, tmp_path / f"run_{k}", config="mono-1", models_dir=m,
+                                    split="test", progress=False) / "views.csv")
+            for k, m in (("a", a), ("b", b), ("ab", [a, b]))}
+    ra, rb, rab = (runs[k]["residual"] for k in ("a", "b", "ab"))
+    assert np.abs(ra - rb).max() > 1e-3
+    np.testing.assert_allclose(rab, (ra + rb) / 2, atol=1e-6)
+    meta = json.loads((tmp_path / "run_ab" / "run.json").read_text())
+    assert meta["models"]["c1/car"]["path"] == [str(a / "c1__all.safetensors"), str(b / "c1__all.safetensors")]
