@@ -66,6 +66,8 @@ def train_cmd(
     batches: Optional[int] = typer.Option(None, "--batches", help="batches per epoch (paper: 64)"),
     lr: Optional[float] = typer.Option(None, "--lr"),
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
+    rough_every: Optional[int] = typer.Option(None, "--rough-every",
+                                              help="every K-th training example is a rough model (paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--per-class",
                                                  help="one model per camera with a class input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--per-camera",
@@ -94,7 +96,7 @@ def train_cmd(
         cfg = TrainConfig.paper()
     if arch is not None:
         cfg = cfg.replace(arch=arch)
-    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough,
+    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough, rough_every=rough_every,
                                   share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, geometry=geometry, augment=augment, device=device, threads=threads,
                                   seed=seed).items()
             if v is not None}
