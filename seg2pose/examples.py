@@ -232,20 +232,34 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         rles = rles + extra_rles
         cls = np.concatenate([cls, *extra_cls])
         truth = np.concatenate([truth, *extra_truth])
-    centers = mask_centers(rles, h, w, center_method)
-    hts = np.array([heights[c] for c in cls])
-    normal, _ = normal_positions(cam, scene.ground, centers, hts)
-    target = truth - normal[:, :2]
+    return labelled_examples(scene, camera, rles, h, w, cls, truth, False, crop, factor,
+                             center_method, max_residual, where=f"camera {camera}, split {split}")
+
+
+def labelled_examples(scene: Scene, camera: str, rles: list[bytes], height: int, width: int,
+                      cls: np.ndarray, truth_xy: np.ndarray, rough: bool, crop: int, factor: int,
+                      center_method: str = DEFAULT_CENTER_METHOD, max_residual: float = 2.5,
+                      where: str | None = None) -> ExampleSet:
+    """Examples from masks of ``camera`` with known true positions truth_xy (N, 2) metres and
+    class names (N,): mask centres, normal positions (class default heights), targets = truth -
+    normal, geometry features, crops. Masks whose ray misses the ground or whose residual is
+    longer than ``max_residual`` metres are dropped (said on stderr when ``where`` is given)."""
+    heights = {c.name: c.default_height for c in scene.classes}
+    centers = mask_centers(rles, height, width, center_method)
+    hts = np.array([heights.get(str(c), 0.9) for c in cls])
+    normal, _ = normal_positions(scene.cameras[camera], scene.ground, centers, hts)
+    target = np.asarray(truth_xy, float).reshape(-1, 2) - normal[:, :2]
     ok = np.isfinite(target).all(axis=1) & (np.linalg.norm(target, axis=1) <= max_residual)
     dropped = int((~ok).sum())
-    if dropped:
-        print(f"note: camera {camera}, split {split}: {dropped} of {len(ok)} matched masks dropped "
+    if dropped and where:
+        print(f"note: {where}: {dropped} of {len(ok)} matched masks dropped "
               f"(normal position missing or residual > {max_residual} m)", file=sys.stderr)
     ok = np.flatnonzero(ok)
     rles = [rles[i] for i in ok]
-    geo = scene_geometry(scene, camera, rles, h, w, centers[ok], normal[ok, :2], cls[ok])
-    return make_examples(rles, h, w, centers[ok], normal[ok, :2], target[ok],
-                         cls[ok], False, crop, factor, geo=geo)
+    cls = np.asarray(cls, object)[ok]
+    geo = scene_geometry(scene, camera, rles, height, width, centers[ok], normal[ok, :2], cls)
+    return make_examples(rles, height, width, centers[ok], normal[ok, :2], target[ok], cls,
+                         rough, crop, factor, geo=geo)
 
 
 def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Generator,
@@ -289,19 +303,11 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
     except ImportError as e:
         raise S2PError(f"rough 3D models are not available ({e})") from None
     cam = scene.cameras[camera]
-    heights = {c.name: c.default_height for c in scene.classes}
     rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng)
     if detector_noise and len(rles):
         rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:
         return ExampleSet.empty(crop // factor, factor)
-    centers = mask_centers(rles, cam.height, cam.width, center_method)
-    normal, _ = normal_positions(cam, scene.ground, centers, heights.get(cls, 0.9))
-    target = np.asarray(xyz, float)[:, :2] - normal[:, :2]
-    ok = np.flatnonzero(np.isfinite(target).all(axis=1)
-                        & (np.linalg.norm(target, axis=1) <= max_residual))
-    rles = [rles[i] for i in ok]
-    names = np.full(len(ok), cls, object)
-    geo = scene_geometry(scene, camera, rles, cam.height, cam.width, centers[ok], normal[ok, :2], names)
-    return make_examples(rles, cam.height, cam.width, centers[ok],
-                         normal[ok, :2], target[ok], names, True, crop, factor, geo=geo)
+    return labelled_examples(scene, camera, rles, cam.height, cam.width,
+                             np.full(len(rles), cls, object), np.asarray(xyz, float)[:, :2], True,
+                             crop, factor, center_method, max_residual)
