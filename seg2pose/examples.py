@@ -295,7 +295,8 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
 
 def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
                    crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
-                   max_residual: float = 2.5, detector_noise: bool = False) -> ExampleSet:
+                   max_residual: float = 2.5, detector_noise: bool = False,
+                   occlusion: float = 0.0) -> ExampleSet:
     """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
     and headings on the ground, rasterised; target = true position - normal position."""
     try:
@@ -303,7 +304,7 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
     except ImportError as e:
         raise S2PError(f"rough 3D models are not available ({e})") from None
     cam = scene.cameras[camera]
-    rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng)
+    rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion)
     if detector_noise and len(rles):
         rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:

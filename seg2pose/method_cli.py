@@ -66,6 +66,9 @@ def train_cmd(
     batches: Optional[int] = typer.Option(None, "--batches", help="batches per epoch (paper: 64)"),
     lr: Optional[float] = typer.Option(None, "--lr"),
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
+    rough_occlusion: Optional[float] = typer.Option(None, "--rough-occlusion",
+                                                    help="share of rough-model examples partly hidden by a rough car "
+                                                         "or pedestrian in front of them"),
     rough_every: Optional[int] = typer.Option(None, "--rough-every",
                                               help="every K-th training example is a rough model (paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--per-class",
@@ -96,7 +99,7 @@ def train_cmd(
         cfg = TrainConfig.paper()
     if arch is not None:
         cfg = cfg.replace(arch=arch)
-    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough, rough_every=rough_every,
+    over = {k: v for k, v in dict(epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr, rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
                                   share_classes=share_classes, share_cameras=share_cameras, rough_detector_noise=rough_noise, geometry=geometry, augment=augment, device=device, threads=threads,
                                   seed=seed).items()
             if v is not None}

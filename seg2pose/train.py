@@ -59,6 +59,7 @@ class TrainConfig:
     zero_annotation: bool = False
     radial_calibration: bool = True  # zero-annotation only: see calibrate_radial
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
+    rough_occlusion: float = 0.0     # share of rough examples partly hidden by a rough occluder
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)
@@ -423,7 +424,8 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
         def rough_pool(classes_: list[str], n: int) -> ExampleSet:
             return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
                                                      cfg.center_method,
-                                                     detector_noise=cfg.rough_detector_noise)
+                                                     detector_noise=cfg.rough_detector_noise,
+                                                     occlusion=cfg.rough_occlusion)
                                       for cam in gcams for c in classes_])
 
         for k, path in todo:

@@ -354,6 +354,37 @@ def test_rough_models_nonempty_and_truth_projects_near_them(cls, clean_scene):
     assert again[0] == rles
 
 
+def test_rough_occluders_stand_in_front_and_hide_part_of_the_masks(clean_scene):
+    from seg2pose.synth.rough import occluder_parts
+
+    s = load_scene(clean_scene)
+    cam = s.cameras["c1"]
+    rng = np.random.default_rng(3)
+    target = np.array([2.0, 20.0])
+    for _ in range(20):
+        parts = occluder_parts(cam, s.ground, target, rng)
+        foot = parts.reshape(-1, 3)[:, :2].mean(axis=0)
+        u = (cam.center[:2] - target) / np.linalg.norm(cam.center[:2] - target)
+        along = float((foot - target) @ u)
+        # vertex mean, not the placement point: a car's cabin sits up to 0.4 m off its centre
+        assert 1.0 < along < 5.5 and abs(float((foot - target) @ [-u[1], u[0]])) < 1.7
+        assert np.allclose(parts[..., 2].min(), s.ground.height(foot[None])[0], atol=0.05)
+    # the same poses with and without occluders: an occluded mask is a part of the free one
+    free, xyz0, _ = render_rough_examples(cam, s.ground, "pedestrian", 120, np.random.default_rng(4))
+    hid, xyz1, _ = render_rough_examples(cam, s.ground, "pedestrian", 120, np.random.default_rng(4),
+                                         occlusion=1.0)
+    assert cam.in_image(mask_centers(hid, cam.height, cam.width)).all()
+    pose = {tuple(p): i for i, p in enumerate(xyz0)}
+    pairs = [(pose[tuple(p)], k) for k, p in enumerate(xyz1) if tuple(p) in pose]
+    assert len(pairs) > 100
+    smaller = 0
+    for i, k in pairs:
+        a, b = decode(free[i], cam.height, cam.width), decode(hid[k], cam.height, cam.width)
+        assert b.any() and not (b & ~a).any()
+        smaller += int(b.sum() < a.sum())
+    assert smaller > 0.2 * len(pairs)
+
+
 def test_rough_region_is_respected(clean_scene):
     s = load_scene(clean_scene)
     cam = s.cameras["c1"]

@@ -78,9 +78,26 @@ def _visible_region(camera: Camera, ground: GroundSurface, max_distance: float
     return float(x.min()), float(x.max()), float(y.min()), float(y.max())
 
 
+def occluder_parts(camera: Camera, ground: GroundSurface, target_xy: np.ndarray,
+                   rng: np.random.Generator) -> np.ndarray:
+    """A rough car (70 %) or pedestrian standing 1.5-5 m in front of ``target_xy`` (towards
+    the camera, up to 1.2 m aside), random heading: its parts (P, 8, 3) in world metres."""
+    to_cam = camera.center[:2] - target_xy
+    u = to_cam / max(float(np.linalg.norm(to_cam)), 1e-9)
+    side = np.array([-u[1], u[0]])
+    xy = target_xy + rng.uniform(1.5, 5.0) * u + rng.uniform(-1.2, 1.2) * side
+    model = rough_model("car" if rng.random() < 0.7 else "pedestrian")
+    h = rng.uniform(-np.pi, np.pi)
+    c, s = np.cos(h), np.sin(h)
+    z = float(ground.height(xy[None])[0])
+    wx = c * model[..., 0] - s * model[..., 1] + xy[0]
+    wy = s * model[..., 0] + c * model[..., 1] + xy[1]
+    return np.stack([wx, wy, model[..., 2] + z], -1)
+
+
 def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: int,
                           rng: np.random.Generator, region_xy=None, scale_jitter: float = 0.08,
-                          max_distance: float = MAX_DISTANCE
+                          max_distance: float = MAX_DISTANCE, occlusion: float = 0.0
                           ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
     """``n`` rough-model examples of class ``cls`` seen by ``camera``.
 
@@ -88,7 +105,9 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
     camera sees). Headings are uniform; sizes vary by ``scale_jitter`` (relative).
     Returns the masks as compressed RLE (n), their ground-contact positions xyz (n, 3) metres
     on ``ground``, and headings (n,) radians. Every mask is non-empty and its box centre lies
-    inside the image; each example is drawn alone (no occlusion).
+    inside the image. Each example is drawn alone, except that with probability ``occlusion``
+    a rough car or pedestrian in front of it (``occluder_parts``) hides part of it, as road
+    users hide each other at a junction (the truth stays the hidden road user's position).
     """
     if n < 0:
         raise InputError(f"n must be >= 0, got {n}", field="n")
@@ -103,6 +122,8 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
                          field="region_xy")
     W, H = camera.width, camera.height
     P = len(base)
+    # occluders draw from their own stream, so the road users' poses do not depend on them
+    occ_rng = rng.spawn(1)[0] if occlusion > 0 else None
     rles: list[bytes] = []
     xyz_out, hd_out = [], []
     tries = 0
@@ -148,6 +169,12 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
                 continue
             crop = np.zeros((bx1 - bx0, by1 - by0), np.uint8)
             fill_parts(crop, uv[j] - np.array([bx0, by0]), np.ones(P, np.int64))
+            if occlusion > 0 and occ_rng.random() < occlusion:
+                ouv, ook = project_parts(camera, occluder_parts(camera, ground, xyz[idx[j], :2], occ_rng))
+                if ook.all():
+                    hidden = np.zeros_like(crop)
+                    fill_parts(hidden, ouv - np.array([bx0, by0]), np.ones(len(ouv), np.int64))
+                    crop[hidden > 0] = 0
             cols = np.flatnonzero(crop.any(axis=1))
             if len(cols) == 0:
                 continue
