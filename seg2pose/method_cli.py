@@ -120,7 +120,7 @@ def eval_cmd(
     of distance from the cameras."""
     import json
 
-    from seg2pose.pipeline import evaluate_run
+    from seg2pose.paper_table import evaluate_run
     from seg2pose.evaluate import format_table
 
     res = evaluate_run(scene, run, split=split)
@@ -144,7 +144,7 @@ def paper_table_cmd(
     """Table 1 and Figure 6 of the paper on this scene: every configuration with and without
     Seg2PoseNet, mean error overall and per 5 m bin; writes table.txt, results.json and
     error_vs_distance.png."""
-    from seg2pose.pipeline import paper_table
+    from seg2pose.paper_table import paper_table
 
     out_dir, text = paper_table(scene, models_dir=models, split=split, out_dir=out,
                                 configs=configs.split(",") if configs else None,

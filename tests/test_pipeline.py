@@ -177,7 +177,7 @@ def test_split_and_lockstep_streaming(tiny, tmp_path):
 def test_eval_equals_hand_computation(tmp_path):
     """Toy case: two frames, two road users, errors 3-4-5 and 0.5 m; distances 2 and 7 m
     from the rig centre, so bins [0, 5) and [5, 10) hold one error each."""
-    from seg2pose.pipeline import evaluate_run
+    from seg2pose.paper_table import evaluate_run
 
     scene = make_tiny_scene(tmp_path / "s", frames=4, n_users=1)
     origin = scene.rig.center[:2]
@@ -199,7 +199,8 @@ def test_eval_equals_hand_computation(tmp_path):
 
 
 def test_paper_table_baseline_only(tiny, tmp_path):
-    from seg2pose.pipeline import paper_table, run_scene
+    from seg2pose.paper_table import paper_table
+    from seg2pose.pipeline import run_scene
 
     out, text = paper_table(tiny, out_dir=tmp_path / "pt", baseline_only=True, progress=False)
     d = json.loads((out / "results.json").read_text())

@@ -1,0 +1,88 @@
+"""Evaluating run folders: ``s2p eval`` (one run against the truth) and ``s2p paper-table``
+(Table 1 / Figure 6 of the paper on a scene: every configuration with and without Seg2PoseNet,
+computed from each camera's views once and fused per configuration)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.scene import Scene, load_scene
+from seg2pose.normal import DEFAULT_CENTER_METHOD
+from seg2pose.pipeline import _load_models, compute_views, select_views, write_run
+
+def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
+    """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
+    (mean of all camera centres); ``split`` restricts both to that split's frames."""
+    from seg2pose.evaluate import evaluate
+    from seg2pose.io.poses import read_poses
+
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    if not scene.gt_path.exists():
+        raise InputError("no ground truth to evaluate against", file=scene.gt_path)
+    est = read_poses(Path(run_dir) / "poses.csv")
+    gt = read_poses(scene.gt_path)
+    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
+
+
+PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",
+                      "tri-I", "tri-L", "tri-T"]
+
+
+def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
+                split: str = "test", out_dir: str | Path | None = None,
+                configs: list[str] | None = None, baseline_only: bool = False,
+                force: bool = False, progress: bool = True) -> tuple[Path, str]:
+    """Table 1 / Figure 6 on this scene: every configuration with and without Seg2PoseNet.
+
+    Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
+    OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
+    from seg2pose.evaluate import format_table, plot_error_vs_distance
+
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
+    if (out / "results.json").exists() and not force:
+        raise S2PError(f"{out} holds a paper table already; pass --force to redo it")
+    if configs is None:
+        configs = [c for c in PAPER_CONFIG_ORDER if c in scene.rig.configs]
+        configs += [c for c in scene.rig.configs if c not in configs]
+    if not configs:
+        raise InputError("the scene defines no camera configurations", file=scene.root / "scene.json",
+                         field="configs")
+    results = {}
+    # a view's estimate does not depend on the configuration it is fused in: compute every
+    # camera's views once per method, then fuse per configuration
+    all_cams = [c for c in scene.cameras if any(c in scene.rig.configs[k] for k in configs)]
+    for baseline in ([False, True] if not baseline_only else [True]):
+        models = None if baseline else _load_models(scene, all_cams, models_dir, None, None)
+        views, nframes = compute_views(scene, all_cams, scene.split_range(split), models,
+                                       progress=progress)
+        for cfg in configs:
+            name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
+            rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
+            cams = scene.rig.configs[cfg]
+            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
+                      nframes, force=True)
+            results[name] = evaluate_run(scene, rd, split=split)
+    text = format_table(results)
+    s2pn = [r.mean_error for k, r in results.items() if k.endswith("S2PN")]
+    base = [r.mean_error for k, r in results.items() if k.endswith("baseline")]
+    if s2pn and base:
+        ratios = {k.split()[0]: results[k].mean_error / results[k.split()[0] + " baseline"].mean_error
+                  for k in results if k.endswith("S2PN")}
+        text += "\nS2PN / baseline mean error: " + ", ".join(f"{k} {v:.3f}" for k, v in ratios.items()) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "table.txt", text)
+    atomic_write_text(out / "results.json", json.dumps(
+        {"scene": str(scene.root), "split": split,
+         "models": None if baseline_only else (
+             [str(d) for d in models_dir] if isinstance(models_dir, (list, tuple)) and models_dir
+             else str(models_dir or scene.root / "models")),
+         "results": {k: r.to_dict() for k, r in results.items()}}, indent=1) + "\n")
+    plot_error_vs_distance(results, out / "error_vs_distance.png",
+                           title=f"{scene.name}: mean error by distance ({split} split)")
+    return out, text
