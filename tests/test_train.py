@@ -18,7 +18,7 @@ from seg2pose.masks import encode
 from test_pipeline import SIZES, make_tiny_scene, render_box
 
 
-def _fake_rough(camera, ground, cls, n, rng, region_xy=None):
+def _fake_rough(camera, ground, cls, n, rng, region_xy=None, occlusion=0.0):
     """Stand-in for seg2pose.synth.rough: boxes of the class size at random places/headings."""
     rles, xyz, hd = [], [], []
     while len(rles) < n:
