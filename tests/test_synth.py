@@ -122,19 +122,25 @@ def test_truncation_at_image_border(cam):
     assert not ((m ^ ref) & ~boundary_band(ref)).any()
 
 
+def _scene(tmp_path_factory, name: str, frames: int = 6, seed: int = 3, **kw) -> Path:
+    out = tmp_path_factory.mktemp("synth") / name
+    generate_scene(out, frames=frames, seed=seed, progress=False, workers=1, **kw)
+    return out
+
+
 @pytest.fixture(scope="module")
 def clean_scene(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("synth") / "clean"
-    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1,
-                   match="all")
-    return out
+    return _scene(tmp_path_factory, "clean", noise=NoiseConfig.off(), match="all")
 
 
 @pytest.fixture(scope="module")
 def noisy_scene(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("synth") / "noisy"
-    generate_scene(out, frames=6, seed=3, progress=False, workers=1)
-    return out
+    return _scene(tmp_path_factory, "noisy")
+
+
+@pytest.fixture(scope="module")
+def noisy_scene_40(tmp_path_factory) -> Path:
+    return _scene(tmp_path_factory, "noisy40", frames=40, seed=0)
 
 
 def test_scene_opens_with_the_readers(clean_scene):
@@ -535,13 +541,6 @@ def test_center_matching_keeps_only_masks_covering_the_centre(clean_scene, tmp_p
             x, y = np.floor(uv[0]).astype(int)
             inside = 0 <= x < cam.width and 0 <= y < cam.height and decode(r, cam.height, cam.width)[y, x]
             assert bool(inside) == ((f, t) not in dropped)
-
-
-@pytest.fixture(scope="module")
-def noisy_scene_40(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("synth") / "noisy40"
-    generate_scene(out, frames=40, seed=0, progress=False, workers=1)
-    return out
 
 
 def test_center_matching_holds_for_the_masks_as_written_with_noise(noisy_scene_40):
