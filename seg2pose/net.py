@@ -46,6 +46,8 @@ Input normalisation (``Normalisation``; recorded in every checkpoint's metadata)
   view can be moved by at most 2.5 m.
 - optional class one-hot appended to the vector (``n_classes`` > 0) when one model serves all
   classes of a camera (the CPU option, see train.py); 0 for the paper's per-class models.
+- optional mask-geometry features appended after it (``n_geo`` > 0; ``seg2pose.features``,
+  scaled there): an extension of the paper's 4-vector, 0 in the paper arch by default.
 """
 
 from __future__ import annotations
