@@ -53,7 +53,7 @@ def train_cmd(
     arch: Optional[str] = typer.Option(None, "--arch",
                                        help="paper (Figure 3, the default), lite (crop /3, CPU; --demo), "
                                             "lite2 (crop /2) or lite-hr (full-resolution 140 px crop; --quick)"),
-    quick: bool = typer.Option(False, "--quick", help="short CPU protocol: one lite-hr model with mask geometry for all lenses and classes, 30 epochs"),
+    quick: bool = typer.Option(False, "--quick", help="short CPU protocol: one lite-hr model with mask geometry per class for all lenses, 30 epochs"),
     demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation",
                                          help="train on rough-model examples only (no ground truth)"),

@@ -10,10 +10,11 @@ net.py). ``loss="euclid"`` (the mean Euclidean distance, i.e. the evaluation met
 on the CPU protocol and did worse on the test split (docs/RESULTS.md), so the presets keep MSE.
 
 CPU presets: ``TrainConfig.quick()`` (lite-hr + mask geometry) and ``TrainConfig.demo()``
-(lite) use a small arch, one run,
-a larger batch and learning rate with cosine decay, and by default **one model per camera
-for all classes** with a class one-hot input (``share_classes``): the classes then share the
-trunk's features and the number of models to train drops from 15 to 5 for the five lenses.
+(lite) use a small arch, one run, a larger batch and learning rate with cosine decay, and **one
+model for all lenses of the device** (``share_cameras``: the lenses sit centimetres apart, so
+their examples are nearly the same views). ``quick`` keeps the paper's one model per class
+(measured better than one model for all classes with a class input, ``share_classes``, which
+``demo`` uses to train a single model).
 
 Checkpoints: ``MODELS/<camera>__<class>.safetensors`` (``__all`` when shared) + ``.json``
 metadata (camera, class, arch, normalisation, scene fingerprint, val loss, epoch, seed, run,
@@ -83,13 +84,14 @@ class TrainConfig:
     @classmethod
     def quick(cls) -> "TrainConfig":
         """The CPU protocol of docs/RESULTS.md: one ``lite-hr`` model with the mask-geometry
-        features for all lenses and classes, one run of 30 epochs, half of every batch rough-model
-        examples from a pool of 1,500 per lens and class (they regularise: the annotated split
-        is small); about 8 minutes on 2 cores; the best of the CPU variants measured there."""
+        features per class (the paper's layout) shared by all lenses of the device, one run of
+        30 epochs, half of every batch rough-model examples from a pool of 1,500 per lens and
+        class (they regularise: the annotated split is small); about 8 minutes on 2 cores for
+        the three classes; the best of the CPU variants measured there."""
         return cls(arch="lite-hr", geometry=True, runs=1, lr=1e-3, lr_schedule="cosine", batch_size=32,
                    batches_per_epoch=64, epochs=30, rough_every=2, rough_per_class=1500,
                    rough_val_per_class=40,
-                   share_classes=True, share_cameras=True, max_val_per_class=100)
+                   share_classes=False, share_cameras=True, max_val_per_class=100)
 
     @classmethod
     def demo(cls) -> "TrainConfig":
