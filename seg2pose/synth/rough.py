@@ -78,6 +78,16 @@ def _visible_region(camera: Camera, ground: GroundSurface, max_distance: float
     return float(x.min()), float(x.max()), float(y.min()), float(y.max())
 
 
+def place(local: np.ndarray, heading: np.ndarray | float, xyz: np.ndarray) -> np.ndarray:
+    """Model parts (..., P, 8, 3) in the local frame -> world metres: turned by ``heading``
+    (...,) radians about z, then moved to the ground contact points ``xyz`` (..., 3)."""
+    h = np.asarray(heading, float)[..., None, None]
+    c, s = np.cos(h), np.sin(h)
+    wx = c * local[..., 0] - s * local[..., 1]
+    wy = s * local[..., 0] + c * local[..., 1]
+    return np.stack([wx, wy, local[..., 2]], -1) + np.asarray(xyz, float)[..., None, None, :]
+
+
 def occluder_parts(camera: Camera, ground: GroundSurface, target_xy: np.ndarray,
                    rng: np.random.Generator) -> np.ndarray:
     """A rough car (70 %) or pedestrian standing 1.5-5 m in front of ``target_xy`` (towards
@@ -88,11 +98,7 @@ def occluder_parts(camera: Camera, ground: GroundSurface, target_xy: np.ndarray,
     xy = target_xy + rng.uniform(1.5, 5.0) * u + rng.uniform(-1.2, 1.2) * side
     model = rough_model("car" if rng.random() < 0.7 else "pedestrian")
     h = rng.uniform(-np.pi, np.pi)
-    c, s = np.cos(h), np.sin(h)
-    z = float(ground.height(xy[None])[0])
-    wx = c * model[..., 0] - s * model[..., 1] + xy[0]
-    wy = s * model[..., 0] + c * model[..., 1] + xy[1]
-    return np.stack([wx, wy, model[..., 2] + z], -1)
+    return place(model, h, [xy[0], xy[1], float(ground.height(xy[None])[0])])
 
 
 def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: int,
@@ -147,11 +153,7 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
         if len(idx) == 0:
             continue
         k = len(idx)
-        local = base[None] * sc[idx, None, None, None]  # (k, P, 8, 3)
-        c, s = np.cos(hd[idx])[:, None, None], np.sin(hd[idx])[:, None, None]
-        wx = c * local[..., 0] - s * local[..., 1]
-        wy = s * local[..., 0] + c * local[..., 1]
-        world = np.stack([wx, wy, local[..., 2]], -1) + xyz[idx][:, None, None, :]
+        world = place(base[None] * sc[idx, None, None, None], hd[idx], xyz[idx])  # (k, P, 8, 3)
         uv, ok = project_parts(camera, world.reshape(k * P, 8, 3))
         uv = uv.reshape(k, P, 8, 2)
         ok = ok.reshape(k, P).all(axis=1)
