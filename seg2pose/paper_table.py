@@ -11,7 +11,7 @@ from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.pipeline import _load_models, compute_views, select_views, write_run
+from seg2pose.pipeline import _load_models, compute_views, model_dirs, select_views, write_run
 
 def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
@@ -80,8 +80,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
     atomic_write_text(out / "results.json", json.dumps(
         {"scene": str(scene.root), "split": split,
          "models": None if baseline_only else (
-             [str(d) for d in models_dir] if isinstance(models_dir, (list, tuple)) and models_dir
-             else str(models_dir or scene.root / "models")),
+             [str(d) for d in dirs] if len(dirs := model_dirs(scene, models_dir)) > 1 else str(dirs[0])),
          "results": {k: r.to_dict() for k, r in results.items()}}, indent=1) + "\n")
     plot_error_vs_distance(results, out / "error_vs_distance.png",
                            title=f"{scene.name}: mean error by distance ({split} split)")

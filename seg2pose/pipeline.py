@@ -377,14 +377,17 @@ def write_run(scene: Scene, run_dir: Path, views: dict[str, np.ndarray], cams: l
     return run_dir
 
 
+def model_dirs(scene: Scene, models_dir) -> list[Path]:
+    """The model folder(s) a run uses: one path, a list of them (averaged), or None for
+    SCENE/models."""
+    dirs = models_dir if isinstance(models_dir, (list, tuple)) else [models_dir] if models_dir else []
+    return [Path(d) for d in dirs] or [scene.root / "models"]
+
+
 def _load_models(scene: Scene, cams: list[str], models_dir, arch, device) -> ModelSet:
     from seg2pose.net import pick_device
 
-    if isinstance(models_dir, (list, tuple)):
-        dirs = [Path(d) for d in models_dir] or [scene.root / "models"]
-    else:
-        dirs = Path(models_dir) if models_dir else scene.root / "models"
-    return ModelSet.load(dirs, cams,
+    return ModelSet.load(model_dirs(scene, models_dir), cams,
                          [c.name for c in scene.classes], arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device))
 
