@@ -47,6 +47,7 @@ class RecordOptions:
     cameras: list[str] | None = None
     masks: bool = True
     video: bool = True
+    gt: bool = True  # ground truth, when the scene has it (off in the annotation app)
     trail: int = L.TRAIL_FRAMES
     image_plane_distance: float = 2.0
     notes: list = field(default_factory=list)
@@ -369,7 +370,7 @@ def log_all(rec, scene: Scene, runs: list[Run], first: int, last: int, cameras: 
         if opts.masks:
             stats["mask_rows"] += log_masks(rec, scene, cam, first, last, mask_every)
     gt = None
-    if scene.gt_path.exists():
+    if opts.gt and scene.gt_path.exists():
         gt = read_poses(scene.gt_path).in_frames((first, last))
         gsz = _with_size(gt, scene)
         log_boxes(rec, "world/gt", gt, gsz, scene, first, last, color=L.GT_COLOR, with_labels=False)

@@ -1,0 +1,591 @@
+"""The annotation app's controller: the current frame, the selected track, the click mode and
+every action of the panel, on top of the engine (``annotate.Project``). No UI imports: the
+marimo page (notebook.py) feeds it clicks, keys and time-cursor moves, and draws what
+``panel()`` returns; tests drive it directly.
+
+Listeners: ``on_tracks(ids, selected)`` after anything that changes how tracks look (edits,
+undo/redo, selection), ``on_frame(frame)`` when the controller moves the time cursor.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from annotate import EditError, LockedError, Project
+from annotate.edits import NUDGE_STEPS, ROTATE_STEPS
+from seg2pose.errors import S2PError
+from seg2pose.io.atomic import atomic_write_text
+
+STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
+HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
+CLICK_MODES = ("centre", "ground", "mask")
+CLICK_MODE_HELP = {
+    "centre": "click the middle of the road user (ray meets the ground raised by the class's default height)",
+    "ground": "click where the road user touches the ground",
+    "mask": "click a mask: its Seg2Pose estimate (with --run) or its normal position",
+}
+
+
+@dataclass(frozen=True)
+class Action:
+    """A panel button: ``name`` (the controller method's argument), its label, its keyboard
+    shortcut (as the page's key handler spells it: modifiers ``Ctrl+``/``Alt+``/``Shift+``
+    then the key) and the group it is shown in."""
+
+    name: str
+    label: str
+    key: str
+    group: str
+
+
+def _nudges() -> list[Action]:
+    out = []
+    for step, mod in zip(NUDGE_STEPS, ("Alt+", "", "Shift+")):
+        cm = round(step * 100)
+        for key, (dx, dy), word in (("w", (0, 1), "+y"), ("s", (0, -1), "-y"),
+                                    ("d", (1, 0), "+x"), ("a", (-1, 0), "-x")):
+            out.append(Action(f"nudge:{dx * step:g}:{dy * step:g}", f"{word} {cm} cm",
+                              f"{mod}{key}", "nudge"))
+    return out
+
+
+def _rotations() -> list[Action]:
+    out = []
+    for deg, mod in zip(ROTATE_STEPS, ("Alt+", "", "Shift+")):
+        out.append(Action(f"rotate:{deg:g}", f"⟲ {deg:g}°", f"{mod}q", "rotate"))
+        out.append(Action(f"rotate:{-deg:g}", f"⟳ {deg:g}°", f"{mod}e", "rotate"))
+    return out
+
+
+ACTIONS: list[Action] = [
+    Action("prev_frame", "◀ frame", "ArrowLeft", "time"),
+    Action("next_frame", "frame ▶", "ArrowRight", "time"),
+    Action("back10", "◀◀ 10", "Shift+ArrowLeft", "time"),
+    Action("fwd10", "10 ▶▶", "Shift+ArrowRight", "time"),
+    Action("prev_keyframe", "◀ keyframe", "[", "time"),
+    Action("next_keyframe", "keyframe ▶", "]", "time"),
+    Action("next_suggestion", "next suggested keyframe", "g", "time"),
+    Action("prev_track", "◀ track", "Shift+t", "track"),
+    Action("next_track", "track ▶", "t", "track"),
+    Action("new_track", "new track", "n", "track"),
+    Action("delete_keyframe", "delete keyframe", "Delete", "track"),
+    Action("click_mode", "click mode", "c", "track"),
+    Action("accept_estimate", "accept estimate", "y", "track"),
+    Action("accept_every", "accept estimates every N", "Shift+y", "track"),
+    Action("occluded", "occluded from here", "o", "span"),
+    Action("outside", "outside from here", "x", "span"),
+    Action("visible", "visible here", "v", "span"),
+    Action("split", "split here", "Shift+s", "span"),
+    Action("merge", "merge previous track into this", "m", "span"),
+    Action("interpolation", "cycle interpolation", "i", "span"),
+    Action("undo", "undo", "Ctrl+z", "history"),
+    Action("redo", "redo", "Ctrl+y", "history"),
+    *_nudges(), *_rotations(),
+]
+ACTION_BY_NAME = {a.name: a for a in ACTIONS}
+SHORTCUTS = {a.key: a.name for a in ACTIONS}
+SHORTCUTS["Ctrl+Shift+z"] = "redo"
+
+
+@dataclass
+class _Holder:
+    controller: "Controller"
+    since: str
+    seen: float
+
+
+_HOLDERS: dict[str, _Holder] = {}
+_HOLDERS_LOCK = threading.Lock()
+
+
+@dataclass
+class Controller:
+    """The state of one page of the app (see the module docstring). Build with ``open``."""
+
+    project: Project
+    cameras: list[str]
+    frame_range: tuple[int, int]
+    read_only_reason: str | None = None
+    frame: int = 0
+    selected: int | None = None
+    previous: int | None = None       # the track selected before (merge takes it)
+    click_mode: str = "centre"
+    new_class: str = ""
+    every: int = 25
+    message: str = ""
+    last_click: dict | None = None
+    clicks: int = 0
+    on_tracks: list[Callable[[set[int], int | None], None]] = field(default_factory=list)
+    on_frame: list[Callable[[int], None]] = field(default_factory=list)
+    lock: threading.RLock = field(default_factory=threading.RLock)
+
+    # --- opening, closing, holding -------------------------------------------------------------
+    @classmethod
+    def open(cls, scene, run=None, cameras: list[str] | None = None) -> "Controller":
+        """Open the project of ``scene`` for this page. A project that another page of this
+        server holds (it was heard from in the last HOLD_SECONDS), or another process writes,
+        opens read-only with the reason in ``read_only_reason``."""
+        from seg2pose.io.scene import load_scene
+
+        scene = load_scene(scene) if not hasattr(scene, "cameras") else scene
+        key = str(Path(scene.root).resolve())
+        reason = None
+        with _HOLDERS_LOCK:
+            h = _HOLDERS.get(key)
+            if h is not None and time.monotonic() - h.seen < HOLD_SECONDS:
+                reason = (f"read-only: this project is open for editing in another tab (since "
+                          f"{h.since}); close that tab, wait {HOLD_SECONDS:.0f} s and reload")
+            elif h is not None:  # a tab gone silent: its project is released
+                h.controller.close()
+            try:
+                project = Project.open(scene, run=run, read_only=reason is not None)
+            except LockedError as e:
+                reason = f"read-only: {e}"
+                project = Project.open(scene, run=run, read_only=True)
+            cams = list(cameras) if cameras else list(scene.cameras)
+            unknown = [c for c in cams if c not in scene.cameras]
+            if unknown:
+                project.close()
+                raise S2PError(f"unknown cameras {unknown}; the scene has {sorted(scene.cameras)}")
+            fr = project.frame_range or (0, 0)
+            c = cls(project, cams, (int(fr[0]), int(fr[1])), read_only_reason=reason)
+            c.new_class = scene.classes[0].name if scene.classes else ""
+            c.frame = c.frame_range[0]
+            c._restore()
+            if reason is None:
+                _HOLDERS[key] = _Holder(c, time.strftime("%H:%M:%S"), time.monotonic())
+            c._key = key
+            c.message = reason or "ready"
+        return c
+
+    def touch(self) -> None:
+        """The page is alive (any message from it, or its heartbeat)."""
+        with _HOLDERS_LOCK:
+            h = _HOLDERS.get(getattr(self, "_key", ""))
+            if h is not None and h.controller is self:
+                h.seen = time.monotonic()
+
+    def close(self) -> None:
+        with _HOLDERS_LOCK:
+            h = _HOLDERS.get(getattr(self, "_key", ""))
+            if h is not None and h.controller is self:
+                del _HOLDERS[self._key]
+        self.project.close()
+
+    @property
+    def read_only(self) -> bool:
+        return self.project.read_only
+
+    # --- saved page state -------------------------------------------------------------------------
+    @property
+    def state_path(self) -> Path:
+        return self.project.folder / STATE_FILE
+
+    def _restore(self) -> None:
+        try:
+            d = json.loads(self.state_path.read_text())
+        except (OSError, ValueError):
+            return
+        if not isinstance(d, dict):
+            return
+        f = d.get("frame")
+        if isinstance(f, int):
+            self.frame = min(max(f, self.frame_range[0]), self.frame_range[1])
+        if d.get("selected") in self.project.tracks:
+            self.selected = int(d["selected"])
+        if d.get("click_mode") in CLICK_MODES:
+            self.click_mode = d["click_mode"]
+        if isinstance(d.get("every"), int) and d["every"] >= 1:
+            self.every = d["every"]
+        if d.get("new_class") in [c.name for c in self.project.scene.classes]:
+            self.new_class = d["new_class"]
+
+    def _save(self) -> None:
+        if self.read_only:
+            return
+        d = {"frame": self.frame, "selected": self.selected, "click_mode": self.click_mode,
+             "every": self.every, "new_class": self.new_class}
+        try:
+            atomic_write_text(self.state_path, json.dumps(d))
+        except OSError:
+            pass  # the page state is a convenience; edits are in the journal
+
+    # --- notifications ----------------------------------------------------------------------------
+    def _tracks_changed(self, ids) -> None:
+        for cb in list(self.on_tracks):
+            cb(set(ids), self.selected)
+
+    def _select(self, tid: int | None) -> None:
+        if tid == self.selected:
+            return
+        old, self.selected = self.selected, tid
+        if old is not None:
+            self.previous = old
+        self._save()
+        self._tracks_changed({t for t in (old, tid) if t is not None})
+
+    def goto(self, frame: int, from_viewer: bool = False) -> None:
+        """Move to ``frame`` (clamped to the scene); unless the viewer told us, move its cursor."""
+        f = int(min(max(int(frame), self.frame_range[0]), self.frame_range[1]))
+        changed = f != self.frame
+        self.frame = f
+        if changed:
+            self._save()
+        if not from_viewer:
+            for cb in list(self.on_frame):
+                cb(f)
+
+    # --- the actions ------------------------------------------------------------------------------
+    def do(self, name: str) -> str:
+        """Run one action (a name from ACTIONS); returns the message shown in the panel. Bad
+        requests (no track selected, read-only, an edit the engine refuses) become messages."""
+        with self.lock:
+            self.touch()
+            try:
+                self.message = self._do(name) or ""
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def _need_track(self) -> int:
+        if self.selected is None:
+            raise EditError("no track selected: pick one in the list (t / Shift+t) or make one (n)")
+        return self.selected
+
+    def _edit(self, fn, *args, **kw):
+        if self.read_only:
+            raise EditError(self.read_only_reason or "this project is open read-only")
+        ch = fn(*args, **kw)
+        if ch is not None:
+            self._tracks_changed(ch.tracks)
+        return ch
+
+    def _do(self, name: str) -> str | None:
+        p = self.project
+        if name.startswith("goto:"):
+            self.goto(int(name.split(":")[1]))
+            return None
+        if name.startswith("select:"):
+            tid = int(name.split(":")[1])
+            self._select(tid if tid in p.tracks else None)
+            return None
+        if name.startswith("class:"):
+            cls = name.split(":", 1)[1]
+            if cls not in [c.name for c in p.scene.classes]:
+                raise EditError(f"unknown class {cls!r}")
+            self.new_class = cls
+            self._save()
+            return f"new tracks are {cls}"
+        if name.startswith("every:"):
+            self.every = max(1, int(name.split(":")[1]))
+            self._save()
+            return f"accept estimates every {self.every} frames"
+        if name.startswith("nudge:"):
+            _, dx, dy = name.split(":")
+            self._edit(p.nudge, self._need_track(), self.frame, float(dx), float(dy))
+            return f"moved by ({float(dx) * 100:+.0f}, {float(dy) * 100:+.0f}) cm"
+        if name.startswith("rotate:"):
+            deg = float(name.split(":")[1])
+            self._edit(p.rotate, self._need_track(), self.frame, deg)
+            return f"turned {deg:+g}°"
+        if name not in ACTION_BY_NAME:
+            raise EditError(f"unknown action {name!r}")
+        return getattr(self, "_a_" + name)()
+
+    # time
+    def _a_prev_frame(self):
+        self.goto(self.frame - 1)
+
+    def _a_next_frame(self):
+        self.goto(self.frame + 1)
+
+    def _a_back10(self):
+        self.goto(self.frame - 10)
+
+    def _a_fwd10(self):
+        self.goto(self.frame + 10)
+
+    def _keyframes(self) -> list[int]:
+        return self.project.track(self._need_track()).frames
+
+    def _a_next_keyframe(self):
+        later = [f for f in self._keyframes() if f > self.frame]
+        if not later:
+            return "no keyframe after this frame"
+        self.goto(later[0])
+
+    def _a_prev_keyframe(self):
+        earlier = [f for f in self._keyframes() if f < self.frame]
+        if not earlier:
+            return "no keyframe before this frame"
+        self.goto(earlier[-1])
+
+    def _a_next_suggestion(self):
+        s = self.suggestions()
+        if not s:
+            return "no suggestions: the annotation agrees with the estimates (or no --run)"
+        later = [x for x in s if x[1] > self.frame] or s
+        tid, f, d = later[0]
+        self._select(tid)
+        self.goto(f)
+        return f"track {tid}, frame {f}: {d:.2f} m from the estimate"
+
+    # tracks
+    def _a_next_track(self, step: int = 1):
+        ids = sorted(self.project.tracks)
+        if not ids:
+            return "no tracks yet: make one with n"
+        i = ids.index(self.selected) + step if self.selected in ids else (0 if step > 0 else -1)
+        self._select(ids[i % len(ids)])
+
+    def _a_prev_track(self):
+        return self._a_next_track(-1)
+
+    def _a_new_track(self):
+        ch = self._edit(self.project.create_track, self.new_class)
+        self._select(ch.track)
+        return f"track {ch.track} ({self.new_class}): click it in a camera view"
+
+    def _a_delete_keyframe(self):
+        self._edit(self.project.delete_keyframe, self._need_track(), self.frame)
+        return f"keyframe {self.frame} deleted"
+
+    def _a_click_mode(self):
+        self.click_mode = CLICK_MODES[(CLICK_MODES.index(self.click_mode) + 1) % len(CLICK_MODES)]
+        self._save()
+        return f"click mode {self.click_mode}: {CLICK_MODE_HELP[self.click_mode]}"
+
+    def _a_accept_estimate(self):
+        self._edit(self.project.accept_estimate, self._need_track(), self.frame)
+        return f"estimate taken at frame {self.frame}"
+
+    def _a_accept_every(self):
+        t = self.project.track(self._need_track())
+        self._edit(self.project.accept_estimate, t.id, every=self.every, frames=self.frame_range)
+        return f"estimates taken every {self.every} frames"
+
+    # spans
+    def _span_end(self) -> int:
+        t = self.project.track(self._need_track())
+        later = [f for f in t.frames if f > self.frame]
+        return later[0] - 1 if later else max(self.frame, t.last if t.last is not None else self.frame)
+
+    def _a_occluded(self):
+        a, b = self.frame, self._span_end()
+        self._edit(self.project.mark, self.selected, a, b, "occluded")
+        return f"frames {a}..{b} occluded"
+
+    def _a_outside(self):
+        a, b = self.frame, self._span_end()
+        self._edit(self.project.mark, self.selected, a, b, "outside")
+        return f"frames {a}..{b} outside the view"
+
+    def _a_visible(self):
+        t = self.project.track(self._need_track())
+        span = [(a, b) for a, b, _ in t.spans if a <= self.frame <= b]
+        if not span:
+            return "this frame is not in an occluded or outside span"
+        self._edit(self.project.mark, t.id, span[0][0], span[0][1], "visible")
+        return f"frames {span[0][0]}..{span[0][1]} visible again"
+
+    def _a_split(self):
+        ch = self._edit(self.project.split_track, self._need_track(), self.frame)
+        new = max(ch.created) if ch.created else None
+        self._select(new)
+        return f"split at frame {self.frame}: the rest is track {new}"
+
+    def _a_merge(self):
+        keep = self._need_track()
+        if self.previous is None or self.previous not in self.project.tracks:
+            return "select the track to merge first, then this one, then merge"
+        other = self.previous
+        self._edit(self.project.merge_tracks, keep, other)
+        self.previous = None
+        return f"track {other} merged into {keep}"
+
+    def _a_interpolation(self):
+        from annotate import METHODS
+
+        tid = self._need_track()
+        cur = self.project.interpolation(tid)
+        nxt = METHODS[(list(METHODS).index(cur) + 1) % len(METHODS)]
+        self._edit(self.project.set_interpolation, tid, nxt)
+        return f"track {tid} interpolates {nxt}"
+
+    def _a_undo(self):
+        ch = self._edit(self.project.undo)
+        return f"undid {ch.name}" if ch else "nothing to undo"
+
+    def _a_redo(self):
+        ch = self._edit(self.project.redo)
+        return f"redid {ch.name}" if ch else "nothing to redo"
+
+    # --- clicks -----------------------------------------------------------------------------------
+    def click(self, camera: str | None, uv, hint_where: str = "") -> str:
+        """A click in the viewer: ``camera`` the camera view it landed in (None: the 3D view or
+        outside any image), ``uv`` the image pixel (x right, y down, pixel centres at +0.5).
+        Places the selected track's keyframe at the current frame, as the click mode says."""
+        with self.lock:
+            self.touch()
+            self.clicks += 1
+            self.last_click = {"camera": camera, "uv": None if uv is None else
+                               [round(float(v), 2) for v in uv[:2]], "n": self.clicks}
+            try:
+                self.message = self._click(camera, uv, hint_where)
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def _click(self, camera, uv, where) -> str:
+        if camera is None or uv is None or uv[0] is None or uv[1] is None:
+            return (f"click ignored ({where or 'not on a camera image'}): click inside a camera "
+                    "view's image to place the selected track")
+        cam = self.project.scene.cameras[camera]
+        u, v = float(uv[0]), float(uv[1])
+        if not (0 <= u < cam.width and 0 <= v < cam.height):
+            return f"click ignored: pixel ({u:.0f}, {v:.0f}) is outside camera {camera}'s image"
+        if self.click_mode == "mask":
+            return self._click_mask(camera, u, v)
+        tid = self._need_track()
+        t = self.project.track(tid)
+        height = 0.0
+        if self.click_mode == "centre":
+            spec = self.project.scene.class_by_name().get(t.cls)
+            height = float(spec.default_height) if spec is not None else 0.0
+        self._edit(self.project.place_from_pixel, tid, self.frame, camera, (u, v), height=height)
+        k = self.project.track(tid).keyframes[self.frame]
+        return f"track {tid}: keyframe {self.frame} at ({k.x:.2f}, {k.y:.2f}) m"
+
+    def _click_mask(self, camera: str, u: float, v: float) -> str:
+        hit = self.mask_at(camera, u, v)
+        if hit is None:
+            return f"no mask under pixel ({u:.0f}, {v:.0f}) of camera {camera} in frame {self.frame}"
+        mask_track, cls = hit
+        if self.selected is None:
+            ch = self._edit(self.project.create_track, cls, meta={"run_track": int(mask_track)})
+            self._select(ch.track)
+        tid = self.selected
+        self._edit(self.project.place_from_mask, tid, self.frame, camera, mask_track)
+        k = self.project.track(tid).keyframes[self.frame]
+        return (f"track {tid}: keyframe {self.frame} from mask {mask_track} "
+                f"({', '.join(k.flags) or 'placed'}) at ({k.x:.2f}, {k.y:.2f}) m")
+
+    def mask_at(self, camera: str, u: float, v: float) -> tuple[int, str] | None:
+        """(mask track id, class name) of the topmost mask of ``camera`` covering pixel (u, v)
+        in the current frame, or None."""
+        from pycocotools import mask as rle
+
+        t = self.project.masks.table(camera)
+        sel = np.flatnonzero(t.frame == self.frame)
+        if not len(sel):
+            return None
+        col, row = int(u), int(v)
+        by_id = self.project.scene.class_by_id()
+        for i in sel[::-1]:  # later masks are painted over earlier ones
+            m = rle.decode({"size": [t.height, t.width], "counts": t.rles[i]})
+            if m[row, col]:
+                spec = by_id.get(int(t.class_id[i]))
+                return int(t.track_id[i]), spec.name if spec else self.new_class
+        return None
+
+    # --- reading ----------------------------------------------------------------------------------
+    def suggestions(self, threshold: float = 0.5, limit: int = 50) -> list[tuple[int, int, float]]:
+        """(track, frame, distance m) where a track's interpolated pose is more than
+        ``threshold`` metres from the run's estimate of its road user (meta run_track, else
+        the same id), largest first. The engine's own suggestions are used when it has them."""
+        p = self.project
+        if hasattr(p, "suggestions"):
+            try:
+                out = p.suggestions(threshold=threshold)
+                return [(int(a), int(b), float(c)) for a, b, c in out][:limit]
+            except (TypeError, ValueError):
+                pass
+        if getattr(p, "_run", None) is None:
+            return []
+        rows = []
+        for tid, t in p.tracks.items():
+            tab = p.track_poses(tid)
+            tab = tab.take(tab.source == "interpolated")
+            if not len(tab):
+                continue
+            est = p.run.track(int(t.meta.get("run_track", tid)))
+            common, ia, ib = np.intersect1d(tab.frame, est.frame, return_indices=True)
+            if not len(common):
+                continue
+            d = np.hypot(*(tab.xyz[ia, :2] - est.xyz[ib, :2]).T)
+            rows += [(tid, int(f), float(x)) for f, x in zip(common, d) if x > threshold]
+        rows.sort(key=lambda r: -r[2])
+        return rows[:limit]
+
+    def track_rows(self) -> list[dict]:
+        """The track list: id, class, keyframes, span, interpolation, warnings."""
+        out = []
+        for tid, t in sorted(self.project.tracks.items()):
+            warn = []
+            flags = [f for k in t.keyframes.values() for f in k.flags]
+            if "off_support" in flags:
+                warn.append(f"{flags.count('off_support')} off the ground points")
+            if "estimate" in flags:
+                warn.append(f"{flags.count('estimate')} unchecked estimates")
+            if len(t.keyframes) == 1:
+                warn.append("one keyframe")
+            speed = self._max_speed(tid)
+            limit = {"pedestrian": 4.0, "bicyclist": 15.0}.get(t.cls, 30.0)
+            if speed > limit:
+                warn.append(f"speed {speed:.0f} m/s")
+            out.append({"id": tid, "cls": t.cls, "keyframes": len(t.keyframes),
+                        "span": None if t.first is None else [t.first, t.last],
+                        "interp": self.project.interpolation(tid), "warnings": warn,
+                        "selected": tid == self.selected})
+        return out
+
+    def _max_speed(self, tid: int) -> float:
+        tab = self.project.track_poses(tid)
+        if len(tab) < 2:
+            return 0.0
+        step = np.diff(tab.frame)
+        ok = step == 1
+        if not ok.any():
+            return 0.0
+        d = np.hypot(*np.diff(tab.xyz[:, :2], axis=0)[ok].T)
+        return float(d.max() * self.project.scene.fps)
+
+    def keyframe_rows(self) -> list[dict]:
+        if self.selected is None or self.selected not in self.project.tracks:
+            return []
+        t = self.project.track(self.selected)
+        return [{"frame": f, "x": k.x, "y": k.y, "heading_deg": math.degrees(k.heading),
+                 "flags": list(k.flags), "current": f == self.frame}
+                for f, k in sorted(t.keyframes.items())]
+
+    def panel(self) -> dict:
+        """Everything the panel shows, as plain data."""
+        with self.lock:
+            here = None
+            if self.selected in self.project.tracks:
+                t = self.project.track(self.selected)
+                src = "keyframe" if self.frame in t.keyframes else None
+                if src is None:
+                    tab = self.project.track_poses(t.id)
+                    hit = np.flatnonzero(tab.frame == self.frame)
+                    src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
+                here = src
+            return {"scene": self.project.scene.name, "frame": self.frame,
+                    "frame_range": list(self.frame_range), "selected": self.selected,
+                    "here": here, "click_mode": self.click_mode,
+                    "click_help": CLICK_MODE_HELP[self.click_mode], "new_class": self.new_class,
+                    "classes": [c.name for c in self.project.scene.classes], "every": self.every,
+                    "tracks": self.track_rows(), "keyframes": self.keyframe_rows(),
+                    "message": self.message, "read_only": self.read_only_reason,
+                    "last_click": self.last_click, "seq": self.project.seq,
+                    "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
+                    "has_run": getattr(self.project, "_run", None) is not None,
+                    "actions": [a.__dict__ for a in ACTIONS]}

@@ -1,0 +1,139 @@
+"""The side panel of the annotation page: an anywidget whose HTML is rendered here from the
+controller's ``panel()`` data. Its JavaScript sends {"action": NAME} for a button or a
+shortcut key, {"heartbeat": 1} every few seconds (the page is alive), and listens to keys on
+the window in the capture phase, so shortcuts work while the Rerun canvas has the focus
+(and arrows step frames through the controller rather than the viewer's own time control).
+"""
+
+from __future__ import annotations
+
+import html
+
+import anywidget
+import traitlets
+
+_ESM = r"""
+function keyName(e) {
+  const k = e.key.length === 1 ? e.key.toLowerCase() : e.key;
+  return (e.ctrlKey || e.metaKey ? 'Ctrl+' : '') + (e.altKey ? 'Alt+' : '') +
+         (e.shiftKey ? 'Shift+' : '') + (e.code && e.code.startsWith('Key') ? e.code.slice(3).toLowerCase() : k);
+}
+function render({ model, el }) {
+  const box = document.createElement('div');
+  box.className = 's2p-panel';
+  el.appendChild(box);
+  const draw = () => { box.innerHTML = model.get('html'); };
+  draw();
+  model.on('change:html', draw);
+  box.addEventListener('click', (e) => {
+    const b = e.target.closest('[data-action]');
+    if (b) { e.preventDefault(); model.send({action: b.dataset.action}); }
+  });
+  box.addEventListener('change', (e) => {
+    const t = e.target;
+    if (t.dataset.prefix) { model.send({action: t.dataset.prefix + t.value}); }
+  });
+  const onkey = (e) => {
+    const t = (e.composedPath && e.composedPath()[0]) || e.target;
+    // typing into a visible form field of the panel is not a shortcut (the viewer's own
+    // hidden text field, which has the focus after a click on the canvas, is)
+    const field = (t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' ||
+                   (t.tagName === 'INPUT' && box.contains(t)));
+    if (field) return;
+    const name = model.get('shortcuts')[keyName(e)];
+    if (!name) return;
+    e.preventDefault(); e.stopImmediatePropagation();
+    model.send({action: name});
+  };
+  window.addEventListener('keydown', onkey, true);
+  const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
+  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat); };
+}
+export default { render };
+"""
+
+_CSS = """
+.s2p-panel { font: 13px/1.35 system-ui, sans-serif; }
+.s2p-panel h4 { margin: 8px 0 4px; font-size: 13px; }
+.s2p-panel table { border-collapse: collapse; width: 100%; }
+.s2p-panel td, .s2p-panel th { padding: 1px 5px; text-align: left; border-bottom: 1px solid #ddd; }
+.s2p-panel tr.sel { background: #fff3b0; }
+.s2p-panel tr[data-action] { cursor: pointer; }
+.s2p-panel button { margin: 1px; padding: 1px 6px; font-size: 12px; }
+.s2p-panel kbd { font-size: 11px; color: #555; border: 1px solid #bbb; border-radius: 3px;
+                 padding: 0 3px; margin-left: 3px; }
+.s2p-panel .msg { padding: 3px 6px; background: #eef; border-radius: 4px; }
+.s2p-panel .ro { padding: 3px 6px; background: #fdd; border-radius: 4px; font-weight: bold; }
+.s2p-panel .warn { color: #b00; }
+"""
+
+
+class Panel(anywidget.AnyWidget):
+    """The panel widget; set ``html`` (see ``render``) and ``shortcuts`` (key -> action)."""
+
+    _esm = _ESM
+    _css = _CSS
+    html = traitlets.Unicode("").tag(sync=True)
+    shortcuts = traitlets.Dict({}).tag(sync=True)
+
+
+def _e(x) -> str:
+    return html.escape(str(x))
+
+
+def _button(a: dict, disabled: bool = False) -> str:
+    return (f'<button data-action="{_e(a["name"])}" title="{_e(a["key"])}"'
+            f'{" disabled" if disabled else ""}>{_e(a["label"])}<kbd>{_e(a["key"])}</kbd></button>')
+
+
+def render(p: dict) -> str:
+    """The panel's HTML from ``Controller.panel()`` data."""
+    out = []
+    if p["read_only"]:
+        out.append(f'<div class="ro" data-testid="read-only">{_e(p["read_only"])}</div>')
+    sel = p["selected"]
+    here = f" — track {sel}: {p['here']}" if sel is not None else " — no track selected"
+    out.append(f'<div data-testid="frame">scene <b>{_e(p["scene"])}</b> · frame '
+               f'<b data-testid="frame-number">{p["frame"]}</b> of {p["frame_range"][0]}..'
+               f'{p["frame_range"][1]}{_e(here)}</div>')
+    out.append(f'<div class="msg" data-testid="message">{_e(p["message"])}</div>')
+    lc = p["last_click"]
+    if lc:
+        out.append(f'<div data-testid="last-click" data-n="{lc["n"]}" data-camera="{_e(lc["camera"])}"'
+                   f' data-uv="{_e(lc["uv"])}">last click #{lc["n"]}: camera {_e(lc["camera"])}, '
+                   f'pixel {_e(lc["uv"])}</div>')
+    out.append(f'<div>click mode <b data-testid="click-mode">{_e(p["click_mode"])}</b>: '
+               f'{_e(p["click_help"])}</div>')
+    opts = "".join(f'<option{" selected" if c == p["new_class"] else ""}>{_e(c)}</option>'
+                   for c in p["classes"])
+    out.append(f'<div>new tracks: <select data-prefix="class:">{opts}</select> · accept every '
+               f'<input type="number" min="1" value="{p["every"]}" data-prefix="every:" '
+               f'style="width:4em"> frames</div>')
+    # track list
+    rows = ["<tr><th>id</th><th>class</th><th>keyframes</th><th>span</th><th>interp.</th>"
+            "<th>warnings</th></tr>"]
+    for t in p["tracks"]:
+        span = "–" if t["span"] is None else f'{t["span"][0]}..{t["span"][1]}'
+        rows.append(f'<tr data-action="select:{t["id"]}" data-track="{t["id"]}"'
+                    f'{" class=sel" if t["selected"] else ""}><td>{t["id"]}</td><td>{_e(t["cls"])}'
+                    f'</td><td>{t["keyframes"]}</td><td>{span}</td><td>{_e(t["interp"])}</td>'
+                    f'<td class="warn">{_e("; ".join(t["warnings"]))}</td></tr>')
+    out.append(f'<h4>tracks</h4><table data-testid="tracks">{"".join(rows)}</table>')
+    if sel is not None:
+        rows = ["<tr><th>frame</th><th>x (m)</th><th>y (m)</th><th>heading (°)</th><th>flags</th></tr>"]
+        for k in p["keyframes"]:
+            rows.append(f'<tr data-action="goto:{k["frame"]}" data-frame="{k["frame"]}"'
+                        f'{" class=sel" if k["current"] else ""}><td>{k["frame"]}</td>'
+                        f'<td>{k["x"]:.2f}</td><td>{k["y"]:.2f}</td><td>{k["heading_deg"]:.1f}</td>'
+                        f'<td>{_e(", ".join(k["flags"]))}</td></tr>')
+        out.append(f'<h4>keyframes of track {sel}</h4><table data-testid="keyframes">'
+                   f'{"".join(rows)}</table>')
+    groups: dict[str, list[str]] = {}
+    ro = bool(p["read_only"])
+    for a in p["actions"]:
+        edit = a["group"] not in ("time",) and a["name"] not in ("next_track", "prev_track",
+                                                                 "click_mode")
+        groups.setdefault(a["group"], []).append(_button(a, disabled=ro and edit))
+    for g, bs in groups.items():
+        out.append(f'<h4>{_e(g)}</h4><div>{"".join(bs)}</div>')
+    return "".join(out)

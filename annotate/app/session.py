@@ -1,0 +1,132 @@
+"""One page of the annotation app: the controller, the Rerun notebook viewer, the panel, and
+the wiring between them. The marimo app file (notebook.py) only builds a ``Session`` and lays
+out its two widgets.
+
+Viewer -> controller: a click on a camera image (SelectionChangeEvent with a pixel position)
+places a keyframe; the time cursor (TimeUpdateEvent) sets the current frame.
+Panel -> controller: buttons, shortcut keys, heartbeats.
+Controller -> viewer: changed tracks are re-sent (``AnnotationLogger.send_track``), frame
+moves set the viewer's time cursor.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the widget from the web
+
+from annotate.app.controller import SHORTCUTS, Controller  # noqa: E402
+from annotate.app.panel import Panel, render  # noqa: E402
+from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
+                                       camera_of_view, log_scene, new_recording)
+
+ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
+VIEWER_HEIGHT = 760
+
+
+def track_columns(project, tid: int) -> TrackColumns:
+    """A track's poses as the logger's columns (empty when the track is gone)."""
+    import numpy as np
+
+    if tid not in project.tracks:
+        z = np.zeros(0)
+        return TrackColumns(tid, "", z.astype(np.int64), np.zeros((0, 3)), z, np.zeros((0, 3)),
+                            z.astype(object))
+    t = project.track_poses(tid)
+    return TrackColumns(tid, project.track(tid).cls, t.frame, t.xyz, t.heading, t.size, t.source)
+
+
+class Session:
+    """Everything one page needs (see the module docstring)."""
+
+    def __init__(self, scene, run=None, cameras=None, native: bool = False):
+        from rerun.notebook import Viewer
+
+        self.ctl = Controller.open(scene, run=run, cameras=cameras)
+        self.rec = new_recording()
+        self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT, recording=self.rec)
+        target = self.rec
+        if native:
+            import rerun as rr
+
+            other = rr.RecordingStream("s2p-annotate", recording_id=self.rec.get_recording_id())
+            other.spawn()
+            target = Tee(self.rec, other)
+        self.target = target
+        p = self.ctl.project
+        bp, cams, _, self.notes = log_scene(target, p.scene, run, self.ctl.cameras,
+                                            frames=self.ctl.frame_range)
+        for r in ([self.rec] if target is self.rec else target.recs):
+            r.send_blueprint(bp, make_active=True, make_default=True)
+        self.logger = AnnotationLogger(target, p.scene, cams)
+        self.last_send_ms = 0.0
+        for tid in p.tracks:
+            self.logger.send_track(track_columns(p, tid), selected=tid == self.ctl.selected)
+        target.flush()
+        self.timeline = "frame"
+        self.panel = Panel(shortcuts=SHORTCUTS)
+        if self.notes:
+            self.ctl.message = "; ".join(self.notes)
+        self.ctl.on_tracks.append(self._resend)
+        self.ctl.on_frame.append(self._move_cursor)
+        self.viewer.on_event(self._on_viewer_event)
+        self.panel.on_msg(self._on_panel_msg)
+        self.viewer.set_time_ctrl(sequence=self.ctl.frame, timeline="frame")
+        self.refresh_panel()
+
+    # --- controller -> viewer / panel ---------------------------------------------------------------
+    def _resend(self, ids: set[int], selected: int | None) -> None:
+        t0 = time.perf_counter()
+        for tid in sorted(ids):
+            self.logger.send_track(track_columns(self.ctl.project, tid), selected=tid == selected)
+        self.target.flush()
+        self.last_send_ms = (time.perf_counter() - t0) * 1e3
+
+    def _move_cursor(self, frame: int) -> None:
+        self.viewer.set_time_ctrl(sequence=int(frame), timeline="frame")
+
+    def refresh_panel(self) -> None:
+        self.panel.html = render(self.ctl.panel())
+
+    # --- events -----------------------------------------------------------------------------------
+    def _on_panel_msg(self, _widget, content, _buffers) -> None:
+        if not isinstance(content, dict):
+            return
+        if "action" in content:
+            self.ctl.do(str(content["action"]))
+            self.refresh_panel()
+        else:
+            self.ctl.touch()
+
+    def _on_viewer_event(self, e) -> None:
+        kind = getattr(e, "type", "")
+        if kind == "timeline_change":
+            self.timeline = e.timeline
+        if kind in ("time_update", "timeline_change") and self.timeline == "frame":
+            before = self.ctl.frame
+            self.ctl.goto(int(round(e.time)), from_viewer=True)
+            if self.ctl.frame != before:
+                self.refresh_panel()
+        elif kind == "selection_change":
+            items = [it for it in e.items if getattr(it, "type", "") == "entity"]
+            if not items:
+                return  # a click on empty space, or the selection cleared
+            it = items[0]
+            cam = camera_of_view(it.view_name, it.entity_path, self.ctl.cameras)
+            where = "" if cam else (f"{it.view_name} is not a camera view" if it.view_name
+                                    else "not in a view")
+            pos = it.position if cam else None
+            self.ctl.click(cam, pos, where)
+            self.refresh_panel()
+
+
+def session_from_env() -> Session:
+    """The Session that ``s2p annotate`` asked for (its arguments travel in S2P_ANNOTATE_ARGS)."""
+    args = json.loads(os.environ.get(ARGS_ENV) or "{}")
+    if "scene" not in args:
+        raise SystemExit(f"{ARGS_ENV} is not set: start the app with `s2p annotate SCENE`")
+    return Session(Path(args["scene"]), run=args.get("run"), cameras=args.get("cameras"),
+                   native=bool(args.get("native")))
