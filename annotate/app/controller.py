@@ -83,7 +83,7 @@ ACTIONS: list[Action] = [
     Action("occluded", "occluded from here", "o", "span"),
     Action("outside", "outside from here", "x", "span"),
     Action("visible", "visible here", "v", "span"),
-    Action("split", "split here", "Shift+s", "span"),
+    Action("split", "split here", "Shift+x", "span"),
     Action("merge", "merge previous track into this", "m", "span"),
     Action("interpolation", "cycle interpolation", "i", "span"),
     Action("undo", "undo", "Ctrl+z", "history"),
@@ -103,7 +103,7 @@ class _Holder:
 
 
 _HOLDERS: dict[str, _Holder] = {}
-_HOLDERS_LOCK = threading.Lock()
+_HOLDERS_LOCK = threading.RLock()  # open() closes a silent holder while holding it
 
 
 @dataclass
@@ -123,6 +123,7 @@ class Controller:
     message: str = ""
     last_click: dict | None = None
     clicks: int = 0
+    viewer_state: str = "loading"  # loading -> open (recording arrived) -> ready (time cursor seen)
     on_tracks: list[Callable[[set[int], int | None], None]] = field(default_factory=list)
     on_frame: list[Callable[[int], None]] = field(default_factory=list)
     lock: threading.RLock = field(default_factory=threading.RLock)
@@ -436,8 +437,9 @@ class Controller:
         with self.lock:
             self.touch()
             self.clicks += 1
-            self.last_click = {"camera": camera, "uv": None if uv is None else
-                               [round(float(v), 2) for v in uv[:2]], "n": self.clicks}
+            ok = uv is not None and all(v is not None for v in list(uv)[:2])
+            self.last_click = {"camera": camera, "n": self.clicks,
+                               "uv": [round(float(v), 2) for v in list(uv)[:2]] if ok else None}
             try:
                 self.message = self._click(camera, uv, hint_where)
             except S2PError as e:
@@ -586,6 +588,7 @@ class Controller:
                     "tracks": self.track_rows(), "keyframes": self.keyframe_rows(),
                     "message": self.message, "read_only": self.read_only_reason,
                     "last_click": self.last_click, "seq": self.project.seq,
+                    "viewer": self.viewer_state,
                     "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
                     "has_run": getattr(self.project, "_run", None) is not None,
                     "actions": [a.__dict__ for a in ACTIONS]}

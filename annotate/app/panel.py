@@ -96,6 +96,7 @@ def render(p: dict) -> str:
     out.append(f'<div data-testid="frame">scene <b>{_e(p["scene"])}</b> · frame '
                f'<b data-testid="frame-number">{p["frame"]}</b> of {p["frame_range"][0]}..'
                f'{p["frame_range"][1]}{_e(here)}</div>')
+    out.append(f'<div>viewer: <span data-testid="viewer-state">{_e(p["viewer"])}</span></div>')
     out.append(f'<div class="msg" data-testid="message">{_e(p["message"])}</div>')
     lc = p["last_click"]
     if lc:

@@ -103,9 +103,19 @@ class Session:
 
     def _on_viewer_event(self, e) -> None:
         kind = getattr(e, "type", "")
+        if kind == "recording_open" and self.ctl.viewer_state == "loading":
+            self.ctl.viewer_state = "open"
+            self.refresh_panel()
         if kind == "timeline_change":
             self.timeline = e.timeline
         if kind in ("time_update", "timeline_change") and self.timeline == "frame":
+            if self.ctl.viewer_state != "ready":
+                # the viewer's first cursor is its own choice (the newest data): the page's
+                # frame (restored from the last session) wins
+                self.ctl.viewer_state = "ready"
+                self._move_cursor(self.ctl.frame)
+                self.refresh_panel()
+                return
             before = self.ctl.frame
             self.ctl.goto(int(round(e.time)), from_viewer=True)
             if self.ctl.frame != before:
