@@ -12,7 +12,7 @@ from pathlib import Path
 
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import temp_sibling_dir
-from seg2pose.io.poses import write_poses
+from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
 from s2p_review import mcap_records as R
 
@@ -99,13 +99,11 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
         (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
         (tmp / gfile).write_bytes(att[gfile])
-        run_dir = tmp / "out" / run_name
-        run_dir.mkdir(parents=True)
-        if "run.json" in att:
-            (run_dir / "run.json").write_bytes(att["run.json"])
-        write_poses(run_dir / "poses.csv", table)
-        if meta.get("has_views") == "true" or rec.views:
-            (run_dir / "views.csv").write_text(R.views_csv(R.views_table(rec.views)), encoding="utf-8")
+        run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+        if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
+            run_meta["scene"] = "../.."
+        views = R.views_table(rec.views) if meta.get("has_views") == "true" or rec.views else None
+        write_run_folder(tmp / "out" / run_name, table, views, run_meta)
         _move_into(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

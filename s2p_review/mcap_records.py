@@ -15,7 +15,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.io.poses import PoseTable
-from s2p_review.runs import VIEW_COLUMNS, Views
+from seg2pose.io.run import VIEW_COLUMNS, ViewTable
 
 POSES_TOPIC = "/s2p/poses"
 VIEWS_TOPIC = "/s2p/views"
@@ -81,33 +81,22 @@ def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
                      size)
 
 
-def view_messages(v: Views) -> Iterator[tuple[int, dict]]:
+def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:
     """(frame, /s2p/views message) per frame; each row carries its row number in the table so
     the import restores the file's order."""
     for idx in split_by_frame(v.frame):
         f = int(v.frame[idx[0]])
         rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
-                 *[num(x) for x in (*v.uv[i], *v.xn[i], *v.dxy[i])]] for i in idx]
+                 *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i])]] for i in idx]
         yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS, "rows": rows}
 
 
-def views_table(messages: list[dict]) -> Views:
-    """The Views of /s2p/views messages, in the original row order (inverse of ``view_messages``)."""
+def views_table(messages: list[dict]) -> ViewTable:
+    """The ViewTable of /s2p/views messages, in the original row order (inverse of
+    ``view_messages``)."""
     rows = sorted((r for m in messages for r in m["rows"]), key=lambda r: r[0])
     if not rows:
-        z = np.zeros(0)
-        return Views(z.astype(np.int64), z.astype(np.int64), z.astype(object), z.astype(object),
-                     np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
+        return ViewTable.empty()
     nums = np.array([[unnum(x) for x in r[5:12]] for r in rows], float)
-    return Views(np.array([r[1] for r in rows], np.int64), np.array([r[2] for r in rows], np.int64),
-                 np.array([r[3] for r in rows], dtype=object), np.array([r[4] for r in rows], dtype=object),
-                 nums[:, 0:2], nums[:, 2:5], nums[:, 5:7])
-
-
-def views_csv(v: Views) -> str:
-    """views.csv text of a Views table (floats as exact reprs)."""
-    lines = [",".join(VIEW_COLUMNS)]
-    for i in range(len(v)):
-        lines.append(",".join([str(int(v.frame[i])), str(int(v.track_id[i])), str(v.camera[i]),
-                               str(v.cls[i])] + [repr(float(x)) for x in (*v.uv[i], *v.xn[i], *v.dxy[i])]))
-    return "\n".join(lines) + "\n"
+    return ViewTable([r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
+                     [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7])

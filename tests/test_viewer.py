@@ -141,7 +141,7 @@ def test_camera_view_shows_video_and_projected_boxes(viewer, data):
         assert hit.mean() > 0.6, f"{est.cls[i]}: {hit.mean():.2f} of its edge pixels in its colour"
     # video colour wherever nothing is drawn (and the points of the views are left out too)
     v = runs[1]
-    from s2p_review.runs import read_views
+    from seg2pose.io.run import read_views
 
     vv = read_views(v / "views.csv")
     for uv in vv.uv[(vv.frame == FRAME) & (vv.camera == "c0")]:
