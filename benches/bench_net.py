@@ -95,7 +95,8 @@ def bench_crops(n: int = 256, runs: bool = True) -> float:
 
 def scene_crops(scene_dir: str | None, per_class: int, seed: int = 0):
     """Real crops of a synthetic scene: up to ``per_class`` test-split masks per class drawn
-    from all cameras -> (crops (N, 420, 420) uint8, class names (N,)). Without a scene folder
+    from all cameras -> (crops (N, 420, 420) uint8, class names (N,), the scene folder, each
+    class's share of all the split's masks). Without a scene folder
     a small scene (3 x 120 frames) is generated in a temporary folder."""
     import tempfile
     from pathlib import Path
@@ -120,13 +121,16 @@ def scene_crops(scene_dir: str | None, per_class: int, seed: int = 0):
                 names.append(by_id.get(int(c), ""))
                 hw.append((t.height, t.width))
     names = np.array(names, object)
+    share = {c: float(np.mean(names == c)) for c in sorted(set(names) - {""})}
+    print("class shares of the scene's test-split masks: "
+          + ", ".join(f"{c} {v:.0%}" for c, v in share.items()))
     rng = np.random.default_rng(seed)
     pick = np.concatenate([rng.permutation(np.flatnonzero(names == c))[:per_class]
                            for c in sorted(set(names) - {""})])
     crops = np.concatenate([crop_runs([rles[i]], *hw[i], mask_centers([rles[i]], *hw[i],
                                                                       DEFAULT_CENTER_METHOD))
                             for i in pick])
-    return crops, names[pick], scene_dir
+    return crops, names[pick], scene_dir, share
 
 
 def _random_net(arch: str, seed: int = 0):
@@ -143,9 +147,12 @@ def _random_net(arch: str, seed: int = 0):
 
 
 def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
-                 train_batch: int, reps: int = 2) -> None:
+                 train_batch: int, reps: int = 2, share: dict | None = None,
+                 clock=time.perf_counter) -> None:
     """Dense vs exact sparse inference (and training) on the same real crops: crops/s per
-    class, the speed-up, max |dense - sparse|, and the distribution of window sizes."""
+    class, the speed-up, max |dense - sparse|, and the distribution of window sizes.
+    ``clock``: time.perf_counter (wall) or time.process_time (this process's CPU seconds:
+    steadier on a shared machine with one torch thread)."""
     from seg2pose.net import center_cut, downsample_crops
     from seg2pose.sparse import crop_boxes, sparse_of, window_sizes
 
@@ -162,6 +169,7 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
     print(f"{'class':<11} {'n':>4} {'median window':>14} {'dense crops/s':>14} {'sparse crops/s':>15} "
           f"{'speed-up':>9} {'max |diff|':>11}")
     rows = [(c, names == c) for c in sorted(set(names))] + [("all", np.ones(len(x), bool))]
+    per_crop = {}
     for cls, sel in rows:
         xs, vs = torch.from_numpy(x[sel])[:, None], torch.from_numpy(vec[sel])
         order = np.argsort(frac[sel], kind="stable")   # as predict_inputs sorts them
@@ -169,17 +177,23 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
         td, ts = [], []   # best of ``reps`` passes, dense and sparse interleaved (shared CPU)
         with torch.no_grad():
             for _ in range(reps):
-                t0 = time.perf_counter()
+                t0 = clock()
                 d = torch.cat([net(xs[s:s + batch], vs[s:s + batch]) for s in range(0, len(xs), batch)])
-                t1 = time.perf_counter()
+                t1 = clock()
                 q_ = torch.cat([sp(xs[s:s + batch], vs[s:s + batch]) for s in range(0, len(xs), batch)])
-                t2 = time.perf_counter()
+                t2 = clock()
                 td.append(t1 - t0)
                 ts.append(t2 - t1)
         mh = np.median(hw[sel], axis=0).astype(int)
         print(f"{cls:<11} {int(sel.sum()):>4} {f'{mh[0]}x{mh[1]}':>14} {len(xs) / min(td):>14.1f} "
               f"{len(xs) / min(ts):>15.1f} {min(td) / min(ts):>8.1f}x "
               f"{(d - q_).abs().max().item():>11.2e}", flush=True)
+        per_crop[cls] = (min(td) / len(xs), min(ts) / len(xs))
+    if share:   # seconds per crop weighted by how often each class occurs in the scene
+        td = sum(w * per_crop[c][0] for c, w in share.items() if c in per_crop)
+        ts = sum(w * per_crop[c][1] for c, w in share.items() if c in per_crop)
+        print(f"{'scene mix':<11} {'':>4} {'':>14} {1 / td:>14.1f} {1 / ts:>15.1f} {td / ts:>8.1f}x"
+              "   (per-class times weighted by the scene's class shares)")
     # training: forward + backward + Adam step, dense vs sparse, on the same batches
     xs, vs = torch.from_numpy(x)[:, None], torch.from_numpy(vec)
     y = torch.randn(len(xs), 2)
@@ -189,7 +203,7 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
         tnet.train()
         fwd = tnet if mode == "dense" else sparse_of(tnet)
         opt = torch.optim.Adam(tnet.parameters(), lr=1e-4)
-        t0 = time.perf_counter()
+        t0 = clock()
         for k, s in enumerate(range(0, len(xs), train_batch)):
             loss = ((fwd(xs[s:s + train_batch], vs[s:s + train_batch]) - y[s:s + train_batch]) ** 2).mean()
             opt.zero_grad(set_to_none=True)
@@ -197,7 +211,7 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
             if k == 0:
                 grads[mode] = torch.cat([p.grad.flatten() for p in tnet.parameters()])
             opt.step()
-        times[mode] = time.perf_counter() - t0
+        times[mode] = clock() - t0
     gdiff = ((grads["dense"] - grads["sparse"]).abs().max() / grads["dense"].abs().max()).item()
     print(f"training (batch {train_batch}, forward + backward + Adam, random batches of these crops): "
           f"dense {len(xs) / times['dense']:.1f} crops/s, sparse {len(xs) / times['sparse']:.1f} "
@@ -221,16 +235,20 @@ def main() -> None:
                     "small one in a temporary folder)")
     ap.add_argument("--per-class", type=int, default=24, help="crops per class for --sparse")
     ap.add_argument("--reps", type=int, default=2, help="--sparse: best of this many passes")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                    help="--sparse: wall-clock seconds, or this process's CPU seconds (steadier "
+                         "on a shared machine; use with --threads 1)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.sparse:
-        crops, names, where = scene_crops(args.scene, args.per_class)
+        crops, names, where, share = scene_crops(args.scene, args.per_class)
         print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}, crops from {where} "
-              f"(test split, all cameras)")
+              f"(test split, all cameras); crops per {args.clock} second")
+        clock = time.process_time if args.clock == "cpu" else time.perf_counter
         for arch in args.arch.split(","):
             small = arch != "paper"
             bench_sparse(crops, names, arch, args.batch or (64 if small else 8), 16 if small else 8,
-                         args.reps)
+                         args.reps, share, clock)
         return
     devices = [torch.device("cpu")]
     if torch.cuda.is_available() and args.device != "cpu":

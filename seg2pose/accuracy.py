@@ -68,13 +68,18 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
     scene = Path(root) / f"{preset}-seed{seed}"
     res = SeedResult(seed)
 
-    def step(argv: list[str], what: str) -> float:
-        log(f"$ s2p {' '.join(argv)}")
+    def step(argv: list, what: str) -> float:
+        """Run ``s2p ARGV``; its output goes to ROOT/logs/seed<N>-<what>.log."""
+        argv = [str(a) for a in argv]
+        logs = Path(root) / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        out = logs / f"seed{seed}-{what}.log"
+        log(f"$ s2p {' '.join(argv)}    (output: {out})")
         t = time.perf_counter()
-        r = subprocess.run(s2p_command(*argv), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                           text=True)
+        with open(out, "w") as f:
+            r = subprocess.run(s2p_command(*argv), stdout=f, stderr=subprocess.STDOUT, text=True)
         if r.returncode:
-            raise S2PError(f"{what} failed for seed {seed}:\n{r.stdout[-2000:]}")
+            raise S2PError(f"{what} failed for seed {seed}; its output: {out}")
         return time.perf_counter() - t
 
     if not (scene / "scene.json").exists():
@@ -86,11 +91,11 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
         meta = models / "bench.json"
         if not meta.exists():
             secs = step(["train", scene, *VARIANTS[v], *train_args, "--threads", threads,
-                         "-o", models], "train")
+                         "-o", models], f"train-{v}")
             meta.write_text(json.dumps({"train_s": secs, "options": [*VARIANTS[v], *train_args]}))
         res.train_s[v] = json.loads(meta.read_text())["train_s"]
         if not (table / "results.json").exists():
-            step(["paper-table", scene, "--models", models, "-o", table, "--force"], "paper-table")
+            step(["paper-table", scene, "--models", models, "-o", table, "--force"], f"paper-table-{v}")
         read_table(table / "results.json", v, res)
     return res
 

@@ -195,7 +195,7 @@ class SparseSeg2PoseNet(nn.Module):
     similar masks share one batch; ``dense_frac``: a window covering this fraction of its map
     is widened to the whole map and the rest of the trunk runs densely."""
 
-    def __init__(self, net: Seg2PoseNet, bucket: int = 16, dense_frac: float = 0.6):
+    def __init__(self, net: Seg2PoseNet, bucket: int = 8, dense_frac: float = 0.6):
         super().__init__()
         self.net = net
         self.steps = trunk_steps(net)
@@ -270,7 +270,7 @@ class SparseSeg2PoseNet(nn.Module):
         return net.cfg.out_scale * torch.tanh(net.out(net.dense(x)).float())
 
 
-def group_by_window(crops: np.ndarray, bucket: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def group_by_window(crops: np.ndarray, bucket: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Order (N,) that sorts crops (N, S, S) by input window (h, w), and the windows (N, 2), so
     consecutive batches hold similar windows (``SparseSeg2PoseNet.trunk`` groups within one
     batch; this groups across the batches)."""

@@ -57,3 +57,31 @@ def test_finished_steps_are_skipped(tmp_path, monkeypatch):
     monkeypatch.setattr(accuracy.subprocess, "run", lambda *a, **k: pytest.fail("ran a step"))
     r = accuracy.run_seed(tmp_path, 7, variants=("s2pn",), log=lambda s: None)
     assert r.train_s == {"s2pn": 600.0} and r.errors["mono-1"] == {"baseline": 0.3, "s2pn": 0.15}
+
+
+def test_steps_are_the_user_commands(tmp_path, monkeypatch):
+    """A fresh seed runs synth, heights, train and paper-table as `s2p` commands, in order."""
+    ran = []
+
+    def fake_run(argv, **kw):
+        args = argv[3:]
+        ran.append(args[0])
+        if args[0] == "synth":
+            (tmp_path / "bench-seed3").mkdir()
+            (tmp_path / "bench-seed3" / "scene.json").write_text("{}")
+        if args[0] == "train":
+            (tmp_path / "bench-seed3" / "models-zero").mkdir()
+            assert args[-4:] == ["--threads", "1", "-o", str(tmp_path / "bench-seed3" / "models-zero")]
+            assert "--zero-annotation" in args and "--epochs=3" in args
+        if args[0] == "paper-table":
+            write_table(tmp_path / "bench-seed3" / "table-zero", {"tri-I": 0.2}, {"tri-I": 0.1})
+        return accuracy.subprocess.CompletedProcess(argv, 0, "", "")
+
+    monkeypatch.setattr(accuracy.subprocess, "run", fake_run)
+    log = []
+    r = accuracy.run_seed(tmp_path, 3, variants=("zero",), threads=1, train_args=("--epochs=3",),
+                          log=log.append)
+    assert ran == ["synth", "heights", "train", "paper-table"]
+    assert log[0].startswith("$ s2p synth ") and "--seed 3" in log[0]
+    assert (tmp_path / "logs" / "seed3-train-zero.log").exists()
+    assert r.errors["tri-I"] == {"baseline": 0.2, "zero": 0.1}
