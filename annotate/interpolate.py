@@ -87,8 +87,9 @@ def interpolate(kf: np.ndarray, xy: np.ndarray, heading: np.ndarray, q: np.ndarr
         return pos, shortest_arc(kf, heading, q)
     if method == "pchip":
         pos = PchipInterpolator(kf, xy, axis=0)(q)
-        exact = np.isin(q, kf)  # PCHIP is exact at nodes up to rounding; make it bit-exact
-        pos[exact] = xy[np.searchsorted(kf, q[exact])]
+        k = np.clip(np.searchsorted(kf, q), 0, len(kf) - 1)
+        exact = kf[k] == q  # PCHIP is exact at nodes up to rounding; make it bit-exact
+        pos[exact] = xy[k[exact]]
         return pos, shortest_arc(kf, heading, q)
     return hermite(kf, xy, heading, q)
 
@@ -143,17 +144,18 @@ def hermite(kf: np.ndarray, xy: np.ndarray, heading: np.ndarray, q: np.ndarray
     d00, d10, d01, d11 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, -6 * t2 + 6 * t, 3 * t2 - 2 * t
     vel = d00[:, None] * p0 + d10[:, None] * m0[i] + d01[:, None] * p1 + d11[:, None] * m1[i]
     along = np.arctan2(vel[:, 1], vel[:, 0]) + np.where(direction[i] < 0, np.pi, 0.0)
-    arc = shortest_arc(kf, heading, q)
     length = np.linalg.norm(xy[1:] - xy[:-1], axis=1)
     # the tangent says nothing where the road user stands (still chord) or where the curve's
-    # speed is tiny (a zero-speed end); the direction follows the arc there
+    # speed vanishes; a reversal inside the interval: the tangent cannot tell forwards from
+    # backwards. The direction follows the shortest arc there.
     slow = np.linalg.norm(vel, axis=1) < 1e-9 * np.maximum(length[i], STILL)
-    # a reversal inside the interval: the tangent cannot tell forwards from backwards
     use_arc = (length[i] < STILL) | slow | (direction[i] == 0)
-    hd = np.where(use_arc, arc, wrap_angle(along))
+    hd = wrap_angle(along)
+    if use_arc.any():
+        hd[use_arc] = shortest_arc(kf, heading, q[use_arc])
     # exact at keyframes
-    exact = np.isin(q, kf)
-    k = np.searchsorted(kf, q[exact])
+    exact = (t == 0) | (t == 1)
+    k = i[exact] + (t[exact] == 1)
     pos[exact] = xy[k]
     hd[exact] = wrap_angle(heading[k])
     return pos, hd
