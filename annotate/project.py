@@ -347,6 +347,13 @@ class Project(EditsMixin, PlacementMixin):
         J.fsync_dir(self.folder)
         return path
 
+    def journal_files(self) -> list[Path]:
+        """The files that hold this project's history (snapshot and journal segments), for
+        archiving it (e.g. as an MCAP attachment); copied into another copy of the scene's
+        ``annotations/`` they reopen as the same project."""
+        segs, snaps = J.list_files(self.folder)
+        return [p for _, p in sorted(snaps.items())] + [p for _, p in sorted(segs.items())]
+
     def refresh(self) -> Change:
         """Read-only projects: pick up what the writer has journalled since (reloads)."""
         old = {t: tr.to_dict() for t, tr in self._s.tracks.items()}

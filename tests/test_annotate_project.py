@@ -215,3 +215,27 @@ def test_change_notification_names_the_changed_track(project):
     unsubscribe()
     project.redo()
     assert len(seen) == 4
+
+
+def test_import_poses_from_truth_every_n_frames(scene, tmp_path):
+    gt = read_poses(scene.gt_path)
+    with Project.open(scene) as p:
+        ch = p.import_poses(gt, every=10)
+        assert ch.created == {4, 7, 12}
+        assert p.track(12).frames == [0, 10, 20, 29] and p.track(12).size == (4.5, 1.8, 1.5)
+        assert p.track(12).keyframes[10].flags == ("imported",)
+        # straight constant-speed truth: every interpolant reproduces it between keyframes
+        est = p.poses()
+        np.testing.assert_allclose(est.xyz, gt.xyz, atol=1e-9)
+        assert p.import_poses(gt, every=15, keep_ids=False).created == {13, 14, 15}
+        with pytest.raises(EditError, match=r"track ids \[4, 7, 12\] are taken"):
+            p.import_poses(gt)
+        files = p.journal_files()
+        assert [f.name for f in files] == ["journal-000000.jsonl"]
+    # T-Analyst tracks have no heading: it follows the motion
+    nan = gt.take(gt.track_id == 4)
+    nan.heading[:] = np.nan
+    with Project.open(scene) as p:
+        p.delete_track(4)
+        p.import_poses(nan, every=10)
+        assert p.track(4).keyframes[10].heading == pytest.approx(-math.pi / 2)
