@@ -23,6 +23,7 @@ from typing import Callable, Mapping
 
 from annotate import journal as J
 from annotate.edits import EditsMixin
+from annotate.estimates import scene_frames
 from annotate.place import PlacementMixin
 from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
@@ -238,23 +239,22 @@ class Project(EditsMixin, PlacementMixin):
 
     def undo(self) -> Change | None:
         """Take back the last edit (None when there is nothing to undo)."""
-        if not self._s.undo:
-            return None
-        e = self._s.undo[-1]
-        before = set(self._s.tracks)
-        seq, _ = self._apply_durably({"kind": "undo", "of": e.seq}, e.inverse)
-        self._s.redo.append(self._s.undo.pop())
-        return self._changed("undo", e.name, seq, op_tracks(e.ops), before)
+        return self._step("undo")
 
     def redo(self) -> Change | None:
         """Do again the last undone edit (None when there is nothing to redo)."""
-        if not self._s.redo:
+        return self._step("redo")
+
+    def _step(self, kind: str) -> Change | None:
+        src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
+        if not src:
             return None
-        e = self._s.redo[-1]
+        e = src[-1]
         before = set(self._s.tracks)
-        seq, _ = self._apply_durably({"kind": "redo", "of": e.seq}, e.ops)
-        self._s.undo.append(self._s.redo.pop())
-        return self._changed("redo", e.name, seq, op_tracks(e.ops), before)
+        seq, _ = self._apply_durably({"kind": kind, "of": e.seq},
+                                     e.inverse if kind == "undo" else e.ops)
+        dst.append(src.pop())
+        return self._changed(kind, e.name, seq, op_tracks(e.ops), before)
 
     def _changed(self, kind: str, name: str, seq: int, tracks: set[int], before: set[int]
                  ) -> Change:
@@ -410,37 +410,6 @@ def _state_from_snapshot(d: dict, path: Path, fingerprint: str) -> _State:
                       int(d["seq"]))
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise J.JournalError(f"{path}: not a valid snapshot ({e})") from None
-
-
-def scene_frames(scene: Scene) -> tuple[int, int] | None:
-    """(first, last) frame of a scene: its splits' extent, else the last frame of its masks
-    files (read from their ends), else None (unknown: only frame >= 0 is checked)."""
-    if scene.splits:
-        return 0, max(b for _, b in scene.splits.values())
-    if isinstance(scene.extra.get("frames"), int):
-        return 0, int(scene.extra["frames"]) - 1
-    last = -1
-    for cam in scene.cameras:
-        last = max(last, _last_mask_frame(scene.masks_path(cam)))
-    return (0, last) if last >= 0 else None
-
-
-def _last_mask_frame(path: Path) -> int:
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, 2)
-            f.seek(max(f.tell() - 65536, 0))
-            lines = f.read().splitlines()
-    except OSError:
-        return -1
-    for line in reversed(lines):
-        parts = line.split()
-        if parts and not parts[0].startswith(b"#"):
-            try:
-                return int(parts[0])
-            except ValueError:
-                return -1
-    return -1
 
 
 __all__ = ["Project", "Change", "S2PError", "UNDO_LIMIT"]
