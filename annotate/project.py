@@ -110,8 +110,12 @@ class Project(EditsMixin, PlacementMixin):
             scene = load_scene(scene)
         p = cls(scene, read_only, frames, run, snapshot_every)
         if not read_only:
-            p.folder.mkdir(exist_ok=True)
-            p._lock = J.Lock(p.folder, scene.name)
+            try:
+                p.folder.mkdir(exist_ok=True)
+                p._lock = J.Lock(p.folder, scene.name)
+            except OSError as e:
+                raise J.JournalError(f"{p.folder}: cannot write annotations here ({e.strerror}); "
+                                     "open the project read-only to look at it") from None
             if p._lock.note:
                 p.notes.append(p._lock.note)
         try:
