@@ -56,7 +56,7 @@ class Change:
         return next(iter(pick)) if len(pick) == 1 else None
 
 
-@dataclass
+@dataclass(slots=True)
 class _Entry:
     seq: int
     name: str
@@ -305,16 +305,21 @@ class Project(EditsMixin, PlacementMixin):
         if kind == "header":
             J.check_header(rec, path, self.fingerprint)
             return
-        seq = int(rec["seq"])
-        if seq <= self._s.seq:
+        s = self._s
+        seq = rec["seq"]
+        if seq <= s.seq:
             return  # already in the snapshot
-        if seq != self._s.seq + 1:
-            raise ValueError(f"record {seq} follows record {self._s.seq}: records are missing")
-        self._s.seq = seq
+        if seq != s.seq + 1:
+            raise ValueError(f"record {seq} follows record {s.seq}: records are missing")
+        s.seq = seq
         if kind == "edit":
-            inverse = apply_ops(self._s.tracks, rec["ops"])
-            _push(self._s.undo, _Entry(seq, rec["name"], rec["ops"], inverse))
-            self._s.redo.clear()
+            ops = rec["ops"]
+            inverse = apply_ops(s.tracks, ops)
+            s.undo.append(_Entry(seq, rec["name"], ops, inverse))
+            if len(s.undo) > UNDO_LIMIT:
+                del s.undo[: len(s.undo) - UNDO_LIMIT]
+            if s.redo:
+                s.redo.clear()
         elif kind in ("undo", "redo"):
             src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
             if not src or src[-1].seq != rec["of"]:
@@ -365,7 +370,12 @@ class Project(EditsMixin, PlacementMixin):
         self._cache.clear()
         self._stale.clear()
         self.notes = []
-        self._load()
+        try:
+            self._load()
+        except J.JournalError:
+            # the writer may have compacted the journal while we listed it: look again once
+            self._s, self.notes = _State(), []
+            self._load()
         new = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
         changed = {t for t in old.keys() | new.keys() if old.get(t) != new.get(t)}
         ch = Change("refresh", "refresh", self._s.seq, frozenset(changed),
