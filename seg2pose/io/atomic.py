@@ -38,6 +38,17 @@ def temp_sibling_dir(path: str | Path) -> Path:
     return tmp
 
 
+def fsync_dir(path: str | Path) -> None:
+    """Make the creation, rename or removal of a file in folder ``path`` durable (best effort:
+    some file systems cannot fsync a folder)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse to overwrite an existing file or folder unless ``force``."""
     path = Path(path)
