@@ -4,13 +4,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo test test-all bench venv viewer-deps clean
+.PHONY: demo test test-all bench venv viewer-deps browser-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# torch first, pinned, so pip takes the CPU build on disk instead of a multi-GB CUDA build
 	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
-	$(BIN)/pip install -q --disable-pip-version-check -e '.[test]'
+	$(BIN)/pip install -q --disable-pip-version-check -e '.[test,app]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -22,13 +22,21 @@ viewer-deps:
 	  else echo "warning: not root, cannot install mesa-vulkan-drivers; viewer tests will be skipped"; fi; \
 	fi
 
+# The annotation app's browser tests drive Debian's chromium (Playwright's own browser download
+# needs the internet); without it they are skipped with the reason.
+browser-deps:
+	@if [ ! -x /usr/bin/chromium ]; then \
+	  if [ "$$(id -u)" = 0 ]; then (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || echo "warning: could not install chromium; browser tests will be skipped"; \
+	  else echo "warning: not root, cannot install chromium; browser tests will be skipped"; fi; \
+	fi
+
 demo: $(STAMP)
 	$(BIN)/s2p demo
 
-test: $(STAMP) viewer-deps
+test: $(STAMP) viewer-deps browser-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
-test-all: $(STAMP) viewer-deps
+test-all: $(STAMP) viewer-deps browser-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m ''
 
 bench: $(STAMP)

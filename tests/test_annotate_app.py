@@ -5,6 +5,8 @@ re-sends only the changed track."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -112,6 +114,8 @@ def test_actions_move_frames_nudge_rotate_undo_redo(ctl):
     ctl.do("next_frame")
     assert ctl.frame == 1
     assert ctl.panel()["here"] == "interpolated"
+    msg = ctl.do("next_suggestion")  # against the masks' normal positions (no run)
+    assert msg.startswith("track ") or msg.startswith("no suggestions")
 
 
 def test_spans_split_merge_and_interpolation(ctl):
@@ -243,3 +247,53 @@ def test_logger_sends_one_track_and_empties_frames_it_left(ctl):
     log.send_track(track_columns(ctl.project, tid))
     assert all(n == 3 for _, n in sent)  # frames 0..2: frames 1, 2 emptied
     assert log.sent[tid] == (0, 0)
+
+
+def test_run_of_another_scene_is_refused(scene_dir, tmp_path):
+    from annotate.app.serve import check_scene
+    from seg2pose.errors import S2PError
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text('{"scene_fingerprint": "0123456789abcdef"}')
+    (run / "poses.csv").write_text("frame,track_id,class,x,y,z,heading\n0,1,car,0,0,0,0\n")
+    with pytest.raises(S2PError, match="another scene"):
+        check_scene(scene_dir, run, None)
+    with pytest.raises(S2PError, match="unknown cameras"):
+        check_scene(scene_dir, None, ["nope"])
+
+
+def test_s2p_annotate_serves_the_page_and_stops_its_server(scene_dir):
+    """`s2p annotate SCENE --no-browser` prints the URL, serves it, and SIGTERM stops the
+    server it started (its own process group) too."""
+    pytest.importorskip("marimo", reason="marimo is not installed (pip install -e '.[app]')")
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from annotate.app.serve import _port_open, free_port
+
+    port = free_port()
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    proc = subprocess.Popen([sys.executable, "-c", "from seg2pose.cli import main; main()", "annotate", str(scene_dir),
+                             "--no-browser", "--port", str(port)], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
+    try:
+        line = proc.stdout.readline()
+        assert f"http://127.0.0.1:{port}" in line, line
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30) as r:
+            assert r.status == 200
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+        t0 = time.monotonic()
+        while _port_open(port) and time.monotonic() - t0 < 15:
+            time.sleep(0.2)
+        assert not _port_open(port), "the server outlived s2p annotate"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -54,10 +54,10 @@ def page(server):
         try:
             pg = browser.new_page(viewport={"width": 1800, "height": 1000})
             pg.goto(server.url)
-            pg.wait_for_selector("canvas", timeout=120_000)
-            pg.wait_for_selector("[data-testid=frame-number]", timeout=120_000)
+            pg.wait_for_selector("canvas", timeout=300_000)
+            pg.wait_for_selector("[data-testid=frame-number]", timeout=300_000)
             # the viewer has the data and its time cursor (it reported the frame timeline)
-            _wait(lambda: _panel(pg, "viewer-state") == "ready", 120, "the viewer")
+            _wait(lambda: _panel(pg, "viewer-state") == "ready", 300, "the viewer")
             time.sleep(2)
             yield pg
         finally:

@@ -332,7 +332,7 @@ class Controller:
     def _a_next_suggestion(self):
         s = self.suggestions()
         if not s:
-            return "no suggestions: the annotation agrees with the estimates (or no --run)"
+            return "no suggestions: the annotation agrees with the estimates / masks"
         later = [x for x in s if x[1] > self.frame] or s
         tid, f, d = later[0]
         self._select(tid)
@@ -499,36 +499,25 @@ class Controller:
         return None
 
     # --- reading ----------------------------------------------------------------------------------
-    def suggestions(self, threshold: float = 0.5, limit: int = 50) -> list[tuple[int, int, float]]:
-        """(track, frame, distance m) where a track's interpolated pose is more than
-        ``threshold`` metres from the run's estimate of its road user (meta run_track, else
-        the same id), largest first. The engine's own suggestions are used when it has them."""
-        p = self.project
-        if hasattr(p, "suggestions"):
-            try:
-                out = p.suggestions(threshold=threshold)
-                return [(int(a), int(b), float(c)) for a, b, c in out][:limit]
-            except (TypeError, ValueError):
-                pass
-        if getattr(p, "_run", None) is None:
-            return []
-        rows = []
-        for tid, t in p.tracks.items():
-            tab = p.track_poses(tid)
-            tab = tab.take(tab.source == "interpolated")
-            if not len(tab):
-                continue
-            est = p.run.track(int(t.meta.get("run_track", tid)))
-            common, ia, ib = np.intersect1d(tab.frame, est.frame, return_indices=True)
-            if not len(common):
-                continue
-            d = np.hypot(*(tab.xyz[ia, :2] - est.xyz[ib, :2]).T)
-            rows += [(tid, int(f), float(x)) for f, x in zip(common, d) if x > threshold]
-        rows.sort(key=lambda r: -r[2])
-        return rows[:limit]
+    def suggestions(self, threshold: float = 0.5) -> list[tuple[int, int, float]]:
+        """(track, frame, distance m) where a track's interpolation is more than ``threshold``
+        metres from the run's estimates (or, without a run, the masks' normal positions),
+        strongest first (annotate.review.suggest_keyframes)."""
+        from annotate.review import suggest_keyframes
+
+        source = "estimate" if getattr(self.project, "_run", None) is not None else "normal"
+        return [(s.track, s.frame, s.distance)
+                for s in suggest_keyframes(self.project, source=source, threshold=threshold)]
 
     def track_rows(self) -> list[dict]:
-        """The track list: id, class, keyframes, span, interpolation, warnings."""
+        """The track list: id, class, keyframes, span, interpolation, warnings (unchecked
+        estimates, keyframes off the ground points, and annotate.review's gaps and implausible
+        speeds or accelerations)."""
+        from annotate.review import plausibility_report
+
+        issues: dict[int, list[str]] = {}
+        for i in plausibility_report(self.project):
+            issues.setdefault(i.track, []).append(i.message)
         out = []
         for tid, t in sorted(self.project.tracks.items()):
             warn = []
@@ -539,26 +528,12 @@ class Controller:
                 warn.append(f"{flags.count('estimate')} unchecked estimates")
             if len(t.keyframes) == 1:
                 warn.append("one keyframe")
-            speed = self._max_speed(tid)
-            limit = {"pedestrian": 4.0, "bicyclist": 15.0}.get(t.cls, 30.0)
-            if speed > limit:
-                warn.append(f"speed {speed:.0f} m/s")
+            warn += issues.get(tid, [])
             out.append({"id": tid, "cls": t.cls, "keyframes": len(t.keyframes),
                         "span": None if t.first is None else [t.first, t.last],
                         "interp": self.project.interpolation(tid), "warnings": warn,
                         "selected": tid == self.selected})
         return out
-
-    def _max_speed(self, tid: int) -> float:
-        tab = self.project.track_poses(tid)
-        if len(tab) < 2:
-            return 0.0
-        step = np.diff(tab.frame)
-        ok = step == 1
-        if not ok.any():
-            return 0.0
-        d = np.hypot(*np.diff(tab.xyz[:, :2], axis=0)[ok].T)
-        return float(d.max() * self.project.scene.fps)
 
     def keyframe_rows(self) -> list[dict]:
         if self.selected is None or self.selected not in self.project.tracks:

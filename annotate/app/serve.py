@@ -111,3 +111,28 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
             raise S2PError(f"the annotation server did not start within {wait:.0f} s")
         time.sleep(0.2)
     return server
+
+
+def run_app(scene: Path, run: Path | None = None, cameras: list[str] | None = None,
+            port: int | None = None, browser: bool = True, native: bool = False,
+            echo=print) -> None:
+    """``s2p annotate SCENE``: check the input, start the server, print its URL, open the
+    browser, and serve until interrupted (then stop the server and what it started)."""
+    import webbrowser
+
+    check_scene(scene, run, cameras)
+    # the server runs in its own process group (so that stopping it stops all it started):
+    # a SIGTERM to this process must still stop it, like Ctrl-C does
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    import tempfile
+
+    port = port or free_port()
+    log = Path(tempfile.gettempdir()) / f"s2p-annotate-{port}.log"
+    server = start(scene, run, cameras, port=port, native=native, log=log)
+    echo(f"annotation app for {scene} at {server.url}  (Ctrl-C to stop; server log: {log})")
+    if browser:
+        webbrowser.open(server.url)
+    try:
+        server.proc.wait()
+    finally:
+        server.stop()

@@ -42,19 +42,10 @@ def open_app(
     the Rerun viewer with the cameras, the annotation's boxes and the run's estimates, and a
     panel of tracks, keyframes and actions with their keyboard shortcuts. Every edit is
     journalled at once; stop with Ctrl-C."""
-    import webbrowser
+    from annotate.app.serve import run_app
 
-    from annotate.app import serve
-
-    serve.check_scene(scene, run, list(camera) or None)
-    server = serve.start(scene, run, list(camera) or None, port=port, native=native)
-    typer.echo(f"annotation app for {scene} at {server.url}  (Ctrl-C to stop)")
-    if browser:
-        webbrowser.open(server.url)
-    try:
-        server.proc.wait()
-    finally:
-        server.stop()
+    run_app(scene, run, list(camera) or None, port=port, browser=browser, native=native,
+            echo=typer.echo)
 
 
 def register(app: typer.Typer) -> None:
