@@ -25,6 +25,7 @@ import numpy as np
 
 from s2p_review import columns as C
 from s2p_review import layout as L
+from s2p_review.timebase import scene_timebase
 
 SELECTED_COLOR = (255, 215, 0)
 OCCLUDED_SHADE = 0.45
@@ -80,11 +81,7 @@ class AnnotationLogger:
     sent: dict[int, tuple[int, int]] = field(default_factory=dict)
 
     def _times(self, frames: np.ndarray):
-        import rerun as rr
-
-        frames = np.asarray(frames, np.int64)
-        return [rr.TimeColumn(L.TIMELINE, sequence=frames),
-                rr.TimeColumn(L.TIME, duration=frames / float(self.scene.fps))]
+        return scene_timebase(self.scene).rerun_columns(frames)
 
     def _colors(self, t: TrackColumns, selected: bool) -> np.ndarray:
         base = np.array(SELECTED_COLOR if selected else L.class_colors(np.array([t.cls]),
@@ -175,12 +172,13 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
     """Log the scene (cameras, ground, video frames under masks) and the run's estimates for
     comparison, as ``s2p review`` does but without ground truth (annotators must not see it).
     Returns (blueprint, cameras shown, (first, last) frames, notes for the user)."""
-    from s2p_review.recording import RecordOptions, log_all, prepare
+    from s2p_review.recording import LogStyle, log_all
+    from s2p_review.selection import select
 
-    opts = RecordOptions(cameras=cameras, video=video, masks=masks, gt=False)
-    loaded, first, last, cams = prepare(scene, [run] if run is not None else [], frames,
-                                        opts.cameras)
-    log_all(rec, scene, loaded, first, last, cams, opts)
-    bp = L.blueprint(cams, [r.name for r in loaded], with_metrics=False,
+    sel = select(scene, [run] if run is not None else [], frames, cameras, masks=masks,
+                 video=video)
+    stats = log_all(rec, scene, sel, scene_timebase(scene), LogStyle(masks=masks, video=video,
+                                                                     gt=False))
+    bp = L.blueprint(sel.cameras, [r.name for r in sel.runs], with_metrics=False,
                      eye=L.default_eye(scene), fps=scene.fps)
-    return bp, cams, (first, last), opts.notes
+    return bp, sel.cameras, (sel.first, sel.last), list(stats.notes)

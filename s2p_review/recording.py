@@ -289,7 +289,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
         if style.masks:
             mask_rows += log_masks(rec, scene, tb, cam, first, last, sel.cadence.masks)
     gt = None
-    if opts.gt and scene.gt_path.exists():
+    if style.gt and scene.gt_path.exists():
         gt = read_poses(scene.gt_path).in_frames((first, last))
         gsz = C.sizes_of(gt, scene)
         log_boxes(rec, "world/gt", gt, gsz, scene, tb, first, last, color=L.GT_COLOR,

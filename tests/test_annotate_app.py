@@ -297,3 +297,43 @@ def test_s2p_annotate_serves_the_page_and_stops_its_server(scene_dir):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_session_wiring_without_a_browser(scene_dir):
+    """The page's wiring: viewer events and panel messages reach the controller, edits reach
+    the viewer's data stream, the panel's HTML follows."""
+    import shutil
+
+    pytest.importorskip("rerun_notebook", reason="rerun-notebook is not installed (pip install -e '.[app]')")
+    from rerun.notebook import EntitySelectionItem, SelectionChangeEvent, TimeUpdateEvent
+
+    from annotate.app.session import Session
+
+    shutil.rmtree(scene_dir / "annotations", ignore_errors=True)
+    s = Session(scene_dir, cameras=["c1"])
+    try:
+        sent = []
+        s.viewer._viewer.send_rrd = lambda data: sent.append(len(data))
+        ev = dict(application_id="s2p-annotate", recording_id="r", segment_id=None)
+        s._on_viewer_event(TimeUpdateEvent(time=0.0, **ev))   # first cursor: the page's frame wins
+        s._on_viewer_event(TimeUpdateEvent(time=2.0, **ev))   # then the viewer leads
+        assert s.ctl.frame == 2 and 'data-testid="frame-number">2<' in s.panel.html
+        s._on_panel_msg(None, {"action": "new_track"}, [])
+        tid = s.ctl.selected
+        assert f'data-track="{tid}"' in s.panel.html
+        from annotate.place import pixel_to_ground
+
+        scene = s.ctl.project.scene
+        xy = pixel_to_ground(scene.cameras["c1"], scene.ground, (640.0, 420.0))
+        s.ctl.click_mode = "ground"
+        sent.clear()
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/cameras/c1/masks", view_name="camera c1", position=[640.0, 420.0, None])], **ev))
+        k = s.ctl.project.track(tid).keyframes[2]
+        assert np.hypot(k.x - xy[0], k.y - xy[1]) < 1e-6
+        assert sent, "the new keyframe's track was not sent to the viewer"
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/ground/mesh", view_name="world", position=[1.0, 2.0, 0.0])], **ev))
+        assert "click ignored" in s.ctl.message and "world is not a camera view" in s.ctl.message
+    finally:
+        s.ctl.close()

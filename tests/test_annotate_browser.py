@@ -9,6 +9,7 @@ when chromium or Playwright is missing (``make test`` installs them where it can
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from pathlib import Path
@@ -217,6 +218,8 @@ def test_click_places_keyframe_and_shortcuts_edit(page, scene, tmp_path):
     shot = tmp_path / "app.png"
     page.screenshot(path=str(shot))
     assert _yellow_near(shot, *target) > 30
+    if os.environ.get("S2P_APP_SCREENSHOT"):  # README's picture: S2P_APP_SCREENSHOT=docs/annotate_app.png
+        shutil.copy(shot, os.environ["S2P_APP_SCREENSHOT"])
 
     # nudge +x 10 cm (d), undo (Ctrl+z), redo (Ctrl+y): the journal follows each
     x0 = frames[0].x

@@ -23,6 +23,11 @@ def _():
         problem = None
     except S2PError as e:
         session, problem = None, str(e)
+    except Exception as e:  # shown on the page rather than a blank one; the log has the rest
+        import traceback
+
+        traceback.print_exc()
+        session, problem = None, f"{type(e).__name__}: {e} (see the server log)"
     return mo, problem, session
 
 

@@ -7,6 +7,7 @@ internet). ``Server`` starts it in its own process group and stops the whole gro
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import signal
@@ -101,6 +102,7 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
     if out is not None:
         out.close()
     server = Server(proc, port, log)
+    atexit.register(server.stop)  # whatever happens to this process, the server goes with it
     t0 = time.monotonic()
     while not _port_open(port):
         if proc.poll() is not None:
