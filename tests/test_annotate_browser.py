@@ -98,12 +98,12 @@ def _click(page, x: float, y: float, patience: float = 45) -> dict:
         try:
             _wait(lambda: _clicks(page) > n, 6, "the click to reach the app")
         except AssertionError:
+            if _clicks(page) > n:  # it came late
+                break
             if time.monotonic() - t0 > patience:
                 page.screenshot(path="/tmp/s2p-annotate-failed-click.png")
                 raise AssertionError(f"no click event from the viewer within {patience:.0f} s at "
                                      f"({x:.0f}, {y:.0f}); screenshot /tmp/s2p-annotate-failed-click.png")
-            if _clicks(page) > n:  # it came late
-                break
             page.keyboard.press("Escape")  # clear the viewer's selection: the next click is new
             time.sleep(0.5)
             continue

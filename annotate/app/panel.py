@@ -8,6 +8,7 @@ the window in the capture phase, so shortcuts work while the Rerun canvas has th
 from __future__ import annotations
 
 import html
+import json
 
 import anywidget
 import traitlets
@@ -101,7 +102,7 @@ def render(p: dict) -> str:
     lc = p["last_click"]
     if lc:
         out.append(f'<div data-testid="last-click" data-n="{lc["n"]}" data-camera="{_e(lc["camera"])}"'
-                   f' data-uv="{_e(lc["uv"])}">last click #{lc["n"]}: camera {_e(lc["camera"])}, '
+                   f' data-uv="{_e(json.dumps(lc["uv"]))}">last click #{lc["n"]}: camera {_e(lc["camera"])}, '
                    f'pixel {_e(lc["uv"])}</div>')
     out.append(f'<div>click mode <b data-testid="click-mode">{_e(p["click_mode"])}</b>: '
                f'{_e(p["click_help"])}</div>')
