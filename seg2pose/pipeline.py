@@ -30,7 +30,7 @@ import numpy as np
 
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text, check_writable
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
@@ -43,13 +43,12 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
                 ) -> Iterator[tuple[int, dict[str, MaskTable]]]:
     """Stream all cameras' masks in lockstep: (frame, {camera: detections of that frame}),
     frames in increasing order; a camera without detections in a frame is absent."""
-    known = [c.id for c in scene.classes]
     its = {}
     for cam in cameras:
         path = scene.masks_path(cam)
         if not path.exists():
             raise InputError(f"no masks for camera {cam!r}", file=path)
-        its[cam] = iter_mots(path, known, frame_range)
+        its[cam] = scene.iter_masks(cam, frame_range)
     heap: list[tuple[int, int, str, MaskTable]] = []
     for k, (cam, it) in enumerate(its.items()):
         nxt = next(it, None)

@@ -61,7 +61,7 @@ def collect_height_views(scene, split: str | None = "train", center: str | None 
     """Per class name, the bisection input of ``default_height_bisection``: a list of
     (camera, mask centres (N, 2) pixels, true ground positions (N, 2) metres), from the split's
     masks matched to ground truth (paper 4.1 matching)."""
-    from seg2pose.io.mots import MaskTable, iter_mots
+    from seg2pose.io.mots import MaskTable
     from seg2pose.io.poses import read_poses
     from seg2pose.masks import mask_centers
     from seg2pose.matching import match_masks_to_truth
@@ -95,7 +95,7 @@ def collect_height_views(scene, split: str | None = "train", center: str | None 
                 views.setdefault(str(cname), []).append((cam, cen[sel], gt.xyz[g[sel], :2]))
 
         n = 0
-        for _, t in iter_mots(path, names.keys(), fr):
+        for _, t in scene.iter_masks(cam.name, fr):
             pending.append(t)
             n += len(t)
             if n >= chunk:
