@@ -11,13 +11,14 @@ from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.pipeline import _load_models, compute_views, model_dirs, select_views, write_run
+from seg2pose.pipeline import _load_models, compute_views, model_dirs, write_run
 
 def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames."""
     from seg2pose.evaluate import evaluate
     from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import read_run_poses
 
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -26,7 +27,7 @@ def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | No
     run_dir = Path(run_dir)
     check_run_of_scene(run_dir, scene)
     classes = [c.name for c in scene.classes]
-    est = read_poses(run_dir / "poses.csv", known_classes=classes)
+    est = read_run_poses(run_dir, known_classes=classes)
     gt = read_poses(scene.gt_path, known_classes=classes)
     return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
 
@@ -35,7 +36,7 @@ def check_run_of_scene(run_dir: Path, scene: Scene) -> dict:
     """run.json of a finished run of ``scene``: refuses a folder without run.json or
     poses.csv (an interrupted or foreign folder) and a run of another scene (by the scene
     fingerprint: calibration and ground points). Returns run.json's content."""
-    from seg2pose.io.text import load_json
+    from seg2pose.io.run import read_run_meta
 
     meta_path = run_dir / "run.json"
     if not run_dir.is_dir():
@@ -43,9 +44,7 @@ def check_run_of_scene(run_dir: Path, scene: Scene) -> dict:
     if not meta_path.exists():
         raise InputError("not a finished run: run.json is missing (was `s2p run` interrupted?)",
                          file=meta_path)
-    meta = load_json(meta_path)
-    if not isinstance(meta, dict):
-        raise InputError("expected a JSON object", file=meta_path)
+    meta = read_run_meta(run_dir)
     if not (run_dir / "poses.csv").exists():
         raise InputError("not a finished run: poses.csv is missing", file=run_dir / "poses.csv")
     fp = meta.get("scene_fingerprint")
@@ -93,7 +92,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
             name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
             cams = scene.rig.configs[cfg]
-            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
+            write_run(scene, rd, views.of_cameras(cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
                       nframes, force=True)
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)

@@ -176,7 +176,7 @@ def test_masks_of_another_size_than_the_camera(tmp_path):
                                          rf"from the camera's image size {H}x{W}"):
         run_scene(tmp_path / "s", tmp_path / "run", baseline=True, progress=False)
     assert not (tmp_path / "run").exists()
-    from seg2pose.io.cli import collect_height_views
+    from seg2pose.heights import collect_height_views
 
     with pytest.raises(InputError, match="differs from the camera's image size"):
         collect_height_views(load_scene(tmp_path / "s"), split=None)
@@ -276,7 +276,7 @@ def test_eval_refuses_a_half_written_run(scene_and_run, missing):
 
 def test_eval_and_heights_agree_on_classes(scene_and_run):
     """A truth file with a class the scene does not know: `heights` refused it, `eval` did not."""
-    from seg2pose.io.cli import collect_height_views
+    from seg2pose.heights import collect_height_views
     from seg2pose.paper_table import evaluate_run
 
     scene, run = scene_and_run
