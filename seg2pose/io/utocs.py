@@ -31,7 +31,7 @@ import numpy as np
 from seg2pose.camera import Camera, Rig
 from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
 from seg2pose.io.validate import FPS_RANGE, MAX_COORD, number, safe_name
@@ -237,7 +237,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
     if fps is not None:
         fps = number(fps, field="fps", lo=FPS_RANGE[0], hi=FPS_RANGE[1])
     size_scale = number(size_scale, field="size_scale", lo=0, lo_open=True, hi=100)
-    check_writable(out / "scene.json", force)
+    check_writable(out, force)
     (f, cx, cy), ucams = read_cameras_json(src / "cameras.json")
     gp = src / "ground_points.txt"
     if not gp.exists():
@@ -287,18 +287,20 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                                     "world": "CARLA y mirrored: (x, y, z) -> (x, -y, z)",
                                     "frames": n_files, "size_scale": size_scale,
                                     "types": {t: mapping[t] for t in types}}})
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "masks").mkdir(exist_ok=True)
-    write_poses(out / "gt" / "poses.csv", gt)
-    if copy_frames:
-        for name, (kind, p) in frame_sources.items():
-            if kind == "images":
-                for im in sorted(p.iterdir()):
-                    if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
-                        _copy(im, out / "video" / name / im.name)
-            else:
-                _copy(p, out / "video" / f"{name}{p.suffix.lower()}")
-    scene.save(out)  # scene.json last: its presence marks a finished import
+    # built beside OUT and swapped in as a unit: --force replaces the old scene entirely (its
+    # masks, frames and cameras do not survive), and a killed import leaves OUT as it was
+    with replacing(out, force) as tmp:
+        (tmp / "masks").mkdir()
+        write_poses(tmp / "gt" / "poses.csv", gt)
+        if copy_frames:
+            for name, (kind, p) in frame_sources.items():
+                if kind == "images":
+                    for im in sorted(p.iterdir()):
+                        if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                            _copy(im, tmp / "video" / name / im.name)
+                else:
+                    _copy(p, tmp / "video" / f"{name}{p.suffix.lower()}")
+        scene.save(tmp)
     log(f"imported {len(cameras)} cameras, {len(ground)} ground points, {n_files} frames, "
         f"{len(gt)} ground-truth poses of {len(np.unique(gt.track_id))} road users -> {out}")
     if frame_sources:
