@@ -346,3 +346,30 @@ def test_utocs_valid_import_reads_back(tmp_path):
     gt = read_poses(s.gt_path)
     assert s.fps == 20.0 and len(gt) == 6
     assert gt.size[gt.track_id == 7][0].tolist() == [9.0, 3.6, 3.0]
+
+
+# --- checkpoints ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("complete", [False, True])
+def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
+    """Old main used a checkpoint of a training killed at epoch 1 of 6 without a word."""
+    import torch
+
+    from seg2pose.io.run import read_run_meta
+    from seg2pose.net import Checkpoint, NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.pipeline import run_scene
+
+    s = write_scene(tmp_path / "s")
+    torch.manual_seed(0)
+    ck = Checkpoint(Seg2PoseNet(NetConfig.named("lite", 3, 0)), Normalisation(W, H), camera="*",
+                    cls="*", scene_fingerprint=s.fingerprint(), classes=[c.name for c in s.classes],
+                    info={"complete": complete, "epoch": 1, "val_loss": 0.5})
+    ck.save(s.root / "models" / "all__all.safetensors")
+    if not complete:
+        with pytest.raises(InputError, match=r"all__all\.json: field 'complete': its training did "
+                                             r"not finish \(epoch 1, val loss 0\.5\).*--allow-incomplete"):
+            run_scene(s.root, tmp_path / "run", progress=False)
+        assert not (tmp_path / "run").exists()
+    run_scene(s.root, tmp_path / "run", progress=False, allow_incomplete=not complete)
+    used = read_run_meta(tmp_path / "run")["models"]
+    assert used and all(len(m["sha256"]) == 64 for m in used.values())
