@@ -312,7 +312,8 @@ def _remove(p: Path) -> None:
             p.unlink()
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
+    """Make a file's creation, rename or removal in the folder ``path`` durable."""
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
         try:
@@ -324,7 +325,7 @@ def _fsync_dir(path: Path) -> None:
 def swap_in(tmp: Path, path: Path) -> None:
     """Put the finished ``tmp`` (file or folder) at ``path`` as a unit; an existing ``path``
     is exchanged with it in one step where possible, and removed only afterwards."""
-    _fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+    fsync_dir(tmp if tmp.is_dir() else tmp.parent)
     if path.exists() or path.is_symlink():
         if _exchange(tmp, path):
             _remove(tmp)  # now the old output
@@ -336,7 +337,7 @@ def swap_in(tmp: Path, path: Path) -> None:
             _remove(old)
     else:
         os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 @contextlib.contextmanager
