@@ -23,7 +23,7 @@ from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import load_scene, read_ground_points, write_ground_points
 from seg2pose.masks import decode, encode
 
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
+FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 HOSTILE_JSON = [None, True, False, 0, -1, 1.9, 2.0, -5.5, 1e308, -1e308, 10 ** 30, 2 ** 63,
