@@ -180,6 +180,12 @@ def test_masks_of_another_size_than_the_camera(tmp_path):
 
     with pytest.raises(InputError, match="differs from the camera's image size"):
         collect_height_views(load_scene(tmp_path / "s"), split=None)
+    with pytest.raises(InputError, match="differs from the camera's image size"):
+        load_scene(tmp_path / "s").read_masks("c0")  # annotation's normal positions use this
+    from s2p_review.imagery import mask_frames
+
+    with pytest.raises(InputError, match="differs from the camera's image size"):
+        list(mask_frames(load_scene(tmp_path / "s"), "c0", 0, 5))  # review and export
 
 
 def test_coco_duplicate_detection(tmp_path):

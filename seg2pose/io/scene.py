@@ -117,6 +117,17 @@ class Scene:
         return iter_mots(self.masks_path(camera), [c.id for c in self.classes], frame_range,
                          check_rles=check_rles, image_size=(cam.height, cam.width))
 
+    def read_masks(self, camera: str, frame_range: tuple[int, int] | None = None):
+        """A camera's masks as one MaskTable (checked like ``iter_masks``; an empty table of
+        the camera's size when the file has no detections)."""
+        from seg2pose.io.mots import MaskTable
+
+        tables = [t for _, t in self.iter_masks(camera, frame_range)]
+        if not tables:
+            cam = self.cameras[camera]
+            return MaskTable.empty(cam.height, cam.width)
+        return MaskTable.concat(tables)
+
     def video_path(self, camera: str) -> Path | None:
         """The camera's video file or image folder, when present."""
         for cand in (self.root / "video" / f"{camera}.mp4", self.root / "video" / camera,
