@@ -76,3 +76,26 @@ def write_utocs(src: Path, frames: int = 3, cams=None, users=None, images: bool 
             for f in range(frames):
                 cv2.imwrite(str(d / f"{f:06d}.png"), np.full((48, 64), 40 + f, np.uint8))
     return src
+
+
+def write_s2p_mcap(path: Path, scene_d: dict, ground_name: str, poses: list | None = None,
+                   run_name: str = "run") -> Path:
+    """An MCAP file shaped like an `s2p export` (scene.json and ground points attachments, s2p
+    metadata, /s2p/poses messages), with the given contents, for crafted-file tests."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_attachment(create_time=0, log_time=0, name="scene.json", media_type="application/json",
+                         data=json.dumps(scene_d).encode())
+        w.add_attachment(create_time=0, log_time=0, name=ground_name, media_type="text/csv",
+                         data=b"x,y,z\n0,0,0\n1,0,0\n0,1,0\n")
+        w.add_metadata("s2p", {"run": run_name, "poses_with_size": "true"})
+        sid = w.register_schema(name="s2p.PoseFrame", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/s2p/poses", message_encoding="json", schema_id=sid)
+        for i, m in enumerate(poses or []):
+            data = m if isinstance(m, str) else json.dumps(m)  # text: a message as given
+            w.add_message(channel_id=cid, log_time=i, publish_time=i, data=data.encode())
+        w.finish()
+    return path

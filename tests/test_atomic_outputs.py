@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hostile_fixtures import write_scene, write_utocs
+from hostile_fixtures import write_s2p_mcap, write_scene, write_utocs
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import (clean_stale_partials, output_lock, replacing)
 from seg2pose.io.mots import read_mots
@@ -147,27 +147,6 @@ def test_stale_partials_of_dead_processes_are_cleaned(tmp_path, capsys):
 
 # --- crafted MCAP files ---------------------------------------------------------------------------
 
-def _crafted_mcap(path: Path, scene_d: dict, ground_name: str, poses: list | None = None,
-                  run_name: str = "run") -> Path:
-    """An MCAP file shaped like an `s2p export`, with the given scene.json and rows."""
-    from mcap.writer import Writer
-
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start()
-        w.add_attachment(create_time=0, log_time=0, name="scene.json", media_type="application/json",
-                         data=json.dumps(scene_d).encode())
-        w.add_attachment(create_time=0, log_time=0, name=ground_name, media_type="text/csv",
-                         data=b"x,y,z\n0,0,0\n1,0,0\n0,1,0\n")
-        w.add_metadata("s2p", {"run": run_name, "poses_with_size": "true"})
-        sid = w.register_schema(name="s2p.PoseFrame", encoding="jsonschema", data=b"{}")
-        cid = w.register_channel(topic="/s2p/poses", message_encoding="json", schema_id=sid)
-        for i, m in enumerate(poses or []):
-            w.add_message(channel_id=cid, log_time=i, publish_time=i, data=json.dumps(m).encode())
-        w.finish()
-    return path
-
-
 GOOD_ROW = {"frame": 0, "track_id": 1, "class": "car", "x": 1.0, "y": 2.0, "z": 0.0,
             "heading": 0.5, "l": 4.0, "w": 2.0, "h": 1.5}
 
@@ -179,7 +158,7 @@ def test_import_mcap_refuses_paths_outside_the_folder(tmp_path, name):
     from s2p_review.mcap_import import import_mcap
 
     name = name.format(os.getpid())
-    f = _crafted_mcap(tmp_path / "x.mcap", {"version": 1, "ground_points": name}, name, [{"frame": 0, "rows": [GOOD_ROW]}])
+    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1, "ground_points": name}, name, [{"frame": 0, "rows": [GOOD_ROW]}])
     with pytest.raises(InputError, match=r"x\.mcap: field 'scene.json attachment: ground_points': "
                                          r"ground points file .* leads outside"):
         import_mcap(f, tmp_path / "out")
@@ -190,7 +169,7 @@ def test_import_mcap_refuses_paths_outside_the_folder(tmp_path, name):
 def test_import_mcap_refuses_a_crafted_run_name(tmp_path):
     from s2p_review.mcap_import import import_mcap
 
-    f = _crafted_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", [], run_name="../../r")
+    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", [], run_name="../../r")
     with pytest.raises(InputError, match=r"run name '\.\./\.\./r' cannot be used in a file name"):
         import_mcap(f, tmp_path / "out")
 
@@ -205,14 +184,14 @@ def test_import_mcap_refuses_a_crafted_run_name(tmp_path):
 def test_import_mcap_malformed_rows_are_one_error(tmp_path, rows, match):
     from s2p_review.mcap_import import import_mcap
 
-    f = _crafted_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", rows)
+    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", rows)
     with pytest.raises(InputError, match=r"x\.mcap: " + match):
         import_mcap(f, tmp_path / "out")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.mcap"]
 
 
 def test_import_mcap_malformed_rows_one_line_in_the_cli(tmp_path):
-    f = _crafted_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", [{"frame": 0}])
+    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1}, "ground_points.csv", [{"frame": 0}])
     r = s2p("import-mcap", f, "-o", tmp_path / "out")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines() == [f"error: {f}: malformed /s2p/poses message 0 (frame 0): "
