@@ -280,7 +280,12 @@ def test_ctrl_c_is_one_line_and_leaves_nothing(tmp_path):
     p = subprocess.Popen([sys.executable, "-c", "from seg2pose.cli import main; main()", "synth",
                           str(tmp_path / "syn"), "--frames", "400", "--workers", "1", "--quiet"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
-    time.sleep(4.0)
+    deadline = time.monotonic() + 120
+    while p.poll() is None and time.monotonic() < deadline:  # interrupt it while it writes
+        if any(n.startswith(".syn.partial-") for n in os.listdir(tmp_path)):
+            break
+        time.sleep(0.05)
+    time.sleep(0.3)
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=60)
     if p.returncode == 0:
