@@ -4,9 +4,9 @@ The ground surface and the calibration make a mask's size metric. The bottom cen
 mask's bounding box is cast onto the ground: that foot point F is where the road user touches
 the ground nearest the camera. Then
 
-- width  = box width (pixels) * depth of F (metres) / focal length (pixels): the apparent width;
-- height = how far above F the ray through the box's top edge passes, in the vertical plane
-  through F facing the camera.
+- width  = distance between the rays through the box's bottom corners where they cross the
+  vertical plane through F facing the camera (the apparent width);
+- height = how far above F the ray through the box's top edge passes, in that plane.
 
 Each class has a width and a height interval (``scene.json`` ``extra.size_classes``, defaults
 from ``DEFAULT_SIZE_CLASSES``, measured on synthetic truth masks); a mask gets the class whose
@@ -84,15 +84,20 @@ def world_sizes(rles: list[bytes], height: int, width: int, camera: Camera,
     top_px = np.stack([x0 + bw / 2, y0], axis=1)
     o = camera.center
     F, _ = ground.intersect_rays(o, camera.unproject(foot_px), 0.0)
-    depth = (F @ camera.R.T + camera.t)[:, 2]                    # along the optical axis
-    w_m = bw * depth / camera.K[0, 0]
-    # vertical plane through F, facing the camera (normal: horizontal direction camera -> F)
+    # the vertical plane through F facing the camera (normal: horizontal direction camera -> F)
     nrm = np.c_[F[:, :2] - o[:2], np.zeros(n)]
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    d = camera.unproject(top_px)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.einsum("ij,ij->i", nrm, F - o) / np.einsum("ij,ij->i", nrm, d)
-    h_m = o[2] + s * d[:, 2] - F[:, 2]
+
+    def on_plane(px: np.ndarray) -> np.ndarray:
+        d = camera.unproject(px)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.einsum("ij,ij->i", nrm, F - o) / np.einsum("ij,ij->i", nrm, d)
+        return o + s[:, None] * d
+
+    left = on_plane(np.stack([x0, y0 + bh], axis=1))
+    right = on_plane(np.stack([x0 + bw, y0 + bh], axis=1))
+    w_m = np.linalg.norm(right - left, axis=1)
+    h_m = on_plane(top_px)[:, 2] - F[:, 2]
     out = np.stack([w_m, h_m], axis=1)
     out[~np.isfinite(out).all(axis=1)] = np.nan
     return out

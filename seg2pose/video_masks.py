@@ -133,6 +133,8 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray) -> list[bytes]:
         counts[0:-1:2] = s - np.r_[0, e[:-1]]
         counts[1::2] = e - s
         counts[-1] = n - (e[-1] if len(e) else 0)
+        if counts[-1] == 0:  # pycocotools ends on the last non-empty run
+            counts = counts[:-1]
         out.append(mask_util.frPyObjects({"size": [h, w], "counts": counts.tolist()}, h, w)["counts"])
     return out
 
