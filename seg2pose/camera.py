@@ -6,8 +6,8 @@ Conventions (DESIGN.md):
 - Pixels: x right, y down, origin at the top-left *corner* of the top-left pixel, so the centre
   of pixel (row, col) is at (col + 0.5, row + 0.5). K's principal point is in this convention.
 - Distortion acts on normalised image coordinates (x_c / z_c, y_c / z_c) before K. The model is
-  pluggable (``Distortion``): OpenCV's (k1, k2, p1, p2, k3) here; others (e.g. Tsai's, whose
-  radial term is defined on the distorted point) implement the same two methods.
+  pluggable (``Distortion``): OpenCV's (k1, k2, p1, p2, k3) and Tsai's (one radial term defined
+  on the distorted point, as in T-Analyst's ``.tacal`` files) implement the same two methods.
 """
 
 from __future__ import annotations
@@ -102,7 +102,62 @@ class OpenCVDistortion:
         return not any((self.k1, self.k2, self.p1, self.p2, self.k3))
 
 
-DISTORTION_MODELS: dict[str, type] = {"opencv": OpenCVDistortion}
+@dataclass(frozen=True)
+class TsaiDistortion:
+    """Tsai's one-coefficient radial model, as T-Analyst's ``.tacal`` calibrations use it.
+
+    Defined from the *distorted* sensor point: Xu = Xd (1 + k (Xd² + Yd²)), with sensor
+    coordinates in the units of the focal length f (e.g. mm; k in 1/mm²). On normalised
+    coordinates (sensor / f) this is x_u = x_d (1 + κ |x_d|²) with κ = k f², so undistortion is
+    closed form and distortion solves the cubic by Newton's method. k > 0 is barrel (image
+    points pulled towards the centre)."""
+
+    k: float
+    f: float
+    model: str = "tsai"
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.f) and self.f > 0):
+            raise InputError(f"Tsai's focal length f must be positive, got {self.f!r}",
+                             field="distortion.f")
+
+    @property
+    def kappa(self) -> float:
+        """The coefficient on normalised coordinates, κ = k f² (dimensionless)."""
+        return self.k * self.f * self.f
+
+    def distort(self, xy: np.ndarray, iterations: int = 60) -> np.ndarray:
+        """(N, 2) undistorted normalised coordinates -> (N, 2) distorted ones.
+
+        The distorted point is s * xy with s (1 + κ r² s²) = 1, r = |xy|. Newton from s = 1
+        converges monotonically (the cubic is convex for κ > 0, concave for κ < 0, and s = 1
+        lies on the far side of the root). Where a pincushion lens (κ < 0) folds over,
+        r² > -4 / (27 κ), no image point exists: NaN."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        c = self.kappa * np.einsum("nk,nk->n", xy, xy)  # κ r²
+        s = np.ones(len(xy))
+        with np.errstate(all="ignore"):
+            for _ in range(iterations):
+                step = (c * s ** 3 + s - 1) / (3 * c * s * s + 1)
+                s = s - step
+                if not np.any(np.abs(step) > 1e-15):
+                    break
+        s[c < -4.0 / 27.0] = np.nan
+        return xy * s[:, None]
+
+    def undistort(self, xy_d: np.ndarray) -> np.ndarray:
+        """(N, 2) distorted -> undistorted normalised coordinates (closed form)."""
+        xy_d = np.asarray(xy_d, dtype=np.float64).reshape(-1, 2)
+        return xy_d * (1 + self.kappa * np.einsum("nk,nk->n", xy_d, xy_d))[:, None]
+
+    def to_dict(self) -> dict:
+        return {"model": "tsai", "k": self.k, "f": self.f}
+
+    # no ``is_identity``: with k = 0 the model is kept, since f is the sensor's scale that a
+    # written-back .tacal needs
+
+
+DISTORTION_MODELS: dict[str, type] = {"opencv": OpenCVDistortion, "tsai": TsaiDistortion}
 
 
 def distortion_from_dict(d: dict | None, *, file=None) -> Distortion | None:
@@ -130,6 +185,8 @@ def distortion_from_dict(d: dict | None, *, file=None) -> Distortion | None:
         dist = DISTORTION_MODELS[model](**kwargs)
     except TypeError as e:
         raise InputError(f"bad distortion parameters: {e}", file=file, field="distortion") from None
+    except InputError as e:  # the model's own validation, located in this file
+        raise InputError(e.message, file=file, field=e.field) from None
     return dist
 
 

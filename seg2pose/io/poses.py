@@ -1,8 +1,11 @@
 """Pose tables: ground truth (``gt/poses.csv``) and estimated pose tracks (``RUN/poses.csv``).
 
-CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h]`` — metres, heading in radians
-counter-clockwise from +x; x, y, z is the road user's ground contact point (bottom centre).
-Floats are written with ``repr`` so that a round trip is exact.
+CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h][,source]`` — metres, heading in
+radians counter-clockwise from +x; x, y, z is the road user's ground contact point (bottom
+centre). Floats are written with ``repr`` so that a round trip is exact. ``source`` (annotated
+ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
+``interpolated`` between keyframes, or ``occluded`` (inside a span marked occluded: training
+skips these). Files without it stay valid.
 """
 
 from __future__ import annotations
@@ -21,12 +24,15 @@ from seg2pose.io.atomic import atomic_write_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]
+SOURCE_COLUMN = "source"
+SOURCES = ("keyframe", "interpolated", "occluded")
 
 
 @dataclass
 class PoseTable:
     """Columns of N poses. frame, track_id: (N,) int64; cls: (N,) str; xyz: (N, 3) metres;
-    heading: (N,) radians (NaN = unknown); size: (N, 3) l, w, h metres or None."""
+    heading: (N,) radians (NaN = unknown); size: (N, 3) l, w, h metres or None; source: (N,)
+    str, one of SOURCES, or None (not annotated ground truth)."""
 
     frame: np.ndarray
     track_id: np.ndarray
@@ -34,6 +40,7 @@ class PoseTable:
     xyz: np.ndarray
     heading: np.ndarray
     size: np.ndarray | None = None
+    source: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
@@ -43,9 +50,12 @@ class PoseTable:
         self.heading = np.asarray(self.heading, dtype=np.float64).reshape(-1)
         if self.size is not None:
             self.size = np.asarray(self.size, dtype=np.float64).reshape(-1, 3)
+        if self.source is not None:
+            self.source = np.asarray(self.source, dtype=object).reshape(-1)
         n = len(self.frame)
         if not (len(self.track_id) == len(self.cls) == len(self.xyz) == len(self.heading) == n) or (
-                self.size is not None and len(self.size) != n):
+                self.size is not None and len(self.size) != n) or (
+                self.source is not None and len(self.source) != n):
             raise ValueError("PoseTable columns differ in length")
 
     def __len__(self) -> int:
@@ -53,7 +63,8 @@ class PoseTable:
 
     def take(self, idx) -> "PoseTable":
         return PoseTable(self.frame[idx], self.track_id[idx], self.cls[idx], self.xyz[idx],
-                         self.heading[idx], None if self.size is None else self.size[idx])
+                         self.heading[idx], None if self.size is None else self.size[idx],
+                         None if self.source is None else self.source[idx])
 
     def sorted(self) -> "PoseTable":
         return self.take(np.lexsort((self.track_id, self.frame)))
@@ -74,12 +85,14 @@ class PoseTable:
         if not tables:
             return cls.empty()
         with_size = all(t.size is not None for t in tables)
+        with_source = all(t.source is not None for t in tables)
         return cls(np.concatenate([t.frame for t in tables]),
                    np.concatenate([t.track_id for t in tables]),
                    np.concatenate([t.cls for t in tables]),
                    np.concatenate([t.xyz for t in tables]),
                    np.concatenate([t.heading for t in tables]),
-                   np.concatenate([t.size for t in tables]) if with_size else None)
+                   np.concatenate([t.size for t in tables]) if with_size else None,
+                   np.concatenate([t.source for t in tables]) if with_source else None)
 
 
 def _f(v: float) -> str:
@@ -88,13 +101,16 @@ def _f(v: float) -> str:
 
 def format_poses(table: PoseTable) -> str:
     buf = io.StringIO()
-    cols = BASE_COLUMNS + (SIZE_COLUMNS if table.size is not None else [])
+    cols = BASE_COLUMNS + (SIZE_COLUMNS if table.size is not None else []) + (
+        [SOURCE_COLUMN] if table.source is not None else [])
     buf.write(",".join(cols) + "\n")
     for i in range(len(table)):
         row = [str(table.frame[i]), str(table.track_id[i]), str(table.cls[i]),
                _f(table.xyz[i, 0]), _f(table.xyz[i, 1]), _f(table.xyz[i, 2]), _f(table.heading[i])]
         if table.size is not None:
             row += [_f(v) for v in table.size[i]]
+        if table.source is not None:
+            row.append(str(table.source[i]))
         buf.write(",".join(row) + "\n")
     return buf.getvalue()
 
@@ -120,18 +136,28 @@ def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)
     header = [h.strip() for h in header]
+    with_source = header[-1:] == [SOURCE_COLUMN]
+    if with_source:
+        header = header[:-1]
     if header[:7] != BASE_COLUMNS or header[7:] not in ([], SIZE_COLUMNS):
-        raise InputError(f"expected header {','.join(BASE_COLUMNS)}[,l,w,h], got {','.join(header)}",
-                         file=path, line=1)
+        raise InputError(f"expected header {','.join(BASE_COLUMNS)}[,l,w,h][,source], got "
+                         f"{','.join(header)}{',source' if with_source else ''}", file=path, line=1)
     ncol = len(header)
-    frames, tids, classes, nums = [], [], [], []
+    frames, tids, classes, nums, sources = [], [], [], [], []
     last_frame = -1
     for row in reader:
         lineno = reader.line_num
         if not row:
             continue
-        if len(row) != ncol:
-            raise InputError(f"expected {ncol} fields, got {len(row)}", file=path, line=lineno)
+        if len(row) != ncol + with_source:
+            raise InputError(f"expected {ncol + with_source} fields, got {len(row)}", file=path,
+                             line=lineno)
+        if with_source:
+            src = row.pop().strip()
+            if src not in SOURCES:
+                raise InputError(f"unknown source {src!r}; expected one of {', '.join(SOURCES)}",
+                                 file=path, line=lineno, field=SOURCE_COLUMN)
+            sources.append(src)
         try:
             fr, tid = int(row[0]), int(row[1])
         except ValueError:
@@ -161,4 +187,5 @@ def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
         nums.append(v)
     a = np.array(nums, dtype=np.float64).reshape(-1, ncol - 3)
     return PoseTable(frames, tids, np.array(classes, dtype=object), a[:, :3], a[:, 3],
-                     a[:, 4:7] if ncol == 10 else None)
+                     a[:, 4:7] if ncol == 10 else None,
+                     np.array(sources, dtype=object) if with_source else None)
