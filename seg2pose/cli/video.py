@@ -48,8 +48,8 @@ def register(app: typer.Typer) -> None:
         fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
         force: bool = typer.Option(False, "--force", help="replace an existing scene.json in OUT"),
     ) -> None:
-        """Make a scene folder from video, calibration and ground points (no masks yet: run
-        s2p masks-from-video or s2p import-detections next)."""
+        """Make a scene folder from video, calibration and ground points (no masks yet; they
+        come next from s2p masks-from-video or s2p import-detections)."""
         from seg2pose.video_scene import new_scene
 
         videos = {}
