@@ -162,7 +162,8 @@ class BackgroundMasks:
         if not images:
             return
         if self.cfg.init == "median":
-            bg = np.median(np.stack(images), axis=0).astype(np.uint8)
+            # the (lower) median in uint8: np.median would make a float64 copy (0.5 GB at 720p)
+            bg = np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
             # enough repetitions for a confident model; afterwards learn at the history's rate
             self.sub.apply(bg, learningRate=1.0)
             for _ in range(min(self.cfg.history, 50)):

@@ -11,6 +11,9 @@ from seg2pose.io.mots import read_mots
 
 from test_video_scene import calibration, det, rle
 from video_fixtures import write_folder
+from video_fixtures import single_threaded_opencv
+
+opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
 
 def test_video_commands(tmp_path, monkeypatch, capsys):

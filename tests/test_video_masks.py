@@ -14,6 +14,9 @@ from seg2pose.masks import decode
 from seg2pose.video_masks import BgConfig, labels_to_rles, masks_from_video
 
 from video_fixtures import H, W, truth_mask, write_folder, write_video
+from video_fixtures import single_threaded_opencv
+
+opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
 BOXES = [dict(id=1, x=10, y=20, w=24, h=30, vx=3, vy=0),
          dict(id=2, x=120, y=70, w=30, h=16, vx=-2, vy=-0.5)]

@@ -14,6 +14,9 @@ from seg2pose.masks import decode, encode
 from seg2pose.video_scene import new_scene, read_calibration, scene_import_detections, scene_masks_from_video
 
 from video_fixtures import H, W, write_folder
+from video_fixtures import single_threaded_opencv
+
+opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
 CLASSES = {"pedestrian": 1, "bicyclist": 2, "car": 3}
 

@@ -72,3 +72,14 @@ def write_video(path: Path, n: int, boxes: list[dict], fourcc: str = "MJPG", see
         wr.write(render(f, boxes, bg, rng))
     wr.release()
     return path
+
+
+def single_threaded_opencv():
+    """A fixture body: OpenCV on one thread while a test runs. Once OpenCV's worker pool has
+    started, a process forked later (``s2p synth``'s workers in other tests) can hang in it."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(before)
