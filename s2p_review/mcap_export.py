@@ -171,8 +171,7 @@ def _road_user_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTab
                                                      rgb=L.GT_COLOR, prefix="gt")
 
 
-def _error_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTable,
-                  gt: PoseTable | None) -> Iterator[Item]:
+def _error_stream(tb: Timebase, poses: PoseTable, gt: PoseTable | None) -> Iterator[Item]:
     """Per-frame ground-plane errors against the truth (for the layout's plot)."""
     if gt is None:
         return
@@ -286,7 +285,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
             "has_views": str(run.views is not None).lower(),
             "poses_with_size": str(run.poses.size is not None).lower(), "mask_pixel": MASK_PIXEL})
         streams = [_static_stream(scene, sel.cameras, t0, opts.image_scale),
-                   _record_stream(run, sel, tb), _error_stream(scene, sel, tb, poses, gt),
+                   _record_stream(run, sel, tb), _error_stream(tb, poses, gt),
                    _road_user_stream(scene, sel, tb, poses, psz, gt)]
         streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
                     for k, name in enumerate(sel.cameras)]
