@@ -127,6 +127,8 @@ def register(app: typer.Typer) -> None:
         center: str = typer.Option(None, help="mask centre: bbox or centroid (default: "
                                    "seg2pose.normal.DEFAULT_CENTER_METHOD)"),
         dry_run: bool = typer.Option(False, "--dry-run", help="print, do not write scene.json"),
+        rough: int = typer.Option(0, "--rough", help="use N rough-model renders per class instead of "
+                                  "masks matched to ground truth (no annotations needed)"),
     ) -> None:
         """Per-class default heights by bisection (paper 3.2): about half of the split's
         normal positions end up closer to the camera than the truth. Writes scene.json."""
@@ -138,7 +140,12 @@ def register(app: typer.Typer) -> None:
                              field="--center")
         from seg2pose.heights import update_default_heights
 
-        update_default_heights(load_scene(scene), split, center, write=not dry_run, log=typer.echo)
+        sc = load_scene(scene)
+        views = None
+        if rough > 0:
+            from seg2pose.rough_heights import rough_height_views
+            views = rough_height_views(sc, rough, center=center)
+        update_default_heights(sc, split, center, write=not dry_run, log=typer.echo, views=views)
 
     @app.command("convert-masks", rich_help_panel=SCENE)
     def convert_masks_cmd(
