@@ -105,6 +105,17 @@ def temp_sibling_dir(path: str | Path) -> Path:
     return tmp
 
 
+def fsync_dir(path: str | Path) -> None:
+    """Make the creation, rename or removal of a file in folder ``path`` durable (best effort:
+    some file systems cannot fsync a folder)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse to replace an existing file or non-empty folder unless ``force``."""
     path = Path(path)
@@ -310,16 +321,6 @@ def _remove(p: Path) -> None:
     else:
         with contextlib.suppress(FileNotFoundError):
             p.unlink()
-
-
-def fsync_dir(path: Path) -> None:
-    """Make a file's creation, rename or removal in the folder ``path`` durable."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def swap_in(tmp: Path, path: Path) -> None:
