@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import resource
 import sys
 import tempfile
 import time
@@ -62,8 +61,9 @@ def _masks_child(video: str, out: str, q) -> None:
 
     t = time.perf_counter()
     res = masks_from_video(video, out, BgConfig(), log=lambda s: None)
-    q.put((res.n_frames, res.n_masks, time.perf_counter() - t,
-           resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+    # VmHWM, not ru_maxrss: Linux carries ru_maxrss over fork + exec from the parent
+    hwm = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
+    q.put((res.n_frames, res.n_masks, time.perf_counter() - t, hwm / 1024))
 
 
 def masks_from_video_run(video: Path, out: Path) -> tuple[int, int, float, float]:

@@ -183,8 +183,12 @@ class BackgroundMasks:
             fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
         if self.k_close is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8, ltype=cv2.CV_32S)
-        ids = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(self.cfg.min_area, 1))
+        # labels only, areas by bincount: OpenCV's WithStats variant is several times slower here
+        n, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_32S)
+        if n <= 1:
+            return [], share
+        area = np.bincount(labels[fg.view(bool)], minlength=n)  # foreground pixels only
+        ids = np.flatnonzero(area >= max(self.cfg.min_area, 1))
         ids = ids[ids > 0]
         return labels_to_rles(labels, ids), share
 
