@@ -107,18 +107,22 @@ class VideoMasksResult:
     unsettled: list[tuple[int, int]] = field(default_factory=list)  # frame ranges (inclusive)
 
 
-def labels_to_rles(labels: np.ndarray, ids: np.ndarray) -> list[bytes]:
+def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
+                   width: int | None = None) -> list[bytes]:
     """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
 
     One pass over the column-major pixels finds every run of equal labels; each component's
-    RLE is its runs with the gaps between them, so no per-component full-image mask is made."""
-    h, w = labels.shape
+    RLE is its runs with the gaps between them, so no per-component full-image mask is made.
+    ``labels`` may also be a strip of full-height columns starting at column ``x0`` of an
+    image ``width`` wide (the rest of the image is label 0)."""
+    h, w_strip = labels.shape
+    w = w_strip if width is None else int(width)
     n = h * w
     flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
     cut = np.flatnonzero(flat[1:] != flat[:-1]) + 1
-    starts = np.r_[0, cut]
-    ends = np.r_[cut, n]
-    vals = flat[starts]
+    vals = flat[np.r_[0, cut]]
+    starts = np.r_[0, cut] + x0 * h               # a strip's pixels are contiguous in the image
+    ends = np.r_[cut, len(flat)] + x0 * h
     out = []
     if len(ids) == 0:
         return out

@@ -142,7 +142,7 @@ def test_merged_blob_is_split_between_its_tracks():
     for i in np.flatnonzero(t.class_id == 9):
         t.rles[i] = merged_rle[int(t.frame[i])]
         t.class_id[i] = 0
-    out = track_table(t, cfg=TrackConfig(min_length=5))
+    out = track_table(t, cfg=TrackConfig(min_length=5, split_min=0.6))
     assert len(out) == 50 and sorted(set(out.track_id.tolist())) == [1, 2]
     for f in range(10, 15):
         for k, bx in enumerate(boxes(f)):
@@ -151,5 +151,5 @@ def test_merged_blob_is_split_between_its_tracks():
             got, want = decode(out.rles[i[0]], H, W), decode(box(*bx), H, W)
             assert (got & want).sum() / (got | want).sum() > 0.85, (f, k)
     # without splitting, one of the two loses its mask there and the ids still hold
-    plain = track_table(t, cfg=TrackConfig(min_length=5, split_min=0))
+    plain = track_table(t, cfg=TrackConfig(min_length=5))
     assert len(plain) == 45
