@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.io.cli import collect_height_views, subsample_views
+from seg2pose.heights import collect_height_views, subsample_views
 from seg2pose.io.mots import iter_mots
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene

@@ -35,6 +35,7 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     from seg2pose.camera import Camera, Rig
     from seg2pose.io.mots import MaskTable, write_mots
     from seg2pose.io.poses import PoseTable, write_poses
+    from seg2pose.io.run import ViewTable, relative_path, write_run_folder
     from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
     from seg2pose.masks import encode, mask_centers
     from seg2pose.normal import normal_positions
@@ -71,7 +72,7 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     (root / "gt").mkdir(exist_ok=True)
     write_poses(root / "gt" / "poses.csv", gt)
     cid = {"pedestrian": 1, "bicyclist": 2, "car": 3}
-    view_lines = ["frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy"]
+    views = []
     for name, cam in scene.cameras.items():
         corners = box_corners(gt.xyz, gt.heading, gt.size)
         uv, _, front = cam.project_points(corners.reshape(-1, 3))
@@ -92,17 +93,13 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
         hts = np.array([0.9 if k != "car" else 0.75 for k in gt.cls[keep]])
         xn, _ = normal_positions(cam, scene.ground, c, hts)
         xn = np.nan_to_num(xn)
-        for j, i in enumerate(keep):
-            view_lines.append(f"{gt.frame[i]},{gt.track_id[i]},{name},{gt.cls[i]},{c[j, 0]},{c[j, 1]},"
-                              f"{xn[j, 0]},{xn[j, 1]},{xn[j, 2]},0.1,-0.1")
+        views.append(ViewTable(gt.frame[keep], gt.track_id[keep], [name] * len(keep), gt.cls[keep],
+                               c, xn, np.tile([0.1, -0.1], (len(keep), 1))))
     run = root / "run"
-    run.mkdir()
     est = PoseTable(gt.frame, gt.track_id, gt.cls, gt.xyz + rng.normal(0, 0.3, gt.xyz.shape) * [1, 1, 0],
                     gt.heading, gt.size)
-    write_poses(run / "poses.csv", est)
-    (run / "views.csv").write_text("\n".join(view_lines) + "\n")
-    (run / "run.json").write_text(json.dumps({"scene": str(root), "cameras": list(cams),
-                                              "method": "seg2posenet"}))
+    write_run_folder(run, est, ViewTable.concat(views),
+                     {"scene": relative_path(root, run), "cameras": list(cams), "method": "seg2posenet"})
     marker.write_text(json.dumps(want))
     return load_scene(root), run
 
@@ -161,9 +158,9 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
             rec.log(f"{L.cam_path(c)}/poses/{run.name}", rr.LineStrips2D(segs))
             sel = (v.frame == f) & (v.camera == c)
             rec.log(f"{L.cam_path(c)}/normal/{run.name}", rr.Points2D(v.uv[sel]))
-            rec.log(f"world/estimates/{run.name}/{c}", rr.Points3D(v.xn[sel]))
+            rec.log(f"world/estimates/{run.name}/{c}", rr.Points3D(v.normal[sel]))
             rec.log(f"world/estimates/{run.name}/{c}/residuals",
-                    rr.Arrows3D(origins=v.xn[sel], vectors=np.c_[v.dxy[sel], np.zeros(sel.sum())]))
+                    rr.Arrows3D(origins=v.normal[sel], vectors=np.c_[v.residual[sel], np.zeros(sel.sum())]))
     rec.flush()
     rec.disconnect()
 

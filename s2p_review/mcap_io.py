@@ -36,11 +36,12 @@ import numpy as np
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_path, check_writable, temp_sibling_dir
 from seg2pose.io.mots import iter_mots
-from seg2pose.io.poses import PoseTable, read_poses, write_poses
+from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from s2p_review import columns as C
 from s2p_review import layout as L
-from s2p_review.runs import VIEW_COLUMNS, load_run, scene_last_frame
+from seg2pose.io.run import VIEW_COLUMNS, ViewTable, write_run_folder
+from s2p_review.runs import load_run, scene_last_frame
 
 POSE_SCHEMA = {
     "title": "s2p.PoseFrame", "type": "object",
@@ -322,7 +323,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, force: bool = False
             for idx in np.split(sel, np.flatnonzero(np.diff(vf)) + 1) if len(sel) else []:
                 f = int(v.frame[idx[0]])
                 rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
-                         *[_num(x) for x in (*v.uv[i], *v.xn[i], *v.dxy[i])]] for i in idx]
+                         *[_num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i])]] for i in idx]
                 out.write_json("/s2p/views", VIEW_SCHEMA, {"frame": f, "columns": ["row"] + VIEW_COLUMNS,
                                                           "rows": rows}, _ns(f, fps))
 
@@ -439,12 +440,13 @@ def _pose_table(frames_msgs: list[dict], with_size: bool) -> PoseTable:
                      size)
 
 
-def _views_text(frames_msgs: list[dict]) -> str:
-    lines = [",".join(VIEW_COLUMNS)]
+def _view_table(frames_msgs: list[dict]) -> ViewTable:
     rows = sorted((r for m in frames_msgs for r in m["rows"]), key=lambda r: r[0])  # file order
-    for r in rows:
-        lines.append(",".join([str(r[1]), str(r[2]), r[3], r[4]] + [repr(_unnum(x)) for x in r[5:]]))
-    return "\n".join(lines) + "\n"
+    if not rows:
+        return ViewTable.empty()
+    nums = np.array([[_unnum(x) for x in r[5:]] for r in rows], float).reshape(-1, 7)
+    return ViewTable([r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
+                     [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7])
 
 
 def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
@@ -476,13 +478,9 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
         (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
         (tmp / gfile).write_bytes(att[gfile])
-        run_dir = tmp / "out" / run_name
-        run_dir.mkdir(parents=True)
-        if "run.json" in att:
-            (run_dir / "run.json").write_bytes(att["run.json"])
-        write_poses(run_dir / "poses.csv", table)
-        if meta.get("has_views") == "true" or rec["views"]:
-            (run_dir / "views.csv").write_text(_views_text(rec["views"]), encoding="utf-8")
+        run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+        views = _view_table(rec["views"]) if meta.get("has_views") == "true" or rec["views"] else None
+        write_run_folder(tmp / "out" / run_name, table, views, run_meta)
         if not out_dir.exists() or not any(out_dir.iterdir()):
             if out_dir.exists():
                 out_dir.rmdir()

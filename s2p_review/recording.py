@@ -285,17 +285,17 @@ def log_views(rec, run: Run, scene: Scene, cameras: list[str], first: int, last:
                 static=True)
         base = f"world/estimates/{run.name}/{L.safe_name(cam)}"
         # a ray that missed the ground has no normal position: no 3D point, no arrow
-        ok = np.isfinite(vv.xn).all(axis=1) & np.isfinite(vv.dxy).all(axis=1)
+        ok = np.isfinite(vv.normal).all(axis=1) & np.isfinite(vv.residual).all(axis=1)
         v3 = vv.take(ok)
         len3 = C.frame_lengths(v3.frame, first, last)
         rec.log(base, rr.Points3D.from_fields(radii=0.12), static=True)
         rec.send_columns(base, indexes=idx_t,
-                         columns=rr.Points3D.columns(positions=v3.xn, colors=cols[ok]).partition(len3))
-        if np.any(v3.dxy != 0):
-            vec = np.c_[v3.dxy, np.zeros(len(v3))]
+                         columns=rr.Points3D.columns(positions=v3.normal, colors=cols[ok]).partition(len3))
+        if np.any(v3.residual != 0):
+            vec = np.c_[v3.residual, np.zeros(len(v3))]
             rec.log(base + "/residuals", rr.Arrows3D.from_fields(radii=0.03), static=True)
             rec.send_columns(base + "/residuals", indexes=idx_t,
-                             columns=rr.Arrows3D.columns(origins=v3.xn, vectors=vec, colors=cols[ok])
+                             columns=rr.Arrows3D.columns(origins=v3.normal, vectors=vec, colors=cols[ok])
                              .partition(len3))
 
 

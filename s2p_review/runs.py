@@ -6,79 +6,18 @@ view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy; u, v pixels; the rest metr
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from seg2pose.errors import InputError
-from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.poses import PoseTable
+from seg2pose.io.run import ViewTable, read_run
 from seg2pose.io.scene import Scene
 
-VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
-
-
-@dataclass
-class Views:
-    """Per-view rows of a run. frame, track_id: (N,) int64; camera, cls: (N,) str;
-    uv: (N, 2) pixels; xn: (N, 3) normal positions, metres; dxy: (N, 2) residuals, metres."""
-
-    frame: np.ndarray
-    track_id: np.ndarray
-    camera: np.ndarray
-    cls: np.ndarray
-    uv: np.ndarray
-    xn: np.ndarray
-    dxy: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.frame)
-
-    def take(self, idx) -> "Views":
-        return Views(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
-                     self.uv[idx], self.xn[idx], self.dxy[idx])
-
-
-def read_views(path: Path) -> Views:
-    """Read RUN/views.csv; errors name the file, line and what was expected."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError("views file not found", file=path)
-    with open(path, encoding="utf-8") as f:
-        header = f.readline().strip().split(",")
-        if [h.strip() for h in header] != VIEW_COLUMNS:
-            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}, got {','.join(header)}",
-                             file=path, line=1)
-        lines = f.read().splitlines()
-    rows = [ln.split(",") for ln in lines if ln.strip()]
-    linenos = [i + 2 for i, ln in enumerate(lines) if ln.strip()]
-    for r, ln in zip(rows, linenos):
-        if len(r) != len(VIEW_COLUMNS):
-            raise InputError(f"expected {len(VIEW_COLUMNS)} fields, got {len(r)}", file=path, line=ln)
-    if not rows:
-        z = np.zeros(0)
-        return Views(z.astype(np.int64), z.astype(np.int64), z.astype(object), z.astype(object),
-                     np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
-    a = np.array(rows, dtype=object)
-    try:
-        ints = a[:, :2].astype(np.int64)
-    except ValueError:
-        bad = next(ln for r, ln in zip(rows, linenos) if not (r[0].strip().lstrip("-").isdigit()
-                                                            and r[1].strip().lstrip("-").isdigit()))
-        raise InputError("frame and track_id must be integers", file=path, line=bad) from None
-    try:
-        nums = a[:, 4:].astype(np.float64)
-    except ValueError:
-        for r, ln in zip(rows, linenos):
-            try:
-                [float(x) for x in r[4:]]
-            except ValueError:
-                raise InputError("expected numbers in u,v,xn,yn,zn,dx,dy", file=path, line=ln) from None
-        raise
-    return Views(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
-                 np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
-                 nums[:, 5:7])
+# the run folder's files are read by seg2pose.io.run (their one owner); Views is its ViewTable
+Views = ViewTable
 
 
 @dataclass
@@ -107,17 +46,9 @@ def load_run(path: Path, scene: Scene, scene_last_frame: int | None = None) -> R
     from s2p_review.layout import safe_name
 
     path = Path(path)
-    if not path.is_dir():
-        raise InputError("run folder not found", file=path)
+    folder = read_run(path, known_classes=[c.name for c in scene.classes])
+    meta, poses, views = folder.meta, folder.poses, folder.views
     meta_path = path / "run.json"
-    if not meta_path.exists():
-        raise InputError("no run.json here (is this a run folder made by `s2p run`?)", file=meta_path)
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=meta_path, line=e.lineno) from None
-    if not isinstance(meta, dict):
-        raise InputError("expected a JSON object", file=meta_path)
     fp = meta.get("scene_fingerprint")
     if fp and fp != scene.fingerprint():
         raise InputError(f"the run was made on another scene: its scene fingerprint is {fp}, "
@@ -130,8 +61,6 @@ def load_run(path: Path, scene: Scene, scene_last_frame: int | None = None) -> R
     if unknown:
         raise InputError(f"the run names cameras the scene {scene.name!r} lacks: {unknown}; "
                          f"the scene has {sorted(scene.cameras)}", file=meta_path, field="cameras")
-    poses = read_poses(path / "poses.csv", known_classes=[c.name for c in scene.classes])
-    views = read_views(path / "views.csv") if (path / "views.csv").exists() else None
     if views is not None and len(views):
         bad = sorted(set(views.camera.tolist()) - set(scene.cameras))
         if bad:

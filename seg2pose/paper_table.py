@@ -11,19 +11,20 @@ from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.pipeline import _load_models, compute_views, model_dirs, select_views, write_run
+from seg2pose.pipeline import _load_models, compute_views, model_dirs, write_run
 
 def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames."""
     from seg2pose.evaluate import evaluate
     from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import read_run_poses
 
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
-    est = read_poses(Path(run_dir) / "poses.csv")
+    est = read_run_poses(run_dir)
     gt = read_poses(scene.gt_path)
     return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
 
@@ -65,7 +66,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
             name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
             cams = scene.rig.configs[cfg]
-            write_run(scene, rd, select_views(views, cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
+            write_run(scene, rd, views.of_cameras(cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
                       nframes, force=True)
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)

@@ -1,14 +1,8 @@
 """Inference: masks -> normal positions (3.2) -> Seg2PoseNet residuals (3.3) -> late fusion
 (mean over views, 3.3) -> headings from motion (3.4) -> a run folder.
 
-Run folder (the contract between pipeline, evaluation and review)::
-
-    RUN/run.json    {"scene", "scene_fingerprint", "config", "cameras", "method", "center_method",
-                     "models", "created", "split", "frame_range"}
-    RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
-    RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
-                    (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
-                    Seg2PoseNet residual, metres, 0 for the baseline)
+The run folder itself (run.json, poses.csv, views.csv) is read and written by
+``seg2pose.io.run``.
 
 Masks are streamed: all cameras of the configuration are read in lockstep, a chunk of frames at
 a time, and the network sees batches of crops gathered across the chunk's frames (one batch
@@ -17,11 +11,7 @@ per model: models are per camera and class, or per camera with a class input).
 
 from __future__ import annotations
 
-import datetime as _dt
 import heapq
-import io
-import json
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -29,14 +19,13 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import atomic_write_text, check_writable
 from seg2pose.io.mots import MaskTable, iter_mots
-from seg2pose.io.poses import PoseTable, write_poses
+from seg2pose.io.poses import PoseTable
+from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
 from seg2pose.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
-
-VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
+from seg2pose.say import say, warn_once
 
 
 def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
@@ -130,9 +119,8 @@ class ModelSet:
                             cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
                             ck = cache[p]
                             if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
-                                print(f"warning: {p} was trained on another scene "
-                                      f"(fingerprint {ck.scene_fingerprint}, this scene {fingerprint})",
-                                      file=sys.stderr)
+                                say(f"{p} was trained on another scene (fingerprint "
+                                    f"{ck.scene_fingerprint}, this scene {fingerprint})", "warning")
                         ms.models[(cam, c)] = cache[p]
                         ms.paths[(cam, c)] = p
                         break
@@ -148,38 +136,6 @@ class ModelSet:
 # per-view estimates
 
 
-@dataclass
-class ViewRows:
-    """Per-detection results, column-wise (the rows of views.csv)."""
-
-    frame: list = field(default_factory=list)
-    track_id: list = field(default_factory=list)
-    camera: list = field(default_factory=list)
-    cls: list = field(default_factory=list)
-    uv: list = field(default_factory=list)
-    normal: list = field(default_factory=list)
-    residual: list = field(default_factory=list)
-
-    def add(self, frame, track_id, camera, cls, uv, normal, residual) -> None:
-        self.frame.append(frame)
-        self.track_id.append(track_id)
-        self.camera.append(np.full(len(frame), camera, dtype=object))
-        self.cls.append(cls)
-        self.uv.append(uv)
-        self.normal.append(normal)
-        self.residual.append(residual)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        if not self.frame:
-            return {"frame": np.zeros(0, np.int64), "track_id": np.zeros(0, np.int64),
-                    "camera": np.zeros(0, object), "cls": np.zeros(0, object),
-                    "uv": np.zeros((0, 2)), "normal": np.zeros((0, 3)), "residual": np.zeros((0, 2))}
-        return {"frame": np.concatenate(self.frame), "track_id": np.concatenate(self.track_id),
-                "camera": np.concatenate(self.camera), "cls": np.concatenate(self.cls),
-                "uv": np.concatenate(self.uv), "normal": np.concatenate(self.normal),
-                "residual": np.concatenate(self.residual)}
-
-
 class _Warn:
     """Say a thing once per run."""
 
@@ -187,9 +143,7 @@ class _Warn:
         self.said: set[str] = set()
 
     def __call__(self, key: str, msg: str) -> None:
-        if key not in self.said:
-            self.said.add(key)
-            print(f"warning: {msg}", file=sys.stderr)
+        warn_once(self.said, key, msg)
 
 
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
@@ -262,15 +216,15 @@ def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int
 # fusion and the run folder
 
 
-def fuse(views: dict[str, np.ndarray], scene: Scene) -> PoseTable:
+def fuse(views: ViewTable, scene: Scene) -> PoseTable:
     """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
     z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
     sizes from the class. Detections without a track id (-1) are not fused with anything."""
-    frame, tid = views["frame"], views["track_id"]
-    est = views["normal"][:, :2] + views["residual"]
-    keep = np.isfinite(est).all(axis=1) & (views["cls"] != "")
+    frame, tid = views.frame, views.track_id
+    est = views.normal[:, :2] + views.residual
+    keep = np.isfinite(est).all(axis=1) & (views.cls != "")
     frame, tid, est = frame[keep], tid[keep], est[keep]
-    cam, cls = views["camera"][keep], views["cls"][keep]
+    cam, cls = views.camera[keep], views.cls[keep]
     if len(frame) == 0:
         return PoseTable.empty(with_size=True)
     # untracked detections get unique negative keys so that they stay alone
@@ -296,25 +250,16 @@ def fuse(views: dict[str, np.ndarray], scene: Scene) -> PoseTable:
     return table.sorted()
 
 
-def format_views(v: dict[str, np.ndarray]) -> str:
-    buf = io.StringIO()
-    buf.write(",".join(VIEW_COLUMNS) + "\n")
-    num = np.column_stack([v["uv"], v["normal"], v["residual"]])
-    for i in np.lexsort((v["camera"], v["track_id"], v["frame"])):
-        buf.write(f"{v['frame'][i]},{v['track_id'][i]},{v['camera'][i]},{v['cls'][i]},"
-                  + ",".join(repr(float(x)) for x in num[i]) + "\n")
-    return buf.getvalue()
-
-
 def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
                   models: ModelSet | None, center_method: str = DEFAULT_CENTER_METHOD, chunk_frames: int = 32,
-                  progress: bool = True) -> tuple[dict[str, np.ndarray], int]:
+                  progress: bool = True) -> tuple[ViewTable, int]:
     """Per-view estimates of all detections of ``cams`` (streamed in lockstep, ``chunk_frames``
-    frames per network batch group): the columns of views.csv, and the number of frames."""
+    frames per network batch group): the rows of views.csv (sorted by frame, track id,
+    camera), and the number of frames."""
     from tqdm import tqdm
 
     warn = _Warn()
-    rows = ViewRows()
+    rows: list[ViewTable] = []
 
     def flush(chunk: dict[str, list[MaskTable]]) -> None:
         for cam, tables in chunk.items():
@@ -322,7 +267,8 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
                 continue
             t = MaskTable.concat(tables)
             names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
-            rows.add(t.frame, t.track_id, cam, names, uv, normal, residual)
+            rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
+                                  uv, normal, residual))
 
     chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
     nframes = 0
@@ -339,42 +285,47 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             chunk = {c: [] for c in cams}
     flush(chunk)
     bar.close()
-    return rows.arrays(), nframes
+    return ViewTable.concat(rows).sorted(), nframes
 
 
-def select_views(views: dict[str, np.ndarray], cams: list[str]) -> dict[str, np.ndarray]:
-    """The rows of ``views`` seen by the cameras ``cams``."""
-    keep = np.isin(views["camera"], cams)
-    return {k: v[keep] for k, v in views.items()}
+def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
+             models: ModelSet | None, split: str | None, center_method: str) -> dict:
+    """run.json of a run (paths relative to the run folder; the checkpoints named with their
+    sha256, so a run says exactly which models made it)."""
+    fr = scene.split_range(split)
+    digests: dict[Path, str] = {}
+
+    def model_entry(p: Path) -> dict:
+        if p not in digests:
+            digests[p] = file_sha256(p)
+        return {"path": relative_path(p, run_dir), "file": p.name, "sha256": digests[p]}
+
+    entries = {}
+    for (c, k), p in ({} if models is None else models.paths).items():
+        if c not in cams:
+            continue
+        files = [model_entry(Path(x)) for x in (p if isinstance(p, list) else [p])]
+        entry = {key: [f[key] for f in files] if isinstance(p, list) else files[0][key]
+                 for key in ("path", "file", "sha256")}
+        info = models.models[(c, k)].info
+        entries[f"{c}/{k}"] = {**entry, **{kk: info.get(kk) for kk in ("val_loss", "epoch", "seed")}}
+    return {
+        "scene": relative_path(scene.root, run_dir), "scene_fingerprint": scene.fingerprint(),
+        "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
+        "center_method": center_method, "models": entries,
+        "split": split, "frame_range": None if fr is None else list(fr), "created": now_utc(),
+    }
 
 
-def write_run(scene: Scene, run_dir: Path, views: dict[str, np.ndarray], cams: list[str],
+def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
               config: str | None, models: ModelSet | None, split: str | None,
               center_method: str, n_frames: int, force: bool = False) -> Path:
     """Fuse per-view estimates and write the run folder (poses.csv, views.csv, run.json)."""
     run_dir = Path(run_dir)
     poses = fuse(views, scene)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    for name in ("poses.csv", "views.csv", "run.json"):
-        check_writable(run_dir / name, force)
-    write_poses(run_dir / "poses.csv", poses)
-    atomic_write_text(run_dir / "views.csv", format_views(views))
-    fr = scene.split_range(split)
-    meta = {
-        "scene": str(scene.root.resolve()), "scene_fingerprint": scene.fingerprint(),
-        "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
-        "center_method": center_method,
-        "models": {} if models is None else {
-            f"{c}/{k}": {"path": [str(x) for x in p] if isinstance(p, list) else str(p),
-                         **{kk: models.models[(c, k)].info.get(kk)
-                                            for kk in ("val_loss", "epoch", "seed")}}
-            for (c, k), p in models.paths.items() if c in cams},
-        "split": split, "frame_range": None if fr is None else list(fr),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "n_frames": n_frames, "n_views": int(len(views["frame"])), "n_poses": len(poses),
-    }
-    atomic_write_text(run_dir / "run.json", json.dumps(meta, indent=1) + "\n")
-    return run_dir
+    meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method),
+            "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
+    return write_run_folder(run_dir, poses, views, meta, force=force)
 
 
 def model_dirs(scene: Scene, models_dir) -> list[Path]:
@@ -405,33 +356,11 @@ def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     run_dir = Path(run_dir)
-    if run_dir.exists() and any(run_dir.iterdir()) and not force:
-        raise S2PError(f"{run_dir} exists and is not empty; pass --force to overwrite it")
+    check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
     frame_range = scene.split_range(split)
     models = None if baseline else _load_models(scene, cams, models_dir, arch, device)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=True)
-
-
-def read_views(path: str | Path) -> dict[str, np.ndarray]:
-    """views.csv back into columns (as written by ``run_scene``)."""
-    import csv
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError("views file not found", file=path)
-    with open(path, newline="", encoding="utf-8") as f:
-        r = csv.reader(f)
-        header = next(r, None)
-        if header != VIEW_COLUMNS:
-            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}", file=path, line=1)
-        rows = list(r)
-    a = np.array([x[4:] for x in rows], float).reshape(-1, 7)
-    return {"frame": np.array([int(x[0]) for x in rows], np.int64),
-            "track_id": np.array([int(x[1]) for x in rows], np.int64),
-            "camera": np.array([x[2] for x in rows], object),
-            "cls": np.array([x[3] for x in rows], object),
-            "uv": a[:, :2], "normal": a[:, 2:5], "residual": a[:, 5:7]}
+                     nframes, force=force)

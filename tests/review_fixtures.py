@@ -9,7 +9,6 @@ shifted by a known offset, with per-view rows (mask centres, normal positions, r
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -119,31 +118,30 @@ def make_run(scene: Scene, run_dir: Path, *, method: str = "baseline", residual:
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
 
+    from seg2pose.io.run import ViewTable, relative_path, write_run_folder
+
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     gt = read_poses(scene.gt_path)
     cameras = cameras or list(scene.cameras)
     est = PoseTable(gt.frame + frame_shift, gt.track_id, gt.cls, gt.xyz + EST_OFFSET, gt.heading,
                     gt.size)
-    write_poses(run_dir / "poses.csv", est)
-    lines = ["frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy"]
+    views = []
     by_id = {c.id: c for c in scene.classes}
     for cam_name in cameras:
         if cam_name not in scene.cameras:
-            lines.append(f"0,12,{cam_name},car,1.0,1.0,0.0,0.0,0.0,0.0,0.0")
+            views.append(ViewTable([0], [12], [cam_name], ["car"], [[1.0, 1.0]], [[0.0, 0.0, 0.0]],
+                                   [[0.0, 0.0]]))
             continue
         cam = scene.cameras[cam_name]
         mt = read_mots(scene.masks_path(cam_name))
         uv = mask_centers(mt.rles, mt.height, mt.width)
         hts = np.array([by_id[c].default_height for c in mt.class_id])
         xn, _ = normal_positions(cam, scene.ground, uv, hts)
-        for i in range(len(mt)):
-            cls = by_id[int(mt.class_id[i])].name
-            lines.append(f"{mt.frame[i] + frame_shift},{mt.track_id[i]},{cam_name},{cls},"
-                         + ",".join(repr(float(v)) for v in (*uv[i], *xn[i], residual, -residual)))
-    (run_dir / "views.csv").write_text("\n".join(lines) + "\n")
-    meta = {"scene": str(scene.root), "scene_fingerprint": scene.fingerprint(), "config": None,
+        views.append(ViewTable(mt.frame + frame_shift, mt.track_id, [cam_name] * len(mt),
+                               [by_id[int(c)].name for c in mt.class_id], uv, xn,
+                               np.tile([residual, -residual], (len(mt), 1))))
+    meta = {"scene": relative_path(scene.root, run_dir), "scene_fingerprint": scene.fingerprint(), "config": None,
             "cameras": cameras, "method": method, "center_method": "bbox", "models": {},
             "created": "2026-01-01T00:00:00Z"}
-    (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
+    write_run_folder(run_dir, est, ViewTable.concat(views), meta, force=True)
     return run_dir

@@ -374,7 +374,7 @@ def test_heights_bisection_writes_scene_json(tmp_path):
     moves the default heights so that about half the normal positions are closer."""
     import cv2
 
-    from seg2pose.io.cli import update_default_heights
+    from seg2pose.heights import update_default_heights
 
     cam = Camera.look_at("c0", [0, -15, 8], [0, 10, 0], 800.0, 960, 540)
     pts = np.array([[x, y, 0.0] for x in range(-20, 21, 4) for y in range(-10, 41, 4)], float)

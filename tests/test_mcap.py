@@ -45,10 +45,10 @@ def test_round_trip_is_exact(exported):
         np.testing.assert_array_equal(getattr(a, col), getattr(b, col))
     assert json.loads((run_dir / "run.json").read_text())["method"] == "seg2posenet"
     # the views come back value for value
-    from s2p_review.runs import read_views
+    from seg2pose.io.run import read_views
 
     va, vb = read_views(run / "views.csv"), read_views(run_dir / "views.csv")
-    for col in ("frame", "track_id", "camera", "cls", "uv", "xn", "dxy"):
+    for col in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual"):
         np.testing.assert_array_equal(getattr(va, col), getattr(vb, col))
     # the restored folder is a scene folder again
     from seg2pose.io.scene import load_scene
@@ -235,7 +235,7 @@ def test_image_annotations_outline_masks(exported):
     mt = read_mots(scene.masks_path("c1"), frame_range=(6, 6))
     assert len(loops) == len(mt) and len(lists) == 3
     assert all(len(p.points) == 24 for p in lists)  # 12 edges
-    from s2p_review.runs import read_views
+    from seg2pose.io.run import read_views
 
     v = read_views(exported[1] / "views.csv")
     sel = (v.frame == 6) & (v.camera == "c1")

@@ -105,7 +105,8 @@ def tiny(tmp_path_factory) -> Scene:
 def test_baseline_equals_mean_of_normal_positions(tiny, tmp_path):
     """Residual-free baseline on a 3-view configuration: each pose is the mean over the views
     of the views' normal positions (computed here independently, per camera)."""
-    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.io.run import read_views
+    from seg2pose.pipeline import run_scene
 
     run = run_scene(tiny, tmp_path / "run", config="tri-I", baseline=True, progress=False)
     poses = read_poses(run / "poses.csv")
@@ -129,8 +130,8 @@ def test_baseline_equals_mean_of_normal_positions(tiny, tmp_path):
     np.testing.assert_allclose(poses.xyz[:, 2], 0.0, atol=1e-9)  # flat ground
     # views.csv: one row per detection per view, zero residuals
     v = read_views(run / "views.csv")
-    assert len(v["frame"]) == sum(len(x) for x in by_key.values())
-    assert np.all(v["residual"] == 0)
+    assert len(v.frame) == sum(len(x) for x in by_key.values())
+    assert np.all(v.residual == 0)
     # sizes from the scene's class sizes; headings follow the straight tracks
     car = poses.cls == "car"
     np.testing.assert_allclose(poses.size[car], np.tile(SIZES["car"], (car.sum(), 1)))

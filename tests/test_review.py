@@ -18,9 +18,10 @@ from seg2pose.io.mots import read_mots
 from seg2pose.masks import decode, encode
 from s2p_review import columns as C
 from s2p_review import layout as L
-from s2p_review.cli import parse_frames
+from seg2pose.cli.common import parse_frames
 from s2p_review.recording import RecordOptions, record
-from s2p_review.runs import load_run, read_views, scene_last_frame
+from s2p_review.runs import load_run, scene_last_frame
+from seg2pose.io.run import read_views
 
 from review_fixtures import CLASS_ID, EST_OFFSET, TRACKS, make_run, make_scene
 
@@ -132,7 +133,7 @@ def test_load_run_reads_views(tiny):
     assert run.frame_range == (0, N_FRAMES - 1)
     v = run.views
     assert len(v) == sum(len(read_mots(scene.masks_path(c))) for c in ("c0", "c1"))
-    np.testing.assert_allclose(v.dxy[0], [0.2, -0.2])
+    np.testing.assert_allclose(v.residual[0], [0.2, -0.2])
     np.testing.assert_allclose(run.poses.xyz[0] - EST_OFFSET,
                                np.r_[TRACKS[4][1], run.poses.xyz[0, 2]], atol=1e-12)
 

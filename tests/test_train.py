@@ -161,7 +161,8 @@ def test_no_ground_truth_needs_zero_annotation(tmp_path, fake_rough):
 def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     """Per-class models (the paper's layout) for one camera run through `s2p run`; views.csv
     holds the residuals, and poses = normal position + residual (one view)."""
-    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.io.run import read_views
+    from seg2pose.pipeline import run_scene
     from seg2pose.io.poses import read_poses
     from seg2pose.train import train_scene
 
@@ -173,10 +174,10 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     run = run_scene(tiny, tmp_path / "run", config="mono-1", models_dir=out, split="test",
                     progress=False)
     v = read_views(run / "views.csv")
-    assert np.abs(v["residual"]).max() > 0 and np.abs(v["residual"]).max() <= 2.5
+    assert np.abs(v.residual).max() > 0 and np.abs(v.residual).max() <= 2.5
     p = read_poses(run / "poses.csv")
-    est = v["normal"][:, :2] + v["residual"]
-    order = np.lexsort((v["track_id"], v["frame"]))
+    est = v.normal[:, :2] + v.residual
+    order = np.lexsort((v.track_id, v.frame))
     np.testing.assert_allclose(p.xyz[:, :2], est[order], atol=1e-6)
     with pytest.raises(S2PError, match="arch"):
         run_scene(tiny, tmp_path / "run2", config="mono-1", models_dir=out, arch="paper",
@@ -192,7 +193,8 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
     from seg2pose.net import Checkpoint
-    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.io.run import read_views
+    from seg2pose.pipeline import run_scene
     from seg2pose.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(geometry=True, epochs=2), cameras=["c1"],
@@ -206,20 +208,20 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     v = read_views(run / "views.csv")
     # the pipeline's normal positions and centres for the matched masks equal the examples'
     m = read_mots(tiny.masks_path("c1"))
-    keys = [(round(u, 6), round(w, 6)) for u, w in v["uv"]]
+    keys = [(round(u, 6), round(w, 6)) for u, w in v.uv]
     rows = {k: i for i, k in enumerate(keys)}
     once = {k for k in keys if keys.count(k) == 1}  # masks with a unique centre, to pair them
     sel = [j for j, (u, w) in enumerate(ex.centers) if (round(u, 6), round(w, 6)) in once]
     assert len(sel) > 0.8 * len(ex)
     ex = ex.take(np.array(sel))
     hit = [rows[(round(u, 6), round(w, 6))] for u, w in ex.centers]
-    np.testing.assert_allclose(v["normal"][hit, :2], ex.normal, atol=1e-9)
+    np.testing.assert_allclose(v.normal[hit, :2], ex.normal, atol=1e-9)
     fr = {k: i for i, k in enumerate(zip(m.frame, m.track_id))}
-    idx = [fr[(v["frame"][h], v["track_id"][h])] for h in hit]
+    idx = [fr[(v.frame[h], v.track_id[h])] for h in hit]
     geo = scene_geometry(tiny, "c1", [m.rles[i] for i in idx], m.height, m.width,
-                         v["uv"][hit], v["normal"][hit, :2], ex.cls)
+                         v.uv[hit], v.normal[hit, :2], ex.cls)
     np.testing.assert_array_equal(geo, ex.geo)
-    assert np.abs(v["residual"]).max() > 0
+    assert np.abs(v.residual).max() > 0
     with pytest.raises(S2PError, match="mask-geometry"):
         ck.predict(np.zeros((1, 420, 420), np.uint8), np.zeros((1, 2)), np.zeros((1, 2)),
                    np.array(["car"]))
@@ -227,7 +229,8 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
 
 def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_rough):
     """`s2p run --models A --models B`: each view's residual is the mean of A's and B's."""
-    from seg2pose.pipeline import read_views, run_scene
+    from seg2pose.io.run import read_views
+    from seg2pose.pipeline import run_scene
     from seg2pose.train import train_scene
 
     a = train_scene(tiny, tmp_path / "a", tiny_config(epochs=1, batches_per_epoch=3), cameras=["c1"],
@@ -237,8 +240,16 @@ def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_r
     runs = {k: read_views(run_scene(tiny, tmp_path / f"run_{k}", config="mono-1", models_dir=m,
                                     split="test", progress=False) / "views.csv")
             for k, m in (("a", a), ("b", b), ("ab", [a, b]))}
-    ra, rb, rab = (runs[k]["residual"] for k in ("a", "b", "ab"))
+    ra, rb, rab = (runs[k].residual for k in ("a", "b", "ab"))
     assert np.abs(ra - rb).max() > 1e-3
     np.testing.assert_allclose(rab, (ra + rb) / 2, atol=1e-6)
     meta = json.loads((tmp_path / "run_ab" / "run.json").read_text())
-    assert meta["models"]["c1/car"]["path"] == [str(a / "c1__all.safetensors"), str(b / "c1__all.safetensors")]
+    # run.json: checkpoint paths relative to the run folder, with their file names and digests
+    from seg2pose.io.run import file_sha256
+
+    entry = meta["models"]["c1/car"]
+    assert [(tmp_path / "run_ab" / p).resolve() for p in entry["path"]] == \
+        [(a / "c1__all.safetensors").resolve(), (b / "c1__all.safetensors").resolve()]
+    assert entry["path"] == ["../a/c1__all.safetensors", "../b/c1__all.safetensors"]
+    assert entry["file"] == ["c1__all.safetensors"] * 2
+    assert entry["sha256"] == [file_sha256(a / "c1__all.safetensors"), file_sha256(b / "c1__all.safetensors")]

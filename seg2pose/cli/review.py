@@ -1,4 +1,4 @@
-"""``s2p review``, ``s2p export``, ``s2p import-mcap`` and ``s2p screenshot``.
+"""Review commands: ``s2p review``, ``s2p export``, ``s2p import-mcap`` and ``s2p screenshot``.
 
 Heavy imports (rerun, mcap, protobuf) happen inside the commands so ``s2p --help`` stays fast.
 """
@@ -9,27 +9,11 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.errors import InputError
-
-
-def parse_frames(text: str | None) -> tuple[int, int] | None:
-    """``A:B`` (inclusive) -> (A, B); None stays None."""
-    if text is None:
-        return None
-    parts = text.split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        a, b = int(parts[0]), int(parts[1])
-    except ValueError:
-        raise InputError(f"expected A:B with integer frames, got {text!r}", field="--frames") from None
-    if a < 0 or b < a:
-        raise InputError(f"expected 0 <= A <= B, got {text!r}", field="--frames")
-    return a, b
+from seg2pose.cli.common import REVIEW, parse_frames
 
 
 def register(app: typer.Typer) -> None:
-    @app.command()
+    @app.command(rich_help_panel=REVIEW)
     def review(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: list[Path] = typer.Option([], "--run", help="run folder (made by `s2p run`); repeat to compare runs"),
@@ -65,7 +49,7 @@ def register(app: typer.Typer) -> None:
         if screenshot is not None:
             typer.echo(f"wrote {screenshot}")
 
-    @app.command()
+    @app.command(rich_help_panel=REVIEW)
     def export(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
@@ -86,7 +70,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"note: {note}")
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
 
-    @app.command("import-mcap")
+    @app.command("import-mcap", rich_help_panel=REVIEW)
     def import_mcap_cmd(
         file: Path = typer.Argument(..., help=".mcap file written by `s2p export`"),
         out: Path = typer.Option(..., "-o", "--out", help="output folder (becomes a scene folder)"),
@@ -98,7 +82,7 @@ def register(app: typer.Typer) -> None:
         run_dir = import_mcap(file, out, force=force)
         typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")
 
-    @app.command("screenshot")
+    @app.command("screenshot", rich_help_panel=REVIEW)
     def screenshot_cmd(
         rrd: Path = typer.Argument(..., help="recording (.rrd) to open"),
         out: Path = typer.Option(..., "-o", "--out", help="output .png"),

@@ -7,14 +7,15 @@ from typing import List, Optional
 
 import typer
 
+from seg2pose.cli.common import METHOD
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 
 
 def register(app: typer.Typer) -> None:
-    app.command("train")(train_cmd)
-    app.command("run")(run_cmd)
-    app.command("eval")(eval_cmd)
-    app.command("paper-table")(paper_table_cmd)
+    app.command("train", rich_help_panel=METHOD)(train_cmd)
+    app.command("run", rich_help_panel=METHOD)(run_cmd)
+    app.command("eval", rich_help_panel=METHOD)(eval_cmd)
+    app.command("paper-table", rich_help_panel=METHOD)(paper_table_cmd)
 
 
 def run_cmd(
@@ -41,8 +42,9 @@ def run_cmd(
 
     d = run_scene(scene, out, config=config, baseline=baseline, models_dir=models, split=split,
                   force=force, center_method=center, arch=arch, device=device)
-    import json
-    meta = json.loads((d / "run.json").read_text())
+    from seg2pose.io.run import read_run_meta
+
+    meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
 

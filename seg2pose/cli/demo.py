@@ -16,6 +16,8 @@ from pathlib import Path
 
 import typer
 
+from seg2pose.cli.common import METHOD
+
 DEMO_SCENE = Path("demo_scene")
 SAMPLE_LOGS = Path("sample_logs")
 DEMO_CONFIGS = ("mono-1", "tri-T")
@@ -32,6 +34,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     """Run the demo; returns a summary dict (paths and mean errors)."""
     from seg2pose.evaluate import evaluate, format_table
     from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import read_run_poses
     from seg2pose.io.scene import load_scene
     from seg2pose.pipeline import run_scene
     from seg2pose.synth import generate_scene
@@ -48,8 +51,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     scene = load_scene(scene_dir)
 
     _step("default heights by bisection on the training split (paper 3.2)")
-    from seg2pose.io.cli import update_default_heights
-    update_default_heights(scene, split="train")
+    from seg2pose.heights import update_default_heights
+    update_default_heights(scene, split="train", log=typer.echo)
     scene = load_scene(scene_dir)
 
     models = scene_dir / "models"
@@ -70,7 +73,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
             _step(f"running {name} on the test split -> {run_dir}")
             run_scene(scene, run_dir, config=cfg, baseline=baseline,
                       models_dir=None if baseline else models, split="test", force=True)
-            est = read_poses(run_dir / "poses.csv")
+            est = read_run_poses(run_dir)
             results[name] = evaluate(est, gt, scene.rig.center[:2],
                                      frame_range=scene.split_range("test"))
             runs.append(run_dir)
@@ -104,7 +107,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
 
 
 def register(app: typer.Typer) -> None:
-    @app.command()
+    @app.command(rich_help_panel=METHOD)
     def demo(
         scene: Path = typer.Option(DEMO_SCENE, help="where the demo's synthetic scene goes"),
         logs: Path = typer.Option(SAMPLE_LOGS, help="where demo.rrd and demo.mcap go"),

@@ -1,0 +1,75 @@
+"""The ``s2p`` command: the command layer, and the only part of ``seg2pose`` that may import
+``s2p_review`` and ``annotate``.
+
+One module per family of commands, each with ``register(app)``; they are imported and
+registered here by name, so a reader (and any tool) sees what depends on what. ``s2p --help``
+groups the commands in panels (``seg2pose.cli.common``): scene, method, review, annotation,
+batch.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from seg2pose.errors import S2PError
+
+app = typer.Typer(
+    name="s2p",
+    help="s2p: world-coordinate pose tracks of road users from instance-segmentation masks "
+         "(the Seg2Pose method). Scene folders hold calibration, ground points, masks and "
+         "ground truth; runs hold pose tracks; recordings open in the Rerun viewer.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _root() -> None:
+    """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
+
+
+from seg2pose.cli import demo, method, review, scene  # noqa: E402  (after app exists)
+
+scene.register(app)
+method.register(app)
+review.register(app)
+demo.register(app)
+
+INTERRUPTED = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point. An S2PError becomes a one-line message and exit code 2 (no traceback);
+    Ctrl-C one line and exit code 130 (finished files stay; partial ones were never renamed
+    into place)."""
+    try:
+        rc = app(args=argv, standalone_mode=False)
+    except S2PError as e:
+        typer.secho(f"error: {e}", fg=typer.colors.RED, err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        rc = INTERRUPTED
+    except typer.Abort:  # end of input at a prompt
+        typer.secho("aborted", fg=typer.colors.YELLOW, err=True)
+        sys.exit(1)
+    except typer.TyperException as e:  # usage errors: shown as typer shows them
+        try:
+            from typer import rich_utils
+
+            rich_utils.rich_format_error(e)
+        except ImportError:
+            e.show()
+        sys.exit(e.exit_code)
+    # typer turns Ctrl-C into Exit(130), which standalone_mode=False returns as the code
+    if rc == INTERRUPTED:
+        typer.secho("interrupted; finished files are kept, partial ones were not written",
+                    fg=typer.colors.YELLOW, err=True)
+        sys.exit(INTERRUPTED)
+    sys.exit(rc if isinstance(rc, int) else 0)
+
+
+if __name__ == "__main__":
+    main()

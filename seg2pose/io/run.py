@@ -1,0 +1,321 @@
+"""The run folder: the one module that reads and writes it.
+
+A run folder is the contract between ``s2p run`` (pipeline), evaluation, review and export::
+
+    RUN/run.json    {"scene" (path of the scene folder relative to RUN), "scene_fingerprint",
+                     "config", "cameras", "method", "center_method", "models" (per
+                     "camera/class": "path" relative to RUN, "file", "sha256", "val_loss",
+                     "epoch", "seed"), "split", "frame_range", "created", "n_frames",
+                     "n_views", "n_poses"}
+    RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
+    RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
+                    (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
+                    Seg2PoseNet residual, metres, 0 for the baseline)
+
+The folder is written as a unit (``write_run_folder``): the files go into a temporary sibling
+folder, are flushed to disk, and the folder is renamed into place, so a reader never sees a mix
+of two runs. A second writer of the same folder is refused while the first holds its lock file
+(``.RUN.lock`` beside the folder: pid, host, time); the lock of a process that died is taken
+over with a note.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import hashlib
+import io
+import json
+import os
+import shutil
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.atomic import atomic_write_text, temp_sibling_dir
+from seg2pose.io.poses import PoseTable, format_poses, read_poses
+from seg2pose.say import say
+
+RUN_FILE = "run.json"
+POSES_FILE = "poses.csv"
+VIEWS_FILE = "views.csv"
+VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
+
+
+# ----------------------------------------------------------------------------------------------
+# views.csv
+
+
+@dataclass
+class ViewTable:
+    """Per-view rows of a run, column-wise. frame, track_id: (N,) int64; camera, cls: (N,) str;
+    uv: (N, 2) mask centres, pixels; normal: (N, 3) normal positions, metres (NaN where the ray
+    missed the ground); residual: (N, 2) Seg2PoseNet residuals, metres (0 for the baseline)."""
+
+    frame: np.ndarray
+    track_id: np.ndarray
+    camera: np.ndarray
+    cls: np.ndarray
+    uv: np.ndarray
+    normal: np.ndarray
+    residual: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
+        self.track_id = np.asarray(self.track_id, dtype=np.int64).reshape(-1)
+        self.camera = np.asarray(self.camera, dtype=object).reshape(-1)
+        self.cls = np.asarray(self.cls, dtype=object).reshape(-1)
+        self.uv = np.asarray(self.uv, dtype=np.float64).reshape(-1, 2)
+        self.normal = np.asarray(self.normal, dtype=np.float64).reshape(-1, 3)
+        self.residual = np.asarray(self.residual, dtype=np.float64).reshape(-1, 2)
+        n = len(self.frame)
+        if not all(len(c) == n for c in (self.track_id, self.camera, self.cls, self.uv,
+                                         self.normal, self.residual)):
+            raise ValueError("ViewTable columns differ in length")
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def take(self, idx) -> "ViewTable":
+        return ViewTable(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
+                         self.uv[idx], self.normal[idx], self.residual[idx])
+
+    def sorted(self) -> "ViewTable":
+        """Rows by frame, track id, camera (the order ``s2p run`` writes)."""
+        return self.take(np.lexsort((self.camera, self.track_id, self.frame)))
+
+    def of_cameras(self, cameras: Iterable[str]) -> "ViewTable":
+        """The rows seen by ``cameras``."""
+        return self.take(np.isin(self.camera, list(cameras)))
+
+    @classmethod
+    def empty(cls) -> "ViewTable":
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0, object), np.zeros(0, object),
+                   np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
+
+    @classmethod
+    def concat(cls, tables: Iterable["ViewTable"]) -> "ViewTable":
+        tables = list(tables)
+        if not tables:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(t, k) for t in tables])
+                     for k in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual")))
+
+
+def format_views(table: ViewTable) -> str:
+    """views.csv text, rows in the table's order; floats with ``repr`` (exact round trip)."""
+    buf = io.StringIO()
+    buf.write(",".join(VIEW_COLUMNS) + "\n")
+    num = np.column_stack([table.uv, table.normal, table.residual])
+    for i in range(len(table)):
+        buf.write(f"{table.frame[i]},{table.track_id[i]},{table.camera[i]},{table.cls[i]},"
+                  + ",".join(repr(float(x)) for x in num[i]) + "\n")
+    return buf.getvalue()
+
+
+def read_views(path: str | Path) -> ViewTable:
+    """Read RUN/views.csv; errors name the file, line and what was expected."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("views file not found", file=path)
+    with open(path, encoding="utf-8") as f:
+        header = f.readline().strip().split(",")
+        if [h.strip() for h in header] != VIEW_COLUMNS:
+            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}, got {','.join(header)}",
+                             file=path, line=1)
+        lines = f.read().splitlines()
+    rows = [ln.split(",") for ln in lines if ln.strip()]
+    linenos = [i + 2 for i, ln in enumerate(lines) if ln.strip()]
+    for r, ln in zip(rows, linenos):
+        if len(r) != len(VIEW_COLUMNS):
+            raise InputError(f"expected {len(VIEW_COLUMNS)} fields, got {len(r)}", file=path, line=ln)
+    if not rows:
+        return ViewTable.empty()
+    a = np.array(rows, dtype=object)
+    try:
+        ints = a[:, :2].astype(np.int64)
+    except ValueError:
+        bad = next(ln for r, ln in zip(rows, linenos) if not (r[0].strip().lstrip("-").isdigit()
+                                                            and r[1].strip().lstrip("-").isdigit()))
+        raise InputError("frame and track_id must be integers", file=path, line=bad) from None
+    try:
+        nums = a[:, 4:].astype(np.float64)
+    except ValueError:
+        for r, ln in zip(rows, linenos):
+            try:
+                [float(x) for x in r[4:]]
+            except ValueError:
+                raise InputError("expected numbers in u,v,xn,yn,zn,dx,dy", file=path, line=ln) from None
+        raise
+    return ViewTable(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
+                     np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
+                     nums[:, 5:7])
+
+
+# ----------------------------------------------------------------------------------------------
+# run.json
+
+
+def read_run_meta(path: str | Path) -> dict:
+    """RUN/run.json as a dict (``path`` is the run folder)."""
+    meta_path = Path(path) / RUN_FILE
+    if not meta_path.exists():
+        raise InputError("no run.json here (is this a run folder made by `s2p run`?)", file=meta_path)
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise InputError(f"invalid JSON: {e.msg}", file=meta_path, line=e.lineno) from None
+    if not isinstance(meta, dict):
+        raise InputError("expected a JSON object", file=meta_path)
+    return meta
+
+
+def relative_path(target: str | Path, folder: str | Path) -> str:
+    """``target`` as a path relative to ``folder`` (run.json holds no machine-specific
+    absolute paths; POSIX separators)."""
+    return Path(os.path.relpath(Path(target).resolve(), Path(folder).resolve())).as_posix()
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def now_utc() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+# ----------------------------------------------------------------------------------------------
+# the whole folder
+
+
+@dataclass
+class RunFolder:
+    """A run folder in memory: path, meta (run.json), poses, views (None without views.csv)."""
+
+    path: Path
+    meta: dict
+    poses: PoseTable
+    views: ViewTable | None
+
+
+def read_run(path: str | Path, known_classes: Iterable[str] | None = None) -> RunFolder:
+    """Read RUN/run.json, RUN/poses.csv and (when present) RUN/views.csv."""
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError("run folder not found", file=path)
+    meta = read_run_meta(path)
+    poses = read_poses(path / POSES_FILE, known_classes=known_classes)
+    views = read_views(path / VIEWS_FILE) if (path / VIEWS_FILE).exists() else None
+    return RunFolder(path, meta, poses, views)
+
+
+def read_run_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> PoseTable:
+    """Only RUN/poses.csv (evaluation needs no more)."""
+    return read_poses(Path(path) / POSES_FILE, known_classes=known_classes)
+
+
+def _lock_path(run_dir: Path) -> Path:
+    return run_dir.with_name(f".{run_dir.name}.lock")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: str | Path) -> Iterator[Path]:
+    """Hold ``.RUN.lock`` beside ``run_dir`` while writing it. A live holder makes this raise
+    S2PError naming it; the lock of a dead process on this host is taken over with a note."""
+    run_dir = Path(run_dir)
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    lock = _lock_path(run_dir)
+    me = {"pid": os.getpid(), "host": socket.gethostname(), "time": now_utc()}
+    for attempt in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            text = lock.read_text(encoding="utf-8", errors="replace") if lock.exists() else ""
+            try:
+                holder = json.loads(text)
+                pid, host = int(holder["pid"]), str(holder["host"])
+            except (ValueError, KeyError, TypeError):
+                holder, pid, host = {}, -1, ""
+            stale = host == me["host"] and not _pid_alive(pid)
+            if attempt == 0 and stale:
+                say(f"taking over the lock {lock} of process {pid}, which no longer runs "
+                    f"(it started writing {run_dir} at {holder.get('time')})", kind="note")
+                with contextlib.suppress(FileNotFoundError):
+                    if lock.read_text(encoding="utf-8", errors="replace") == text:
+                        lock.unlink()
+                continue
+            raise S2PError(f"{run_dir} is being written by process {pid} on {host or '?'} since "
+                           f"{holder.get('time', '?')}; wait for it to finish (or remove {lock} "
+                           "if that process is gone)") from None
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(json.dumps(me) + "\n")
+        break
+    try:
+        yield lock
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+
+
+def _fsync_dir(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def check_run_writable(run_dir: str | Path, force: bool) -> None:
+    """Refuse an existing non-empty ``run_dir`` unless ``force``."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())) and not force:
+        raise S2PError(f"{run_dir} exists and is not empty; pass --force to overwrite it")
+
+
+def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | None, meta: dict,
+                     force: bool = False) -> Path:
+    """Write RUN/poses.csv, RUN/views.csv (when ``views`` is given) and RUN/run.json as a unit:
+    into a temporary sibling folder, flushed, then renamed into place; an existing non-empty
+    ``run_dir`` is only replaced with ``force`` (the new folder is swapped in, then the old one
+    removed). Returns ``run_dir``."""
+    run_dir = Path(run_dir)
+    with run_lock(run_dir):
+        check_run_writable(run_dir, force)
+        tmp = temp_sibling_dir(run_dir)
+        try:
+            atomic_write_text(tmp / POSES_FILE, format_poses(poses))
+            if views is not None:
+                atomic_write_text(tmp / VIEWS_FILE, format_views(views))
+            atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
+            _fsync_dir(tmp)
+            if run_dir.exists():
+                old = temp_sibling_dir(run_dir)
+                os.replace(run_dir, old / "old")
+                os.replace(tmp, run_dir)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, run_dir)
+            _fsync_dir(run_dir.parent)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return run_dir

@@ -1,0 +1,57 @@
+"""The command layer: grouped help, Ctrl-C and errors as one line."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+
+def run_main(monkeypatch, capsys, *argv):
+    from seg2pose.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["s2p", *argv])
+    with pytest.raises(SystemExit) as e:
+        main()
+    out = capsys.readouterr()
+    return e.value.code, out.out, out.err
+
+
+def test_help_groups_commands():
+    from seg2pose.cli import app
+
+    r = CliRunner().invoke(app, ["--help"], terminal_width=200)
+    assert r.exit_code == 0
+    text = r.output
+    # each panel's title comes before the commands it holds
+    order = ["Scene", "synth", "heights", "Method", "train", "paper-table", "Review", "export"]
+    pos = [text.index(w) for w in order]
+    assert all(a < b for a, b in zip(pos[:3], pos[1:3])) and pos[0] < pos[1] < pos[3] < pos[4] < pos[6]
+    for panel, cmd in (("Scene", "info"), ("Method", "run"), ("Review", "review")):
+        assert text.index(panel) < text.index(f" {cmd} ")
+
+
+def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, capsys):
+    import seg2pose.io.scene as S
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(S, "load_scene", interrupted)
+    code, out, err = run_main(monkeypatch, capsys, "info", "somewhere")
+    assert code == 130
+    assert err.strip() == "interrupted; finished files are kept, partial ones were not written"
+
+
+def test_error_is_one_line_exit_2(monkeypatch, capsys, tmp_path):
+    code, _, err = run_main(monkeypatch, capsys, "info", str(tmp_path))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert err.startswith("error: ") and "scene.json" in err
+
+
+def test_usage_error_exit_2_and_success_exit_0(monkeypatch, capsys):
+    code, _, err = run_main(monkeypatch, capsys, "info", "--no-such-option")
+    assert code == 2 and "--no-such-option" in err
+    code, out, _ = run_main(monkeypatch, capsys, "heights", "--help")
+    assert code == 0 and "bisection" in out
