@@ -15,7 +15,6 @@ first two and skips occluded rows.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from annotate import journal as J
@@ -67,14 +66,12 @@ def journal_files(project) -> dict[str, bytes]:
     return out
 
 
-def write_annotation_run(project, folder: str | Path) -> Path:
+def write_annotation_run(project, folder: str | Path, force: bool = False) -> Path:
     """A run folder of the annotated poses (``poses.csv`` with the source column, ``run.json``
     saying it holds annotations), for tools that read runs (review, MCAP export)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    write_poses(folder / "poses.csv", annotated_poses(project))
-    meta = dict(RUN_META, scene=project.scene.name, fingerprint=project.fingerprint,
-                journal_records=project.seq)
-    (folder / "run.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
-    return folder
+    from seg2pose.io.run import relative_path, write_run_folder
 
+    folder = Path(folder)
+    meta = dict(RUN_META, scene=relative_path(project.scene.root, folder),
+                scene_fingerprint=project.fingerprint, journal_records=project.seq)
+    return write_run_folder(folder, annotated_poses(project), None, meta, force=force)
