@@ -5,7 +5,7 @@
         ch = p.create_track("car")
         p.set_keyframe(ch.track, 0, x=3.0, y=-1.5, heading=0.0)
         p.set_keyframe(ch.track, 25, x=12.0, y=-1.4)
-        p.poses()            # AnnotationTable: every frame, z on the ground, source column
+        p.poses()            # PoseTable: every frame, z on the ground, size, source column
         p.undo(); p.redo()
 
 Every edit method (edits.py) returns a ``Change`` naming the tracks it changed, after the edit
@@ -26,7 +26,8 @@ from annotate.edits import EditsMixin
 from annotate.place import PlacementMixin
 from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
-from annotate.table import AnnotationTable, track_poses
+from annotate.table import empty, track_poses
+from seg2pose.io.poses import PoseTable
 from seg2pose.errors import S2PError
 from seg2pose.io.scene import Scene, load_scene
 
@@ -83,7 +84,7 @@ class Project(EditsMixin, PlacementMixin):
         self.fingerprint = scene.fingerprint()
         self.snapshot_every = int(snapshot_every)
         self._s = _State()
-        self._cache: dict[int, AnnotationTable] = {}
+        self._cache: dict[int, PoseTable] = {}
         self._subscribers: list[Callable[[Change], None]] = []
         self._segment: J.Segment | None = None
         self._segment_start = 0
@@ -154,19 +155,22 @@ class Project(EditsMixin, PlacementMixin):
         t = self.track(track_id)
         return t.interp or default_method(t.cls)
 
-    def track_poses(self, track_id: int) -> AnnotationTable:
-        """Every frame's pose of one track (cached until the track changes)."""
+    def track_poses(self, track_id: int) -> PoseTable:
+        """Every frame's pose of one track (cached until the track changes): a PoseTable with
+        size and source (keyframe / interpolated / occluded) columns."""
         tid = int(track_id)
         if tid not in self._cache:
             t = self.track(tid)
             self._cache[tid] = track_poses(t, self.scene.ground, self.interpolation(tid))
         return self._cache[tid]
 
-    def poses(self, tracks=None, frames: tuple[int, int] | None = None) -> AnnotationTable:
-        """Per-frame poses of all (or the given) tracks, sorted by frame then track id."""
+    def poses(self, tracks=None, frames: tuple[int, int] | None = None) -> PoseTable:
+        """Per-frame poses of all (or the given) tracks, sorted by frame then track id: a
+        PoseTable with size and source columns (write it with seg2pose.io.poses.write_poses)."""
         ids = sorted(self._s.tracks) if tracks is None else [int(t) for t in tracks]
-        table = AnnotationTable.concat(self.track_poses(t).in_frames(frames) for t in ids)
-        return table.sorted()
+        parts = [self.track_poses(t).in_frames(frames) for t in ids]
+        parts = [t for t in parts if len(t)]
+        return PoseTable.concat(parts).sorted() if parts else empty()
 
     @property
     def seq(self) -> int:
