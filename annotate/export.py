@@ -27,8 +27,7 @@ RUN_META = {"kind": "annotations", "method": "annotation (keyframes + interpolat
 def annotated_poses(project, frames: tuple[int, int] | None = None) -> PoseTable:
     """The project's per-frame poses as a PoseTable with sizes and the source column, rows by
     frame then track id (the order of pose files)."""
-    t = project.poses(frames=frames)
-    return PoseTable(t.frame, t.track_id, t.cls, t.xyz, t.heading, t.size, t.source)
+    return project.poses(frames=frames)
 
 
 def export_gt(project, path: str | Path | None = None, force: bool = False) -> Path:
