@@ -53,9 +53,9 @@ def test_annotate_export_gt_and_tanalyst(monkeypatch, capsys, tmp_path):
     (tmp_path / "t.csv").write_text(CSV)
     s2p(monkeypatch, capsys, "annotate", "import-tanalyst", scene.root, tmp_path / "t.csv",
         "--start", "07:30:00.000")
-    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", scene.root, "--no-mcap")
+    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", scene.root)
     assert code == 2 and "not an annotation export" in err and "--force" in err
-    code, out, _ = s2p(monkeypatch, capsys, "annotate", "export", scene.root, "--no-mcap",
+    code, out, _ = s2p(monkeypatch, capsys, "annotate", "export", scene.root,
                        "--force", "--start", "07:30:00.000")
     assert code == 0
     gt = read_poses(scene.gt_path)
