@@ -53,13 +53,10 @@ def export_gt(project, path: str | Path | None = None, force: bool = False) -> P
 
 
 def journal_files(project) -> dict[str, bytes]:
-    """The journal as files to carry in an export: relative name (``annotations/...``) -> bytes,
-    the segments and snapshots that a replay reads (no lock, no torn leftovers). Restored into
-    a copy of the scene folder, ``Project.open`` there gives the same tracks and history."""
-    segs, snaps = J.list_files(project.folder)
-    out = {}
-    for p in sorted(list(segs.values()) + list(snaps.values())):
-        out[f"{J.ANNOTATIONS}/{p.name}"] = p.read_bytes()
+    """The journal as files to carry in an export: relative name (``annotations/...``) -> bytes
+    (``Project.journal_files``: snapshot and segments, no lock). Restored into a copy of the
+    scene folder, ``Project.open`` there gives the same tracks and history."""
+    out = {f"{J.ANNOTATIONS}/{p.name}": p.read_bytes() for p in project.journal_files()}
     if not out:
         raise S2PError(f"{project.folder}: no journal yet (nothing annotated)")
     return out

@@ -2,8 +2,8 @@
 
 Import: every road user of the file becomes a track whose keyframes are its detections (flag
 ``imported``), in one undoable step. The file has no headings: a keyframe's heading is the
-direction of motion between its neighbouring detections (eq. 2's idea, central differences),
-held from the nearest detection that moved where the road user stands still. Track ids are
+direction of motion to the next detection (the engine's ``motion_headings``), held from the
+nearest one that moved where the road user stands still. Track ids are
 the file's road user ids where free; the road user id and type are kept in the track's meta so
 an export writes them back unchanged.
 
@@ -18,33 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from annotate.model import EditError, Track
+from annotate.place import motion_headings
 from seg2pose.errors import InputError
 from seg2pose.io.tanalyst import (CLASS_TO_TYPE, TYPE_TO_CLASS, TAnalystTable, frames_to_times,
                                   times_to_frames)
 
-MOVED = 0.3  # metres between neighbouring detections below which the heading is held
 META = "tanalyst"  # track.meta key: {"road_user_id": int, "type": str}
-
-
-def headings_from_motion(xy: np.ndarray, moved: float = MOVED) -> np.ndarray:
-    """(K,) headings radians of K positions (K, 2) metres in time order: the direction from
-    the previous to the next position (one-sided at the ends); where they are less than
-    ``moved`` apart the nearest heading that is defined, 0 when none is."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    k = len(xy)
-    if k < 2:
-        return np.zeros(k)
-    nxt = np.r_[np.arange(1, k), k - 1]
-    prv = np.r_[0, np.arange(0, k - 1)]
-    d = xy[nxt] - xy[prv]
-    h = np.arctan2(d[:, 1], d[:, 0])
-    ok = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) >= moved)
-    if not len(ok):
-        return np.zeros(k)
-    idx = np.arange(k)
-    right = ok[np.clip(np.searchsorted(ok, idx), 0, len(ok) - 1)]
-    left = ok[np.clip(np.searchsorted(ok, idx, side="right") - 1, 0, len(ok) - 1)]
-    return h[np.where(np.abs(left - idx) <= np.abs(right - idx), left, right)]
 
 
 def class_of_type(road_user_type: str, known: list[str], type_map: dict[str, str] | None = None
@@ -116,7 +95,7 @@ def import_tanalyst(project, table: TAnalystTable, fps: float | None = None, sta
         while next_id in taken:
             next_id += 1
         xy = table.xy[rows]
-        hd = headings_from_motion(xy)
+        hd = motion_headings(xy, np.full(len(xy), np.nan))
         track = Track(tid, cls, project._size(None, cls), None,
                       meta={META: {"road_user_id": int(r), "type": typ}})
         for i, f, (x, y), h in zip(rows, fr.tolist(), xy.tolist(), hd.tolist()):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from annotate import Project
-from annotate.tanalyst_io import annotations_to_tanalyst, headings_from_motion, import_tanalyst
+from annotate.tanalyst_io import annotations_to_tanalyst, import_tanalyst
 from seg2pose.errors import InputError
 from seg2pose.io.tanalyst import format_tanalyst, parse_tanalyst, read_tanalyst
 from review_fixtures import make_scene
@@ -28,16 +28,6 @@ def project(tmp_path):
     p = Project.open(make_scene(tmp_path / "scene", n_frames=30))
     yield p
     p.close()
-
-
-def test_headings_from_motion_by_hand():
-    xy = np.array([[0, 0], [1, 0], [1, 0.1], [1, 1.1], [1, 1.1]])
-    h = headings_from_motion(xy)
-    # (1,0)-(0,0): 0; (1,.1)-(0,0): atan2(.1, 1); (1,1.1)-(1,0): pi/2; (1,1.1)-(1,.1): pi/2;
-    # the last pair is 0 m apart and holds its neighbour's pi/2
-    np.testing.assert_allclose(h, [0, math.atan2(0.1, 1), math.pi / 2, math.pi / 2, math.pi / 2])
-    assert headings_from_motion(np.zeros((3, 2))).tolist() == [0, 0, 0]
-    assert headings_from_motion(np.zeros((1, 2))).tolist() == [0]
 
 
 def test_import_makes_keyframes_and_export_writes_the_file_back(project):
