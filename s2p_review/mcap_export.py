@@ -51,7 +51,8 @@ class ExportOptions:
     """What to export. frames: (first, last) inclusive (None: the run's frames); cameras: None =
     the run's cameras; mask_every / video_every: every k-th frame only (None: automatic, as
     for recordings); start_ns: UTC time of frame 0, ns (None: the scene's, when it has one);
-    jpeg_quality, video_width: how video frames are stored (None: full width)."""
+    jpeg_quality, video_width: how video frames are stored (None: full width); attachments:
+    more files to carry, name -> bytes (e.g. an annotation journal, see ``annotated_mcap``)."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
@@ -60,6 +61,7 @@ class ExportOptions:
     start_ns: int | None = None
     jpeg_quality: int = 75
     video_width: int | None = None
+    attachments: dict[str, bytes] | None = None
 
 
 @dataclass(frozen=True)
@@ -209,6 +211,9 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
                               media_type="text/csv", data=(scene.root / scene.ground_file).read_bytes())
         out.pb.add_attachment(create_time=0, log_time=t0, name="run.json", media_type=MEDIA_JSON,
                               data=json.dumps(run.meta, indent=1).encode())
+        for name, data in (opts.attachments or {}).items():
+            out.pb.add_attachment(create_time=0, log_time=t0, name=name,
+                                  media_type="application/octet-stream", data=data)
         out.pb.add_metadata("s2p", {
             "scene": scene.name, "run": run.path.name, "fps": repr(scene.fps),
             "first_frame": str(sel.first), "last_frame": str(sel.last),

@@ -2,7 +2,7 @@
 
     s2p annotate SCENE                     the annotation app on SCENE (= s2p annotate open SCENE)
     s2p annotate status SCENE              tracks, keyframes and journal of SCENE's annotations
-    s2p annotate export SCENE              gt/poses.csv (source column), T-Analyst CSV
+    s2p annotate export SCENE              gt/poses.csv (source column), MCAP set, T-Analyst CSV
     s2p annotate import-tanalyst SCENE CSV T-Analyst tracks as keyframes
     s2p annotate export-tanalyst SCENE -o CSV
 
@@ -177,17 +177,20 @@ def export_tanalyst_cmd(
 @annotate_app.command("export")
 def export_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="folder for the T-Analyst CSV "
-                                       "(default: SCENE/export)"),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="folder for the MCAP set and "
+                                       "the T-Analyst CSV (default: SCENE/export)"),
     gt: bool = typer.Option(True, "--gt/--no-gt", help="write SCENE/gt/poses.csv (every "
                             "annotated frame, with a source column) for training"),
+    mcap: bool = typer.Option(True, "--mcap/--no-mcap", help="write OUT/annotations.mcap: "
+                              "video, masks, calibration, annotated tracks and the journal"),
     tanalyst: bool = typer.Option(True, "--tanalyst/--no-tanalyst",
                                   help="write OUT/tanalyst.csv"),
     start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
     force: bool = typer.Option(False, "--force", help="replace existing outputs (and "
                                "gt/poses.csv that did not come from an annotation export)"),
 ) -> None:
-    """Export the annotations: ground truth for `s2p train` and T-Analyst's tracks CSV."""
+    """Export the annotations: ground truth for `s2p train`, an MCAP set that `s2p import-mcap`
+    turns back into a working annotation project, and T-Analyst's tracks CSV."""
     from annotate import Project
     from annotate.export import export_gt
 
@@ -196,9 +199,26 @@ def export_cmd(
         if gt:
             path = export_gt(p, force=force)
             typer.echo(f"wrote {path}")
+        if mcap:
+            _export_mcap(p, out / "annotations.mcap", force)
         if tanalyst:
             out.mkdir(parents=True, exist_ok=True)
             _export_tanalyst(p, out / "tanalyst.csv", start, None, False, ",", force)
+
+
+def _export_mcap(p, path: Path, force: bool) -> None:
+    import tempfile
+
+    from annotate.export import journal_files, write_annotation_run
+    from s2p_review.annotated_mcap import export_annotated_mcap
+
+    with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as tmp:
+        run = write_annotation_run(p, Path(tmp) / "annotations")
+        res = export_annotated_mcap(p.scene, run, path, journal_files(p), force=force)
+    for note in res.notes:
+        typer.echo(f"note: {note}")
+    typer.echo(f"wrote {res.path} ({res.path.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "
+               "restores the scene with its annotation project")
 
 
 def register(app: typer.Typer) -> None:
