@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 import pytest
 
@@ -14,16 +12,7 @@ from s2p_review.annotated_mcap import export_annotated_mcap, restore_annotation_
 from s2p_review.mcap_import import read_mcap_records
 
 from review_fixtures import make_scene
-
-
-def s2p(monkeypatch, capsys, *argv):
-    from seg2pose.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["s2p", *map(str, argv)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    out = capsys.readouterr()
-    return e.value.code, out.out, out.err
+from test_cli_annotation import s2p
 
 
 def test_export_import_restores_the_annotation_project(monkeypatch, capsys, tmp_path):
