@@ -108,13 +108,16 @@ def register(app: typer.Typer) -> None:
                                          "stores CARLA half extents)"),
         frames: bool = typer.Option(True, "--frames/--no-frames",
                                     help="bring images/cam<id>/ or videos into video/"),
+        start_time: str = typer.Option(None, "--start-time", help="time of frame 0, ISO 8601 "
+                                       "with a zone, e.g. 2021-06-14T08:00:00Z (reviews and "
+                                       "exports then show real times)"),
     ) -> None:
         """Import a UTOCS (CARLA) recording into a scene folder; CARLA's left-handed world is
         mirrored in y into this project's right-handed one."""
         from seg2pose.io.utocs import import_utocs
 
         import_utocs(src, out, force=force, fps=fps, size_scale=size_scale, copy_frames=frames,
-                     log=typer.echo)
+                     log=typer.echo, start_time=start_time)
 
     @app.command("import-tacal", rich_help_panel=SCENE)
     def import_tacal_cmd(
