@@ -11,28 +11,23 @@ does not depend on the annotation engine.
 from __future__ import annotations
 
 import dataclasses
-import re
 from pathlib import Path
 
-from seg2pose.errors import InputError
 from seg2pose.io.atomic import atomic_write_bytes
 from seg2pose.io.scene import Scene
+from seg2pose.io.validate import safe_name
 from s2p_review.mcap_export import ExportOptions, ExportResult, export_mcap
 
 PREFIX = "annotations/"
-# a journal file's own name: no folders, nothing hidden, nothing that climbs out
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
-def _file_name(attachment: str) -> str | None:
+def _file_name(attachment: str, file: str | Path | None = None) -> str | None:
     """The file name inside ``annotations/`` of an attachment name, or None if it is not one;
-    names that would leave the folder are refused (ValueError)."""
+    a name that is not a plain file name (folders, '..', a leading dot) is an error."""
     if not attachment.startswith(PREFIX):
         return None
-    name = attachment[len(PREFIX):]
-    if not _NAME.match(name) or ".." in name:
-        raise ValueError(f"attachment {attachment!r} is not a plain file name under {PREFIX}")
-    return name
+    return safe_name(attachment[len(PREFIX):], file=file, field=f"attachment {attachment}",
+                     what="journal file name")
 
 
 def export_annotated_mcap(scene: Scene, run_dir: Path, out_path: Path, journal: dict[str, bytes],
@@ -54,10 +49,7 @@ def restore_annotation_files(attachments: dict[str, bytes], folder: Path,
     paths written. An attachment name that would leave that folder is an error naming it."""
     out = []
     for att, data in sorted(attachments.items()):
-        try:
-            name = _file_name(att)
-        except ValueError as e:
-            raise InputError(str(e), file=file) from None
+        name = _file_name(att, file)
         if name is None:
             continue
         path = Path(folder) / PREFIX.rstrip("/") / name

@@ -54,7 +54,7 @@ def layout(cameras: list[str], classes: list[str], image_topic: dict[str, str],
     if with_errors:
         plot = "Plot!s2p-errors"
         config[plot] = {
-            "title": "error (m) vs time",
+            "foxglovePanelTitle": "error (m) vs time",
             "paths": [{"value": f"/s2p/errors.{k}", "enabled": True, "timestampMethod": "receiveTime",
                        "label": k} for k in ["mean", *classes]],
             "showLegend": True, "legendDisplay": "top", "showXAxisLabels": True,
@@ -64,7 +64,7 @@ def layout(cameras: list[str], classes: list[str], image_topic: dict[str, str],
     for cam in cameras:
         t = camera_topics(cam)
         pid = f"Image!s2p-{cam}"
-        config[pid] = {"title": f"camera {cam}", "imageMode": {
+        config[pid] = {"foxglovePanelTitle": f"camera {cam}", "imageMode": {
             "imageTopic": image_topic[cam], "calibrationTopic": t["calibration"],
             "annotations": {t["annotations"]: {"visible": True}}}}
         panels.append(pid)

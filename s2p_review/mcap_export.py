@@ -46,7 +46,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError
-from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from s2p_review import columns as C
@@ -173,8 +173,7 @@ def _road_user_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTab
                                                      rgb=L.GT_COLOR, prefix="gt")
 
 
-def _error_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTable,
-                  gt: PoseTable | None) -> Iterator[Item]:
+def _error_stream(tb: Timebase, poses: PoseTable, gt: PoseTable | None) -> Iterator[Item]:
     """Per-frame ground-plane errors against the truth (for the layout's plot)."""
     if gt is None:
         return
@@ -271,7 +270,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     psz = C.sizes_of(poses, scene)
     gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last)) if scene.gt_path.exists() else None
     t0 = tb.ns1(sel.first)
-    with atomic_path(out_path) as tmp, open(tmp, "wb") as f:
+    with replacing(out_path, force, folder=False) as tmp, open(tmp, "wb") as f:
         out = _Writer(f)
         out.pb.add_attachment(create_time=0, log_time=t0, name=SCENE_FILE, media_type=MEDIA_JSON,
                               data=(scene.root / SCENE_FILE).read_bytes())
@@ -291,7 +290,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
             "has_views": str(run.views is not None).lower(),
             "poses_with_size": str(run.poses.size is not None).lower(), "mask_pixel": MASK_PIXEL})
         streams = [_static_stream(scene, sel.cameras, t0, opts.image_scale),
-                   _record_stream(run, sel, tb), _error_stream(scene, sel, tb, poses, gt),
+                   _record_stream(run, sel, tb), _error_stream(tb, poses, gt),
                    _road_user_stream(scene, sel, tb, poses, psz, gt)]
         streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
                     for k, name in enumerate(sel.cameras)]

@@ -126,11 +126,11 @@ def log_video(rec, scene: Scene, tb: Timebase, cam: str, first: int, last: int, 
                          columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)))
 
     for f, img in imagery.video_frames(path, first, last, every):
-        frames.append(f)
         if not sent and not frames and img.shape[1] > width:  # shown at the camera's size
             h = max(1, int(round(img.shape[0] * width / img.shape[1])))
             rec.log(ent, rr.Transform3D(scale=[img.shape[1] / width, img.shape[0] / h, 1.0]),
                     static=True)
+        frames.append(f)
         blobs.append(imagery.encode_jpeg(img, style.jpeg_quality, width))
         if len(frames) == IMAGE_BATCH:
             flush()

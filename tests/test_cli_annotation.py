@@ -61,7 +61,9 @@ def test_annotate_export_gt_and_tanalyst(monkeypatch, capsys, tmp_path):
     gt = read_poses(scene.gt_path)
     assert gt.source.tolist().count("keyframe") == 4 and len(gt) == 6 + 5
     text = (scene.root / "export" / "tanalyst.csv").read_text().splitlines()
-    assert len(text) == 1 + 11 and text[2] == "2;Car;3;-7,4;-1,5;07:30:00.100"
+    row = text[2].split(";")  # frame 1 of the car: 0.6 m on from -8 m along its path
+    assert len(text) == 1 + 11 and row[:3] == ["2", "Car", "3"] and row[5] == "07:30:00.100"
+    assert float(row[3].replace(",", ".")) == pytest.approx(-7.4, abs=1e-9)
 
 
 def test_import_tacal_command(monkeypatch, capsys, tmp_path):

@@ -547,3 +547,26 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     # the baseline is half-way to grey: less saturated than Seg2PoseNet's colours
     sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
     assert sat(b) < 0.6 * sat(s)
+
+
+def test_video_stored_small_is_shown_at_camera_size(tiny):
+    """--image-scale 0.5: JPEGs of half the camera's size, scaled back by the image entity's
+    transform so that they cover the camera's whole image."""
+    import cv2
+    import rerun.chunk as rc
+
+    scene, base, _, root = tiny
+    out = record(scene, [base], root / "small.rrd",
+                 RecordOptions(cameras=["c0"], style=LogStyle(masks=False, image_scale=0.5))).rrd
+    scale = blob = None
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path != "/world/cameras/c0/image":
+            continue
+        b = ch.to_record_batch()
+        if ch.is_static:
+            scale = b.column("Transform3D:scale").to_pylist()[0][0]
+        else:
+            blob = bytes(b.column("EncodedImage:blob").to_pylist()[0][0])
+    img = cv2.imdecode(np.frombuffer(blob, np.uint8), 1)
+    assert img.shape[:2] == (60, 80)
+    assert scale == [2.0, 2.0, 1.0]

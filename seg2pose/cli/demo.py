@@ -56,7 +56,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     if scene.start_time is None:  # a clock, so that the sample files show real times
         import dataclasses
 
-        dataclasses.replace(scene, start_time=DEMO_START).save()
+        scene = dataclasses.replace(scene, start_time=DEMO_START)
+        scene.save()
 
     _step("default heights by bisection on the training split (paper 3.2)")
     from seg2pose.heights import update_default_heights

@@ -39,7 +39,11 @@ def run_cmd(
     arch: Optional[str] = typer.Option(None, "--arch", help="require checkpoints of this arch (lite|paper)"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
-    force: bool = typer.Option(False, "--force", help="overwrite an existing run folder"),
+    allow_incomplete: bool = typer.Option(False, "--allow-incomplete",
+                                          help="use checkpoints whose training was interrupted "
+                                               "(refused otherwise)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely "
+                               "(the new run is written beside it and swapped in when complete)"),
 ) -> None:
     """Estimate world pose tracks: normal positions, Seg2PoseNet residuals (unless --baseline),
     late fusion over the configuration's views, headings from motion. Writes OUT/run.json,
@@ -49,7 +53,8 @@ def run_cmd(
 
     set_enabled(sparse)
     d = run_scene(scene, out, config=config, baseline=baseline, models_dir=models, split=split,
-                  force=force, center_method=center, arch=arch, device=device)
+                  force=force, center_method=center, arch=arch, device=device,
+                  allow_incomplete=allow_incomplete)
     from seg2pose.io.run import read_run_meta
 
     meta = read_run_meta(d)
@@ -125,6 +130,10 @@ def eval_cmd(
     run: Path = typer.Argument(..., help="run folder (from s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
+    match: str = typer.Option("ids", "--match",
+                              help="ids: pair estimates with truth by track id; nearest: per frame by "
+                                   "position (for tracks made by s2p track / masks-from-video)"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the truth, overall, per class and per 5 m bin
     of distance from the cameras."""
@@ -133,7 +142,9 @@ def eval_cmd(
     from seg2pose.paper_table import evaluate_run
     from seg2pose.evaluate import format_table
 
-    res = evaluate_run(scene, run, split=split)
+    if match not in ("ids", "nearest"):
+        raise typer.BadParameter("use ids or nearest", param_hint="--match")
+    res = evaluate_run(scene, run, split=split, match=match, gate=gate)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:
