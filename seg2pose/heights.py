@@ -79,16 +79,18 @@ def subsample_views(views: list, max_n: int, seed: int = 0) -> list:
 
 
 def update_default_heights(scene: Scene, split: str | None = "train", center: str | None = None,
-                           log=say, write: bool = True, max_per_class: int = 20000
-                           ) -> dict[str, dict]:
+                           log=say, write: bool = True, max_per_class: int = 20000,
+                           views: dict[str, list] | None = None) -> dict[str, dict]:
     """Paper 3.2: per-class default heights by bisection on ``split``, set on ``scene`` and
     (with ``write``) saved into its scene.json by ``Scene.save``. At most
     ``max_per_class`` matched detections per class are used (a uniform sample).
 
     Returns per class name {"old", "new", "closer_share", "n"}; classes without matched masks
-    keep their height (n = 0)."""
-    views = {k: subsample_views(v, max_per_class) for k, v in
-             collect_height_views(scene, split, center).items()}
+    keep their height (n = 0). ``views``: the bisection input per class, when it comes from
+    elsewhere (rough models: ``seg2pose.rough_heights``) rather than the split's masks."""
+    if views is None:
+        views = collect_height_views(scene, split, center)
+    views = {k: subsample_views(v, max_per_class) for k, v in views.items()}
     report: dict[str, dict] = {}
     for c in scene.classes:
         v = views.get(c.name, [])

@@ -13,9 +13,11 @@ from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.pipeline import _load_models, compute_views, model_dirs, write_run
 
-def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
+def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None,
+                 match: str = "ids", gate: float = 3.0):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
-    (mean of all camera centres); ``split`` restricts both to that split's frames."""
+    (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
+    ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids)."""
     from seg2pose.evaluate import evaluate
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
@@ -26,7 +28,8 @@ def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | No
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     est = read_run_poses(run_dir)
     gt = read_poses(scene.gt_path)
-    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
+    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split),
+                    match=match, gate=gate)
 
 
 PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",

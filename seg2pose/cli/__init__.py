@@ -32,8 +32,10 @@ def _root() -> None:
 
 
 from seg2pose.cli import demo, method, review, scene  # noqa: E402  (after app exists)
+from seg2pose.cli import video  # noqa: E402
 
 scene.register(app)
+video.register(app)
 method.register(app)
 review.register(app)
 demo.register(app)

@@ -125,6 +125,10 @@ def eval_cmd(
     run: Path = typer.Argument(..., help="run folder (from s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
+    match: str = typer.Option("ids", "--match",
+                              help="ids: pair estimates with truth by track id; nearest: per frame by "
+                                   "position (for tracks made by s2p track / masks-from-video)"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the truth, overall, per class and per 5 m bin
     of distance from the cameras."""
@@ -133,7 +137,9 @@ def eval_cmd(
     from seg2pose.paper_table import evaluate_run
     from seg2pose.evaluate import format_table
 
-    res = evaluate_run(scene, run, split=split)
+    if match not in ("ids", "nearest"):
+        raise typer.BadParameter("use ids or nearest", param_hint="--match")
+    res = evaluate_run(scene, run, split=split, match=match, gate=gate)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:

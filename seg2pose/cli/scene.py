@@ -108,13 +108,16 @@ def register(app: typer.Typer) -> None:
                                          "stores CARLA half extents)"),
         frames: bool = typer.Option(True, "--frames/--no-frames",
                                     help="bring images/cam<id>/ or videos into video/"),
+        start_time: str = typer.Option(None, "--start-time", help="time of frame 0, ISO 8601 "
+                                       "with a zone, e.g. 2021-06-14T08:00:00Z (reviews and "
+                                       "exports then show real times)"),
     ) -> None:
         """Import a UTOCS (CARLA) recording into a scene folder; CARLA's left-handed world is
         mirrored in y into this project's right-handed one."""
         from seg2pose.io.utocs import import_utocs
 
         import_utocs(src, out, force=force, fps=fps, size_scale=size_scale, copy_frames=frames,
-                     log=typer.echo)
+                     log=typer.echo, start_time=start_time)
 
     @app.command("heights", rich_help_panel=SCENE)
     def heights_cmd(
@@ -124,6 +127,8 @@ def register(app: typer.Typer) -> None:
         center: str = typer.Option(None, help="mask centre: bbox or centroid (default: "
                                    "seg2pose.normal.DEFAULT_CENTER_METHOD)"),
         dry_run: bool = typer.Option(False, "--dry-run", help="print, do not write scene.json"),
+        rough: int = typer.Option(0, "--rough", help="use N rough-model renders per class instead of "
+                                  "masks matched to ground truth (no annotations needed)"),
     ) -> None:
         """Per-class default heights by bisection (paper 3.2): about half of the split's
         normal positions end up closer to the camera than the truth. Writes scene.json."""
@@ -135,7 +140,12 @@ def register(app: typer.Typer) -> None:
                              field="--center")
         from seg2pose.heights import update_default_heights
 
-        update_default_heights(load_scene(scene), split, center, write=not dry_run, log=typer.echo)
+        sc = load_scene(scene)
+        views = None
+        if rough > 0:
+            from seg2pose.rough_heights import rough_height_views
+            views = rough_height_views(sc, rough, center=center)
+        update_default_heights(sc, split, center, write=not dry_run, log=typer.echo, views=views)
 
     @app.command("convert-masks", rich_help_panel=SCENE)
     def convert_masks_cmd(

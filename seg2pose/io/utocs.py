@@ -7,7 +7,11 @@ UTOCS layout (one recording)::
     ground_points.txt   x,y,z per line (metres)
     positions/NNNNNN.json   per frame: [{"type", "id", "x", "y", "z", "l", "w", "h",
                                          "forward_x", "forward_y", ...}, ...]
-    images/cam<id>/NNNNNN.jpg   optional frames (or a video file cam<id>.mp4 / videos/cam<id>.mp4)
+    images/cam<id>/NNNNNN.jpg   optional frames (or a video file cam<id>.mp4 / videos/cam<id>.mp4,
+                        or, with one camera, the folder's only *.mp4|*.avi|*.mkv, e.g. vid.mp4)
+
+A video's k-th frame is the k-th positions file (``extra.video_frames`` in scene.json records
+the first number and the step).
 
 CARLA's world is Unreal's: left-handed, z up. This project's world is right-handed, z up, so the
 import mirrors y: a CARLA point (x, y, z) becomes (x, -y, z), everywhere (cameras, ground
@@ -33,7 +37,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import check_writable
 from seg2pose.io.poses import PoseTable, write_poses
-from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
+from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time
 
 MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
 # camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
@@ -175,14 +179,32 @@ def _class_specs(types: list[str]) -> tuple[list[ClassSpec], dict[str, str]]:
     return specs, mapping
 
 
-def _find_video(src: Path, cam_id: str) -> Path | None:
+def _find_video(src: Path, cam_id: str, only_camera: bool = False) -> Path | None:
+    """cam<id>.<ext> (also under videos/ or video/); with one camera, else the only video."""
     for sub in ("", "videos", "video"):
         for ext in (".mp4", ".avi", ".mkv", ".mov"):
             for stem in (f"cam{cam_id}", f"{cam_id}"):
                 p = src / sub / f"{stem}{ext}" if sub else src / f"{stem}{ext}"
                 if p.is_file():
                     return p
+    if only_camera:
+        found = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in (".mp4", ".avi", ".mkv"))
+        if len(found) > 1:
+            raise InputError(f"several videos ({', '.join(p.name for p in found)}) and one camera: "
+                             "name the camera's video cam<id>.mp4", file=src)
+        return found[0] if found else None
     return None
+
+
+def _frame_numbering(folder: Path) -> dict:
+    """{"first", "step"} of the positions files' numbers (the video's k-th frame is the k-th
+    file); uneven numbering cannot be mapped and is an error."""
+    nums = sorted(int(m.group(1)) for p in folder.iterdir() if (m := _NUM.match(p.name)))
+    steps = np.unique(np.diff(nums)) if len(nums) > 1 else np.array([1])
+    if len(steps) != 1 or steps[0] < 1:
+        raise InputError("positions files are not evenly numbered, so video frames cannot be "
+                         "matched to them", file=folder)
+    return {"first": nums[0], "step": int(steps[0])}
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -215,10 +237,14 @@ def default_splits(frames: np.ndarray, gap: int = 150) -> dict[str, tuple[int, i
 
 def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                  fps: float | None = None, size_scale: float = 1.0, copy_frames: bool = True,
-                 log=print) -> Scene:
+                 log=print, start_time: str | None = None) -> Scene:
     """Convert a UTOCS recording ``src`` into a scene folder ``out`` (see module docstring):
-    scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist)."""
+    scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist).
+    start_time: the recording's time of frame 0 (ISO 8601 with a zone; UTOCS files do not
+    carry it), kept as the scene's start_time."""
     src, out = Path(src), Path(out)
+    if start_time is not None:
+        parse_start_time(start_time, field="start_time")
     if not src.is_dir():
         raise InputError("UTOCS source folder not found", file=src)
     check_writable(out / "scene.json", force)
@@ -244,7 +270,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
             if im is not None:
                 height, width = im.shape[:2]
             frame_sources[name] = ("images", img_dir)
-        elif (v := _find_video(src, uc.id)) is not None:
+        elif (v := _find_video(src, uc.id, only_camera=len(ucams) == 1)) is not None:
             frame_sources[name] = ("video", v)
         if width <= 0 or height <= 0:
             raise InputError(f"cannot infer the image size from Cx={cx}, Cy={cy}",
@@ -264,13 +290,17 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
         log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
             "use --size-scale 2 if so")
 
+    video_frames = {n: _frame_numbering(src / "positions") for n, (k, _) in frame_sources.items()
+                    if k == "video"}
     scene = Scene(root=out, name=src.name, fps=float(fps or 1.0 / CARLA_FRAME_TIME),
                   rig=Rig(cameras=cameras, configs=configs, name="utocs"), ground_points=ground,
                   classes=specs, splits=default_splits(gt.frame) if len(gt) else {},
+                  start_time=start_time,
                   extra={"source": {"format": "utocs", "path": str(src.resolve()),
                                     "world": "CARLA y mirrored: (x, y, z) -> (x, -y, z)",
                                     "frames": n_files, "size_scale": size_scale,
-                                    "types": {t: mapping[t] for t in types}}})
+                                    "types": {t: mapping[t] for t in types}},
+                                    **({"video_frames": video_frames} if video_frames else {})})
     out.mkdir(parents=True, exist_ok=True)
     (out / "masks").mkdir(exist_ok=True)
     write_poses(out / "gt" / "poses.csv", gt)
