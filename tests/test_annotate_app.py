@@ -315,8 +315,13 @@ def test_session_wiring_without_a_browser(scene_dir):
         sent = []
         s.viewer._viewer.send_rrd = lambda data: sent.append(len(data))
         ev = dict(application_id="s2p-annotate", recording_id="r", segment_id=None)
-        s._on_viewer_event(TimeUpdateEvent(time=0.0, **ev))   # first cursor: the page's frame wins
-        s._on_viewer_event(TimeUpdateEvent(time=2.0, **ev))   # then the viewer leads
+        moves = []
+        s.viewer.set_time_ctrl = lambda **k: moves.append(k["sequence"])
+        s._on_viewer_event(TimeUpdateEvent(time=10.0, **ev))  # streaming: the viewer follows data
+        assert s.ctl.frame == 0 and moves == [0] and s.ctl.viewer_state != "ready"
+        s._on_viewer_event(TimeUpdateEvent(time=0.0, **ev))   # it shows the page's frame: in sync
+        assert s.ctl.viewer_state == "ready"
+        s._on_viewer_event(TimeUpdateEvent(time=2.0, **ev))   # from now on the viewer leads
         assert s.ctl.frame == 2 and 'data-testid="frame-number">2<' in s.panel.html
         s._on_panel_msg(None, {"action": "new_track"}, [])
         tid = s.ctl.selected

@@ -110,10 +110,12 @@ class Session:
             self.timeline = e.timeline
         if kind in ("time_update", "timeline_change") and self.timeline == "frame":
             if self.ctl.viewer_state != "ready":
-                # the viewer's first cursor is its own choice (the newest data): the page's
-                # frame (restored from the last session) wins
+                # while the scene streams in, the viewer's cursor follows the newest data: the
+                # page's frame (restored from the last session) wins until the viewer shows it
+                if int(round(e.time)) != self.ctl.frame:
+                    self._move_cursor(self.ctl.frame)
+                    return
                 self.ctl.viewer_state = "ready"
-                self._move_cursor(self.ctl.frame)
                 self.refresh_panel()
                 return
             before = self.ctl.frame
