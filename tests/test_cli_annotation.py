@@ -33,7 +33,9 @@ def test_annotate_scene_is_the_open_command_and_tanalyst_round_trip(monkeypatch,
     code, out, _ = s2p(monkeypatch, capsys, "annotate", "import-tanalyst", scene.root,
                        tmp_path / "t.csv", "--start", "07:30:00.000")
     assert code == 0 and "imported 4 detections of 2 road users as 4 keyframes (tracks 3, 7)" in out
-    code, out, _ = s2p(monkeypatch, capsys, "annotate", scene.root)  # no subcommand: open SCENE
+    code, out, _ = s2p(monkeypatch, capsys, "annotate", scene.root, "--help")  # = open SCENE
+    assert code == 0 and "Open the annotation app" in out
+    code, out, _ = s2p(monkeypatch, capsys, "annotate", "status", scene.root)
     assert code == 0 and "2 tracks (1 car, 1 pedestrian), 4 keyframes, 1 journal records" in out
     code, out, _ = s2p(monkeypatch, capsys, "annotate", "export-tanalyst", scene.root, "-o",
                        tmp_path / "back.csv", "--keyframes-only", "--start", "07:30:00.000")
