@@ -11,7 +11,7 @@ import numpy as np
 
 from annotate.model import EditError
 from seg2pose.errors import InputError
-from seg2pose.io.mots import MaskTable, read_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import Scene
 from seg2pose.masks import mask_centers
@@ -99,9 +99,7 @@ class MaskIndex:
         if camera not in self.scene.cameras:
             raise EditError(f"unknown camera {camera!r}; the scene has {', '.join(self.scene.cameras)}")
         if camera not in self._tables:
-            cam = self.scene.cameras[camera]
-            self._tables[camera] = read_mots(self.scene.masks_path(camera),
-                                             size=(cam.height, cam.width))
+            self._tables[camera] = self.scene.read_masks(camera)  # checked against the camera
         return self._tables[camera]
 
     def normal_position(self, camera: str, frame: int, mask_track: int

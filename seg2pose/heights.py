@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.errors import S2PError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from seg2pose.masks import mask_centers
@@ -49,7 +49,7 @@ def collect_height_views(scene: Scene, split: str | None = "train", center: str 
                 views.setdefault(str(cname), []).append((cam, cen[sel], gt.xyz[g[sel], :2]))
 
         n = 0
-        for _, t in iter_mots(path, names.keys(), fr):
+        for _, t in scene.iter_masks(cam.name, fr):
             pending.append(t)
             n += len(t)
             if n >= chunk:

@@ -19,7 +19,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
 from seg2pose.io.scene import Scene, load_scene
@@ -32,13 +32,12 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
                 ) -> Iterator[tuple[int, dict[str, MaskTable]]]:
     """Stream all cameras' masks in lockstep: (frame, {camera: detections of that frame}),
     frames in increasing order; a camera without detections in a frame is absent."""
-    known = [c.id for c in scene.classes]
     its = {}
     for cam in cameras:
         path = scene.masks_path(cam)
         if not path.exists():
             raise InputError(f"no masks for camera {cam!r}", file=path)
-        its[cam] = iter_mots(path, known, frame_range)
+        its[cam] = scene.iter_masks(cam, frame_range)
     heap: list[tuple[int, int, str, MaskTable]] = []
     for k, (cam, it) in enumerate(its.items()):
         nxt = next(it, None)
@@ -90,12 +89,17 @@ class ModelSet:
 
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
-             arch: str | None = None, fingerprint: str | None = None, device=None) -> "ModelSet":
-        """The models of one folder, or of several folders as ensembles (residuals averaged)."""
+             arch: str | None = None, fingerprint: str | None = None, device=None,
+             allow_incomplete: bool = False) -> "ModelSet":
+        """The models of one folder, or of several folders as ensembles (residuals averaged).
+        A checkpoint whose training did not finish (metadata "complete": false) is refused
+        unless ``allow_incomplete``."""
         if isinstance(models_dir, (list, tuple)):
             if len(models_dir) == 1:
-                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device)
-            sets = [cls.load(d, cameras, classes, arch, fingerprint, device) for d in models_dir]
+                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device,
+                                allow_incomplete)
+            sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete)
+                    for d in models_dir]
             ms, made = cls(), {}
             for key in sets[0].models:
                 members = tuple(s.models[key] for s in sets)
@@ -118,6 +122,15 @@ class ModelSet:
                         if p not in cache:
                             cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
                             ck = cache[p]
+                            if ck.info.get("complete") is False:
+                                msg = (f"its training did not finish (epoch {ck.info.get('epoch')}, "
+                                       f"val loss {ck.info.get('val_loss')})")
+                                if not allow_incomplete:
+                                    raise InputError(f"{msg}: finish it with `s2p train`, or pass "
+                                                     "--allow-incomplete to use it anyway",
+                                                     file=p.with_suffix(".json"), field="complete")
+                                say(f"{p}: {msg}; used because incomplete models are allowed",
+                                    "warning")
                             if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
                                 say(f"{p} was trained on another scene (fingerprint "
                                     f"{ck.scene_fingerprint}, this scene {fingerprint})", "warning")
@@ -335,31 +348,35 @@ def model_dirs(scene: Scene, models_dir) -> list[Path]:
     return [Path(d) for d in dirs] or [scene.root / "models"]
 
 
-def _load_models(scene: Scene, cams: list[str], models_dir, arch, device) -> ModelSet:
+def _load_models(scene: Scene, cams: list[str], models_dir, arch, device,
+                 allow_incomplete: bool = False) -> ModelSet:
     from seg2pose.net import pick_device
 
     return ModelSet.load(model_dirs(scene, models_dir), cams,
                          [c.name for c in scene.classes], arch=arch,
-                         fingerprint=scene.fingerprint(), device=pick_device(device))
+                         fingerprint=scene.fingerprint(), device=pick_device(device),
+                         allow_incomplete=allow_incomplete)
 
 
 def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
-              progress: bool = True) -> Path:
+              progress: bool = True, allow_incomplete: bool = False) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
-    averaged (Ensemble); split: a named frame range of the scene."""
+    averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
+    checkpoints whose training did not finish (refused otherwise)."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
     frame_range = scene.split_range(split)
-    models = None if baseline else _load_models(scene, cams, models_dir, arch, device)
+    models = None if baseline else _load_models(scene, cams, models_dir, arch, device,
+                                                allow_incomplete)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,

@@ -290,7 +290,6 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
     have. This finds, per class, the median radial component of the model's residuals over
     the masks of ``split`` (no ground truth used) and stores it in the checkpoint as
     ``radial_offset``; ``Checkpoint.predict`` subtracts it. Returns the offsets (metres)."""
-    from seg2pose.io.mots import iter_mots
     from seg2pose.masks import mask_centers
     from seg2pose.normal import normal_positions
 
@@ -305,7 +304,7 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
     for cam in cams:
         camera = scene.cameras[cam]
         rles, names = [], []
-        for _, t in iter_mots(scene.masks_path(cam), list(by_id), scene.split_range(split)):
+        for _, t in scene.iter_masks(cam, scene.split_range(split)):
             for r, c in zip(t.rles, t.class_id):
                 if by_id[int(c)].name in radial:
                     rles.append(r)

@@ -39,7 +39,11 @@ def run_cmd(
     arch: Optional[str] = typer.Option(None, "--arch", help="require checkpoints of this arch (lite|paper)"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
-    force: bool = typer.Option(False, "--force", help="overwrite an existing run folder"),
+    allow_incomplete: bool = typer.Option(False, "--allow-incomplete",
+                                          help="use checkpoints whose training was interrupted "
+                                               "(refused otherwise)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely "
+                               "(the new run is written beside it and swapped in when complete)"),
 ) -> None:
     """Estimate world pose tracks: normal positions, Seg2PoseNet residuals (unless --baseline),
     late fusion over the configuration's views, headings from motion. Writes OUT/run.json,
@@ -49,7 +53,8 @@ def run_cmd(
 
     set_enabled(sparse)
     d = run_scene(scene, out, config=config, baseline=baseline, models_dir=models, split=split,
-                  force=force, center_method=center, arch=arch, device=device)
+                  force=force, center_method=center, arch=arch, device=device,
+                  allow_incomplete=allow_incomplete)
     from seg2pose.io.run import read_run_meta
 
     meta = read_run_meta(d)

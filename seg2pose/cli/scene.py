@@ -69,7 +69,7 @@ def register(app: typer.Typer) -> None:
         ids: str = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (paper); visit: a new id for every pass"),
         match: str = typer.Option("center", "--match", help="center: keep a mask only when the road user's true 3D centre projects inside it (paper 4.1's association); all: every visible mask"),
         workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
-        force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
+        force: bool = typer.Option(False, "--force", help="replace an existing OUT entirely (the new scene is built beside it and swapped in when complete)"),
         quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
     ) -> None:
         """Make a synthetic junction scene (the CARLA stand-in of paper 4.1): five-lens camera
@@ -101,7 +101,7 @@ def register(app: typer.Typer) -> None:
         src: Path = typer.Argument(..., help="UTOCS recording folder (cameras.json, "
                                    "ground_points.txt, positions/)"),
         out: Path = typer.Argument(..., help="scene folder to create"),
-        force: bool = typer.Option(False, "--force", help="overwrite an existing scene"),
+        force: bool = typer.Option(False, "--force", help="replace an existing OUT entirely (built beside it, swapped in when complete; nothing of the old scene is kept)"),
         fps: float = typer.Option(None, help="frames per second (default 1/0.075 s, the "
                                   "paper's CARLA interval)"),
         size_scale: float = typer.Option(1.0, help="multiply l, w, h (2 if the recording "
@@ -154,17 +154,18 @@ def register(app: typer.Typer) -> None:
         dst: Path = typer.Argument(..., help="output file (mots, coco) or folder (png)"),
         format: str = typer.Option(..., "--format", "-f", help="output format: mots, coco, png"),
         src_format: str = typer.Option(None, help="input format (default: from SRC)"),
-        force: bool = typer.Option(False, "--force", help="overwrite DST"),
+        force: bool = typer.Option(False, "--force", help="replace an existing DST entirely "
+                                   "(a PNG folder keeps none of its old frames)"),
     ) -> None:
         """Convert instance masks between MOTS txt, COCO RLE JSON and PNG instance-id images."""
         from seg2pose.io.atomic import check_writable
-        from seg2pose.io.mask_formats import MASK_FORMATS, read_masks, write_masks
+        from seg2pose.io.mask_formats import MASK_FORMATS, read_masks, save_masks
 
         if format not in MASK_FORMATS:
             raise InputError(f"unknown format {format!r}; use one of {', '.join(MASK_FORMATS)}",
                              field="--format")
         check_writable(dst, force)
         table = read_masks(src, src_format)
-        write_masks(dst, table, format)
+        save_masks(dst, table, format, force)
         typer.echo(f"{len(table)} masks in {len(np.unique(table.frame))} frames "
                    f"({table.width}x{table.height}) -> {dst} [{format}]")

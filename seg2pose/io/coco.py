@@ -32,6 +32,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.mots import MaskTable
+from seg2pose.io.validate import number
 from seg2pose.masks import decode_counts
 
 
@@ -54,7 +55,7 @@ def _records(data, path: Path) -> tuple[list, dict, dict]:
     if isinstance(data, dict) and isinstance(data.get("annotations"), list):
         frames, sizes = {}, {}
         for j, im in enumerate(data.get("images") or []):
-            if not isinstance(im, dict) or not isinstance(im.get("id"), int):
+            if not isinstance(im, dict) or not isinstance(im.get("id"), int) or isinstance(im["id"], bool):
                 raise InputError("expected an object with an integer 'id'", file=path,
                                  field=f"images[{j}]")
             fr = im.get("frame_id", im.get("frame", im["id"]))
@@ -92,8 +93,8 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
                 raise InputError(f"image_id {img} matches no entry of 'images'", file=path,
                                  field=f"[{i}].image_id")
             fr = image_frames.get(img, img)
-        if fr < 0:
-            raise InputError(f"negative frame {fr}", file=path, field=f"[{i}].frame")
+        if not 0 <= fr < 2**62:
+            raise InputError(f"expected a frame number >= 0, got {fr}", file=path, field=f"[{i}].frame")
         cid = _int(r, "category_id", path, i)
         if category_map is not None:
             if cid not in category_map:
@@ -143,8 +144,8 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
             raise InputError("counts must be a string or a list of integers", file=path,
                              field=f"[{i}].segmentation.counts")
         sc = r.get("score")
-        if sc is not None and (isinstance(sc, bool) or not isinstance(sc, (int, float))):
-            raise InputError(f"expected a number, got {sc!r}", file=path, field=f"[{i}].score")
+        if sc is not None:
+            sc = number(sc, file=path, field=f"[{i}].score")
         frames.append(fr)
         tids.append(tid)
         cids.append(cid)
@@ -152,6 +153,13 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
         scores.append(np.nan if sc is None else float(sc))
     if hw is None:
         hw = size if size is not None else (0, 0)
+    seen: dict[tuple[int, int], int] = {}
+    for i, (fr, tid) in enumerate(zip(frames, tids)):
+        if tid >= 0:
+            if (fr, tid) in seen:
+                raise InputError(f"duplicate detection: track {tid} appears twice in frame {fr} "
+                                 f"(also record {seen[fr, tid]})", file=path, field=f"[{i}].track_id")
+            seen[fr, tid] = i
     has_score = len(recs) > 0 and not np.isnan(scores).all()
     t = MaskTable(np.array(frames, np.int64), np.array(tids, np.int64), np.array(cids, np.int64),
                   hw[0], hw[1], rles, np.array(scores) if has_score else None)

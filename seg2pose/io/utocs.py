@@ -35,9 +35,10 @@ import numpy as np
 from seg2pose.camera import Camera, Rig
 from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time
+from seg2pose.io.validate import FPS_RANGE, MAX_COORD, number, safe_name
 
 MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
 # camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
@@ -114,7 +115,9 @@ def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[Utoc
         if not isinstance(c, dict) or "id" not in c or isinstance(c["id"], (dict, list)):
             raise InputError("expected an object with an 'id'", file=path, field=f"cams[{i}]")
         vals = [_num(c, k, path, f"cams[{i}].") for k in ("x", "y", "z", "pitch", "roll", "yaw")]
-        cams.append(UtocsCamera(str(c["id"]), *vals))
+        # the id names files (images/cam<id>/, video/cam<id>.mp4): no way out of the folder
+        cid = safe_name(str(c["id"]), file=path, field=f"cams[{i}].id", what="camera id")
+        cams.append(UtocsCamera(cid, *vals))
     if len({c.id for c in cams}) != len(cams):
         raise InputError("duplicate camera ids", file=path, field="cams")
     return (f, cx, cy), cams
@@ -153,7 +156,17 @@ def read_positions(folder: Path) -> tuple[PoseTable, list[str], int]:
                 raise InputError(f"expected an integer id, got {rid!r}", file=p, field=f"[{i}].id")
             v = [_num(r, k, p, f"[{i}].") for k in ("x", "y", "z", "l", "w", "h",
                                                     "forward_x", "forward_y")]
-            name = t.strip().lower()
+            for k, x in zip(("l", "w", "h"), v[3:6]):
+                if not 0 <= x <= 1000:
+                    raise InputError(f"expected a size in [0, 1000] metres, got {x!r}", file=p,
+                                     field=f"[{i}].{k}")
+            if v[6] == 0 and v[7] == 0:
+                raise InputError("forward vector (forward_x, forward_y) is zero: the heading is "
+                                 "undefined", file=p, field=f"[{i}].forward_x")
+            if max(abs(x) for x in v[:3]) > MAX_COORD:
+                raise InputError(f"position more than {MAX_COORD:g} m from the origin: {v[:3]}",
+                                 file=p, field=f"[{i}].x")
+            name = safe_name(t.strip().lower(), file=p, field=f"[{i}].type", what="type name")
             if name not in seen:
                 seen.append(name)
             frames.append(frame)
@@ -247,7 +260,10 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
         parse_start_time(start_time, field="start_time")
     if not src.is_dir():
         raise InputError("UTOCS source folder not found", file=src)
-    check_writable(out / "scene.json", force)
+    if fps is not None:
+        fps = number(fps, field="fps", lo=FPS_RANGE[0], hi=FPS_RANGE[1])
+    size_scale = number(size_scale, field="size_scale", lo=0, lo_open=True, hi=100)
+    check_writable(out, force)
     (f, cx, cy), ucams = read_cameras_json(src / "cameras.json")
     gp = src / "ground_points.txt"
     if not gp.exists():
@@ -301,18 +317,20 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                                     "frames": n_files, "size_scale": size_scale,
                                     "types": {t: mapping[t] for t in types}},
                                     **({"video_frames": video_frames} if video_frames else {})})
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "masks").mkdir(exist_ok=True)
-    write_poses(out / "gt" / "poses.csv", gt)
-    if copy_frames:
-        for name, (kind, p) in frame_sources.items():
-            if kind == "images":
-                for im in sorted(p.iterdir()):
-                    if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
-                        _copy(im, out / "video" / name / im.name)
-            else:
-                _copy(p, out / "video" / f"{name}{p.suffix.lower()}")
-    scene.save(out)  # scene.json last: its presence marks a finished import
+    # built beside OUT and swapped in as a unit: --force replaces the old scene entirely (its
+    # masks, frames and cameras do not survive), and a killed import leaves OUT as it was
+    with replacing(out, force) as tmp:
+        (tmp / "masks").mkdir()
+        write_poses(tmp / "gt" / "poses.csv", gt)
+        if copy_frames:
+            for name, (kind, p) in frame_sources.items():
+                if kind == "images":
+                    for im in sorted(p.iterdir()):
+                        if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                            _copy(im, tmp / "video" / name / im.name)
+                else:
+                    _copy(p, tmp / "video" / f"{name}{p.suffix.lower()}")
+        scene.save(tmp)
     log(f"imported {len(cameras)} cameras, {len(ground)} ground points, {n_files} frames, "
         f"{len(gt)} ground-truth poses of {len(np.unique(gt.track_id))} road users -> {out}")
     if frame_sources:
