@@ -25,6 +25,7 @@ from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # n
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 760
+PENDING_SECONDS = 3.0  # how long the viewer may take to show a frame the page moved it to
 
 
 def track_columns(project, tid: int) -> TrackColumns:
@@ -86,6 +87,8 @@ class Session:
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
 
     def _move_cursor(self, frame: int) -> None:
+        # until the viewer shows this frame, its reports of earlier cursor positions are stale
+        self._pending = (int(frame), time.monotonic())
         self.viewer.set_time_ctrl(sequence=int(frame), timeline="frame")
 
     def refresh_panel(self) -> None:
@@ -116,10 +119,18 @@ class Session:
                     self._move_cursor(self.ctl.frame)
                     return
                 self.ctl.viewer_state = "ready"
+                self._pending = None
                 self.refresh_panel()
                 return
+            f = int(round(e.time))
+            pending = getattr(self, "_pending", None)
+            if pending is not None:
+                if f == pending[0] or time.monotonic() - pending[1] > PENDING_SECONDS:
+                    self._pending = None
+                else:
+                    return  # an echo of an earlier cursor position
             before = self.ctl.frame
-            self.ctl.goto(int(round(e.time)), from_viewer=True)
+            self.ctl.goto(f, from_viewer=True)
             if self.ctl.frame != before:
                 self.refresh_panel()
         elif kind == "selection_change":
