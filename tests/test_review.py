@@ -544,7 +544,7 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     car = np.array(L.class_color("car"))
     b, s = rgba(cols["run-base"]), rgba(cols["run-s2pn"])
     assert any((s[:, :3] == car).all(axis=1)) and not any((b[:, :3] == car).all(axis=1))
-    # the baseline is half-way to grey: less saturated than Seg2PoseNet's colours
+    # the baseline is 40 % of the way to grey: less saturated than Seg2PoseNet's colours
     sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
     assert sat(b) < 0.6 * sat(s)
 
