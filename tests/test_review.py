@@ -30,6 +30,15 @@ N_FRAMES = 20
 NO_IMAGES = RecordOptions(style=LogStyle(masks=False, video=False))
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _opencv_one_thread():
+    """OpenCV on one thread in this module (its worker pool hangs processes forked later)."""
+    from video_fixtures import single_threaded_opencv
+
+    yield from single_threaded_opencv()
+
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("review")
@@ -546,7 +555,7 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     assert any((s[:, :3] == car).all(axis=1)) and not any((b[:, :3] == car).all(axis=1))
     # the baseline is 40 % of the way to grey: less saturated than Seg2PoseNet's colours
     sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
-    assert sat(b) < 0.6 * sat(s)
+    assert abs(sat(b) - 0.6 * sat(s)) < 1.0  # saturation scales by 1 - 0.4
 
 
 def test_video_stored_small_is_shown_at_camera_size(tiny):

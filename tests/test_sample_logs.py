@@ -23,6 +23,15 @@ pytestmark = pytest.mark.skipif(not (RRD.exists() and MCAP.exists()),
                                 reason="sample_logs/ not made (make demo)")
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _opencv_one_thread():
+    """OpenCV on one thread in this module (its worker pool hangs processes forked later)."""
+    from video_fixtures import single_threaded_opencv
+
+    yield from single_threaded_opencv()
+
+
+
 def _mcap_meta() -> dict:
     from mcap.reader import make_reader
 
