@@ -11,7 +11,7 @@ from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import Scene, load_scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.pipeline import _load_models, compute_views, model_dirs, write_run
+from seg2pose.pipeline import compute_views, write_run
 
 def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
@@ -41,6 +41,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
 
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
+    from seg2pose.checkpoint import load_models, model_dirs
     from seg2pose.evaluate import format_table, plot_error_vs_distance
 
     if not isinstance(scene, Scene):
@@ -59,7 +60,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
     # camera's views once per method, then fuse per configuration
     all_cams = [c for c in scene.cameras if any(c in scene.rig.configs[k] for k in configs)]
     for baseline in ([False, True] if not baseline_only else [True]):
-        models = None if baseline else _load_models(scene, all_cams, models_dir, None, None)
+        models = None if baseline else load_models(scene, all_cams, models_dir)
         views, nframes = compute_views(scene, all_cams, scene.split_range(split), models,
                                        progress=progress)
         for cfg in configs:

@@ -53,8 +53,8 @@ def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth (gt/poses.csv)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default SCENE/models)"),
     arch: Optional[str] = typer.Option(None, "--arch",
-                                       help="paper (Figure 3, the default), lite (crop /3, CPU; --demo), "
-                                            "lite2 (crop /2) or lite-hr (full-resolution 140 px crop; --quick)"),
+                                       help="paper (Figure 3, the default), lite (crop /3, CPU; --demo) "
+                                            "or lite-hr (full-resolution 140 px crop; --quick)"),
     quick: bool = typer.Option(False, "--quick", help="short CPU protocol: one lite-hr model with mask geometry per class for all lenses, 30 epochs"),
     demo: bool = typer.Option(False, "--demo", help="the demo's very short protocol"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation",
