@@ -1,0 +1,159 @@
+"""What the engine knows besides the annotator: a run folder's Seg2Pose estimates, and the normal
+positions of a scene's masks (paper 3.2) — for placement, pre-annotation and suggestions."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from annotate.model import EditError
+from seg2pose.errors import InputError
+from seg2pose.io.mots import MaskTable, read_mots
+from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.scene import Scene
+from seg2pose.masks import mask_centers
+from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
+
+
+def _fill_headings(table: PoseTable) -> np.ndarray:
+    """Headings (N,) with NaN (a track that has not moved yet, eq. 2) replaced by the track's
+    nearest finite heading; 0 where a track never has one. Rows sorted by track, frame."""
+    h = table.heading.copy()
+    tid = table.track_id
+    starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]])
+    ends = np.r_[starts[1:], len(tid)]
+    for a, b in zip(starts, ends):
+        seg = h[a:b]
+        ok = np.flatnonzero(np.isfinite(seg))
+        if not len(ok):
+            seg[:] = 0.0
+            continue
+        idx = np.arange(len(seg))
+        nearest = ok[np.clip(np.searchsorted(ok, idx), 0, len(ok) - 1)]
+        prev = ok[np.clip(np.searchsorted(ok, idx, side="right") - 1, 0, len(ok) - 1)]
+        pick = np.where(np.abs(prev - idx) <= np.abs(nearest - idx), prev, nearest)
+        h[a:b] = seg[pick]
+    return h
+
+
+class RunEstimates:
+    """A run folder's fused poses (``RUN/poses.csv``), indexed by (track, frame)."""
+
+    def __init__(self, table: PoseTable, path: Path):
+        order = np.lexsort((table.frame, table.track_id))
+        self.table = table.take(order)
+        self.table.heading = _fill_headings(self.table)
+        self.path = path
+        keys = self.table.track_id * (1 << 32) + self.table.frame
+        self._keys = keys
+
+    @classmethod
+    def load(cls, run: str | Path, scene: Scene) -> "RunEstimates":
+        """Read ``RUN/poses.csv``; refuse a run made on another scene (run.json's fingerprint)."""
+        run = Path(run)
+        meta_path = run / "run.json"
+        if meta_path.exists():
+            try:
+                meta = json.loads(meta_path.read_text())
+            except (OSError, ValueError) as e:
+                raise InputError(f"cannot read run metadata: {e}", file=meta_path) from None
+            fp = meta.get("scene_fingerprint") if isinstance(meta, dict) else None
+            if fp is not None and fp != scene.fingerprint():
+                raise InputError(f"this run was made on another scene (fingerprint {fp}, this "
+                                 f"scene's is {scene.fingerprint()})", file=meta_path,
+                                 field="scene_fingerprint")
+        table = read_poses(run / "poses.csv", known_classes=[c.name for c in scene.classes])
+        return cls(table.take(table.track_id >= 0), run)
+
+    def at(self, run_track: int, frame: int) -> tuple[float, float, float] | None:
+        """(x, y, heading) of a run track at a frame, None when it has no estimate there."""
+        k = int(run_track) * (1 << 32) + int(frame)
+        i = int(np.searchsorted(self._keys, k))
+        if i < len(self._keys) and self._keys[i] == k:
+            return (float(self.table.xyz[i, 0]), float(self.table.xyz[i, 1]),
+                    float(self.table.heading[i]))
+        return None
+
+    def track(self, run_track: int) -> PoseTable:
+        """All estimates of one run track, by frame."""
+        return self.table.take(self.table.track_id == int(run_track))
+
+    def track_ids(self) -> np.ndarray:
+        return np.unique(self.table.track_id)
+
+    def frames(self, frame: int) -> PoseTable:
+        return self.table.take(self.table.frame == int(frame))
+
+
+class MaskIndex:
+    """A scene's masks per camera, read on first use, with their normal positions by frame."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self._tables: dict[str, MaskTable] = {}
+
+    def table(self, camera: str) -> MaskTable:
+        if camera not in self.scene.cameras:
+            raise EditError(f"unknown camera {camera!r}; the scene has {', '.join(self.scene.cameras)}")
+        if camera not in self._tables:
+            cam = self.scene.cameras[camera]
+            self._tables[camera] = read_mots(self.scene.masks_path(camera),
+                                             size=(cam.height, cam.width))
+        return self._tables[camera]
+
+    def normal_position(self, camera: str, frame: int, mask_track: int
+                        ) -> tuple[float, float, str]:
+        """Normal position (x, y metres) and class name of one mask (camera, frame, its track id)."""
+        t = self.table(camera)
+        hit = np.flatnonzero((t.frame == frame) & (t.track_id == mask_track))
+        if not len(hit):
+            raise EditError(f"camera {camera} has no mask of track {mask_track} in frame {frame}")
+        xy, cls = self.normal_positions(camera, t.take(hit[:1]))
+        if not np.isfinite(xy[0, 0]):
+            raise EditError(f"the ray through mask {mask_track} (camera {camera}, frame {frame}) "
+                            "misses the ground")
+        return float(xy[0, 0]), float(xy[0, 1]), str(cls[0])
+
+    def normal_positions(self, camera: str, t: MaskTable) -> tuple[np.ndarray, np.ndarray]:
+        """Normal positions (N, 2) metres (NaN: no class or a missed ray) and class names (N,)."""
+        by_id = self.scene.class_by_id()
+        cls = np.array([by_id[c].name if c in by_id else "" for c in t.class_id], dtype=object)
+        h = np.array([by_id[c].default_height if c in by_id else np.nan for c in t.class_id])
+        out = np.full((len(t), 2), np.nan)
+        ok = np.isfinite(h)
+        if ok.any():
+            uv = mask_centers([t.rles[i] for i in np.flatnonzero(ok)], t.height, t.width,
+                              DEFAULT_CENTER_METHOD)
+            X, _ = normal_positions(self.scene.cameras[camera], self.scene.ground, uv, h[ok])
+            out[ok] = X[:, :2]
+        return out, cls
+
+    def fused_normal_positions(self, cameras: list[str] | None = None) -> PoseTable:
+        """Late fusion (3.3) of all masks' normal positions per (frame, mask track id): a
+        reference for suggestions when no run exists. Heading NaN."""
+        cams = list(self.scene.cameras) if cameras is None else cameras
+        rows = []
+        for cam in cams:
+            t = self.table(cam)
+            t = t.take(t.track_id >= 0)
+            xy, cls = self.normal_positions(cam, t)
+            rows.append((t.frame, t.track_id, cls, xy))
+        if not rows:
+            return PoseTable.empty()
+        frame = np.concatenate([r[0] for r in rows])
+        tid = np.concatenate([r[1] for r in rows])
+        cls = np.concatenate([r[2] for r in rows])
+        xy = np.concatenate([r[3] for r in rows])
+        ok = np.isfinite(xy[:, 0])
+        frame, tid, cls, xy = frame[ok], tid[ok], cls[ok], xy[ok]
+        keys, first, inv = np.unique(np.stack([frame, tid], 1), axis=0, return_index=True,
+                                     return_inverse=True)
+        inv = inv.reshape(-1)
+        n = np.bincount(inv, minlength=len(keys)).astype(float)
+        mx = np.bincount(inv, xy[:, 0], len(keys)) / n
+        my = np.bincount(inv, xy[:, 1], len(keys)) / n
+        z = self.scene.ground.height(np.column_stack([mx, my]))
+        return PoseTable(keys[:, 0], keys[:, 1], cls[first], np.column_stack([mx, my, z]),
+                         np.full(len(keys), np.nan))

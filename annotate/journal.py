@@ -1,0 +1,279 @@
+"""The annotation folder on disk: an append-only JSON-lines journal, snapshots, and a lock file.
+
+``SCENE/annotations/``::
+
+    journal-000000.jsonl   one JSON object per line: a header, then edits / undos / redos / notes
+    snapshot-000123.json   tracks + undo/redo history after record 123 (written atomically)
+    journal-000123.jsonl   the records after that snapshot
+    lock                   who writes: {"pid", "host", "since"}; held with flock while open
+
+Records (``seq`` counts from 1 over the whole history):
+``{"kind": "header", "version": 1, "scene": name, "fingerprint": fp, "after": N}``,
+``{"seq": n, "kind": "edit", "name": "nudge", "ops": [...], "t": time}`` (ops: see model.py),
+``{"seq": n, "kind": "undo"|"redo", "of": seq of the edit}``, ``{"seq": n, "kind": "note", ...}``.
+
+Every record is written with one ``write`` and fsync'ed before the edit is applied and
+acknowledged; a failed write is cut off again (the edit is reported as not saved, nothing
+earlier is touched). A torn last line (a crash mid-write) is reported and skipped on open; the
+writer moves it aside to ``torn-<time>.jsonl`` before appending.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import errno
+import fcntl
+import json
+import os
+import re
+import socket
+from pathlib import Path
+
+from seg2pose.errors import S2PError
+from seg2pose.io.atomic import atomic_write_text
+
+VERSION = 1
+ANNOTATIONS = "annotations"
+_SEGMENT = re.compile(r"^journal-(\d{6,})\.jsonl$")
+_SNAPSHOT = re.compile(r"^snapshot-(\d{6,})\.json$")
+
+
+class JournalError(S2PError):
+    """The journal cannot be read or written (names the file and line)."""
+
+
+class LockedError(S2PError):
+    """Another process is annotating this scene."""
+
+
+class NotSavedError(S2PError):
+    """An edit could not be written to the journal (disk full, I/O error): it was not applied."""
+
+
+def now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def dumps(record: dict) -> bytes:
+    """One journal line (compact JSON, floats with repr so replay is bit-exact)."""
+    return json.dumps(record, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a file's creation, rename or removal in ``path`` durable."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def segment_name(after: int) -> str:
+    return f"journal-{after:06d}.jsonl"
+
+
+def snapshot_name(after: int) -> str:
+    return f"snapshot-{after:06d}.json"
+
+
+def list_files(folder: Path) -> tuple[dict[int, Path], dict[int, Path]]:
+    """Journal segments and snapshots in ``folder``, keyed by the record they start after."""
+    segs, snaps = {}, {}
+    if folder.is_dir():
+        for p in folder.iterdir():
+            if m := _SEGMENT.match(p.name):
+                segs[int(m.group(1))] = p
+            elif m := _SNAPSHOT.match(p.name):
+                snaps[int(m.group(1))] = p
+    return segs, snaps
+
+
+def read_lines(path: Path) -> tuple[list[tuple[int, dict]], int, str | None]:
+    """Records of a segment with their line numbers, the byte length of its good part, and a
+    note when the last line is torn. A bad line that is not the last is an error (a torn line
+    can only be the last one written)."""
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise JournalError(f"{path}: cannot read the journal: {e.strerror}") from None
+    out, good, note = [], 0, None
+    pos, lineno = 0, 0
+    while pos < len(data):
+        end = data.find(b"\n", pos)
+        lineno += 1
+        line = data[pos:] if end < 0 else data[pos:end]
+        try:
+            rec = json.loads(line)
+            if not isinstance(rec, dict):
+                raise ValueError("not an object")
+        except (ValueError, UnicodeDecodeError):
+            if end < 0 or not data[end + 1:].strip():
+                note = (f"{path.name}:{lineno}: the last line is torn (an edit interrupted while "
+                        f"being written, {len(line)} bytes); it is skipped")
+                break
+            raise JournalError(f"{path}:{lineno}: not a JSON object; the journal is damaged "
+                               "before its last line") from None
+        if end < 0:  # complete JSON without its newline: the newline itself was not written
+            note = (f"{path.name}:{lineno}: the last line lacks its newline (interrupted while "
+                    "being written); it is skipped")
+            break
+        out.append((lineno, rec))
+        pos = end + 1
+        good = pos
+    return out, good, note
+
+
+class Segment:
+    """An open journal segment for appending records durably."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        self.size = os.fstat(self.fd).st_size
+        self.broken = False
+
+    def append(self, record: dict) -> None:
+        """Write one record and fsync it; on failure cut the file back and raise NotSavedError."""
+        if self.broken:
+            raise NotSavedError(f"{self.path}: an earlier write failed and could not be undone; "
+                                "close and reopen the project (nothing saved is lost)")
+        data = dumps(record)
+        try:
+            n = os.write(self.fd, data)
+            while n < len(data):
+                n += os.write(self.fd, data[n:])
+            os.fsync(self.fd)
+        except OSError as e:
+            why = "the disk is full" if e.errno in (errno.ENOSPC, errno.EDQUOT) else e.strerror
+            try:
+                os.ftruncate(self.fd, self.size)
+                os.fsync(self.fd)
+            except OSError:
+                self.broken = True
+            raise NotSavedError(f"{self.path}: edit not saved: {why}; it was not applied "
+                                "(earlier edits are safe)") from None
+        self.size += len(data)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+def new_segment(folder: Path, after: int, header: dict) -> Segment:
+    """Create ``journal-<after>.jsonl`` with its header line, durably."""
+    path = folder / segment_name(after)
+    seg = Segment(path)
+    if seg.size == 0:
+        seg.append({**header, "after": after})
+        fsync_dir(folder)
+    return seg
+
+
+def write_snapshot(folder: Path, after: int, state: dict) -> Path:
+    """Write ``snapshot-<after>.json`` atomically (fsync'ed, renamed into place)."""
+    path = folder / snapshot_name(after)
+    try:
+        atomic_write_text(path, json.dumps(state, separators=(",", ":"), allow_nan=False))
+    except OSError as e:
+        raise NotSavedError(f"{path}: snapshot not written: {e.strerror}") from None
+    fsync_dir(folder)
+    return path
+
+
+def move_torn(path: Path, good: int) -> Path:
+    """Cut a torn tail off a segment, keeping it in ``torn-<time>.jsonl`` beside it."""
+    data = path.read_bytes()
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S%f")
+    keep = path.parent / f"torn-{stamp}.jsonl"
+    keep.write_bytes(data[good:])
+    with open(path, "r+b") as f:
+        f.truncate(good)
+        f.flush()
+        os.fsync(f.fileno())
+    fsync_dir(path.parent)
+    return keep
+
+
+# --- the lock ---------------------------------------------------------------------------------------
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class Lock:
+    """The writer's lock: flock on ``annotations/lock`` (released by the kernel when the
+    process dies) plus its holder's pid, host and start time for the refusal message."""
+
+    def __init__(self, folder: Path, scene_name: str):
+        self.path = folder / "lock"
+        self.note: str | None = None
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = self._holder()
+            os.close(self.fd)
+            self.fd = -1
+            who = (f"pid {holder.get('pid')} on {holder.get('host')} since {holder.get('since')}"
+                   if holder else "another process")
+            raise LockedError(f"scene {scene_name!r} is being annotated by {who} ({self.path}); "
+                              "close that session or open the project read-only") from None
+        old = self._holder()
+        if old:
+            same_host = old.get("host") == socket.gethostname()
+            state = ("no longer runs" if same_host and not _alive(int(old.get("pid", -1)))
+                     else "holds no lock any more")
+            self.note = (f"took over the lock of pid {old.get('pid')} on {old.get('host')} "
+                         f"(since {old.get('since')}), which {state}")
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "since": now()}
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, json.dumps(me).encode(), 0)
+        os.fsync(self.fd)
+
+    def _holder(self) -> dict:
+        try:
+            with open(self.path, "rb") as f:
+                d = json.loads(f.read() or b"{}")
+            return d if isinstance(d, dict) else {}
+        except (OSError, ValueError):
+            return {}
+
+    def release(self) -> None:
+        """Clear the holder and release the lock (the file stays: others may wait on it)."""
+        if self.fd < 0:
+            return
+        with contextlib.suppress(OSError):
+            os.ftruncate(self.fd, 0)
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+        self.fd = -1
+
+
+def load_json(path: Path) -> dict:
+    try:
+        d = json.loads(path.read_bytes())
+    except (OSError, ValueError) as e:
+        raise JournalError(f"{path}: cannot read the snapshot: {e}") from None
+    if not isinstance(d, dict):
+        raise JournalError(f"{path}: expected a JSON object")
+    return d
+
+
+def check_header(rec: dict, path: Path, fingerprint: str) -> None:
+    """Refuse a journal or snapshot of a newer format or of another scene."""
+    version = rec.get("version")
+    if version != VERSION:
+        raise JournalError(f"{path}: journal version {version!r}; this s2p reads version {VERSION}")
+    if rec.get("fingerprint") != fingerprint:
+        raise JournalError(
+            f"{path}: this journal belongs to scene {rec.get('scene')!r} with calibration and "
+            f"ground fingerprint {rec.get('fingerprint')}, but this scene's is {fingerprint}; "
+            "annotations of another scene (or of a recalibrated one) are not replayed")

@@ -1,0 +1,218 @@
+"""The annotation model: tracks of keyframes, spans, and the primitive operations that change them.
+
+A track has an id (int >= 1), a class name, a box size (l, w, h metres, constant over the track),
+an interpolation method (None = the class's default), keyframes ``{frame: Keyframe}`` and spans
+``[(first, last, kind)]`` with kind ``occluded`` (still interpolated, flagged) or ``outside``
+(not in view: interpolation stops). z is never stored: it comes from the ground surface.
+
+Every change to the tracks is a list of *primitive operations*, plain JSON-able dicts, each of
+which ``apply_op`` applies and answers with its exact inverse:
+
+- ``{"op": "put_track", "id": 3, "track": {...} | None}``: create, replace or delete a track;
+- ``{"op": "set_keyframes", "id": 3, "set": [[frame, x, y, heading, [flags]], ...],
+  "del": [frame, ...]}``: upsert and delete keyframes;
+- ``{"op": "set_fields", "id": 3, "fields": {"cls"|"size"|"interp"|"spans"|"meta": value}}``.
+
+The journal stores these (with absolute values, never "nudge by 2 cm"), so replaying it needs no
+geometry and gives bit-identical floats (JSON writes floats with repr).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from seg2pose.errors import S2PError
+
+SPAN_KINDS = ("occluded", "outside")
+FLAG_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+# Keyframe flags the engine itself sets (others may be added by users: short identifiers)
+FLAGS = {
+    "estimate": "taken from a Seg2Pose run's estimate (pre-annotation), not yet checked",
+    "normal": "placed at a mask's normal position",
+    "off_support": "more than SUPPORT_RADIUS from every ground point: z is extrapolated",
+    "imported": "imported from another tool (T-Analyst)",
+}
+
+
+class EditError(S2PError):
+    """An edit that cannot be done (unknown track, frame outside the scene, ...): nothing changed."""
+
+
+class Keyframe(NamedTuple):
+    """A placed pose: x, y metres (ground contact point), heading radians (counter-clockwise
+    from +x), flags (sorted tuple of short identifiers, see ``FLAGS``)."""
+
+    x: float
+    y: float
+    heading: float
+    flags: tuple[str, ...] = ()
+
+
+@dataclass
+class Track:
+    """One road user's annotation (see the module docstring)."""
+
+    id: int
+    cls: str
+    size: tuple[float, float, float]
+    interp: str | None = None
+    keyframes: dict[int, Keyframe] = field(default_factory=dict)
+    spans: list[tuple[int, int, str]] = field(default_factory=list)
+    meta: dict = field(default_factory=dict)  # free-form, JSON-able (e.g. {"run_track": 12})
+
+    @property
+    def frames(self) -> list[int]:
+        """Keyframe frames, sorted."""
+        return sorted(self.keyframes)
+
+    @property
+    def first(self) -> int | None:
+        return min(self.keyframes) if self.keyframes else None
+
+    @property
+    def last(self) -> int | None:
+        return max(self.keyframes) if self.keyframes else None
+
+    def span_at(self, frame: int) -> str | None:
+        """The kind of span covering ``frame`` (None = plain visible)."""
+        for a, b, kind in self.spans:
+            if a <= frame <= b:
+                return kind
+        return None
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "cls": self.cls, "size": list(self.size), "interp": self.interp,
+                "keyframes": [[f, k.x, k.y, k.heading, list(k.flags)]
+                              for f, k in sorted(self.keyframes.items())],
+                "spans": [list(s) for s in self.spans], "meta": self.meta}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Track":
+        return cls(id=int(d["id"]), cls=str(d["cls"]), size=tuple(float(v) for v in d["size"]),
+                   interp=d.get("interp"),
+                   keyframes={int(r[0]): Keyframe(float(r[1]), float(r[2]), float(r[3]),
+                                                  tuple(r[4]) if len(r) > 4 else ())
+                              for r in d.get("keyframes", [])},
+                   spans=[(int(a), int(b), str(k)) for a, b, k in d.get("spans", [])],
+                   meta=dict(d.get("meta") or {}))
+
+    def copy(self) -> "Track":
+        return Track(self.id, self.cls, tuple(self.size), self.interp, dict(self.keyframes),
+                     list(self.spans), dict(self.meta))
+
+
+# --- spans ----------------------------------------------------------------------------------------
+def mark_spans(spans: list[tuple[int, int, str]], first: int, last: int, kind: str
+               ) -> list[tuple[int, int, str]]:
+    """Spans after marking frames first..last (inclusive) as ``kind`` (``occluded``, ``outside``
+    or ``visible``, which clears): sorted, non-overlapping, neighbours of one kind merged."""
+    if kind not in SPAN_KINDS + ("visible",):
+        raise EditError(f"unknown span kind {kind!r}; use one of {', '.join(SPAN_KINDS)} or visible")
+    if last < first:
+        raise EditError(f"span {first}..{last}: the last frame comes before the first")
+    out = []
+    for a, b, k in spans:  # cut the new range out of the old spans
+        if b < first or a > last:
+            out.append((a, b, k))
+            continue
+        if a < first:
+            out.append((a, first - 1, k))
+        if b > last:
+            out.append((last + 1, b, k))
+    if kind != "visible":
+        out.append((first, last, kind))
+    out.sort()
+    merged: list[tuple[int, int, str]] = []
+    for a, b, k in out:
+        if merged and merged[-1][2] == k and merged[-1][1] + 1 >= a:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], b), k)
+        else:
+            merged.append((a, b, k))
+    return merged
+
+
+# --- primitive operations -------------------------------------------------------------------------
+def _kf_row(frame: int, k: Keyframe) -> list:
+    return [frame, k.x, k.y, k.heading, list(k.flags)]
+
+
+def check_flags(flags) -> tuple[str, ...]:
+    flags = tuple(sorted(set(flags or ())))
+    for f in flags:
+        if not isinstance(f, str) or not FLAG_RE.match(f):
+            raise EditError(f"bad keyframe flag {f!r}: expected a short lower-case identifier")
+    return flags
+
+
+def keyframe(x: float, y: float, heading: float, flags=()) -> Keyframe:
+    """A validated keyframe (finite numbers, heading wrapped to [-pi, pi))."""
+    x, y, heading = float(x), float(y), float(heading)
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(heading)):
+        raise EditError(f"keyframe needs finite x, y, heading, got {x}, {y}, {heading}")
+    heading = (heading + math.pi) % (2 * math.pi) - math.pi
+    return Keyframe(x, y, heading, check_flags(flags))
+
+
+def _track(tracks: dict[int, Track], tid: int) -> Track:
+    try:
+        return tracks[tid]
+    except KeyError:
+        raise EditError(f"no track {tid}") from None
+
+
+def apply_op(tracks: dict[int, Track], op: dict) -> dict:
+    """Apply one primitive operation to ``tracks`` (in place) and return its inverse."""
+    kind, tid = op["op"], int(op["id"])
+    if kind == "put_track":
+        old = tracks.get(tid)
+        new = op["track"]
+        if new is None:
+            tracks.pop(tid, None)
+        else:
+            tracks[tid] = Track.from_dict(new)
+        return {"op": "put_track", "id": tid, "track": None if old is None else old.to_dict()}
+    t = _track(tracks, tid)
+    if kind == "set_keyframes":
+        kfs = t.keyframes
+        touched = [int(r[0]) for r in op.get("set", ())] + [int(f) for f in op.get("del", ())]
+        inv_set = [_kf_row(f, kfs[f]) for f in dict.fromkeys(touched) if f in kfs]
+        inv_del = [f for f in dict.fromkeys(touched) if f not in kfs]
+        for f in op.get("del", ()):
+            kfs.pop(int(f), None)
+        for r in op.get("set", ()):
+            kfs[int(r[0])] = Keyframe(float(r[1]), float(r[2]), float(r[3]),
+                                      tuple(r[4]) if len(r) > 4 else ())
+        return {"op": "set_keyframes", "id": tid, "set": inv_set, "del": inv_del}
+    if kind == "set_fields":
+        inv = {}
+        for name, value in op["fields"].items():
+            if name == "cls":
+                inv[name], t.cls = t.cls, str(value)
+            elif name == "size":
+                inv[name], t.size = list(t.size), tuple(float(v) for v in value)
+            elif name == "interp":
+                inv[name], t.interp = t.interp, value
+            elif name == "spans":
+                inv[name] = [list(s) for s in t.spans]
+                t.spans = [(int(a), int(b), str(k)) for a, b, k in value]
+            elif name == "meta":
+                inv[name], t.meta = dict(t.meta), dict(value)
+            else:
+                raise EditError(f"unknown track field {name!r}")
+        return {"op": "set_fields", "id": tid, "fields": inv}
+    raise EditError(f"unknown operation {kind!r}")
+
+
+def apply_ops(tracks: dict[int, Track], ops: list[dict]) -> list[dict]:
+    """Apply operations in order; return the inverse list (to be applied in order too)."""
+    inverse = [apply_op(tracks, op) for op in ops]
+    inverse.reverse()
+    return inverse
+
+
+def op_tracks(ops: list[dict]) -> set[int]:
+    """Ids of the tracks that operations touch."""
+    return {int(op["id"]) for op in ops}

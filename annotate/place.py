@@ -1,0 +1,142 @@
+"""Placing road users from what the cameras see (a mixin of ``Project``): a pixel, a clicked
+mask (its normal position, or the Seg2Pose estimate of a run), and pre-annotation from a run.
+
+A pixel is turned into a camera ray and intersected with the ground surface raised by the
+clicked point's height above the ground (0 for the ground contact point, the default; the
+class's default height for a click on a mask's centre) — ``GroundSurface.intersect_rays``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from annotate.edits import _row
+from annotate.estimates import MaskIndex
+from annotate.model import EditError
+from seg2pose.ground import miss_reasons
+
+
+def pixel_to_ground(camera, ground, uv, height: float = 0.0) -> tuple[float, float]:
+    """The ground position (x, y) metres below the point seen at pixel ``uv`` (2,) of
+    ``camera``, that point being ``height`` metres above the ground surface."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(1, 2)
+    if not np.all(np.isfinite(uv)):
+        raise EditError(f"pixel must be finite numbers, got {uv[0].tolist()}")
+    if not camera.in_image(uv)[0]:
+        raise EditError(f"pixel ({uv[0, 0]:.1f}, {uv[0, 1]:.1f}) lies outside camera "
+                        f"{camera.name}'s {camera.width}x{camera.height} image")
+    X, status = ground.intersect_rays(camera.center, camera.unproject(uv), float(height))
+    if not np.isfinite(X[0, 0]):
+        raise EditError(f"the ray through pixel ({uv[0, 0]:.1f}, {uv[0, 1]:.1f}) of camera "
+                        f"{camera.name} misses the ground: {miss_reasons(status)[0]}")
+    return float(X[0, 0]), float(X[0, 1])
+
+
+class PlacementMixin:
+    """Placement edits of ``Project``; every one returns a ``Change``."""
+
+    @property
+    def masks(self) -> MaskIndex:
+        if getattr(self, "_masks", None) is None:
+            self._masks = MaskIndex(self.scene)
+        return self._masks
+
+    def _camera(self, camera: str):
+        if camera not in self.scene.cameras:
+            raise EditError(f"unknown camera {camera!r}; the scene has {', '.join(self.scene.cameras)}")
+        return self.scene.cameras[camera]
+
+    def place_from_pixel(self, track_id: int, frame: int, camera: str, uv, height: float = 0.0,
+                         heading: float | None = None):
+        """Put the track's keyframe at ``frame`` where pixel ``uv`` (u, v) of ``camera`` meets
+        the ground raised by ``height`` metres (see the module docstring). Keeps the heading
+        the track has there unless ``heading`` is given."""
+        t, f = self.track(track_id), self._frame(frame)
+        x, y = pixel_to_ground(self._camera(camera), self.scene.ground, uv, height)
+        return self._place(t, f, x, y, heading, (), "place_from_pixel")
+
+    def place_from_mask(self, track_id: int, frame: int, camera: str, mask_track: int,
+                        use_run: bool = True, heading: float | None = None):
+        """Put the track's keyframe at ``frame`` on a clicked mask (identified by its track id
+        in ``camera``'s masks): the run's Seg2Pose estimate of that road user when a run is
+        loaded and has one (flag ``estimate``), else the mask's normal position (``normal``)."""
+        t, f = self.track(track_id), self._frame(frame)
+        est = self._run.at(mask_track, f) if (use_run and self._run is not None) else None
+        if est is not None:
+            x, y, h = est
+            return self._place(t, f, x, y, h if heading is None and not t.keyframes else heading,
+                               ("estimate",), "place_from_mask")
+        x, y, _ = self.masks.normal_position(camera, f, int(mask_track))
+        return self._place(t, f, x, y, heading, ("normal",), "place_from_mask")
+
+    def _place(self, t, f: int, x: float, y: float, heading, flags, name: str):
+        self._free(t, f)
+        if heading is None:
+            heading = self.default_heading(t.id, f, x, y)
+        k = self._kf(t.id, f, x, y, heading, flags)
+        return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+
+    def accept_estimate(self, track_id: int, frame: int | None = None, run_track: int | None = None,
+                        every: int | None = None, frames: tuple[int, int] | None = None):
+        """Take the run's estimate of road user ``run_track`` (default: the track's
+        meta["run_track"], else its own id) as keyframes (flag ``estimate``): at ``frame``, or
+        every ``every`` frames over ``frames`` (first, last) plus the last estimate there."""
+        t = self.track(track_id)
+        rt = int(run_track if run_track is not None else t.meta.get("run_track", t.id))
+        if every is None:
+            if frame is None:
+                raise EditError("give a frame, or every= and frames=")
+            f = self._frame(frame)
+            est = self.run.at(rt, f)
+            if est is None:
+                raise EditError(f"the run has no estimate of road user {rt} at frame {f}")
+            self._free(t, f)
+            k = self._kf(t.id, f, *est, flags=("estimate",))
+            return self._commit("accept_estimate", [{"op": "set_keyframes", "id": t.id,
+                                                     "set": [_row(f, k)]}])
+        rows = self._sample(self.run.track(rt), every, frames)
+        if not len(rows[0]):
+            raise EditError(f"the run has no estimates of road user {rt} in frames {frames}")
+        sets = [_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
+                for f, x, y, h in zip(*rows) if t.span_at(f) != "outside"]
+        return self._commit("accept_estimates", [{"op": "set_keyframes", "id": t.id, "set": sets}])
+
+    def _sample(self, est, every: int, frames):
+        if int(every) < 1:
+            raise EditError(f"every must be a whole number of frames >= 1, got {every!r}")
+        if frames is not None:
+            est = est.in_frames((self._frame(frames[0]), self._frame(frames[1])))
+        if self.frame_range is not None:
+            est = est.in_frames(self.frame_range)
+        if not len(est):
+            return [], [], [], []
+        fr = est.frame
+        pick = ((fr - fr[0]) % int(every) == 0) | (np.arange(len(fr)) == len(fr) - 1)
+        return (fr[pick].tolist(), est.xyz[pick, 0].tolist(), est.xyz[pick, 1].tolist(),
+                est.heading[pick].tolist())
+
+    def preannotate(self, every: int = 25, frames: tuple[int, int] | None = None,
+                    run_tracks=None, min_estimates: int = 2):
+        """Pre-annotation: one new track per road user of the run (or of ``run_tracks``) with
+        at least ``min_estimates`` estimates in ``frames``, keyframes every ``every`` frames
+        from its estimates (flag ``estimate``, meta["run_track"] = its run id). One undoable
+        step; ``change.created`` holds the new ids."""
+        run = self.run
+        ids = run.track_ids() if run_tracks is None else [int(r) for r in run_tracks]
+        next_id = max(self.tracks, default=0) + 1
+        ops = []
+        for rt in ids:
+            est = run.track(rt)
+            fr, xs, ys, hs = self._sample(est, every, frames)
+            if len(fr) < min_estimates:
+                continue
+            cls = str(est.cls[0])
+            kfs = [_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
+                   for f, x, y, h in zip(fr, xs, ys, hs)]
+            ops.append({"op": "put_track", "id": next_id, "track": {
+                "id": next_id, "cls": cls, "size": list(self._size(None, cls)), "interp": None,
+                "keyframes": kfs, "spans": [], "meta": {"run_track": int(rt)}}})
+            next_id += 1
+        if not ops:
+            raise EditError("the run has no road user with enough estimates to pre-annotate")
+        return self._commit("preannotate", ops)

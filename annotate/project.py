@@ -1,0 +1,434 @@
+"""``Project``: an annotation project = a scene folder + its journal (``SCENE/annotations/``).
+
+    from annotate import Project
+    with Project.open("scene") as p:
+        ch = p.create_track("car")
+        p.set_keyframe(ch.track, 0, x=3.0, y=-1.5, heading=0.0)
+        p.set_keyframe(ch.track, 25, x=12.0, y=-1.4)
+        p.poses()            # PoseTable: every frame, z on the ground, size, source column
+        p.undo(); p.redo()
+
+Every edit method (edits.py) returns a ``Change`` naming the tracks it changed, after the edit
+was written and fsync'ed to the journal; subscribers (``subscribe``) get the same ``Change``.
+Opening replays the journal (from the latest snapshot). ``read_only=True`` takes no lock and
+writes nothing (a second viewer of a scene being annotated); ``refresh()`` picks up new edits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Callable, Mapping
+
+from annotate import journal as J
+from annotate.edits import EditsMixin
+from annotate.place import PlacementMixin
+from annotate.interpolate import METHODS, default_method
+from annotate.model import EditError, Track, apply_ops, op_tracks
+from annotate.table import empty, track_poses
+from seg2pose.io.poses import PoseTable
+from seg2pose.errors import S2PError
+from seg2pose.io.scene import Scene, load_scene
+
+UNDO_LIMIT = 10_000      # edits kept for undo (the oldest are forgotten beyond this)
+SNAPSHOT_EVERY = 5_000   # records per journal segment before a snapshot compacts it
+
+
+@dataclass(frozen=True)
+class Change:
+    """What an edit, undo, redo or refresh changed. kind: "edit", "undo", "redo", "refresh";
+    name: the edit's name ("nudge", ...); seq: its journal record number; tracks: ids of
+    changed tracks (created and deleted ones included)."""
+
+    kind: str
+    name: str
+    seq: int
+    tracks: frozenset[int] = frozenset()
+    created: frozenset[int] = frozenset()
+    deleted: frozenset[int] = frozenset()
+
+    @property
+    def track(self) -> int | None:
+        """The one created track (create_track, split_track), else the one changed track."""
+        pick = self.created or self.tracks
+        return next(iter(pick)) if len(pick) == 1 else None
+
+
+@dataclass
+class _Entry:
+    seq: int
+    name: str
+    ops: list[dict]
+    inverse: list[dict]
+
+
+@dataclass
+class _State:
+    tracks: dict[int, Track] = field(default_factory=dict)
+    undo: list[_Entry] = field(default_factory=list)
+    redo: list[_Entry] = field(default_factory=list)
+    seq: int = 0
+
+
+class Project(EditsMixin, PlacementMixin):
+    """An open annotation project (see the module docstring). Use ``Project.open``."""
+
+    def __init__(self, scene: Scene, read_only: bool, frames: tuple[int, int] | None,
+                 run=None, snapshot_every: int = SNAPSHOT_EVERY):
+        self.scene = scene
+        self.read_only = read_only
+        self.folder = scene.root / J.ANNOTATIONS
+        self.notes: list[str] = []  # things said on open/refresh: torn lines, lock take-over
+        self.frame_range = frames if frames is not None else scene_frames(scene)
+        self.fingerprint = scene.fingerprint()
+        self.snapshot_every = int(snapshot_every)
+        self._s = _State()
+        self._cache: dict[int, PoseTable] = {}
+        self._subscribers: list[Callable[[Change], None]] = []
+        self._segment: J.Segment | None = None
+        self._segment_start = 0
+        self._lock: J.Lock | None = None
+        self._run = None
+        if run is not None:
+            self.load_run(run)
+
+    # --- opening and closing ---------------------------------------------------------------------
+    @classmethod
+    def open(cls, scene: Scene | str | Path, *, read_only: bool = False,
+             run: str | Path | None = None, frames: tuple[int, int] | None = None,
+             snapshot_every: int = SNAPSHOT_EVERY) -> "Project":
+        """Open (or start) the annotation project of a scene folder.
+
+        read_only: no lock, no writes (edits raise); run: a run folder whose Seg2Pose estimates
+        serve pre-annotation and suggestions; frames: (first, last) frames of the scene
+        (default: from its splits, else its masks). Raises LockedError when another process
+        writes, JournalError for a damaged journal or one of another scene."""
+        if not isinstance(scene, Scene):
+            scene = load_scene(scene)
+        p = cls(scene, read_only, frames, run, snapshot_every)
+        if not read_only:
+            p.folder.mkdir(exist_ok=True)
+            p._lock = J.Lock(p.folder, scene.name)
+            if p._lock.note:
+                p.notes.append(p._lock.note)
+        try:
+            p._load()
+            if not read_only:
+                p._open_segment()
+                if p._lock and p._lock.note:
+                    p._write({"kind": "note", "text": p._lock.note})
+        except BaseException:
+            p.close()
+            raise
+        return p
+
+    def close(self) -> None:
+        """Release the journal and the lock (idempotent)."""
+        if self._segment is not None:
+            self._segment.close()
+            self._segment = None
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def __enter__(self) -> "Project":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- reading -----------------------------------------------------------------------------------
+    @property
+    def tracks(self) -> Mapping[int, Track]:
+        """Track id -> Track (read-only view; change tracks only through the edit methods)."""
+        return MappingProxyType(self._s.tracks)
+
+    def track(self, track_id: int) -> Track:
+        try:
+            return self._s.tracks[int(track_id)]
+        except KeyError:
+            raise EditError(f"no track {track_id}; tracks: {sorted(self._s.tracks)[:20]}") from None
+
+    def interpolation(self, track_id: int) -> str:
+        """The interpolation a track uses (its own choice or its class's default)."""
+        t = self.track(track_id)
+        return t.interp or default_method(t.cls)
+
+    def track_poses(self, track_id: int) -> PoseTable:
+        """Every frame's pose of one track (cached until the track changes): a PoseTable with
+        size and source (keyframe / interpolated / occluded) columns."""
+        tid = int(track_id)
+        if tid not in self._cache:
+            t = self.track(tid)
+            self._cache[tid] = track_poses(t, self.scene.ground, self.interpolation(tid))
+        return self._cache[tid]
+
+    def poses(self, tracks=None, frames: tuple[int, int] | None = None) -> PoseTable:
+        """Per-frame poses of all (or the given) tracks, sorted by frame then track id: a
+        PoseTable with size and source columns (write it with seg2pose.io.poses.write_poses)."""
+        ids = sorted(self._s.tracks) if tracks is None else [int(t) for t in tracks]
+        parts = [self.track_poses(t).in_frames(frames) for t in ids]
+        parts = [t for t in parts if len(t)]
+        return PoseTable.concat(parts).sorted() if parts else empty()
+
+    @property
+    def seq(self) -> int:
+        """Number of journal records so far (edits, undos, redos, notes)."""
+        return self._s.seq
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._s.undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._s.redo)
+
+    def history(self) -> list[tuple[int, str]]:
+        """(seq, name) of the edits that ``undo`` would take back, oldest first."""
+        return [(e.seq, e.name) for e in self._s.undo]
+
+    def subscribe(self, callback: Callable[[Change], None]) -> Callable[[], None]:
+        """Call ``callback(change)`` after every edit, undo, redo and refresh; returns a function
+        that unsubscribes."""
+        self._subscribers.append(callback)
+        return lambda: self._subscribers.remove(callback)
+
+    # --- changing ------------------------------------------------------------------------------------
+    def _write(self, record: dict) -> int:
+        if self.read_only:
+            raise EditError("this project is open read-only")
+        seq = self._s.seq + 1
+        self._segment.append({"seq": seq, **record})
+        self._s.seq = seq
+        return seq
+
+    def _apply_durably(self, record: dict, ops: list[dict]) -> tuple[int, list[dict]]:
+        """Apply ops to scratch copies of their tracks, journal the record, then swap the copies
+        in: an op that fails or a journal write that fails leaves everything as it was."""
+        if self.read_only:
+            raise EditError("this project is open read-only")
+        touched = op_tracks(ops)
+        scratch = {t: self._s.tracks[t].copy() for t in touched if t in self._s.tracks}
+        inverse = apply_ops(scratch, ops)
+        seq = self._write(record)
+        for t in touched:
+            if t in scratch:
+                self._s.tracks[t] = scratch[t]
+            else:
+                self._s.tracks.pop(t, None)
+            self._cache.pop(t, None)
+        return seq, inverse
+
+    def _commit(self, name: str, ops: list[dict]) -> Change:
+        """Journal and apply one edit (a list of primitive ops) as one undoable step."""
+        if not ops:
+            return Change("edit", name, self._s.seq)
+        before = set(self._s.tracks)
+        seq, inverse = self._apply_durably(
+            {"kind": "edit", "name": name, "ops": ops, "t": J.now()}, ops)
+        _push(self._s.undo, _Entry(seq, name, ops, inverse))
+        self._s.redo.clear()
+        return self._changed("edit", name, seq, op_tracks(ops), before)
+
+    def undo(self) -> Change | None:
+        """Take back the last edit (None when there is nothing to undo)."""
+        if not self._s.undo:
+            return None
+        e = self._s.undo[-1]
+        before = set(self._s.tracks)
+        seq, _ = self._apply_durably({"kind": "undo", "of": e.seq}, e.inverse)
+        self._s.redo.append(self._s.undo.pop())
+        return self._changed("undo", e.name, seq, op_tracks(e.ops), before)
+
+    def redo(self) -> Change | None:
+        """Do again the last undone edit (None when there is nothing to redo)."""
+        if not self._s.redo:
+            return None
+        e = self._s.redo[-1]
+        before = set(self._s.tracks)
+        seq, _ = self._apply_durably({"kind": "redo", "of": e.seq}, e.ops)
+        self._s.undo.append(self._s.redo.pop())
+        return self._changed("redo", e.name, seq, op_tracks(e.ops), before)
+
+    def _changed(self, kind: str, name: str, seq: int, tracks: set[int], before: set[int]
+                 ) -> Change:
+        after = set(self._s.tracks)
+        ch = Change(kind, name, seq, frozenset(tracks), frozenset(after - before),
+                    frozenset(before - after))
+        if not self.read_only and self._s.seq - self._segment_start >= self.snapshot_every:
+            self.snapshot()
+        for cb in list(self._subscribers):
+            cb(ch)
+        return ch
+
+    # --- journal: replay, snapshots -----------------------------------------------------------------
+    def _load(self) -> None:
+        """Replay: the latest snapshot, then the records after it."""
+        segs, snaps = J.list_files(self.folder)
+        start = max(snaps) if snaps else 0
+        if snaps:
+            self._s = _state_from_snapshot(J.load_json(snaps[start]), snaps[start], self.fingerprint)
+        later = sorted(a for a in segs if a >= start)
+        if snaps and start not in segs and later:
+            raise J.JournalError(f"{self.folder}: journal after snapshot {start} is missing")
+        for a in later:
+            self._replay_segment(segs[a], last=(a == later[-1]))
+        self._segment_start = later[-1] if later else start
+
+    def _replay_segment(self, path: Path, last: bool) -> None:
+        lines, good, torn = J.read_lines(path)
+        if torn:
+            if not last:
+                raise J.JournalError(f"{path}: damaged in the middle of the history ({torn})")
+            self.notes.append(torn)
+            if not self.read_only:
+                keep = J.move_torn(path, good)
+                self.notes.append(f"the torn bytes were moved to {keep.name}")
+        for lineno, rec in lines:
+            try:
+                self._replay_record(rec, path)
+            except (KeyError, TypeError, ValueError, EditError) as e:
+                raise J.JournalError(f"{path}:{lineno}: cannot replay this record: {e}") from None
+
+    def _replay_record(self, rec: dict, path: Path) -> None:
+        kind = rec.get("kind")
+        if kind == "header":
+            J.check_header(rec, path, self.fingerprint)
+            return
+        seq = int(rec["seq"])
+        if seq <= self._s.seq:
+            return  # already in the snapshot
+        if seq != self._s.seq + 1:
+            raise ValueError(f"record {seq} follows record {self._s.seq}: records are missing")
+        self._s.seq = seq
+        if kind == "edit":
+            inverse = apply_ops(self._s.tracks, rec["ops"])
+            _push(self._s.undo, _Entry(seq, rec["name"], rec["ops"], inverse))
+            self._s.redo.clear()
+        elif kind in ("undo", "redo"):
+            src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
+            if not src or src[-1].seq != rec["of"]:
+                raise ValueError(f"{kind} of edit {rec['of']}, which is not next to {kind}")
+            e = src.pop()
+            apply_ops(self._s.tracks, e.inverse if kind == "undo" else e.ops)
+            dst.append(e)
+        elif kind != "note":
+            raise ValueError(f"unknown record kind {kind!r}")
+
+    def _header(self) -> dict:
+        return {"kind": "header", "version": J.VERSION, "scene": self.scene.name,
+                "fingerprint": self.fingerprint, "created": J.now()}
+
+    def _open_segment(self) -> None:
+        self._segment = J.new_segment(self.folder, self._segment_start, self._header())
+
+    def snapshot(self) -> Path:
+        """Compact the journal now: write the state and undo history as a snapshot, start a new
+        segment, and remove the segments and snapshots the new snapshot replaces."""
+        if self.read_only:
+            raise EditError("this project is open read-only")
+        seq = self._s.seq
+        path = J.write_snapshot(self.folder, seq, _snapshot_dict(self._s, self.scene.name,
+                                                                  self.fingerprint))
+        old = self._segment
+        self._segment_start = seq
+        self._segment = J.new_segment(self.folder, seq, self._header())
+        old.close()
+        segs, snaps = J.list_files(self.folder)
+        for a, p in list(segs.items()) + list(snaps.items()):
+            if a < seq:
+                p.unlink()
+        J.fsync_dir(self.folder)
+        return path
+
+    def refresh(self) -> Change:
+        """Read-only projects: pick up what the writer has journalled since (reloads)."""
+        old = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
+        self._s = _State()
+        self._cache.clear()
+        self.notes = []
+        self._load()
+        new = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
+        changed = {t for t in old.keys() | new.keys() if old.get(t) != new.get(t)}
+        ch = Change("refresh", "refresh", self._s.seq, frozenset(changed),
+                    frozenset(new.keys() - old.keys()), frozenset(old.keys() - new.keys()))
+        for cb in list(self._subscribers):
+            cb(ch)
+        return ch
+
+    # --- run estimates (pre-annotation, suggestions) -------------------------------------------------
+    def load_run(self, run: str | Path) -> None:
+        """Use a run folder's Seg2Pose estimates (poses.csv) for accept_estimate, preannotate and
+        suggestions."""
+        from annotate.estimates import RunEstimates
+        self._run = RunEstimates.load(run, self.scene)
+
+    @property
+    def run(self):
+        if self._run is None:
+            raise EditError("no run loaded: open the project with a run folder (Seg2Pose output)")
+        return self._run
+
+    def check_methods(self, method: str | None) -> None:
+        if method is not None and method not in METHODS:
+            raise EditError(f"unknown interpolation {method!r}; known: {', '.join(METHODS)}")
+
+
+def _push(stack: list[_Entry], e: _Entry) -> None:
+    stack.append(e)
+    if len(stack) > UNDO_LIMIT:
+        del stack[: len(stack) - UNDO_LIMIT]
+
+
+def _snapshot_dict(s: _State, scene: str, fingerprint: str) -> dict:
+    ent = lambda e: [e.seq, e.name, e.ops, e.inverse]  # noqa: E731
+    return {"kind": "snapshot", "version": J.VERSION, "scene": scene, "fingerprint": fingerprint,
+            "seq": s.seq, "tracks": [t.to_dict() for _, t in sorted(s.tracks.items())],
+            "undo": [ent(e) for e in s.undo], "redo": [ent(e) for e in s.redo]}
+
+
+def _state_from_snapshot(d: dict, path: Path, fingerprint: str) -> _State:
+    J.check_header(d, path, fingerprint)
+    try:
+        tracks = {int(t["id"]): Track.from_dict(t) for t in d["tracks"]}
+        ent = lambda r: _Entry(int(r[0]), str(r[1]), r[2], r[3])  # noqa: E731
+        return _State(tracks, [ent(r) for r in d["undo"]], [ent(r) for r in d["redo"]],
+                      int(d["seq"]))
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise J.JournalError(f"{path}: not a valid snapshot ({e})") from None
+
+
+def scene_frames(scene: Scene) -> tuple[int, int] | None:
+    """(first, last) frame of a scene: its splits' extent, else the last frame of its masks
+    files (read from their ends), else None (unknown: only frame >= 0 is checked)."""
+    if scene.splits:
+        return 0, max(b for _, b in scene.splits.values())
+    if isinstance(scene.extra.get("frames"), int):
+        return 0, int(scene.extra["frames"]) - 1
+    last = -1
+    for cam in scene.cameras:
+        last = max(last, _last_mask_frame(scene.masks_path(cam)))
+    return (0, last) if last >= 0 else None
+
+
+def _last_mask_frame(path: Path) -> int:
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(f.tell() - 65536, 0))
+            lines = f.read().splitlines()
+    except OSError:
+        return -1
+    for line in reversed(lines):
+        parts = line.split()
+        if parts and not parts[0].startswith(b"#"):
+            try:
+                return int(parts[0])
+            except ValueError:
+                return -1
+    return -1
+
+
+__all__ = ["Project", "Change", "S2PError", "UNDO_LIMIT"]
