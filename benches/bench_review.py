@@ -113,7 +113,8 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     from seg2pose.evaluate import per_frame_errors
     from s2p_review import columns as C
     from s2p_review import layout as L
-    from s2p_review.recording import RecordOptions, _with_size, log_static
+    from s2p_review.columns import sizes_of as _with_size
+    from s2p_review.recording import log_static
     from s2p_review.runs import load_run
 
     run = load_run(run_dir, scene)
@@ -121,7 +122,7 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     cams = list(scene.cameras)
     rec = rr.RecordingStream("s2p-bench")
     rec.save(rrd, default_blueprint=L.blueprint(cams, [run.name]))
-    log_static(rec, scene, cams, RecordOptions())
+    log_static(rec, scene, cams)
     poses, v = run.poses, run.views
     psz, gsz = _with_size(poses, scene), _with_size(gt, scene)
     frames = np.arange(int(poses.frame.min()), int(poses.frame.max()) + 1)
@@ -195,7 +196,7 @@ def main() -> None:
     a = ap.parse_args()
     import rerun  # noqa: F401 - imported before timing: both ways pay it once per process
 
-    from s2p_review.recording import record
+    from s2p_review.session import RecordOptions, record
 
     cache = Path(tempfile.gettempdir()) / f"s2p-bench-review-{a.frames}-{a.users}-{a.width}x{a.height}"
     t0 = time.perf_counter()
@@ -207,9 +208,7 @@ def main() -> None:
     timer = _time_rerun_calls()
     timer["s"] = 0.0
     t = time.perf_counter()
-    from s2p_review.recording import RecordOptions
-
-    record(scene, [run], out / "columns.rrd", options=RecordOptions(mask_every=1))
+    record(scene, [run], out / "columns.rrd", RecordOptions(mask_every=1))
     results["columns (send_columns)"] = (time.perf_counter() - t, timer["s"], (out / "columns.rrd").stat().st_size)
     if not a.skip_per_frame:
         timer["s"] = 0.0

@@ -1,29 +1,42 @@
-"""Everything Rerun: entity layout, blueprint, logging, viewer control, MCAP export.
+"""Everything Rerun and MCAP: entity layout, blueprint, logging, viewer control, MCAP export
+and import.
+
+Modules (one concern each)::
+
+    selection    runs, frame range, cameras and image cadence to show (shared)
+    imagery      video frames and mask frames read from a scene (shared)
+    timebase     frame numbers -> times (frame timeline, wall-clock time)
+    layout       the entity tree, class colours, the blueprint
+    columns      whole tracks and frame ranges as arrays for rr.send_columns
+    recording    one log function per entity family
+    session      ``record``: where a recording goes (file, viewers, screenshot)
+    viewer       viewer control (spawn, connect, time cursor, screenshots)
+    foxglove     Foxglove protobuf message builders
+    mcap_records the lossless /s2p/ JSON channels and their inverse
+    mcap_export  ``export_mcap``;  mcap_import: ``import_mcap``
+    runs         run folders read for review
 
 Public API (imports are lazy so that ``import s2p_review`` does not load rerun)::
 
-    record(scene, runs, rrd_path=None, *, spawn=False, connect=None, frames=None, force=False)
-    export_mcap(scene, run_dir, out_path, force=False)
-    import_mcap(path, out_dir, force=False)
-    take_screenshot(rrd_path, png_path, *, frame=None, force=False)
+    record(scene, runs, to, options=None) -> RecordResult
+    export_mcap(scene, run_dir, out_path, options=None, force=False) -> ExportResult
+    import_mcap(path, out_dir, force=False) -> Path
+    take_screenshot(source, png_path, *, frame=None, force=False) -> Path
 """
 
 from __future__ import annotations
 
-__all__ = ["record", "export_mcap", "import_mcap", "take_screenshot", "RecordOptions"]
+__all__ = ["record", "RecordOptions", "Targets", "export_mcap", "ExportOptions", "import_mcap",
+           "take_screenshot"]
+
+_WHERE = {"record": "session", "RecordOptions": "session", "Targets": "session",
+          "export_mcap": "mcap_export", "ExportOptions": "mcap_export",
+          "import_mcap": "mcap_import", "take_screenshot": "viewer"}
 
 
 def __getattr__(name: str):
-    if name in ("record", "RecordOptions"):
-        from s2p_review import recording as _r
+    if name in _WHERE:
+        import importlib
 
-        return getattr(_r, name)
-    if name in ("export_mcap", "import_mcap"):
-        from s2p_review import mcap_io
-
-        return getattr(mcap_io, name)
-    if name == "take_screenshot":
-        from s2p_review.viewer import take_screenshot
-
-        return take_screenshot
+        return getattr(importlib.import_module(f"s2p_review.{_WHERE[name]}"), name)
     raise AttributeError(name)

@@ -7,11 +7,15 @@ All builders are vectorised over rows; a frame range [a, b] always produces one 
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from seg2pose.masks import foreground_runs
+
+if TYPE_CHECKING:
+    from seg2pose.io.poses import PoseTable
+    from seg2pose.io.scene import Scene
 
 # corner order of a box: bottom 0-3, top 4-7; edges as index pairs
 _SX = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * 0.5
@@ -26,6 +30,15 @@ PATH = np.array([0, 1, 2, 3, 0, 4, 5, 1, 5, 6, 2, 6, 7, 3, 7, 4])
 def frame_lengths(frame: np.ndarray, first: int, last: int) -> np.ndarray:
     """Rows per frame (last - first + 1,) for rows already sorted by frame within [first, last]."""
     return np.bincount(np.asarray(frame, np.int64) - first, minlength=last - first + 1)
+
+
+def sizes_of(table: "PoseTable", scene: "Scene") -> np.ndarray:
+    """(N, 3) l, w, h metres of each row: the table's own sizes (NaN -> 1 m), else the scene's
+    class sizes."""
+    if table.size is not None:
+        return np.nan_to_num(table.size, nan=1.0)
+    sizes = scene.class_sizes()
+    return np.array([sizes.get(c, (1.0, 1.0, 1.0)) for c in table.cls], float).reshape(-1, 3)
 
 
 def box_corners(xyz: np.ndarray, heading: np.ndarray, size: np.ndarray) -> np.ndarray:

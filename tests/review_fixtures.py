@@ -102,12 +102,18 @@ def render_masks(cam: Camera, gt: PoseTable) -> MaskTable:
                      [CLASS_ID[c] for c in gt.cls[keep]], cam.height, cam.width, rles)
 
 
+def video_rgb(frame: int) -> tuple[int, int, int]:
+    """The colour of the fixture video at ``frame``."""
+    return 200, 140, 60 + 4 * frame
+
+
 def write_video(path: Path, cam: Camera, gt: PoseTable) -> None:
-    """A grey video with the frame number as brightness, one frame per gt frame."""
+    """A flat tan video, RGB ``video_rgb(f)`` (blue grows with the frame number), one frame per gt
+    frame: a colour neither the classes nor the viewer's own panels use."""
     path.parent.mkdir(parents=True, exist_ok=True)
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (cam.width, cam.height))
     for f in range(int(gt.frame.max()) + 1):
-        vw.write(np.full((cam.height, cam.width, 3), 40 + 5 * f, np.uint8))
+        vw.write(np.full((cam.height, cam.width, 3), video_rgb(f)[::-1], np.uint8))
     vw.release()
 
 

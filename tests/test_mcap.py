@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
-from s2p_review.mcap_io import export_mcap, import_mcap, read_mcap_records
+from s2p_review.mcap_export import ExportOptions, export_mcap
+from s2p_review.mcap_import import import_mcap, read_mcap_records
 
 from review_fixtures import make_run, make_scene
 
@@ -28,7 +29,7 @@ def exported(tmp_path_factory):
     t.heading[:3] = np.nan
     t.size[4] = [np.nan, 1.0, 2.0]
     write_poses(run / "poses.csv", t)
-    out = export_mcap(scene, run, root / "x.mcap")
+    out = export_mcap(scene, run, root / "x.mcap").path
     return scene, run, out, root
 
 
@@ -210,11 +211,29 @@ def test_cli_export_import(exported):
     np.testing.assert_array_equal(t.xyz, full.xyz)
 
 
-def test_empty_pose_table_round_trip(tmp_path):
-    from s2p_review.mcap_io import _pose_table
+def test_empty_pose_table_round_trip(exported, tmp_path):
+    """A run that found nobody (header-only poses.csv, no views) exports and imports back to
+    the same files, and the frames asked for are still there for the viewers."""
+    import shutil
 
-    t = _pose_table([], with_size=True)
-    assert isinstance(t, PoseTable) and len(t) == 0 and t.size is not None
+    scene, run, _, _ = exported
+    empty = tmp_path / "run-empty"
+    shutil.copytree(run, empty)
+    (empty / "views.csv").unlink()
+    write_poses(empty / "poses.csv", PoseTable.empty(with_size=True))
+    res = export_mcap(scene, empty, tmp_path / "e.mcap", ExportOptions(frames=(2, 4)))
+    rec = read_mcap_records(res.path)
+    assert rec.poses == [] and rec.views == [] and rec.metadata["s2p"]["has_views"] == "false"
+    back = import_mcap(res.path, tmp_path / "restored")
+    assert (back / "poses.csv").read_bytes() == (empty / "poses.csv").read_bytes()
+    assert not (back / "views.csv").exists()
+    t = read_poses(back / "poses.csv")
+    assert len(t) == 0 and t.size is not None
+    from mcap.reader import make_reader
+
+    with open(res.path, "rb") as f:
+        topics = [c.topic for _s, c, _m in make_reader(f).iter_messages(topics=["/cameras/c0/masks"])]
+    assert len(topics) == 3  # frames 2, 3, 4
 
 
 def test_image_annotations_outline_masks(exported):

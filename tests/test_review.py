@@ -19,13 +19,15 @@ from seg2pose.masks import decode, encode
 from s2p_review import columns as C
 from s2p_review import layout as L
 from seg2pose.cli.common import parse_frames
-from s2p_review.recording import RecordOptions, record
-from s2p_review.runs import load_run, scene_last_frame
 from seg2pose.io.run import read_views
+from s2p_review.recording import LogStyle
+from s2p_review.runs import load_run, scene_last_frame
+from s2p_review.session import RecordOptions, Targets, record
 
 from review_fixtures import CLASS_ID, EST_OFFSET, TRACKS, make_run, make_scene
 
 N_FRAMES = 20
+NO_IMAGES = RecordOptions(style=LogStyle(masks=False, video=False))
 
 
 @pytest.fixture(scope="module")
@@ -186,7 +188,7 @@ def _rrd_rows(path: Path) -> tuple[Counter, Counter, list]:
 
 def test_rrd_holds_expected_entities_and_rows(tiny):
     scene, base, s2pn, root = tiny
-    out = record(scene, [base, s2pn], root / "rec.rrd")
+    out = record(scene, [base, s2pn], root / "rec.rrd").rrd
     assert out == root / "rec.rrd" and out.stat().st_size > 0
     rows, comps, bps = _rrd_rows(out)
     assert len(bps) == 1  # the blueprint travels with the recording
@@ -215,7 +217,7 @@ def test_rrd_values(tiny):
     import rerun.chunk as rc
 
     scene, base, _, root = tiny
-    out = record(scene, [base], root / "values.rrd", options=RecordOptions(masks=False, video=False))
+    out = record(scene, [base], root / "values.rrd", NO_IMAGES).rrd
     boxes, errors, masks = None, None, []
     for ch in rc.RrdReader(out).stream():
         if ch.entity_path == "/world/road_users/run-base" and not ch.is_static:
@@ -240,8 +242,8 @@ def test_rrd_masks_hold_class_ids(tiny):
     import rerun.chunk as rc
 
     scene, base, _, root = tiny
-    out = record(scene, [base], root / "masks.rrd", frames=(3, 6),
-                 options=RecordOptions(video=False, cameras=["c1"]))
+    out = record(scene, [base], root / "masks.rrd",
+                 RecordOptions(frames=(3, 6), cameras=["c1"], style=LogStyle(video=False))).rrd
     buf = None
     for ch in rc.RrdReader(out).stream():
         if ch.entity_path == "/world/cameras/c1/masks" and not ch.is_static:
@@ -262,7 +264,7 @@ def test_mask_cadence(tiny):
     import rerun.chunk as rc
 
     scene, base, _, root = tiny
-    out = record(scene, [base], root / "cad.rrd", options=RecordOptions(mask_every=5, video_every=10))
+    out = record(scene, [base], root / "cad.rrd", RecordOptions(mask_every=5, video_every=10)).rrd
     rows = Counter()
     for ch in rc.RrdReader(out).stream():
         if not ch.is_static:
@@ -278,7 +280,7 @@ def test_existing_output_refused_and_kept(tiny):
     with pytest.raises(S2PError, match="--force"):
         record(scene, [base], p)
     assert p.read_bytes() == b"keep me"
-    record(scene, [base], p, force=True, options=RecordOptions(masks=False, video=False))
+    record(scene, [base], Targets(rrd=p, force=True), NO_IMAGES)
     assert p.read_bytes() != b"keep me"
 
 
@@ -298,9 +300,9 @@ def test_unreachable_viewer_url(tiny):
     scene, base, _, root = tiny
     url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
     with pytest.raises(S2PError, match="no viewer answers"):
-        record(scene, [base], connect=url)
+        record(scene, [base], Targets(connect=url))
     with pytest.raises(S2PError, match="bad viewer URL"):
-        record(scene, [base], connect="http://nowhere")
+        record(scene, [base], Targets(connect="http://nowhere"))
 
 
 def test_unreadable_video(tiny, tmp_path):
@@ -321,7 +323,7 @@ def test_unreadable_video(tiny, tmp_path):
 def test_nothing_to_do(tiny):
     scene, base, _, _ = tiny
     with pytest.raises(S2PError, match="nothing to do"):
-        record(scene, [base])
+        record(scene, [base], Targets())
 
 
 # --- CLI -------------------------------------------------------------------------------------------
@@ -357,10 +359,29 @@ def test_cli_main_prints_one_line_error(tiny, monkeypatch, capsys):
     assert "run.json" in err and "zz" in err and len(err.strip().splitlines()) == 1
 
 
-def test_run_json_meta_roundtrip(tiny):
-    _, base, _, _ = tiny
-    meta = json.loads((base / "run.json").read_text())
-    assert meta["method"] == "baseline" and meta["cameras"] == ["c0", "c1"]
+def test_run_json_meta_roundtrip(tiny, tmp_path):
+    """run.json as read for review equals the file, and comes back equal through an MCAP export
+    and import; a run.json without cameras takes them from views.csv."""
+    import shutil
+
+    from s2p_review.mcap_export import ExportOptions, export_mcap
+    from s2p_review.mcap_import import import_mcap
+
+    scene, base, _, _ = tiny
+    on_disk = json.loads((base / "run.json").read_text())
+    run = load_run(base, scene, scene_last_frame(scene))
+    assert run.meta == on_disk and run.cameras == ["c0", "c1"]
+    out = export_mcap(scene, base, tmp_path / "m.mcap", ExportOptions(frames=(0, 1))).path
+    back = import_mcap(out, tmp_path / "restored")
+    assert json.loads((back / "run.json").read_text()) == on_disk
+    shutil.copytree(base, tmp_path / "nocams")
+    meta = dict(on_disk, cameras=[])
+    (tmp_path / "nocams" / "run.json").write_text(json.dumps(meta))
+    v = read_views(base / "views.csv")
+    (tmp_path / "nocams" / "views.csv").write_text(
+        "\n".join([l for l in (base / "views.csv").read_text().splitlines() if ",c0," not in l]) + "\n")
+    assert "c0" in set(v.camera.tolist())
+    assert load_run(tmp_path / "nocams", scene).cameras == ["c1"]
 
 
 def test_trail_points_match_trail_strips():
@@ -402,15 +423,18 @@ def test_bad_rle_in_masks_named(tiny, tmp_path):
 
 
 def test_auto_cadence(tiny):
-    from s2p_review.recording import auto_every
+    from s2p_review.selection import auto_every, resolve_cadence
 
     scene = tiny[0]
     px = 160 * 120 * 2
     assert auto_every(1000, ["c0", "c1"], scene, budget_px=px * 100) == 10
     assert auto_every(1000, ["c0", "c1"], scene, budget_px=px * 1000) == 1
     assert auto_every(1001, ["c0"], scene, budget_px=px / 2 * 100) == 11
-    opts = RecordOptions()
-    assert opts.resolve(scene, 0, 19, ["c0", "c1"]) == (1, 1) and opts.notes == []
+    cad = resolve_cadence(scene, 0, 19, ["c0", "c1"])
+    assert (cad.masks, cad.video, cad.notes()) == (1, 1, [])
+    # 20 frames of 2 x 160x120 px = 768000 px; a budget of 100000 px gives one frame in 8
+    cad = resolve_cadence(scene, 0, 19, ["c0", "c1"], video_every=3, budget_px=1e5)
+    assert (cad.masks, cad.video, cad.reduced) == (8, 3, ("masks",))
 
 
 def test_short_video_is_noted(tiny, tmp_path):
@@ -427,9 +451,8 @@ def test_short_video_is_noted(tiny, tmp_path):
     for _ in range(5):
         vw.write(np.zeros((120, 160, 3), np.uint8))
     vw.release()
-    opts = RecordOptions(mask_every=1, video_every=1)
-    record(load_scene(copy), [base], tmp_path / "v.rrd", options=opts)
-    assert any("c1" in n and "only 5 of the 20" in n for n in opts.notes), opts.notes
+    res = record(load_scene(copy), [base], tmp_path / "v.rrd", RecordOptions(mask_every=1, video_every=1))
+    assert any("c1" in n and "only 5 of the 20" in n for n in res.notes), res.notes
 
 
 def test_views_without_normal_position_are_left_out_in_3d(tiny, tmp_path):
@@ -445,8 +468,8 @@ def test_views_without_normal_position_are_left_out_in_3d(tiny, tmp_path):
     parts[6:9] = ["nan", "nan", "nan"]
     lines[1] = ",".join(parts)
     (run / "views.csv").write_text("\n".join(lines) + "\n")
-    out = record(scene, [run], tmp_path / "n.rrd", frames=(0, 1),
-                 options=RecordOptions(masks=False, video=False))
+    out = record(scene, [run], tmp_path / "n.rrd",
+                 RecordOptions(frames=(0, 1), style=LogStyle(masks=False, video=False))).rrd
     pts = arrows = None
     for ch in rc.RrdReader(out).stream():
         if ch.entity_path == "/world/estimates/run-nan/c0" and not ch.is_static:
@@ -466,7 +489,7 @@ def test_spawn_without_display_is_a_clear_error(tiny, monkeypatch):
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     scene, base, _, root = tiny
     with pytest.raises(S2PError, match="no display"):
-        record(scene, [base], spawn=True)
+        record(scene, [base], Targets(spawn=True))
 
 
 def test_run_of_another_scene_is_rejected(tiny):

@@ -1,8 +1,9 @@
 """Against the real Rerun viewer, headless (Mesa's software Vulkan where there is no GPU).
 
-Checks: the blueprint's views exist and none reports a warning or error; a screenshot is not
-blank and shows the class colours where the masks are (and not elsewhere); the time cursor
-follows set_frame; ``s2p review --screenshot`` and ``take_screenshot`` write a PNG.
+Checks: the blueprint's views exist and none reports a warning or error; the camera views (the
+right half of the window) show the video; the projected boxes are drawn in their class colours
+where the camera projects them and the masks in theirs where they are (and not elsewhere); the
+time cursor follows set_frame; ``s2p review --screenshot`` and ``take_screenshot`` write it.
 Every viewer a test starts is stopped in a ``finally``.
 """
 
@@ -18,15 +19,17 @@ from seg2pose.io.mots import read_mots
 from s2p_review import columns as C
 from s2p_review import layout as L
 from s2p_review import viewer as V
-from s2p_review.recording import RecordOptions, record
+from s2p_review.recording import LogStyle
+from s2p_review.session import RecordOptions, Targets, record
 
-from review_fixtures import make_run, make_scene
+from review_fixtures import make_run, make_scene, video_rgb
 
 _why = V.vulkan_problem()
 pytestmark = pytest.mark.skipif(_why is not None, reason=f"no Vulkan for the headless viewer: {_why}")
 
 N_FRAMES = 16
 FRAME = 8
+NO_IMAGES = RecordOptions(style=LogStyle(masks=False, video=False))
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +66,7 @@ def _fresh(client) -> None:
 def test_views_report_no_warnings(viewer, data):
     _, video, runs, _ = data
     _fresh(viewer)
-    record(video, runs, connect=viewer.url)
+    record(video, runs, Targets(connect=viewer.url))
     st = V.wait_loaded(viewer, min_end=N_FRAMES - 1)
     V.set_frame(viewer, FRAME)
     time.sleep(1.5)  # let every view paint once so that it has reported
@@ -72,15 +75,87 @@ def test_views_report_no_warnings(viewer, data):
     assert names == sorted(["world", "camera c0", "camera c1", "error (m) vs frame"])
     assert all(v.visible for v in st.views)
     assert V.view_reports(viewer) == []
-    png = viewer.take_screenshot(max_size=960)
-    img = _decode(png)
-    assert img.std() > 10, "the screenshot is blank"
+    # the cameras sit on the right half and show the video there, not elsewhere
+    img = _decode(viewer.take_screenshot(max_size=960))
+    near = _near(img, video_rgb(FRAME))
+    half = img.shape[1] // 2
+    assert near[:, half:].mean() > 0.1, f"video pixels in the right half: {near[:, half:].mean():.3f}"
+    assert near[:, :half].mean() < 0.1 * near[:, half:].mean()
+
+
+def _near(img: np.ndarray, rgb, tol: float = 30.0) -> np.ndarray:
+    """(H, W) bool: pixels within ``tol`` (RGB distance) of ``rgb``."""
+    return np.linalg.norm(img - np.array(rgb), axis=2) < tol
+
+
+def _view_shot(client, scene, name: str, cam: str):
+    """Screenshot (H, W, 3) of the 2D view ``name`` and a function mapping image pixels (N, 2)
+    of ``cam`` to screenshot pixels (the view fits the whole image, centred, aspect kept)."""
+    st = client.get_state()
+    view = next(v for v in st.views if v.name == name)
+    assert view.reports == []
+    shot = _decode(client.take_screenshot(view_id=view.view_id))
+    sh, sw = shot.shape[:2]
+    c = scene.cameras[cam]
+    s = min(sw / c.width, sh / c.height)
+    ox, oy = (sw - c.width * s) / 2, (sh - c.height * s) / 2
+
+    def to_shot(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.clip((ox + uv[:, 0] * s).astype(int), 0, sw - 1)
+        y = np.clip((oy + uv[:, 1] * s).astype(int), 0, sh - 1)
+        return y, x
+
+    return shot, to_shot
+
+
+def test_camera_view_shows_video_and_projected_boxes(viewer, data):
+    """Over the video, each fused box's projected edges are drawn in its class colour where
+    the camera projects them, and the video shows away from every drawing."""
+    from seg2pose.io.poses import read_poses
+
+    _, video, runs, _ = data
+    _fresh(viewer)
+    record(video, runs[1:], Targets(connect=viewer.url), RecordOptions(style=LogStyle(masks=False)))
+    V.wait_loaded(viewer, min_end=N_FRAMES - 1)
+    V.set_frame(viewer, FRAME)
+    time.sleep(1.5)
+    shot, to_shot = _view_shot(viewer, video, "camera c0", "c0")
+    cam = video.cameras["c0"]
+    est = read_poses(runs[1] / "poses.csv").in_frames((FRAME, FRAME))
+    gt = read_poses(video.gt_path).in_frames((FRAME, FRAME))
+    drawn = np.zeros((cam.height * 4, cam.width * 4), np.uint8)  # everything drawn, 4x image px
+    for t in (est, gt):
+        segs, _ = C.projected_edges(cam, t.xyz, t.heading, t.size)
+        for a, b in segs:
+            cv2.line(drawn, tuple(int(v) for v in a * 4), tuple(int(v) for v in b * 4), 1, 24)
+    segs, idx = C.projected_edges(cam, est.xyz, est.heading, est.size)
+    assert len(idx) == 3
+    for k, i in enumerate(idx):
+        # the middle third of each edge (corners are shared with other edges)
+        ab = segs[k * 12:(k + 1) * 12]
+        pts = np.concatenate([ab[:, 0] + (ab[:, 1] - ab[:, 0]) * u for u in np.linspace(0.35, 0.65, 7)])
+        pts = pts[cam.in_image(pts)]
+        y, x = to_shot(pts)
+        want = L.class_color(est.cls[i], 0)
+        hit = _near(shot[y, x][None], want, tol=60)[0]
+        assert hit.mean() > 0.6, f"{est.cls[i]}: {hit.mean():.2f} of its edge pixels in its colour"
+    # video colour wherever nothing is drawn (and the points of the views are left out too)
+    v = runs[1]
+    from seg2pose.io.run import read_views
+
+    vv = read_views(v / "views.csv")
+    for uv in vv.uv[(vv.frame == FRAME) & (vv.camera == "c0")]:
+        cv2.circle(drawn, tuple(int(c * 4) for c in uv), 40, 1, -1)
+    gy, gx = np.mgrid[2:cam.height - 2:0.5, 2:cam.width - 2:0.5]
+    free = drawn[(gy * 4).astype(int), (gx * 4).astype(int)] == 0
+    y, x = to_shot(np.c_[gx[free], gy[free]])
+    assert _near(shot[y, x][None], video_rgb(FRAME))[0].mean() > 0.95
 
 
 def test_time_cursor(viewer, data):
     _, video, runs, _ = data
     _fresh(viewer)
-    record(video, runs, connect=viewer.url, options=RecordOptions(masks=False, video=False))
+    record(video, runs, Targets(connect=viewer.url), NO_IMAGES)
     V.wait_loaded(viewer, min_end=N_FRAMES - 1)
     V.set_frame(viewer, 5)
     st = viewer.get_state()
@@ -95,19 +170,12 @@ def test_screenshot_shows_mask_colours_where_masks_are(viewer, data):
     plain = data[0]
     _fresh(viewer)
     # scene only (no runs): the only class-coloured pixels are the masks
-    record(plain, [], connect=viewer.url, options=RecordOptions(cameras=["c0"]))
+    record(plain, [], Targets(connect=viewer.url), RecordOptions(cameras=["c0"]))
     V.wait_loaded(viewer, min_end=N_FRAMES - 1)
     V.set_frame(viewer, FRAME)
     time.sleep(1.5)
-    st = viewer.get_state()
-    view = next(v for v in st.views if v.name == "camera c0")
-    assert view.reports == []
-    shot = _decode(viewer.take_screenshot(view_id=view.view_id))
-    sh, sw = shot.shape[:2]
+    shot, to_shot = _view_shot(viewer, plain, "camera c0", "c0")
     cam = plain.cameras["c0"]
-    # the 2D view fits the whole image, centred, aspect kept
-    s = min(sw / cam.width, sh / cam.height)
-    ox, oy = (sw - cam.width * s) / 2, (sh - cam.height * s) / 2
     mt = read_mots(plain.masks_path("c0"), frame_range=(FRAME, FRAME))
     cls_img = C.paint_masks(mt.rles, mt.class_id, np.zeros(len(mt), np.int64), cam.height, cam.width, 1)[0]
     border = np.concatenate([shot[0], shot[-1], shot[:, 0], shot[:, -1]])
@@ -119,8 +187,7 @@ def test_screenshot_shows_mask_colours_where_masks_are(viewer, data):
 
     def sample(mask: np.ndarray) -> np.ndarray:
         r, c = np.nonzero(mask)
-        x = np.clip((ox + (c + 0.5) * s).astype(int), 0, sw - 1)
-        y = np.clip((oy + (r + 0.5) * s).astype(int), 0, sh - 1)
+        y, x = to_shot(np.c_[c + 0.5, r + 0.5])
         return shot[y, x] - bg
 
     def nearest_class(v: np.ndarray) -> np.ndarray:
@@ -150,11 +217,16 @@ def test_cli_screenshot_and_take_screenshot(data):
     r = CliRunner().invoke(app, ["review", str(video.root), "--run", str(runs[1]), "--screenshot",
                                  str(png), "--save", str(root / "s.rrd"), "--frame", "4"])
     assert r.exit_code == 0, r.output
-    img = _decode(png.read_bytes())
-    assert img.shape[0] >= 600 and img.std() > 10
-    # and from the saved .rrd (the README path)
-    png2 = V.take_screenshot(root / "s.rrd", root / "shot2.png", frame=4, max_size=800)
-    assert max(_decode(png2.read_bytes()).shape[:2]) == 800
+    for img in (_decode(png.read_bytes()),
+                # and from the saved .rrd (the README path)
+                _decode(V.take_screenshot(root / "s.rrd", root / "shot2.png", frame=4,
+                                          max_size=800).read_bytes())):
+        # the camera views (right half) show the video of frame 4
+        near = _near(img, video_rgb(4))
+        half = img.shape[1] // 2
+        assert near[:, half:].mean() > 0.1 and near[:, :half].mean() < 0.1 * near[:, half:].mean()
+    assert img.shape[1] == 800
+    png2 = root / "shot2.png"
     with pytest.raises(Exception, match="--force"):
         V.take_screenshot(root / "s.rrd", png2)
 
@@ -162,8 +234,7 @@ def test_cli_screenshot_and_take_screenshot(data):
 def test_connect_sets_time_cursor(viewer, data):
     _, video, runs, _ = data
     _fresh(viewer)
-    record(video, runs[:1], connect=viewer.url, screenshot_frame=11,
-           options=RecordOptions(masks=False, video=False))
+    record(video, runs[:1], Targets(connect=viewer.url, frame=11), NO_IMAGES)
     st = viewer.get_state()
     rec = next(r for r in st.recordings if r.store_id == st.active_recording)
     assert rec.current_timeline == "frame" and rec.current_time == 11

@@ -82,7 +82,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     summary["mean_error"] = {k: r.mean_error for k, r in results.items()}
 
     if record:
-        from s2p_review import export_mcap, record as record_rrd
+        from s2p_review.mcap_export import ExportOptions, export_mcap
+        from s2p_review.session import RecordOptions, Targets, record as record_rrd
 
         logs_dir.mkdir(parents=True, exist_ok=True)
         rrd = logs_dir / "demo.rrd"
@@ -91,9 +92,9 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         first = scene.split_range("test")[0]
         frames = (first, first + SAMPLE_FRAMES - 1)  # keeps each sample file a few MB
         _step(f"writing the Rerun recording {rrd} (test frames {frames[0]}..{frames[1]})")
-        record_rrd(scene, tri, rrd, frames=frames, force=True)
+        record_rrd(scene, tri, Targets(rrd=rrd, force=True), RecordOptions(frames=frames))
         _step(f"writing the MCAP export {mcap}")
-        export_mcap(scene, tri[-1], mcap, frames=frames, force=True)
+        export_mcap(scene, tri[-1], mcap, ExportOptions(frames=frames), force=True)
         summary["rrd"], summary["mcap"] = str(rrd), str(mcap)
 
     typer.echo("")

@@ -10,6 +10,18 @@ from pathlib import Path
 import typer
 
 from seg2pose.cli.common import REVIEW, parse_frames
+from seg2pose.errors import S2PError
+
+
+_FLAG = {"masks": "--mask-every 1", "video": "--video-every 1"}
+
+
+def _notes(notes) -> None:
+    """Print the library's notes; a reduced cadence gets the flag that asks for every frame."""
+    for note in notes:
+        what = note.split(":", 1)[0]
+        hint = f"; {_FLAG[what]} for all" if what in _FLAG and "one frame in" in note else ""
+        typer.echo(f"note: {note}{hint}")
 
 
 def register(app: typer.Typer) -> None:
@@ -34,20 +46,23 @@ def register(app: typer.Typer) -> None:
         """Review a scene and its runs in Rerun: masks, normal positions, residuals, fused road
         users, ground truth and errors, with a blueprint that opens laid out."""
         from seg2pose.io.scene import load_scene
-        from s2p_review.recording import RecordOptions, record
+        from s2p_review.recording import LogStyle
+        from s2p_review.session import RecordOptions, Targets, record
 
-        s = load_scene(scene)
-        opts = RecordOptions(mask_every=mask_every, video_every=video_every,
-                             cameras=list(camera) or None, masks=not no_masks, video=not no_video)
-        out = record(s, list(run), save, spawn=spawn, connect=connect, frames=parse_frames(frames),
-                     force=force, options=opts, screenshot=screenshot, screenshot_frame=frame,
-                     follow=follow)
-        for note in opts.notes:
-            typer.echo(f"note: {note}")
-        if out is not None:
-            typer.echo(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB); open it with:  rerun {out}")
-        if screenshot is not None:
-            typer.echo(f"wrote {screenshot}")
+        to = Targets(rrd=save, spawn=spawn, connect=connect, screenshot=screenshot, frame=frame,
+                     follow=follow, force=force)
+        if not to.any():
+            raise S2PError("nothing to do: pass --save FILE.rrd, --spawn, --connect URL or "
+                           "--screenshot FILE.png")
+        opts = RecordOptions(frames=parse_frames(frames), cameras=list(camera) or None,
+                             mask_every=mask_every, video_every=video_every,
+                             style=LogStyle(masks=not no_masks, video=not no_video))
+        res = record(load_scene(scene), list(run), to, opts)
+        _notes(res.notes)
+        if res.rrd is not None:
+            typer.echo(f"wrote {res.rrd} ({res.rrd.stat().st_size / 1e6:.1f} MB); open it with:  rerun {res.rrd}")
+        if res.screenshot is not None:
+            typer.echo(f"wrote {res.screenshot}")
 
     @app.command(rich_help_panel=REVIEW)
     def export(
@@ -61,13 +76,12 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Export a scene and a run as MCAP (Foxglove schemas + lossless s2p records)."""
         from seg2pose.io.scene import load_scene
-        from s2p_review.mcap_io import export_mcap
+        from s2p_review.mcap_export import ExportOptions, export_mcap
 
-        notes: list = []
-        p = export_mcap(load_scene(scene), run, out, force=force, frames=parse_frames(frames),
-                        mask_every=mask_every, video_every=video_every, notes=notes)
-        for note in notes:
-            typer.echo(f"note: {note}")
+        res = export_mcap(load_scene(scene), run, out, ExportOptions(
+            frames=parse_frames(frames), mask_every=mask_every, video_every=video_every), force=force)
+        _notes(res.notes)
+        p = res.path
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
 
     @app.command("import-mcap", rich_help_panel=REVIEW)
@@ -77,7 +91,7 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="write into an existing, non-empty folder"),
     ) -> None:
         """Restore the scene file, ground points and the exact pose table from an s2p MCAP export."""
-        from s2p_review.mcap_io import import_mcap
+        from s2p_review.mcap_import import import_mcap
 
         run_dir = import_mcap(file, out, force=force)
         typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")

@@ -1,0 +1,110 @@
+"""Pixels read from a scene for review and export: video frames (a file or a folder of images)
+and mask frames (MOTS) decoded into label images. Shared by the Rerun recording and the MCAP
+export, so both read, check and cadence the images the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from seg2pose.errors import InputError
+from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.scene import Scene
+from s2p_review import columns as C
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def video_frames(path: Path, first: int, last: int, every: int = 1
+                 ) -> Iterator[tuple[int, np.ndarray]]:
+    """(frame, BGR image (H, W, 3) uint8) of a video file or image folder for frames
+    first..last, every k-th counted from ``first``; stops early where the video ends."""
+    import cv2
+
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        for f in range(first, min(last, len(files) - 1) + 1, every):
+            img = cv2.imread(str(files[f]))
+            if img is None:
+                raise InputError("cannot read image", file=files[f])
+            yield f, img
+        return
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise InputError("cannot open video (unreadable or unsupported codec)", file=path)
+    try:
+        cap.set(cv2.CAP_PROP_POS_FRAMES, first)
+        for f in range(first, last + 1):
+            ok, img = cap.read()
+            if not ok:
+                break
+            if (f - first) % every == 0:
+                yield f, img
+    finally:
+        cap.release()
+
+
+def encode_jpeg(img: np.ndarray, quality: int = 75, max_width: int | None = None) -> bytes:
+    """JPEG bytes of a BGR image (H, W, 3), shrunk to ``max_width`` pixels wide when wider
+    (keeps sample files small; viewers scale the image back onto the camera)."""
+    import cv2
+
+    if max_width is not None and img.shape[1] > max_width:
+        h = max(1, int(round(img.shape[0] * max_width / img.shape[1])))
+        img = cv2.resize(img, (max_width, h), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def mask_frames(scene: Scene, cam: str, first: int, last: int, every: int = 1
+                ) -> Iterator[tuple[int, MaskTable]]:
+    """(frame, detections) for every frame first..last on the cadence (every k-th counted from
+    ``first``), an empty table where the frame has no masks; nothing when the camera has no
+    mask file. Masks of another image size than the camera are an InputError."""
+    path = scene.masks_path(cam)
+    if not path.exists():
+        return
+    h, w = scene.cameras[cam].height, scene.cameras[cam].width
+    # the runs are checked once per batch when painted (see ``paint``), not here per line
+    stream = iter(iter_mots(path, known_classes=[c.id for c in scene.classes],
+                            frame_range=(first, last), check_rles=False))
+    pending = next(stream, None)
+    for f in range(first, last + 1, every):
+        while pending is not None and pending[0] < f:
+            pending = next(stream, None)
+        if pending is not None and pending[0] == f:
+            t = pending[1]
+            if t.height != h or t.width != w:
+                raise InputError(f"masks are {t.width}x{t.height} but camera {cam} is {w}x{h}",
+                                 file=path)
+            yield f, t
+        else:
+            yield f, MaskTable.empty(h, w)
+
+
+def paint(tables: list[MaskTable], values: list[np.ndarray], path: Path, dtype=np.uint8
+          ) -> np.ndarray:
+    """Label images (len(tables), H, W): table k's masks painted with ``values[k]`` (one value
+    per mask, e.g. class ids or track ids + 1; 0 = background); later masks over earlier ones.
+    A mask whose RLE does not cover H*W pixels is an InputError naming ``path``, its frame and
+    track."""
+    h, w = tables[0].height, tables[0].width
+    rles = [r for t in tables for r in t.rles]
+    slots = np.concatenate([np.full(len(t), k, np.int64) for k, t in enumerate(tables)])
+    try:
+        return C.paint_masks(rles, np.concatenate(values), slots, h, w, len(tables), dtype=dtype,
+                             check=True)
+    except C.BadMask as e:
+        where = [(int(f), int(k)) for t in tables for f, k in zip(t.frame, t.track_id)]
+        f, k = where[e.index]
+        raise InputError(f"frame {f}, track {k}: {e}", file=path) from None
+    except InputError as e:  # an RLE string that does not parse
+        fr = [int(f) for t in tables for f in t.frame[:1]]
+        raise InputError(f"frames {min(fr, default='?')}..{max(fr, default='?')}: {e}",
+                         file=path) from None

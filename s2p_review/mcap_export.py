@@ -1,0 +1,226 @@
+"""MCAP export of a scene and one run: Foxglove's well-known protobuf schemas (Foxglove opens
+it; Rerun's MCAP loader shows cameras, images and poses), lossless s2p records (JSON, see
+``mcap_records``) and the scene files as attachments, so that ``mcap_import`` restores them.
+
+Topics (log time = the frame's time, ns; see ``timebase``)::
+
+    /cameras/<cam>/calibration   foxglove.CameraCalibration (K, P, distortion), first frame
+    /cameras/<cam>/transform     foxglove.FrameTransform world -> <cam> (optical frame), first frame
+    /cameras/<cam>/masks         foxglove.RawImage mono16: pixel = track_id + 1 (0 = background)
+    /cameras/<cam>/image         foxglove.CompressedImage (jpeg), when the scene has video
+    /cameras/<cam>/annotations   foxglove.ImageAnnotations: projected boxes, mask outlines, centres
+    /road_users/poses            foxglove.PosesInFrame (world): fused road users per frame
+    /road_users/scene            foxglove.SceneUpdate: cubes (size, class colour) and labels
+    /gt/scene                    foxglove.SceneUpdate: ground-truth cubes (grey), when known
+    /world/ground                foxglove.SceneUpdate: the ground surface mesh, first frame
+    /s2p/poses, /s2p/views       JSON: the run's poses and views, exact (``mcap_records``)
+
+Messages are written in log-time order over the whole file (the per-topic streams are merged),
+so a front-to-back reader sees them in time order. Attachments: scene.json, the ground points
+file, run.json (bytes as on disk).
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.scene import SCENE_FILE, Scene
+from s2p_review import columns as C
+from s2p_review import foxglove as F
+from s2p_review import imagery
+from s2p_review import layout as L
+from s2p_review import mcap_records as R
+from s2p_review.runs import Run
+from s2p_review.selection import Selection, select
+from s2p_review.timebase import Timebase, scene_timebase
+
+MEDIA_JSON = "application/json"
+MASK_PIXEL = "track_id + 1 (0 = background)"
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """What to export. frames: (first, last) inclusive (None: the run's frames); cameras: None =
+    the run's cameras; mask_every / video_every: every k-th frame only (None: automatic, as
+    for recordings); start_ns: UTC time of frame 0, ns (None: the scene's, when it has one);
+    jpeg_quality, video_width: how video frames are stored (None: full width)."""
+
+    frames: tuple[int, int] | None = None
+    cameras: list[str] | None = None
+    mask_every: int | None = None
+    video_every: int | None = None
+    start_ns: int | None = None
+    jpeg_quality: int = 75
+    video_width: int | None = None
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """The file written, what it holds and notes for the user."""
+
+    path: Path
+    selection: Selection
+    messages: int
+    notes: tuple[str, ...]
+
+
+# A message waiting to be written: (log time ns, stream rank, topic, payload). The payload is a
+# protobuf message, or (schema, dict) for a JSON channel.
+Item = tuple[int, int, str, object]
+
+
+class _Writer:
+    """A protobuf writer plus raw JSON channels on the same MCAP file."""
+
+    def __init__(self, f):
+        from mcap_protobuf.writer import Writer
+
+        self.pb = Writer(f)
+        self.raw = self.pb._writer  # the underlying mcap.writer.Writer, for JSON channels
+        self.json_channels: dict[str, int] = {}
+        self.count = 0
+
+    def write(self, ns: int, topic: str, payload) -> None:
+        self.count += 1
+        if not isinstance(payload, tuple):
+            self.pb.write_message(topic, payload, log_time=ns, publish_time=ns)
+            return
+        schema, obj = payload
+        if topic not in self.json_channels:
+            sid = self.raw.register_schema(name=schema["title"], encoding="jsonschema",
+                                           data=json.dumps(schema).encode())
+            self.json_channels[topic] = self.raw.register_channel(topic=topic, message_encoding="json",
+                                                                  schema_id=sid)
+        self.raw.add_message(channel_id=self.json_channels[topic], log_time=ns, publish_time=ns,
+                             data=json.dumps(obj, allow_nan=False).encode())
+
+
+def _rows_by_frame(t: PoseTable) -> dict[int, np.ndarray]:
+    return {int(t.frame[idx[0]]): idx for idx in R.split_by_frame(t.frame)}
+
+
+# --- streams: each yields its messages in log-time order -------------------------------------------
+def _static_stream(scene: Scene, cams: list[str], ns: int) -> Iterator[Item]:
+    for name in cams:
+        yield ns, 0, f"/cameras/{name}/calibration", F.camera_calibration(scene, name, ns)
+        yield ns, 0, f"/cameras/{name}/transform", F.camera_transform(scene, name, ns)
+    yield ns, 0, "/world/ground", F.ground(scene, ns)
+
+
+def _record_stream(run: Run, sel: Selection, tb: Timebase) -> Iterator[Item]:
+    """The lossless s2p channels, one message per frame per channel."""
+    poses = run.poses.in_frames((sel.first, sel.last))
+    msgs = [(f, R.POSES_TOPIC, (R.POSE_SCHEMA, m)) for f, m in R.pose_messages(poses)]
+    if run.views is not None:
+        v = run.views.take((run.views.frame >= sel.first) & (run.views.frame <= sel.last))
+        msgs += [(f, R.VIEWS_TOPIC, (R.VIEW_SCHEMA, m)) for f, m in R.view_messages(v)]
+    for f, topic, payload in sorted(msgs, key=lambda m: m[0]):
+        yield tb.ns1(f), 1, topic, payload
+
+
+def _road_user_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTable,
+                      psz: np.ndarray, gt: PoseTable | None) -> Iterator[Item]:
+    """Fused road users (PosesInFrame, SceneUpdate) and ground truth per frame."""
+    dt = tb.ns1(1) - tb.ns1(0)
+    pidx = _rows_by_frame(poses)
+    gidx = _rows_by_frame(gt) if gt is not None else {}
+    gsz = C.sizes_of(gt, scene) if gt is not None else None
+    for f in range(sel.first, sel.last + 1):
+        ns = tb.ns1(f)
+        if f in pidx:
+            t = poses.take(pidx[f])
+            yield ns, 2, "/road_users/poses", F.poses_in_frame(t, ns)
+            yield ns, 2, "/road_users/scene", F.scene_update(t, psz[pidx[f]], scene, ns, dt)
+        if f in gidx:
+            yield ns, 2, "/gt/scene", F.scene_update(gt.take(gidx[f]), gsz[gidx[f]], scene, ns, dt,
+                                                     rgb=L.GT_COLOR, prefix="gt")
+
+
+def _camera_stream(scene: Scene, name: str, rank: int, sel: Selection, tb: Timebase,
+                   poses: PoseTable, psz: np.ndarray, run: Run, opts: ExportOptions
+                   ) -> Iterator[Item]:
+    """One camera's masks, video and annotations, frame by frame. The outlines of the latest
+    mask frame stay on the annotations until the next one (a viewer keeps showing that mask)."""
+    from seg2pose.masks import rle_stats
+
+    cam = scene.cameras[name]
+    names = {c.id: c.name for c in scene.classes}
+    masks = imagery.mask_frames(scene, name, sel.first, sel.last, sel.cadence.masks)
+    pending_mask = next(masks, None)
+    vp = scene.video_path(name)
+    video = (imagery.video_frames(vp, sel.first, sel.last, sel.cadence.video)
+             if vp is not None else iter(()))
+    pending_video = next(video, None)
+    centres: dict[int, list] = {}
+    if run.views is not None:
+        v = run.views
+        for i in np.flatnonzero(v.camera == name):
+            centres.setdefault(int(v.frame[i]), []).append((v.uv[i], str(v.cls[i])))
+    pidx = _rows_by_frame(poses)
+    loops: list = []
+    for f in range(sel.first, sel.last + 1):
+        ns = tb.ns1(f)
+        if pending_video is not None and pending_video[0] == f:
+            jpeg = imagery.encode_jpeg(pending_video[1], opts.jpeg_quality, opts.video_width)
+            yield ns, rank, f"/cameras/{name}/image", F.compressed_image(jpeg, name, ns)
+            pending_video = next(video, None)
+        if pending_mask is not None and pending_mask[0] == f:
+            t = pending_mask[1]
+            ids = t.track_id + 1
+            inst = imagery.paint([t], [ids], scene.masks_path(name), dtype=np.uint16)[0]
+            boxes = rle_stats(t.rles, cam.height, cam.width)[2]
+            loops = [(names.get(int(c), "unknown"), o)
+                     for c, o in zip(t.class_id, F.outlines(inst, ids, boxes)) if o is not None]
+            # an empty image too: no stale masks in a viewer
+            yield ns, rank, f"/cameras/{name}/masks", F.raw_image(inst, name, ns)
+            pending_mask = next(masks, None)
+        sel_rows = pidx.get(f, np.zeros(0, np.int64))
+        yield ns, rank, f"/cameras/{name}/annotations", F.image_annotations(
+            cam, poses.take(sel_rows), psz[sel_rows], scene, ns, loops, centres.get(f, []))
+
+
+def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOptions | None = None,
+                force: bool = False) -> ExportResult:
+    """Write ``scene`` and the run in ``run_dir`` to ``out_path`` (.mcap), atomically (an
+    existing file is kept unless ``force``)."""
+    opts = options or ExportOptions()
+    out_path = check_writable(Path(out_path), force)
+    sel = select(scene, [Path(run_dir)], opts.frames, opts.cameras, opts.mask_every,
+                 opts.video_every)
+    run = sel.runs[0]
+    tb = scene_timebase(scene, opts.start_ns)
+    poses = run.poses.in_frames((sel.first, sel.last))
+    psz = C.sizes_of(poses, scene)
+    gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last)) if scene.gt_path.exists() else None
+    t0 = tb.ns1(sel.first)
+    with atomic_path(out_path) as tmp, open(tmp, "wb") as f:
+        out = _Writer(f)
+        out.pb.add_attachment(create_time=0, log_time=t0, name=SCENE_FILE, media_type=MEDIA_JSON,
+                              data=(scene.root / SCENE_FILE).read_bytes())
+        out.pb.add_attachment(create_time=0, log_time=t0, name=scene.ground_file,
+                              media_type="text/csv", data=(scene.root / scene.ground_file).read_bytes())
+        out.pb.add_attachment(create_time=0, log_time=t0, name="run.json", media_type=MEDIA_JSON,
+                              data=json.dumps(run.meta, indent=1).encode())
+        out.pb.add_metadata("s2p", {
+            "scene": scene.name, "run": run.path.name, "fps": repr(scene.fps),
+            "first_frame": str(sel.first), "last_frame": str(sel.last),
+            "start_ns": str(tb.start_ns or 0),
+            "frame_of_log_time": "round((log_time - start_ns) * fps / 1e9)",
+            "has_views": str(run.views is not None).lower(),
+            "poses_with_size": str(run.poses.size is not None).lower(), "mask_pixel": MASK_PIXEL})
+        streams = [_static_stream(scene, sel.cameras, t0), _record_stream(run, sel, tb),
+                   _road_user_stream(scene, sel, tb, poses, psz, gt)]
+        streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
+                    for k, name in enumerate(sel.cameras)]
+        for ns, _rank, topic, payload in heapq.merge(*streams, key=lambda m: (m[0], m[1])):
+            out.write(ns, topic, payload)
+        out.pb.finish()
+    return ExportResult(out_path, sel, out.count, tuple(sel.cadence.notes()))

@@ -1,0 +1,111 @@
+"""MCAP import: restore a scene folder and its run from an ``s2p export`` file (the
+attachments and the lossless /s2p/ channels, see ``mcap_export`` and ``mcap_records``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from seg2pose.errors import InputError, S2PError
+from seg2pose.io.atomic import temp_sibling_dir
+from seg2pose.io.run import write_run_folder
+from seg2pose.io.scene import SCENE_FILE
+from s2p_review import mcap_records as R
+
+
+@dataclass
+class McapRecords:
+    """The s2p content of an export: attachments (name -> bytes), metadata (name -> dict), and
+    the /s2p/poses and /s2p/views messages in log-time order."""
+
+    attachments: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
+    poses: list = field(default_factory=list)
+    views: list = field(default_factory=list)
+
+
+def read_mcap_records(path: Path) -> McapRecords:
+    """Read the s2p content of an export; InputError when the file is missing, not MCAP, or
+    not written by ``s2p export`` (no scene.json attachment)."""
+    from mcap.reader import make_reader
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError("MCAP file not found", file=path)
+    res = McapRecords()
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            for a in reader.iter_attachments():
+                res.attachments[a.name] = a.data
+            for m in reader.iter_metadata():
+                res.metadata[m.name] = dict(m.metadata)
+            for _schema, channel, msg in reader.iter_messages(topics=[R.POSES_TOPIC, R.VIEWS_TOPIC],
+                                                              log_time_order=True):
+                d = json.loads(msg.data)
+                (res.poses if channel.topic == R.POSES_TOPIC else res.views).append(d)
+    except Exception as e:  # noqa: BLE001 - mcap raises many kinds on a damaged file
+        raise InputError(f"not a readable MCAP file ({type(e).__name__}: {e})", file=path) from None
+    if SCENE_FILE not in res.attachments:
+        raise InputError("no scene.json attachment: not an `s2p export` file", file=path)
+    return res
+
+
+def _move_into(tmp: Path, out_dir: Path) -> None:
+    """Move the folder ``tmp`` to ``out_dir``: one rename when ``out_dir`` is new or empty, else
+    file by file (each rename atomic)."""
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        if out_dir.exists():
+            out_dir.rmdir()
+        os.replace(tmp, out_dir)
+        return
+    for p in sorted(tmp.rglob("*")):
+        if p.is_file():
+            dst = out_dir / p.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(p, dst)
+    shutil.rmtree(tmp)
+
+
+def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
+    """Restore an ``s2p export`` file as a scene folder: OUT/scene.json and the ground points
+    (bytes as exported), OUT/out/<run>/run.json, poses.csv (the exact pose table) and
+    views.csv. Refuses a non-empty ``out_dir`` unless ``force``. Returns the run folder."""
+    path, out_dir = Path(path), Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()) and not force:
+        raise S2PError(f"{out_dir} exists and is not empty; pass --force to write into it")
+    rec = read_mcap_records(path)
+    meta = rec.metadata.get("s2p", {})
+    att = rec.attachments
+    try:
+        scene_d = json.loads(att[SCENE_FILE])
+    except json.JSONDecodeError as e:
+        raise InputError(f"the scene.json attachment is not JSON: {e.msg}", file=path) from None
+    gfile = str(scene_d.get("ground_points", "ground_points.csv"))
+    if gfile not in att:
+        raise InputError(f"no {gfile} attachment", file=path)
+    run_name = meta.get("run") or "run"
+    if os.sep in run_name or run_name in ("", ".", ".."):
+        run_name = "run"
+    table = R.pose_table(rec.poses, meta.get("poses_with_size", "true") == "true")
+
+    # build in a temporary sibling folder, then move into place: nothing half-written
+    tmp = temp_sibling_dir(out_dir)
+    try:
+        (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
+        (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / gfile).write_bytes(att[gfile])
+        run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+        if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
+            run_meta["scene"] = "../.."
+        views = R.views_table(rec.views) if meta.get("has_views") == "true" or rec.views else None
+        write_run_folder(tmp / "out" / run_name, table, views, run_meta)
+        _move_into(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir / "out" / run_name

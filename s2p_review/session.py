@@ -1,0 +1,142 @@
+"""One review session: select what to show, log it (``recording``) to the places asked for (an
+.rrd file written atomically, a spawned or running viewer, a headless viewer for a screenshot),
+then drive the viewers (time cursor, follow). ``record`` is the public entry point.
+"""
+
+from __future__ import annotations
+
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from seg2pose.errors import S2PError
+from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.scene import Scene
+from s2p_review import layout as L
+from s2p_review.recording import LogStats, LogStyle, log_all
+from s2p_review.selection import Selection, select
+from s2p_review.timebase import scene_timebase
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """What to show. frames: (first, last) inclusive (None: the runs' frames); cameras: None =
+    the runs' cameras, or all; mask_every / video_every: log masks / video every k-th frame
+    only (a viewer shows the latest one, so a smaller file costs some lag; None = automatic,
+    see ``selection.resolve_cadence``); style: the look (``recording.LogStyle``); start_ns: UTC
+    time of frame 0 in ns since the epoch (None: the scene's, when it has one)."""
+
+    frames: tuple[int, int] | None = None
+    cameras: list[str] | None = None
+    mask_every: int | None = None
+    video_every: int | None = None
+    style: LogStyle = field(default_factory=LogStyle)
+    start_ns: int | None = None
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Where the recording goes. rrd: write an .rrd there (atomically; refused if it exists
+    unless ``force``); spawn: open the native desktop viewer; connect: stream to a running
+    viewer (``rerun+http://host:port/proxy``); screenshot: also run a headless viewer and save
+    a PNG of it there; frame: the time cursor for the screenshot and for spawned or connected
+    viewers (default: the middle frame for screenshots, the viewer's choice otherwise);
+    follow: make spawned or connected viewers follow the newest frame instead."""
+
+    rrd: Path | None = None
+    spawn: bool = False
+    connect: str | None = None
+    screenshot: Path | None = None
+    frame: int | None = None
+    follow: bool = False
+    force: bool = False
+
+    def any(self) -> bool:
+        return self.rrd is not None or self.spawn or self.connect is not None or self.screenshot is not None
+
+
+@dataclass(frozen=True)
+class RecordResult:
+    """What ``record`` did: the .rrd and PNG written (or None), what was shown and logged, and
+    notes for the user (automatic cadences, short videos)."""
+
+    rrd: Path | None
+    screenshot: Path | None
+    selection: Selection
+    stats: LogStats
+    notes: tuple[str, ...]
+
+
+def record(scene: Scene, runs: list[Path], to: Targets | Path,
+           options: RecordOptions | None = None) -> RecordResult:
+    """Record ``scene`` with ``runs`` (run folders) to Rerun; ``to``: where (a Path is short for
+    ``Targets(rrd=path)``)."""
+    import rerun as rr
+
+    from s2p_review import viewer as V
+
+    to = Targets(rrd=Path(to)) if isinstance(to, (str, Path)) else to
+    opts = options or RecordOptions()
+    if not to.any():
+        raise S2PError("nothing to do: no .rrd file, viewer or screenshot was asked for")
+    rrd = check_writable(Path(to.rrd), to.force) if to.rrd is not None else None
+    if to.screenshot is not None:
+        check_writable(Path(to.screenshot), to.force)
+    if to.connect is not None:
+        V.check_reachable(to.connect)
+    style = opts.style
+    sel = select(scene, runs, opts.frames, opts.cameras, opts.mask_every, opts.video_every,
+                 style.masks, style.video)
+    tb = scene_timebase(scene, opts.start_ns)
+    bp = L.blueprint(sel.cameras, [r.name for r in sel.runs],
+                     with_metrics=scene.gt_path.exists() and bool(sel.runs),
+                     eye=L.default_eye(scene), fps=scene.fps)
+    rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
+    title = f"{scene.name}: " + (", ".join(r.name for r in sel.runs) if sel.runs else "scene")
+    shot_viewer = None
+    try:
+        sinks, live = [], []  # live: viewers to drive after logging (time cursor / follow)
+        if to.spawn:
+            client = V.spawn_viewer(headless=False)
+            live.append(client)
+            sinks.append(rr.GrpcSink(client.url))
+        if to.connect is not None:
+            live.append(V.connect_viewer(to.connect))
+            sinks.append(rr.GrpcSink(to.connect))
+        if to.screenshot is not None:
+            shot_viewer = V.spawn_viewer(headless=True)
+            sinks.append(rr.GrpcSink(shot_viewer.url))
+
+        def log(*file_sink):
+            rec.set_sinks(*file_sink, *sinks)
+            # active, not only default: a viewer that remembers an older s2p layout (other
+            # cameras) would otherwise keep showing that one
+            rec.send_blueprint(bp, make_active=True, make_default=True)
+            rec.send_recording_name(title)
+            stats = log_all(rec, scene, sel, tb, style)
+            rec.flush()
+            return stats
+
+        if rrd is not None:
+            with atomic_path(rrd) as tmp:
+                stats = log(rr.FileSink(tmp))
+                rec.disconnect()  # closes the file before it is renamed
+        else:
+            stats = log()
+        for client in live:
+            if to.follow:
+                V.wait_loaded(client)
+                V.follow(client)
+            elif to.frame is not None:
+                V.wait_loaded(client, min_end=to.frame)
+                V.set_frame(client, to.frame)
+        if shot_viewer is not None:
+            k = sel.cadence.masks if style.masks else 1  # a frame that has masks, not a stale one
+            frame = to.frame if to.frame is not None else sel.first + (sel.n_frames - 1) // 2 // k * k
+            V.screenshot_when_loaded(shot_viewer, Path(to.screenshot), frame=frame, force=to.force)
+    finally:
+        rec.disconnect()  # before the viewers go: no "connection severed" noise
+        if shot_viewer is not None:
+            V.stop(shot_viewer)
+    return RecordResult(rrd, None if to.screenshot is None else Path(to.screenshot), sel, stats,
+                        stats.notes)
