@@ -13,12 +13,12 @@ See ``Project`` (project.py) for opening/undo/notification, edits.py for the edi
 interpolate.py for the interpolants, table.py for the poses table, journal.py for the files.
 """
 
-from annotate.interpolate import CLASS_METHODS, METHODS, default_method, interpolate
+from annotate.interpolate import CLASS_METHODS, METHODS, default_method
 from annotate.journal import JournalError, LockedError, NotSavedError
 from annotate.model import FLAGS, SPAN_KINDS, EditError, Keyframe, Track
 from annotate.project import Change, Project
 from annotate.table import SOURCES
 
-__all__ = ["Project", "Change", "Track", "Keyframe", "interpolate",
+__all__ = ["Project", "Change", "Track", "Keyframe",
            "default_method", "METHODS", "CLASS_METHODS", "SOURCES", "SPAN_KINDS", "FLAGS",
            "EditError", "JournalError", "LockedError", "NotSavedError"]

@@ -32,6 +32,27 @@ def pixel_to_ground(camera, ground, uv, height: float = 0.0) -> tuple[float, flo
     return float(X[0, 0]), float(X[0, 1])
 
 
+def motion_headings(xy: np.ndarray, heading: np.ndarray, min_step: float = 0.3) -> np.ndarray:
+    """Headings (K,) for keyframes at xy (K, 2): the given ones where finite, else the direction
+    to the next keyframe (from the previous one for the last) when that is more than
+    ``min_step`` metres away, else the nearest filled one, else 0."""
+    h = np.asarray(heading, dtype=np.float64).copy()
+    d = np.diff(xy, axis=0)
+    step = np.linalg.norm(d, axis=1)
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    for k in np.flatnonzero(~np.isfinite(h)):
+        if k < len(d) and step[k] > min_step:
+            h[k] = ang[k]
+        elif k > 0 and step[k - 1] > min_step:
+            h[k] = ang[k - 1]
+    ok = np.flatnonzero(np.isfinite(h))
+    if not len(ok):
+        return np.zeros(len(h))
+    idx = np.arange(len(h))
+    nearest = ok[np.abs(idx[:, None] - ok[None, :]).argmin(axis=1)]
+    return np.where(np.isfinite(h), h, h[nearest])
+
+
 class PlacementMixin:
     """Placement edits of ``Project``; every one returns a ``Change``."""
 
@@ -114,6 +135,47 @@ class PlacementMixin:
         pick = ((fr - fr[0]) % int(every) == 0) | (np.arange(len(fr)) == len(fr) - 1)
         return (fr[pick].tolist(), est.xyz[pick, 0].tolist(), est.xyz[pick, 1].tolist(),
                 est.heading[pick].tolist())
+
+    def import_poses(self, table, every: int = 1, flags=("imported",), keep_ids: bool = True,
+                     name: str = "import_poses"):
+        """Keyframes from a pose table (another tool's annotation, a T-Analyst CSV, ground
+        truth): one new track per track id with a keyframe at every ``every``-th row of it
+        (and its last), class from the table, size from the table's l, w, h or the class. NaN
+        headings (T-Analyst has none) point along the motion to the next keyframe. One
+        undoable step; with ``keep_ids`` the tracks keep the table's ids (refused if taken)."""
+        if int(every) < 1:
+            raise EditError(f"every must be a whole number of frames >= 1, got {every!r}")
+        order = np.lexsort((table.frame, table.track_id))
+        table = table.take(order)
+        ids = np.unique(table.track_id)
+        taken = sorted(set(int(i) for i in ids) & set(self.tracks))
+        if keep_ids and taken:
+            raise EditError(f"track ids {taken[:10]} are taken already; import with "
+                            "keep_ids=False to number the new tracks after the existing ones")
+        next_id = max(self.tracks, default=0) + 1
+        ops = []
+        for rid in ids:
+            rows = np.flatnonzero(table.track_id == rid)
+            pick = rows[(np.arange(len(rows)) % int(every) == 0) | (np.arange(len(rows)) == len(rows) - 1)]
+            tid = int(rid) if keep_ids else next_id
+            next_id = max(next_id, tid) + 1
+            if tid < 1:
+                raise EditError(f"track id {tid} must be >= 1")
+            cls = self._class(str(table.cls[pick[0]]))
+            size = table.size[pick[0]] if table.size is not None and \
+                np.all(np.isfinite(table.size[pick[0]])) else None
+            frames = [self._frame(int(f)) for f in table.frame[pick]]
+            if len(set(frames)) != len(frames):
+                raise EditError(f"track {rid} has two rows in one frame")
+            xy = table.xyz[pick, :2]
+            hd = motion_headings(xy, table.heading[pick])
+            kfs = [_row(f, self._kf(tid, f, x, y, h, flags)) for f, (x, y), h in zip(frames, xy, hd)]
+            ops.append({"op": "put_track", "id": tid, "track": {
+                "id": tid, "cls": cls, "size": list(self._size(size, cls)), "interp": None,
+                "keyframes": kfs, "spans": [], "meta": {"source_track": int(rid)}}})
+        if not ops:
+            raise EditError("the table has no poses to import")
+        return self._commit(name, ops)
 
     def preannotate(self, every: int = 25, frames: tuple[int, int] | None = None,
                     run_tracks=None, min_estimates: int = 2):

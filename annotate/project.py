@@ -85,6 +85,7 @@ class Project(EditsMixin, PlacementMixin):
         self.snapshot_every = int(snapshot_every)
         self._s = _State()
         self._cache: dict[int, PoseTable] = {}
+        self._stale: dict[int, PoseTable] = {}  # tables of changed tracks: z to reuse
         self._subscribers: list[Callable[[Change], None]] = []
         self._segment: J.Segment | None = None
         self._segment_start = 0
@@ -161,7 +162,8 @@ class Project(EditsMixin, PlacementMixin):
         tid = int(track_id)
         if tid not in self._cache:
             t = self.track(tid)
-            self._cache[tid] = track_poses(t, self.scene.ground, self.interpolation(tid))
+            self._cache[tid] = track_poses(t, self.scene.ground, self.interpolation(tid),
+                                           previous=self._stale.pop(tid, None))
         return self._cache[tid]
 
     def poses(self, tracks=None, frames: tuple[int, int] | None = None) -> PoseTable:
@@ -218,7 +220,9 @@ class Project(EditsMixin, PlacementMixin):
                 self._s.tracks[t] = scratch[t]
             else:
                 self._s.tracks.pop(t, None)
-            self._cache.pop(t, None)
+            old = self._cache.pop(t, None)
+            if old is not None:
+                self._stale[t] = old
         return seq, inverse
 
     def _commit(self, name: str, ops: list[dict]) -> Change:
@@ -343,11 +347,19 @@ class Project(EditsMixin, PlacementMixin):
         J.fsync_dir(self.folder)
         return path
 
+    def journal_files(self) -> list[Path]:
+        """The files that hold this project's history (snapshot and journal segments), for
+        archiving it (e.g. as an MCAP attachment); copied into another copy of the scene's
+        ``annotations/`` they reopen as the same project."""
+        segs, snaps = J.list_files(self.folder)
+        return [p for _, p in sorted(snaps.items())] + [p for _, p in sorted(segs.items())]
+
     def refresh(self) -> Change:
         """Read-only projects: pick up what the writer has journalled since (reloads)."""
         old = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
         self._s = _State()
         self._cache.clear()
+        self._stale.clear()
         self.notes = []
         self._load()
         new = {t: tr.to_dict() for t, tr in self._s.tracks.items()}

@@ -46,9 +46,14 @@ def segments(track: Track) -> list[tuple[np.ndarray, int, int]]:
 
 
 def track_poses(track: Track, ground: GroundSurface, method: str,
-                frame_range: tuple[int, int] | None = None) -> PoseTable:
+                frame_range: tuple[int, int] | None = None,
+                previous: PoseTable | None = None) -> PoseTable:
     """Every frame's pose of one track: interpolated with ``method`` between its keyframes,
-    z from the ground surface (eq. 1), size from the track, ``source`` per row."""
+    z from the ground surface (eq. 1), size from the track, ``source`` per row.
+
+    previous: this track's earlier table; z is reused wherever the frame and x, y are exactly
+    the same (an edit moves only the frames near the changed keyframe, and eq. (1) is the
+    costly part)."""
     parts = []
     for kf, first, last in segments(track):
         lo, hi = first, last
@@ -61,7 +66,9 @@ def track_poses(track: Track, ground: GroundSurface, method: str,
         xy_k = np.array([(r.x, r.y) for r in rows], dtype=np.float64).reshape(-1, 2)
         hd_k = np.array([r.heading for r in rows], dtype=np.float64)
         xy, hd = interpolate(kf, xy_k, hd_k, q, method)
-        source = np.where(np.isin(q, kf), "keyframe", "interpolated").astype(object)
+        is_kf = np.zeros(len(q), bool)
+        is_kf[kf[(kf >= lo) & (kf <= hi)] - lo] = True
+        source = np.where(is_kf, "keyframe", "interpolated").astype(object)
         for a, b, k in track.spans:
             if k == "occluded":
                 source[(q >= a) & (q <= b)] = "occluded"
@@ -71,8 +78,24 @@ def track_poses(track: Track, ground: GroundSurface, method: str,
     q = np.concatenate([p[0] for p in parts])
     xy = np.concatenate([p[1] for p in parts])
     n = len(q)
-    z = ground.height(xy)
+    z = _heights(ground, q, xy, previous)
     return PoseTable(q, np.full(n, track.id), np.full(n, track.cls, dtype=object),
                            np.column_stack([xy, z]), np.concatenate([p[2] for p in parts]),
                            np.tile(np.asarray(track.size, float), (n, 1)),
                            np.concatenate([p[3] for p in parts]))
+
+
+def _heights(ground: GroundSurface, q: np.ndarray, xy: np.ndarray, previous: PoseTable | None
+             ) -> np.ndarray:
+    """Ground heights (N,) at xy (N, 2) for frames q (N,), reusing ``previous`` rows where frame
+    and position are bit-identical."""
+    if previous is None or not len(previous):
+        return ground.height(xy)
+    k = np.clip(np.searchsorted(previous.frame, q), 0, len(previous) - 1)
+    same = (previous.frame[k] == q) & (previous.xyz[k, 0] == xy[:, 0]) & \
+        (previous.xyz[k, 1] == xy[:, 1])
+    z = np.empty(len(q))
+    z[same] = previous.xyz[k[same], 2]
+    if not same.all():
+        z[~same] = ground.height(xy[~same])
+    return z

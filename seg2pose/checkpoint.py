@@ -111,24 +111,31 @@ class Checkpoint:
     def predict(self, crops: np.ndarray, centers: np.ndarray, normal_xy: np.ndarray,
                 class_names: np.ndarray | None = None, batch: int = 64,
                 device: torch.device | None = None, origin_xy: np.ndarray | None = None,
-                geo: np.ndarray | None = None) -> np.ndarray:
+                geo: np.ndarray | None = None, sparse: bool | None = None) -> np.ndarray:
         """Residuals (N, 2) metres for full-resolution crops (N, S, S) uint8 (S >= the model's
         crop, usually the pipeline's 420; larger crops are cut around their centre), crop
         centres (N, 2) pixels and normal positions (N, 2) metres. ``origin_xy`` (2,): the
         camera centre, needed to apply a radial calibration (``info["radial_offset"]``, per
         class, metres along the camera-to-road-user direction, subtracted). ``geo`` (N, n_geo):
-        the masks' geometry features (``seg2pose.features``), required when the net uses them."""
+        the masks' geometry features (``seg2pose.features``), required when the net uses them.
+        ``sparse``: exact sparse inference (``seg2pose.sparse``; default: on the CPU)."""
+        from seg2pose import sparse as sparse_inference
+
         device = device or next(self.net.parameters()).device
         vec = input_vector(self.net.cfg, self.norm, centers, normal_xy, class_names, self.classes,
                            geo)
         out = np.zeros((len(crops), 2), np.float32)
         self.net.eval()
-        for s in range(0, len(crops), batch):
-            x = torch.from_numpy(downsample_crops(center_cut(crops[s:s + batch], self.net.cfg.crop),
-                                                  self.net.cfg.downsample))
-            with autocast(device):
-                y = self.net(x[:, None].to(device), torch.from_numpy(vec[s:s + batch]).to(device))
-            out[s:s + batch] = y.float().cpu().numpy()
+        if sparse_inference.use_sparse(device, sparse):
+            x = downsample_crops(center_cut(crops, self.net.cfg.crop), self.net.cfg.downsample)
+            out = sparse_inference.predict_inputs(self.net, x, vec, batch, device)
+        else:
+            for s in range(0, len(crops), batch):
+                x = torch.from_numpy(downsample_crops(center_cut(crops[s:s + batch], self.net.cfg.crop),
+                                                      self.net.cfg.downsample))
+                with autocast(device):
+                    y = self.net(x[:, None].to(device), torch.from_numpy(vec[s:s + batch]).to(device))
+                out[s:s + batch] = y.float().cpu().numpy()
         out = out * self.norm.residual_scale
         offsets = self.info.get("radial_offset") or {}
         if offsets and origin_xy is not None and len(out):

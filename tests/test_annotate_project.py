@@ -8,6 +8,7 @@ import pytest
 
 from annotate import EditError, Project
 from seg2pose.io.poses import read_poses
+from annotate_fixtures import random_edit, state
 from review_fixtures import EST_OFFSET, make_run, make_scene
 
 
@@ -21,10 +22,6 @@ def project(scene):
     p = Project.open(scene)
     yield p
     p.close()
-
-
-def state(p):
-    return {t: tr.to_dict() for t, tr in p.tracks.items()}
 
 
 def test_keyframes_to_poses_with_ground_z_and_sources(project, scene):
@@ -177,45 +174,13 @@ def test_split_and_merge(project):
         project.merge_tracks(1, new)
 
 
-def _random_edit(p, rng):
-    ids = sorted(p.tracks)
-    r = rng.random()
-    if not ids or r < 0.1:
-        return p.create_track(rng.choice(["car", "pedestrian", "bicyclist"]))
-    t = rng.choice(ids)
-    f = rng.randrange(30)
-    if r < 0.5:
-        return p.set_keyframe(t, f, rng.uniform(-10, 10), rng.uniform(-8, 8),
-                              heading=rng.uniform(-3, 3))
-    kfs = p.track(t).frames
-    if r < 0.6 and kfs:
-        return p.nudge(t, rng.choice(kfs), 0.1, -0.02)
-    if r < 0.65 and kfs:
-        return p.rotate(t, rng.choice(kfs), 5)
-    if r < 0.7 and kfs:
-        return p.delete_keyframe(t, rng.choice(kfs))
-    if r < 0.75:
-        return p.mark(t, f, min(f + 5, 29), rng.choice(["occluded", "outside", "visible"]))
-    if r < 0.8:
-        return p.set_class(t, rng.choice(["car", "pedestrian"]), resize=True)
-    if r < 0.85 and len(kfs) >= 2:
-        return p.split_track(t, kfs[-1])
-    if r < 0.9 and len(ids) >= 2:
-        a, b = rng.sample(ids, 2)
-        if not set(p.track(a).keyframes) & set(p.track(b).keyframes):
-            return p.merge_tracks(a, b)
-    if r < 0.95:
-        return p.delete_track(t)
-    return p.set_size(t, (rng.uniform(1, 5), 1.5, 1.5))
-
-
 @pytest.mark.parametrize("seed", range(2))
 def test_undo_redo_are_inverse_and_replay_equals_live(scene, seed):
     rng = random.Random(seed)
     with Project.open(scene) as p:
         states = [state(p)]
         for _ in range(60):
-            _random_edit(p, rng)
+            random_edit(p, rng, allow_undo=False)
             states.append(state(p))
         # undo everything, checking each intermediate state, then redo it all
         for k in range(len(p.history())):
@@ -228,7 +193,7 @@ def test_undo_redo_are_inverse_and_replay_equals_live(scene, seed):
         for _ in range(7):
             p.undo()
         before_last = state(p)
-        _random_edit(p, rng)
+        random_edit(p, rng, allow_undo=False)
         assert not p.can_redo
         live, hist, poses = state(p), p.history(), p.poses()
     with Project.open(scene) as q:
@@ -250,3 +215,27 @@ def test_change_notification_names_the_changed_track(project):
     unsubscribe()
     project.redo()
     assert len(seen) == 4
+
+
+def test_import_poses_from_truth_every_n_frames(scene, tmp_path):
+    gt = read_poses(scene.gt_path)
+    with Project.open(scene) as p:
+        ch = p.import_poses(gt, every=10)
+        assert ch.created == {4, 7, 12}
+        assert p.track(12).frames == [0, 10, 20, 29] and p.track(12).size == (4.5, 1.8, 1.5)
+        assert p.track(12).keyframes[10].flags == ("imported",)
+        # straight constant-speed truth: every interpolant reproduces it between keyframes
+        est = p.poses()
+        np.testing.assert_allclose(est.xyz, gt.xyz, atol=1e-9)
+        assert p.import_poses(gt, every=15, keep_ids=False).created == {13, 14, 15}
+        with pytest.raises(EditError, match=r"track ids \[4, 7, 12\] are taken"):
+            p.import_poses(gt)
+        files = p.journal_files()
+        assert [f.name for f in files] == ["journal-000000.jsonl"]
+    # T-Analyst tracks have no heading: it follows the motion
+    nan = gt.take(gt.track_id == 4)
+    nan.heading[:] = np.nan
+    with Project.open(scene) as p:
+        p.delete_track(4)
+        p.import_poses(nan, every=10)
+        assert p.track(4).keyframes[10].heading == pytest.approx(-math.pi / 2)

@@ -16,6 +16,11 @@ def register(app: typer.Typer) -> None:
     app.command("run", rich_help_panel=METHOD)(run_cmd)
     app.command("eval", rich_help_panel=METHOD)(eval_cmd)
     app.command("paper-table", rich_help_panel=METHOD)(paper_table_cmd)
+    app.command("bench-accuracy", rich_help_panel=METHOD)(bench_accuracy_cmd)
+
+
+SPARSE_HELP = ("exact sparse inference on the CPU: the network's convolutions only around the "
+               "mask (same result, 3-30x faster; seg2pose/sparse.py)")
 
 
 def run_cmd(
@@ -33,13 +38,16 @@ def run_cmd(
                                     "the default was chosen by measurement, docs/NORMAL_POSITIONS.md"),
     arch: Optional[str] = typer.Option(None, "--arch", help="require checkpoints of this arch (lite|paper)"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device (default: cuda if present)"),
+    sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
     force: bool = typer.Option(False, "--force", help="overwrite an existing run folder"),
 ) -> None:
     """Estimate world pose tracks: normal positions, Seg2PoseNet residuals (unless --baseline),
     late fusion over the configuration's views, headings from motion. Writes OUT/run.json,
     OUT/poses.csv and OUT/views.csv."""
     from seg2pose.pipeline import run_scene
+    from seg2pose.sparse import set_enabled
 
+    set_enabled(sparse)
     d = run_scene(scene, out, config=config, baseline=baseline, models_dir=models, split=split,
                   force=force, center_method=center, arch=arch, device=device)
     from seg2pose.io.run import read_run_meta
@@ -141,15 +149,47 @@ def paper_table_cmd(
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="output folder (default SCENE/out/paper-table)"),
     configs: Optional[str] = typer.Option(None, "--configs", help="comma-separated configurations (default all)"),
     baseline_only: bool = typer.Option(False, "--baseline-only", help="skip the Seg2PoseNet rows"),
+    sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
     force: bool = typer.Option(False, "--force"),
 ) -> None:
     """Table 1 and Figure 6 of the paper on this scene: every configuration with and without
     Seg2PoseNet, mean error overall and per 5 m bin; writes table.txt, results.json and
     error_vs_distance.png."""
     from seg2pose.paper_table import paper_table
+    from seg2pose.sparse import set_enabled
 
+    set_enabled(sparse)
     out_dir, text = paper_table(scene, models_dir=models, split=split, out_dir=out,
                                 configs=configs.split(",") if configs else None,
                                 baseline_only=baseline_only, force=force)
     typer.echo(text)
     typer.echo(f"written to {out_dir}")
+
+
+def bench_accuracy_cmd(
+    root: Path = typer.Argument(..., help="folder for the scenes, models and tables (one "
+                                          "sub-folder per seed; finished steps are kept and skipped)"),
+    seeds: str = typer.Option("100,101,102", "--seeds",
+                              help="comma-separated scene seeds (choose settings on 0-4, report on 100-102)"),
+    preset: str = typer.Option("bench", "--preset", help="synth preset of the scenes"),
+    variants: str = typer.Option("s2pn,zero", "--variants",
+                                 help="s2pn (annotated, train --quick) and/or zero (zero-annotation, "
+                                      "train --quick --zero-annotation --rough 400)"),
+    threads: int = typer.Option(2, "--threads", help="CPU threads for training"),
+    train_arg: Optional[List[str]] = typer.Option(None, "--train-arg",
+                                                  help="one more `s2p train` option (repeatable), "
+                                                       "e.g. --train-arg=--epochs=40"),
+) -> None:
+    """The accuracy benchmark: for each seed s2p synth, heights, train and paper-table, then
+    the nine configurations' error ratios to the baseline, mean (min-max) over the seeds.
+    Writes ROOT/accuracy.json."""
+    from seg2pose.accuracy import run_benchmark
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",")]
+    except ValueError:
+        from seg2pose.errors import InputError
+        raise InputError(f"expected comma-separated integers, got {seeds!r}", field="--seeds") from None
+    _, text = run_benchmark(root, seed_list, preset, tuple(variants.split(",")), threads,
+                            tuple(train_arg or ()), log=typer.echo)
+    typer.echo(text)

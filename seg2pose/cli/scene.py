@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives byte-identical files"),
         rig: str = typer.Option("device", "--rig", help="camera device: device (10 m pole), device-8m, device-12m, or a rig JSON file"),
         video: bool = typer.Option(False, "--video", help="also render RGB frames to video/<camera>.mp4"),
-        preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds) or paper (3 x 7,000 frames, section 4.1)"),
+        preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds; tests and the demo), bench (3 x 960 frames, about a minute; the accuracy benchmark) or paper (3 x 7,000 frames, section 4.1)"),
         no_noise: bool = typer.Option(False, "--no-noise", help="perfect silhouettes instead of Mask R-CNN-like masks"),
         noise: list[str] = typer.Option([], "--noise", help="a detector-noise knob KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
         distortion: Optional[str] = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (off by default)"),

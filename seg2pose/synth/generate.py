@@ -38,6 +38,11 @@ PRESETS = {
     "small": dict(split=240, gap=20,
                   population={"pedestrian": 24, "bicyclist": 6, "car": 14},
                   mean_pause_s={"pedestrian": 40.0, "bicyclist": 30.0, "car": 20.0}),
+    # the accuracy benchmark (issue 14): the small junction over 4x the frames; at 960 frames
+    # per split --quick reached 0.52x/0.48x and 1,920 frames gave no more (docs/RESULTS.md)
+    "bench": dict(split=960, gap=20,
+                  population={"pedestrian": 24, "bicyclist": 6, "car": 14},
+                  mean_pause_s={"pedestrian": 40.0, "bicyclist": 30.0, "car": 20.0}),
     "paper": dict(split=7000, gap=150,
                   population={"pedestrian": 43, "bicyclist": 12, "car": 28},
                   mean_pause_s={"pedestrian": 90.0, "bicyclist": 40.0, "car": 30.0}),
