@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo test test-all bench venv viewer-deps clean
+.PHONY: demo test bench venv viewer-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -27,9 +27,6 @@ demo: $(STAMP)
 
 test: $(STAMP) viewer-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
-
-test-all: $(STAMP) viewer-deps
-	$(BIN)/python -m pytest -q -p no:cacheprovider -m ''
 
 bench: $(STAMP)
 	for b in benches/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

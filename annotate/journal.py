@@ -31,7 +31,7 @@ import socket
 from pathlib import Path
 
 from seg2pose.errors import S2PError
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic import atomic_write_text, fsync_dir
 
 VERSION = 1
 ANNOTATIONS = "annotations"
@@ -58,16 +58,6 @@ def now() -> str:
 def dumps(record: dict) -> bytes:
     """One journal line (compact JSON, floats with repr so replay is bit-exact)."""
     return json.dumps(record, separators=(",", ":"), allow_nan=False).encode() + b"\n"
-
-
-def fsync_dir(path: Path) -> None:
-    """Make a file's creation, rename or removal in ``path`` durable."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def segment_name(after: int) -> str:

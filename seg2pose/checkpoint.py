@@ -167,7 +167,7 @@ class Ensemble:
     averaged (model averaging; e.g. an annotated and a zero-annotation model, or runs with
     other seeds). ``info`` is the first member's."""
 
-    members: tuple
+    members: tuple[Checkpoint, ...]
 
     @property
     def info(self) -> dict:
@@ -179,7 +179,7 @@ class ModelSet:
     """The checkpoints a run uses, looked up by (camera, class name): a Checkpoint each, or an
     Ensemble when several model folders are given."""
 
-    models: dict[tuple[str, str], object] = field(default_factory=dict)  # -> Checkpoint | Ensemble
+    models: dict[tuple[str, str], Checkpoint | Ensemble] = field(default_factory=dict)
     paths: dict[tuple[str, str], Path | list[Path]] = field(default_factory=dict)
 
     @classmethod
@@ -200,7 +200,7 @@ class ModelSet:
         models_dir = Path(models_dir)
         ms = cls()
         missing = []
-        cache: dict[Path, object] = {}
+        cache: dict[Path, Checkpoint] = {}
         for cam in cameras:
             for c in classes:
                 for name in (model_filename(cam, c), model_filename(cam, "*"),
@@ -220,7 +220,7 @@ class ModelSet:
                     missing.append(f"{cam}/{c}")
         if missing:
             raise S2PError(f"no Seg2PoseNet model in {models_dir} for {', '.join(missing)}; "
-                           "train with `s2p train` or run with --baseline")
+                           "train models for them, or run the baseline (normal positions only)")
         return ms
 
 
@@ -261,5 +261,5 @@ def load_models(scene: Scene, cams: list[str], models_dir=None, arch: str | None
                 device: str | None = None) -> "ModelSet":
     """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``)."""
     return ModelSet.load(model_dirs(scene, models_dir), cams,
-                         [c.name for c in scene.classes], arch=arch,
+                         scene.class_names, arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device))

@@ -121,8 +121,8 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
 
     cam = scene.cameras[camera]
     by_id = scene.class_by_id()
-    names = {c.id: c.name for c in scene.classes}
-    heights = {c.name: c.default_height for c in scene.classes}
+    names = scene.class_names_by_id()
+    heights = scene.default_heights()
     fr = scene.split_range(split)
     gt = gt.in_frames(fr)
     keep_rles: list[bytes] = []
@@ -194,7 +194,7 @@ def labelled_examples(scene: Scene, camera: str, rles: list[bytes], height: int,
     class names (N,): mask centres, normal positions (class default heights), targets = truth -
     normal, geometry features, crops. Masks whose ray misses the ground or whose residual is
     longer than ``max_residual`` metres are dropped (said on stderr when ``where`` is given)."""
-    heights = {c.name: c.default_height for c in scene.classes}
+    heights = scene.default_heights()
     centers = mask_centers(rles, height, width, center_method)
     hts = np.array([heights.get(str(c), 0.9) for c in cls])
     normal, _ = normal_positions(scene.cameras[camera], scene.ground, centers, hts)

@@ -9,19 +9,17 @@ from pathlib import Path
 
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.scene import Scene, load_scene
+from seg2pose.io.scene import Scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.pipeline import compute_views, write_run
 
-def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None):
+def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames."""
     from seg2pose.evaluate import evaluate
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     est = read_run_poses(run_dir)
@@ -33,7 +31,7 @@ PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "s
                       "tri-I", "tri-L", "tri-T"]
 
 
-def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
+def paper_table(scene: Scene, models_dir: str | Path | None = None,
                 split: str = "test", out_dir: str | Path | None = None,
                 configs: list[str] | None = None, baseline_only: bool = False,
                 force: bool = False, progress: bool = True) -> tuple[Path, str]:
@@ -44,8 +42,6 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
     from seg2pose.checkpoint import load_models, model_dirs
     from seg2pose.evaluate import format_table, plot_error_vs_distance
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
     if (out / "results.json").exists() and not force:
         raise S2PError(f"{out} holds a paper table already; pass --force to redo it")

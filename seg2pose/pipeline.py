@@ -22,7 +22,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
-from seg2pose.io.scene import Scene, load_scene
+from seg2pose.io.scene import Scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
 from seg2pose.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
 from seg2pose.say import warn_once
@@ -64,18 +64,8 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 # per-view estimates
 
 
-class _Warn:
-    """Say a thing once per run."""
-
-    def __init__(self):
-        self.said: set[str] = set()
-
-    def __call__(self, key: str, msg: str) -> None:
-        warn_once(self.said, key, msg)
-
-
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
-                   models: ModelSet | None, warn: _Warn, batch: int = 64
+                   models: ModelSet | None, said: set[str], batch: int = 64
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
     (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground) and
@@ -86,7 +76,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     names = np.array([by_id[c].name if c in by_id else "" for c in table.class_id], dtype=object)
     heights = np.array([by_id[c].default_height if c in by_id else np.nan for c in table.class_id])
     if (table.class_id == 0).any():
-        warn("noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
+        warn_once(said, "noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
     uv = mask_centers(table.rles, table.height, table.width, center_method)
     normal = np.full((n, 3), np.nan)
     ok = np.isfinite(uv[:, 0]) & np.isfinite(heights)
@@ -98,7 +88,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     _, _, box = rle_stats(table.rles, table.height, table.width)
     big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
     if big.any():
-        warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
+        warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
     usable = np.isfinite(normal[:, 0])
     groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
@@ -161,7 +151,7 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
     camera), and the number of frames."""
     from tqdm import tqdm
 
-    warn = _Warn()
+    said: set[str] = set()  # warnings said once per run
     rows: list[ViewTable] = []
 
     def flush(chunk: dict[str, list[MaskTable]]) -> None:
@@ -169,7 +159,7 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
+            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, said)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
                                   uv, normal, residual))
 
@@ -231,7 +221,7 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
     return write_run_folder(run_dir, poses, views, meta, force=force)
 
 
-def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
+def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
@@ -241,8 +231,6 @@ def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
     averaged (Ensemble); split: a named frame range of the scene."""
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]

@@ -41,7 +41,7 @@ from seg2pose.checkpoint import Checkpoint
 from seg2pose.errors import InputError, S2PError
 from seg2pose.examples import ExampleSet
 from seg2pose.features import GEO_VERSION, N_GEO
-from seg2pose.io.scene import Scene, load_scene
+from seg2pose.io.scene import Scene
 from seg2pose.normal import CENTER_METHODS, DEFAULT_CENTER_METHOD
 from seg2pose.net import ARCHS, NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
 from seg2pose.say import say
@@ -304,7 +304,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 # a scene
 
 
-def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = None,
+def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
                 classes: list[str] | None = None, progress: bool = True) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
@@ -316,8 +316,6 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
     from seg2pose.zero_annotation import calibrate_radial
 
     cfg = config or TrainConfig()
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if not cfg.zero_annotation and not scene.gt_path.exists():
         raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it, or train "
@@ -326,7 +324,7 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
     unknown = [c for c in cams if c not in scene.cameras]
     if unknown:
         raise S2PError(f"unknown cameras {unknown}; the scene has {list(scene.cameras)}")
-    all_classes = [c.name for c in scene.classes]
+    all_classes = scene.class_names
     cls_list = classes or all_classes
     bad = [c for c in cls_list if c not in all_classes]
     if bad:

@@ -27,7 +27,7 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
     ck = Checkpoint.load(path)
     ck.info.pop("radial_offset", None)
     cams = ck.info.get("cameras") or [ck.camera]
-    heights = {c.name: c.default_height for c in scene.classes}
+    heights = scene.default_heights()
     by_id = scene.class_by_id()
     classes = ck.classes or [ck.cls]
     radial: dict[str, list[np.ndarray]] = {c: [] for c in classes}

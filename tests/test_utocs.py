@@ -121,7 +121,7 @@ def test_cli_import(utocs, tmp_path):
 
     from seg2pose.cli import app
 
-    r = CliRunner().invoke(app, ["import-utocs", str(utocs), str(tmp_path / "sc"), "--no-frames"])
+    r = CliRunner().invoke(app, ["import-utocs", str(utocs), "-o", str(tmp_path / "sc"), "--no-frames"])
     assert r.exit_code == 0, r.output
     assert "imported 2 cameras" in r.output
     assert not (tmp_path / "sc" / "video").exists()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.cli.common import REVIEW, parse_frames
+from seg2pose.cli.common import REVIEW, parse_frames, speaks_flags
 from seg2pose.errors import S2PError
 
 
@@ -26,25 +26,28 @@ def _notes(notes) -> None:
 
 def register(app: typer.Typer) -> None:
     @app.command(rich_help_panel=REVIEW)
+    @speaks_flags
     def review(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: list[Path] = typer.Option([], "--run", help="run folder (made by `s2p run`); repeat to compare runs"),
-        save: Path | None = typer.Option(None, "--save", help="write the recording to this .rrd file"),
-        spawn: bool = typer.Option(False, "--spawn", help="open the native Rerun viewer"),
+        save: Path | None = typer.Option(None, "-o", "--out", help="write the recording to this .rrd file"),
+        spawn: bool = typer.Option(False, "--spawn/--no-spawn", help="open the native Rerun viewer"),
         connect: str | None = typer.Option(None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
         screenshot: Path | None = typer.Option(None, "--screenshot", help="run a headless viewer and save a PNG of it here"),
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
         frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame) and for a spawned or connected viewer"),
-        follow: bool = typer.Option(False, "--follow", help="make a spawned or connected viewer follow the newest frame"),
+        follow: bool = typer.Option(False, "--follow/--no-follow", help="make a spawned or connected viewer follow the newest frame"),
         camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
         mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
-        no_masks: bool = typer.Option(False, "--no-masks", help="leave masks out"),
-        no_video: bool = typer.Option(False, "--no-video", help="leave video frames out"),
+        masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks"),
+        video: bool = typer.Option(True, "--video/--no-video", help="show the video frames (when the scene has video)"),
         force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
     ) -> None:
-        """Review a scene and its runs in Rerun: masks, normal positions, residuals, fused road
-        users, ground truth and errors, with a blueprint that opens laid out."""
+        """Review a scene and its runs in the Rerun viewer.
+
+        Masks, normal positions, residuals, fused road users, ground truth and errors, with a
+        layout that opens ready to use."""
         from seg2pose.io.scene import load_scene
         from s2p_review.recording import LogStyle
         from s2p_review.session import RecordOptions, Targets, record
@@ -52,11 +55,11 @@ def register(app: typer.Typer) -> None:
         to = Targets(rrd=save, spawn=spawn, connect=connect, screenshot=screenshot, frame=frame,
                      follow=follow, force=force)
         if not to.any():
-            raise S2PError("nothing to do: pass --save FILE.rrd, --spawn, --connect URL or "
+            raise S2PError("nothing to do: pass -o FILE.rrd, --spawn, --connect URL or "
                            "--screenshot FILE.png")
         opts = RecordOptions(frames=parse_frames(frames), cameras=list(camera) or None,
                              mask_every=mask_every, video_every=video_every,
-                             style=LogStyle(masks=not no_masks, video=not no_video))
+                             style=LogStyle(masks=masks, video=video))
         res = record(load_scene(scene), list(run), to, opts)
         _notes(res.notes)
         if res.rrd is not None:
@@ -65,6 +68,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"wrote {res.screenshot}")
 
     @app.command(rich_help_panel=REVIEW)
+    @speaks_flags
     def export(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
@@ -74,7 +78,7 @@ def register(app: typer.Typer) -> None:
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="export video frames every k-th frame (default: automatic)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
     ) -> None:
-        """Export a scene and a run as MCAP (Foxglove schemas + lossless s2p records)."""
+        """Export a scene and a run as MCAP, for Foxglove (and an exact s2p round trip)."""
         from seg2pose.io.scene import load_scene
         from s2p_review.mcap_export import ExportOptions, export_mcap
 
@@ -85,25 +89,27 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
 
     @app.command("import-mcap", rich_help_panel=REVIEW)
+    @speaks_flags
     def import_mcap_cmd(
         file: Path = typer.Argument(..., help=".mcap file written by `s2p export`"),
         out: Path = typer.Option(..., "-o", "--out", help="output folder (becomes a scene folder)"),
         force: bool = typer.Option(False, "--force", help="write into an existing, non-empty folder"),
     ) -> None:
-        """Restore the scene file, ground points and the exact pose table from an s2p MCAP export."""
+        """Restore a scene folder and its run from an MCAP file written by s2p export."""
         from s2p_review.mcap_import import import_mcap
 
         run_dir = import_mcap(file, out, force=force)
         typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")
 
     @app.command("screenshot", rich_help_panel=REVIEW)
+    @speaks_flags
     def screenshot_cmd(
         rrd: Path = typer.Argument(..., help="recording (.rrd) to open"),
         out: Path = typer.Option(..., "-o", "--out", help="output .png"),
         frame: int | None = typer.Option(None, "--frame", help="time cursor (default: middle frame)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
     ) -> None:
-        """Open a recording in a headless viewer and save a screenshot (e.g. for the README)."""
+        """Save a screenshot of a recording, opened in a headless viewer."""
         from s2p_review.viewer import take_screenshot
 
         typer.echo(f"wrote {take_screenshot(rrd, out, frame=frame, force=force)}")

@@ -38,6 +38,16 @@ def temp_sibling_dir(path: str | Path) -> Path:
     return tmp
 
 
+def fsync_dir(path: str | Path) -> None:
+    """Make a file's creation, rename or removal in the folder ``path`` durable."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse to overwrite an existing file or folder unless ``force``."""
     path = Path(path)

@@ -36,7 +36,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import atomic_write_text, temp_sibling_dir
+from seg2pose.io.atomic import atomic_write_text, fsync_dir, temp_sibling_dir
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 from seg2pose.say import say
 
@@ -275,15 +275,6 @@ def run_lock(run_dir: str | Path) -> Iterator[Path]:
             lock.unlink()
 
 
-def _fsync_dir(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def check_run_writable(run_dir: str | Path, force: bool) -> None:
     """Refuse an existing non-empty ``run_dir`` unless ``force``."""
     run_dir = Path(run_dir)
@@ -306,7 +297,7 @@ def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | N
             if views is not None:
                 atomic_write_text(tmp / VIEWS_FILE, format_views(views))
             atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
-            _fsync_dir(tmp)
+            fsync_dir(tmp)
             if run_dir.exists():
                 old = temp_sibling_dir(run_dir)
                 os.replace(run_dir, old / "old")
@@ -314,7 +305,7 @@ def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | N
                 shutil.rmtree(old, ignore_errors=True)
             else:
                 os.replace(tmp, run_dir)
-            _fsync_dir(run_dir.parent)
+            fsync_dir(run_dir.parent)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

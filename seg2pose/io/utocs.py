@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.camera import Camera, Rig
+from seg2pose.say import say
 from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import check_writable
@@ -215,7 +216,7 @@ def default_splits(frames: np.ndarray, gap: int = 150) -> dict[str, tuple[int, i
 
 def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                  fps: float | None = None, size_scale: float = 1.0, copy_frames: bool = True,
-                 log=print) -> Scene:
+                 log=say) -> Scene:
     """Convert a UTOCS recording ``src`` into a scene folder ``out`` (see module docstring):
     scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist)."""
     src, out = Path(src), Path(out)
@@ -262,7 +263,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
     cars = gt.size[gt.cls == "car", 0]
     if len(cars) and np.median(cars) < 3.0 and size_scale == 1.0:
         log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
-            "use --size-scale 2 if so")
+            "import it with a size scale of 2 if so")
 
     scene = Scene(root=out, name=src.name, fps=float(fps or 1.0 / CARLA_FRAME_TIME),
                   rig=Rig(cameras=cameras, configs=configs, name="utocs"), ground_points=ground,
