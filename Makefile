@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo test bench venv viewer-deps clean
+.PHONY: demo screenshot test bench venv viewer-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -24,6 +24,10 @@ viewer-deps:
 
 demo: $(STAMP)
 	$(BIN)/s2p demo
+
+# the README picture, from the sample recording `make demo` wrote
+screenshot: $(STAMP) viewer-deps
+	$(BIN)/s2p screenshot sample_logs/demo.rrd -o docs/screenshot.png --frame 600 --force
 
 test: $(STAMP) viewer-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider

@@ -40,18 +40,25 @@ def class_rgb(scene: Scene) -> dict[str, tuple[int, int, int]]:
     return {c.name: L.class_color(c.name, c.id) for c in scene.classes}
 
 
-def camera_calibration(scene: Scene, name: str, ns: int):
-    """CameraCalibration of camera ``name``: K, P = [K | 0], plumb-bob distortion."""
+def camera_calibration(scene: Scene, name: str, ns: int, scale: float = 1.0):
+    """CameraCalibration of camera ``name`` for images ``scale`` times its size: K (first two
+    rows scaled), P = [K | 0], plumb-bob distortion (unchanged by scaling)."""
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 
     cam = scene.cameras[name]
     d = cam.distortion.to_dict() if cam.distortion is not None else {}
     D = [float(d.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2", "k3")]
-    P = np.hstack([cam.K, np.zeros((3, 1))])
-    return CameraCalibration(timestamp=timestamp(ns), frame_id=name, width=cam.width,
-                             height=cam.height, distortion_model="plumb_bob", D=D,
-                             K=cam.K.ravel().tolist(), R=np.eye(3).ravel().tolist(),
-                             P=P.ravel().tolist())
+    K = np.diag([scale, scale, 1.0]) @ cam.K
+    w, h = scaled_size(cam, scale)
+    P = np.hstack([K, np.zeros((3, 1))])
+    return CameraCalibration(timestamp=timestamp(ns), frame_id=name, width=w, height=h,
+                             distortion_model="plumb_bob", D=D, K=K.ravel().tolist(),
+                             R=np.eye(3).ravel().tolist(), P=P.ravel().tolist())
+
+
+def scaled_size(cam, scale: float) -> tuple[int, int]:
+    """(width, height) pixels of ``cam``'s images shown ``scale`` times their size."""
+    return max(1, int(round(cam.width * scale))), max(1, int(round(cam.height * scale)))
 
 
 def camera_transform(scene: Scene, name: str, ns: int):
@@ -84,8 +91,10 @@ def ground(scene: Scene, ns: int):
 
 def scene_update(table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int, lifetime_ns: int,
                  rgb=None, prefix: str = ""):
-    """SceneUpdate with one entity per road user (id ``prefix`` + track id): a cube of its size
-    (class colour, or ``rgb`` for all) and a label. Rows without a position are left out."""
+    """SceneUpdate with one entity per road user, id ``prefix`` + track id, metadata track_id,
+    class and heading (radians, or "unknown"): a cube of its size turned by its heading, or,
+    where the heading is unknown, an upright cylinder (no false heading); class colour or
+    ``rgb`` for all; a label. Rows without a position are left out."""
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
     su = SceneUpdate()
@@ -95,17 +104,27 @@ def scene_update(table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int, lif
     for i in range(len(table)):
         if not np.isfinite(table.xyz[i]).all():
             continue
+        known = bool(np.isfinite(table.heading[i]))
         e = su.entities.add(timestamp=timestamp(ns), frame_id="world",
                             id=f"{prefix}{int(table.track_id[i])}")
         e.lifetime.FromNanoseconds(lifetime_ns)
-        cube = e.cubes.add()
+        for k, v in (("track_id", str(int(table.track_id[i]))), ("class", str(table.cls[i])),
+                     ("heading", repr(float(table.heading[i])) if known else "unknown")):
+            e.metadata.add(key=k, value=v)
         cx, cy, cz = (float(v) for v in fields["centers"][i])
-        cube.pose.position.x, cube.pose.position.y, cube.pose.position.z = cx, cy, cz
-        qx, qy, qz, qw = (float(v) for v in fields["quaternions"][i])
-        cube.pose.orientation.x, cube.pose.orientation.y = qx, qy
-        cube.pose.orientation.z, cube.pose.orientation.w = qz, qw
-        cube.size.x, cube.size.y, cube.size.z = (float(v) for v in sizes[i])
-        cube.color.CopyFrom(color(cols[i], 0.5 if rgb is None else 0.25))
+        if known:
+            prim = e.cubes.add()
+            qx, qy, qz, qw = (float(v) for v in fields["quaternions"][i])
+            prim.pose.orientation.x, prim.pose.orientation.y = qx, qy
+            prim.pose.orientation.z, prim.pose.orientation.w = qz, qw
+            prim.size.x, prim.size.y, prim.size.z = (float(v) for v in sizes[i])
+        else:
+            prim = e.cylinders.add(bottom_scale=1.0, top_scale=1.0)
+            prim.pose.orientation.w = 1.0  # a cylinder about z looks the same any way it is turned
+            d = float(max(sizes[i, 0], sizes[i, 1]))
+            prim.size.x, prim.size.y, prim.size.z = d, d, float(sizes[i, 2])
+        prim.pose.position.x, prim.pose.position.y, prim.pose.position.z = cx, cy, cz
+        prim.color.CopyFrom(color(cols[i], 0.5 if rgb is None else 0.25))
         if rgb is None:
             t = e.texts.add(billboard=True, font_size=14.0, scale_invariant=True, text=labels[i])
             t.pose.position.x, t.pose.position.y = cx, cy
@@ -116,17 +135,18 @@ def scene_update(table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int, lif
 
 
 def poses_in_frame(table: PoseTable, ns: int):
-    """PosesInFrame (world) of the road users with a position."""
+    """PosesInFrame (world) of the road users with a position and a known heading (a pose
+    always shows a direction, so road users of unknown heading are only in the SceneUpdate)."""
     from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
 
     msg = PosesInFrame(timestamp=timestamp(ns), frame_id="world")
-    h = np.nan_to_num(table.heading)
     for i in range(len(table)):
-        if not np.isfinite(table.xyz[i]).all():
+        h = float(table.heading[i])
+        if not (np.isfinite(table.xyz[i]).all() and np.isfinite(h)):
             continue
         p = msg.poses.add()
         p.position.x, p.position.y, p.position.z = (float(v) for v in table.xyz[i])
-        p.orientation.z, p.orientation.w = float(np.sin(h[i] / 2)), float(np.cos(h[i] / 2))
+        p.orientation.z, p.orientation.w = float(np.sin(h / 2)), float(np.cos(h / 2))
     return msg
 
 
@@ -153,16 +173,19 @@ def outlines(inst: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> list[np.nd
 
 
 def image_annotations(camera, table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int,
-                      loops: list[tuple[str, np.ndarray]] = (), centres: list = ()):
+                      loops: list[tuple[str, np.ndarray]] = (), centres: list = (),
+                      scale: float = 1.0):
     """Projected boxes (LINE_LIST, class colours), mask outlines ``loops`` ((class, (K, 2)
     pixels), LINE_LOOP) and the views' mask centres ``centres`` ((uv, class), POINTS) of one
-    camera and frame."""
+    camera and frame; pixel coordinates of the camera's image, multiplied by ``scale`` (the
+    size the images are shown at)."""
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
     from foxglove_schemas_protobuf.Point2_pb2 import Point2
     from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 
     msg = ImageAnnotations()
     segs, idx = C.projected_edges(camera, table.xyz, table.heading, sizes)
+    segs = segs * scale
     cols = L.class_colors(table.cls[idx], scene.classes)
     for k in range(len(idx)):
         pa = msg.points.add(timestamp=timestamp(ns), type=PointsAnnotation.LINE_LIST, thickness=2.0)
@@ -172,11 +195,11 @@ def image_annotations(camera, table: PoseTable, sizes: np.ndarray, scene: Scene,
     for uv, name in centres:
         pa = msg.points.add(timestamp=timestamp(ns), type=PointsAnnotation.POINTS, thickness=6.0)
         pa.outline_color.CopyFrom(color(rgb.get(name, (128, 128, 128))))
-        pa.points.add(x=float(uv[0]), y=float(uv[1]))
+        pa.points.add(x=float(uv[0]) * scale, y=float(uv[1]) * scale)
     for name, c in loops:
         pa = msg.points.add(timestamp=timestamp(ns), type=PointsAnnotation.LINE_LOOP, thickness=1.0)
         pa.outline_color.CopyFrom(color(rgb.get(name, (128, 128, 128))))
-        pa.points.extend(Point2(x=x, y=y) for x, y in c.tolist())
+        pa.points.extend(Point2(x=x, y=y) for x, y in (c * scale).tolist())
     return msg
 
 
@@ -196,3 +219,32 @@ def compressed_image(jpeg: bytes, frame_id: str, ns: int):
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
     return CompressedImage(timestamp=timestamp(ns), frame_id=frame_id, data=jpeg, format="jpeg")
+
+
+def overlay(inst_cls: np.ndarray, rgb_of: dict[int, tuple[int, int, int]],
+            video_bgr: np.ndarray | None, size: tuple[int, int] | None = None,
+            alpha: float = 0.55) -> np.ndarray:
+    """The display image of a mask frame, RGB (h, w, 3) uint8: each mask pixel in its class
+    colour, blended over the video frame (``alpha`` of the colour) where there is one, else on
+    black; shrunk to ``size`` = (w, h) when given. inst_cls: (H, W) class id per pixel (0 =
+    background); rgb_of: class id -> colour."""
+    import cv2
+
+    h, w = inst_cls.shape
+    if video_bgr is None:
+        base = np.zeros((h, w, 3), np.uint8)
+        a = 1.0
+    else:
+        base = np.ascontiguousarray(video_bgr[..., ::-1])
+        if base.shape[:2] != (h, w):
+            base = cv2.resize(base, (w, h), interpolation=cv2.INTER_LINEAR)
+        a = alpha
+    lut = np.zeros((max([0, *rgb_of]) + 1, 3), np.float32)
+    for k, c in rgb_of.items():
+        lut[k] = c
+    on = inst_cls > 0
+    out = base.copy()
+    out[on] = np.rint((1 - a) * base[on] + a * lut[inst_cls[on]]).astype(np.uint8)
+    if size is not None and size != (w, h):
+        out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
+    return out

@@ -16,7 +16,8 @@ side), so every run-specific entity has the run's name as one more path level::
     world/estimates/<run>/<cam>                     Points3D: normal positions of one view
     world/estimates/<run>/<cam>/residuals           Arrows3D: Seg2PoseNet residuals
     world/gt                                        Boxes3D: ground truth, drawn in grey
-    metrics/error/<run>/mean, .../<class>           Scalars: per-frame mean error (metres)
+    metrics/error/<run>/mean, .../<class>           Scalars: per-frame mean error (metres),
+                                                    one plot per run
 """
 
 from __future__ import annotations
@@ -45,6 +46,28 @@ def class_colors(names: np.ndarray, classes) -> np.ndarray:
     """(N,) class names -> (N, 3) uint8 colours; ``classes``: the scene's ClassSpecs."""
     table = {c.name: class_color(c.name, c.id) for c in classes}
     return np.array([table.get(n, (128, 128, 128)) for n in names], dtype=np.uint8).reshape(-1, 3)
+
+
+# How a run looks, so that runs compared in one recording tell apart at a glance: a model's
+# boxes solid in full class colours with bold projected lines, the baseline's hollow, pale
+# (half-way to grey) and thin. alpha: of solid boxes; line: radius of projected lines, pixels.
+RUN_LOOKS = {"model": {"solid": True, "pale": 0.0, "alpha": 150, "line": 1.0},
+             "baseline": {"solid": False, "pale": 0.5, "alpha": 255, "line": 0.5}}
+
+
+def run_look(meta: dict) -> str:
+    """The look of a run from its run.json: "baseline" for the baseline, else "model"."""
+    return "baseline" if str(meta.get("method", "")).lower() == "baseline" else "model"
+
+
+def run_colors(names: np.ndarray, classes, look: str = "model", solid: bool = False) -> np.ndarray:
+    """(N,) class names -> (N, 4) RGBA uint8 colours in the ``look`` of a run; ``solid``: for
+    filled boxes (see-through), else for lines (opaque)."""
+    spec = RUN_LOOKS[look]
+    rgb = class_colors(names, classes).astype(float)
+    rgb = (1 - spec["pale"]) * rgb + spec["pale"] * 160.0
+    a = np.full((len(rgb), 1), spec["alpha"] if solid and spec["solid"] else 255, float)
+    return np.rint(np.c_[rgb, a]).astype(np.uint8).reshape(-1, 4)
 
 
 def labels(names: np.ndarray, track_ids: np.ndarray) -> list[str]:
@@ -85,10 +108,13 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
 
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
-              fps: float | None = None):
-    """The 3D world over the error plot on the left; one 2D view per camera on the right.
-    eye: (position, look target) of the 3D view, metres (see ``default_eye``); fps: frames
-    per second of the ``frame`` timeline, so that playback runs in real time."""
+              fps: float | None = None, error_max: float | None = None,
+              timeline: str = TIMELINE):
+    """The 3D world over the error plots (one per run, side by side, so that every series and
+    its legend entry shows) on the left; one 2D view per camera on the right. eye: (position,
+    look target) of the 3D view, metres (see ``default_eye``); fps: frames per second, so that
+    playback runs in real time; error_max: the top of the error plots' common y axis, metres;
+    timeline: the timeline the time panel opens on."""
     import rerun.blueprint as rrb
 
     cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
@@ -98,16 +124,21 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     world = rrb.Spatial3DView(origin="world", name="world",
                               contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
-    # left: the world over the error plot; right: the cameras stacked (16:9 images use the
+    axis = {} if error_max is None else {
+        "axis_y": rrb.ScalarAxis(range=(0.0, float(error_max)), zoom_lock=False)}
+    plots = [rrb.TimeSeriesView(origin=f"metrics/error/{safe_name(r)}", name=f"error (m): {r}",
+                                plot_legend=rrb.PlotLegend(corner="lefttop", visible=True), **axis)
+             for r in runs]
+    # left: the world over the error plots; right: the cameras stacked (16:9 images use the
     # width of a half screen better stacked than side by side), a grid beyond three
-    left = rrb.Vertical(world, rrb.TimeSeriesView(origin="metrics", name="error (m) vs frame"),
-                        row_shares=[3, 1]) if with_metrics else world
+    left = (rrb.Vertical(world, rrb.Horizontal(*plots), row_shares=[3, 1])
+            if with_metrics and plots else world)
     if not cams:
         body = left
     else:
         right = rrb.Vertical(*cams) if len(cams) <= 3 else rrb.Grid(*cams, grid_columns=2)
         body = rrb.Horizontal(left, right, column_shares=[1, 1])
-    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed", timeline=TIMELINE, fps=fps),
+    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed", timeline=timeline, fps=fps),
                          rrb.SelectionPanel(state="hidden"),
                          rrb.BlueprintPanel(state="hidden"),
                          auto_views=False, collapse_panels=False)

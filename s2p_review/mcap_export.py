@@ -4,20 +4,35 @@ it; Rerun's MCAP loader shows cameras, images and poses), lossless s2p records (
 
 Topics (log time = the frame's time, ns; see ``timebase``)::
 
-    /cameras/<cam>/calibration   foxglove.CameraCalibration (K, P, distortion), first frame
+    /cameras/<cam>/calibration   foxglove.CameraCalibration (K, P, distortion) of the images as
+                                 shown (``image_scale`` times the camera's size), first frame
     /cameras/<cam>/transform     foxglove.FrameTransform world -> <cam> (optical frame), first frame
-    /cameras/<cam>/masks         foxglove.RawImage mono16: pixel = track_id + 1 (0 = background)
-    /cameras/<cam>/image         foxglove.CompressedImage (jpeg), when the scene has video
-    /cameras/<cam>/annotations   foxglove.ImageAnnotations: projected boxes, mask outlines, centres
-    /road_users/poses            foxglove.PosesInFrame (world): fused road users per frame
-    /road_users/scene            foxglove.SceneUpdate: cubes (size, class colour) and labels
+    /cameras/<cam>/display       the masks for people: class colours blended over the video
+                                 (foxglove.CompressedImage, jpeg), or on black without video
+                                 (foxglove.RawImage rgb8); every mask frame
+    /cameras/<cam>/masks         foxglove.RawImage mono16, full size, lossless: pixel =
+                                 track_id + 1 (0 = background); every mask frame
+    /cameras/<cam>/image         foxglove.CompressedImage (jpeg), video frames, when asked for
+    /cameras/<cam>/annotations   foxglove.ImageAnnotations per frame: projected boxes, the views'
+                                 mask centres, and the outlines of the latest mask frame
+    /road_users/poses            foxglove.PosesInFrame (world): road users of known heading
+    /road_users/scene            foxglove.SceneUpdate: a cube per road user (an upright cylinder
+                                 where the heading is unknown), label; entity id = track id,
+                                 metadata track_id, class, heading
     /gt/scene                    foxglove.SceneUpdate: ground-truth cubes (grey), when known
     /world/ground                foxglove.SceneUpdate: the ground surface mesh, first frame
-    /s2p/poses, /s2p/views       JSON: the run's poses and views, exact (``mcap_records``)
+    /s2p/errors                  JSON per frame: {"frame", "mean", <class>: ...} ground-plane
+                                 error (metres) against the ground truth, when known
+    /s2p/poses, /s2p/views       JSON: the run's poses and views, exact (``mcap_records``); a
+                                 road user is followed in Foxglove with the message path
+                                 ``/s2p/poses.rows[:]{track_id==12}.x``
 
-Messages are written in log-time order over the whole file (the per-topic streams are merged),
-so a front-to-back reader sees them in time order. Attachments: scene.json, the ground points
-file, run.json (bytes as on disk).
+Log time: the frame's wall-clock time when the scene's start time is known (``timebase``), else
+frame / fps since 0; the frame number is in every JSON message and follows from the metadata
+record ``s2p`` (start_ns, fps). Messages are written in log-time order over the whole file (the
+per-topic streams are merged), so a front-to-back reader sees them in time order. Attachments:
+scene.json, the ground points file, run.json (bytes as on disk). Beside the file: a Foxglove
+layout, ``<name>.layout.json`` (``foxglove_layout``).
 """
 
 from __future__ import annotations
@@ -30,11 +45,13 @@ from typing import Iterator
 
 import numpy as np
 
+from seg2pose.errors import InputError
 from seg2pose.io.atomic import atomic_path, check_writable
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from s2p_review import columns as C
 from s2p_review import foxglove as F
+from s2p_review import foxglove_layout as FL
 from s2p_review import imagery
 from s2p_review import layout as L
 from s2p_review import mcap_records as R
@@ -43,6 +60,10 @@ from s2p_review.selection import Selection, select
 from s2p_review.timebase import Timebase, scene_timebase
 
 MEDIA_JSON = "application/json"
+ERRORS_TOPIC = "/s2p/errors"
+ERROR_SCHEMA = {"title": "s2p.FrameErrors", "type": "object",
+                "properties": {"frame": {"type": "integer"}, "mean": {"type": ["number", "null"]}},
+                "additionalProperties": {"type": ["number", "null"]}}
 MASK_PIXEL = "track_id + 1 (0 = background)"
 
 
@@ -51,22 +72,28 @@ class ExportOptions:
     """What to export. frames: (first, last) inclusive (None: the run's frames); cameras: None =
     the run's cameras; mask_every / video_every: every k-th frame only (None: automatic, as
     for recordings); start_ns: UTC time of frame 0, ns (None: the scene's, when it has one);
-    jpeg_quality, video_width: how video frames are stored (None: full width)."""
+    video: also the plain video frames (the display images already show the video under the
+    masks); image_scale: the size images are shown at, relative to the camera's (calibration
+    and annotations follow; the mono16 masks stay full size); jpeg_quality: of video and
+    display images; layout: write the Foxglove layout beside the file."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
     mask_every: int | None = None
     video_every: int | None = None
     start_ns: int | None = None
+    video: bool = True
+    image_scale: float = 1.0
     jpeg_quality: int = 75
-    video_width: int | None = None
+    layout: bool = True
 
 
 @dataclass(frozen=True)
 class ExportResult:
-    """The file written, what it holds and notes for the user."""
+    """The file written (and its layout, or None), what it holds and notes for the user."""
 
     path: Path
+    layout: Path | None
     selection: Selection
     messages: int
     notes: tuple[str, ...]
@@ -108,9 +135,9 @@ def _rows_by_frame(t: PoseTable) -> dict[int, np.ndarray]:
 
 
 # --- streams: each yields its messages in log-time order -------------------------------------------
-def _static_stream(scene: Scene, cams: list[str], ns: int) -> Iterator[Item]:
+def _static_stream(scene: Scene, cams: list[str], ns: int, scale: float) -> Iterator[Item]:
     for name in cams:
-        yield ns, 0, f"/cameras/{name}/calibration", F.camera_calibration(scene, name, ns)
+        yield ns, 0, f"/cameras/{name}/calibration", F.camera_calibration(scene, name, ns, scale)
         yield ns, 0, f"/cameras/{name}/transform", F.camera_transform(scene, name, ns)
     yield ns, 0, "/world/ground", F.ground(scene, ns)
 
@@ -144,20 +171,36 @@ def _road_user_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTab
                                                      rgb=L.GT_COLOR, prefix="gt")
 
 
+def _error_stream(tb: Timebase, poses: PoseTable, gt: PoseTable | None) -> Iterator[Item]:
+    """Per-frame ground-plane errors against the truth (for the layout's plot)."""
+    if gt is None:
+        return
+    from seg2pose.evaluate import per_frame_errors
+
+    frames, mean, per_class = per_frame_errors(poses, gt)
+    for k, f in enumerate(frames.tolist()):
+        msg = {"frame": f, "mean": R.num(mean[k])}
+        msg.update({c: R.num(e[k]) for c, e in per_class.items()})
+        yield tb.ns1(f), 1, ERRORS_TOPIC, (ERROR_SCHEMA, msg)
+
+
 def _camera_stream(scene: Scene, name: str, rank: int, sel: Selection, tb: Timebase,
                    poses: PoseTable, psz: np.ndarray, run: Run, opts: ExportOptions
                    ) -> Iterator[Item]:
-    """One camera's masks, video and annotations, frame by frame. The outlines of the latest
-    mask frame stay on the annotations until the next one (a viewer keeps showing that mask)."""
+    """One camera's images and annotations, frame by frame. The outlines of the latest mask
+    frame stay on the annotations until the next one (viewers keep showing that mask)."""
     from seg2pose.masks import rle_stats
 
     cam = scene.cameras[name]
+    s = opts.image_scale
+    size = F.scaled_size(cam, s)
+    rgb_of = {c.id: L.class_color(c.name, c.id) for c in scene.classes}
     names = {c.id: c.name for c in scene.classes}
     masks = imagery.mask_frames(scene, name, sel.first, sel.last, sel.cadence.masks)
     pending_mask = next(masks, None)
     vp = scene.video_path(name)
-    video = (imagery.video_frames(vp, sel.first, sel.last, sel.cadence.video)
-             if vp is not None else iter(()))
+    # every frame is decoded: the display images need the video at the mask frames too
+    video = imagery.video_frames(vp, sel.first, sel.last) if vp is not None else iter(())
     pending_video = next(video, None)
     centres: dict[int, list] = {}
     if run.views is not None:
@@ -168,23 +211,42 @@ def _camera_stream(scene: Scene, name: str, rank: int, sel: Selection, tb: Timeb
     loops: list = []
     for f in range(sel.first, sel.last + 1):
         ns = tb.ns1(f)
+        frame_bgr = None
         if pending_video is not None and pending_video[0] == f:
-            jpeg = imagery.encode_jpeg(pending_video[1], opts.jpeg_quality, opts.video_width)
-            yield ns, rank, f"/cameras/{name}/image", F.compressed_image(jpeg, name, ns)
+            frame_bgr = pending_video[1]
             pending_video = next(video, None)
+            if opts.video and (f - sel.first) % sel.cadence.video == 0:
+                jpeg = imagery.encode_jpeg(frame_bgr, opts.jpeg_quality, size[0])
+                yield ns, rank, f"/cameras/{name}/image", F.compressed_image(jpeg, name, ns)
         if pending_mask is not None and pending_mask[0] == f:
             t = pending_mask[1]
             ids = t.track_id + 1
-            inst = imagery.paint([t], [ids], scene.masks_path(name), dtype=np.uint16)[0]
+            path = scene.masks_path(name)
+            inst = imagery.paint([t], [ids], path, dtype=np.uint16)[0]
+            cls_img = imagery.paint([t], [t.class_id], path)[0]
             boxes = rle_stats(t.rles, cam.height, cam.width)[2]
             loops = [(names.get(int(c), "unknown"), o)
                      for c, o in zip(t.class_id, F.outlines(inst, ids, boxes)) if o is not None]
+            disp = F.overlay(cls_img, rgb_of, frame_bgr, size)
+            if frame_bgr is not None:
+                jpeg = imagery.encode_jpeg(disp[..., ::-1], opts.jpeg_quality)
+                yield ns, rank, f"/cameras/{name}/display", F.compressed_image(jpeg, name, ns)
+            else:
+                yield ns, rank, f"/cameras/{name}/display", F.raw_image(disp, name, ns)
             # an empty image too: no stale masks in a viewer
             yield ns, rank, f"/cameras/{name}/masks", F.raw_image(inst, name, ns)
             pending_mask = next(masks, None)
         sel_rows = pidx.get(f, np.zeros(0, np.int64))
         yield ns, rank, f"/cameras/{name}/annotations", F.image_annotations(
-            cam, poses.take(sel_rows), psz[sel_rows], scene, ns, loops, centres.get(f, []))
+            cam, poses.take(sel_rows), psz[sel_rows], scene, ns, loops, centres.get(f, []), s)
+
+
+def _layout(scene: Scene, sel: Selection, gt: PoseTable | None) -> dict:
+    """The Foxglove layout for this export: display images where a camera has masks."""
+    image_topic = {c: FL.camera_topics(c)["display" if scene.masks_path(c).exists() else "image"]
+                   for c in sel.cameras}
+    return FL.layout(sel.cameras, [c.name for c in scene.classes], image_topic,
+                     with_gt=gt is not None, with_errors=gt is not None)
 
 
 def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOptions | None = None,
@@ -193,8 +255,13 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     existing file is kept unless ``force``)."""
     opts = options or ExportOptions()
     out_path = check_writable(Path(out_path), force)
+    lay_path = FL.layout_path(out_path) if opts.layout else None
+    if lay_path is not None:
+        check_writable(lay_path, force)
+    if not 0 < opts.image_scale <= 1:
+        raise InputError(f"image scale must be in (0, 1], got {opts.image_scale}", field="image_scale")
     sel = select(scene, [Path(run_dir)], opts.frames, opts.cameras, opts.mask_every,
-                 opts.video_every)
+                 opts.video_every, video=opts.video)
     run = sel.runs[0]
     tb = scene_timebase(scene, opts.start_ns)
     poses = run.poses.in_frames((sel.first, sel.last))
@@ -212,15 +279,19 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
         out.pb.add_metadata("s2p", {
             "scene": scene.name, "run": run.path.name, "fps": repr(scene.fps),
             "first_frame": str(sel.first), "last_frame": str(sel.last),
-            "start_ns": str(tb.start_ns or 0),
+            "start_ns": str(tb.start_ns or 0), "start_time": scene.start_time or "",
             "frame_of_log_time": "round((log_time - start_ns) * fps / 1e9)",
+            "image_scale": repr(opts.image_scale),
             "has_views": str(run.views is not None).lower(),
             "poses_with_size": str(run.poses.size is not None).lower(), "mask_pixel": MASK_PIXEL})
-        streams = [_static_stream(scene, sel.cameras, t0), _record_stream(run, sel, tb),
+        streams = [_static_stream(scene, sel.cameras, t0, opts.image_scale),
+                   _record_stream(run, sel, tb), _error_stream(tb, poses, gt),
                    _road_user_stream(scene, sel, tb, poses, psz, gt)]
         streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
                     for k, name in enumerate(sel.cameras)]
         for ns, _rank, topic, payload in heapq.merge(*streams, key=lambda m: (m[0], m[1])):
             out.write(ns, topic, payload)
         out.pb.finish()
-    return ExportResult(out_path, sel, out.count, tuple(sel.cadence.notes()))
+    if lay_path is not None:
+        FL.write_layout(lay_path, _layout(scene, sel, gt))
+    return ExportResult(out_path, lay_path, sel, out.count, tuple(sel.cadence.notes()))

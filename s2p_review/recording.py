@@ -26,14 +26,15 @@ IMAGE_BATCH = 64  # frames per send_columns call for images (bounds memory)
 class LogStyle:
     """How things look. trail: frames of trail behind each road user (<= 1: none);
     image_plane_distance: metres from a camera to its image in the 3D view; jpeg_quality and
-    video_width: how video frames are stored (None: full width)."""
+    image_scale: how video frames are stored (shrunk to image_scale of the camera's size and
+    shown at full size again)."""
 
     masks: bool = True
     video: bool = True
     trail: int = L.TRAIL_FRAMES
     image_plane_distance: float = 2.0
     jpeg_quality: int = 75
-    video_width: int | None = None
+    image_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,8 @@ def log_video(rec, scene: Scene, tb: Timebase, cam: str, first: int, last: int, 
     if path is None:
         return 0
     ent = L.cam_path(cam) + "/image"
+    camera = scene.cameras[cam]
+    width = max(1, int(round(camera.width * style.image_scale)))
     sent = 0
     frames, blobs = [], []
 
@@ -123,8 +126,12 @@ def log_video(rec, scene: Scene, tb: Timebase, cam: str, first: int, last: int, 
                          columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)))
 
     for f, img in imagery.video_frames(path, first, last, every):
+        if not sent and not frames and img.shape[1] > width:  # shown at the camera's size
+            h = max(1, int(round(img.shape[0] * width / img.shape[1])))
+            rec.log(ent, rr.Transform3D(scale=[img.shape[1] / width, img.shape[0] / h, 1.0]),
+                    static=True)
         frames.append(f)
-        blobs.append(imagery.encode_jpeg(img, style.jpeg_quality, style.video_width))
+        blobs.append(imagery.encode_jpeg(img, style.jpeg_quality, width))
         if len(frames) == IMAGE_BATCH:
             flush()
             sent += len(frames)
@@ -137,15 +144,21 @@ def log_video(rec, scene: Scene, tb: Timebase, cam: str, first: int, last: int, 
 
 # --- road users over frames ----------------------------------------------------------------------
 def log_boxes(rec, ent: str, table: PoseTable, sizes: np.ndarray, scene: Scene, tb: Timebase,
-              first: int, last: int, color=None, with_labels: bool = True) -> None:
-    """Boxes3D over [first, last], one row per frame; class colours unless ``color``."""
+              first: int, last: int, color=None, with_labels: bool = True,
+              look: str = "model") -> None:
+    """Boxes3D over [first, last], one row per frame; class colours unless ``color``, in the
+    ``look`` of the run (``layout.RUN_LOOKS``: a model's boxes solid, the baseline's hollow
+    and pale). Labels are data, shown on hover and selection, not drawn (crowds overlap)."""
     rr = _rr()
     order = np.argsort(table.frame, kind="stable")
     t, sz = table.take(order), sizes[order]
     fields = C.box_columns(t.xyz, t.heading, sz)
     cols = (np.tile(np.array(color, np.uint8), (len(t), 1)) if color is not None
-            else L.class_colors(t.cls, scene.classes))
+            else L.run_colors(t.cls, scene.classes, look, solid=True))
     extra = {"labels": L.labels(t.cls, t.track_id)} if with_labels else {}
+    rec.log(ent, rr.Boxes3D.from_fields(show_labels=False,
+                                        fill_mode="solid" if L.RUN_LOOKS[look]["solid"] and color is None
+                                        else "majorwireframe"), static=True)
     rec.send_columns(ent, indexes=tb.rerun_columns(np.arange(first, last + 1)),
                      columns=rr.Boxes3D.columns(**fields, colors=cols, **extra)
                      .partition(C.frame_lengths(t.frame, first, last)))
@@ -167,17 +180,18 @@ def log_trails(rec, ent: str, table: PoseTable, scene: Scene, tb: Timebase, firs
 
 
 def log_projected(rec, ent: str, camera, table: PoseTable, sizes: np.ndarray, scene: Scene,
-                  tb: Timebase, first: int, last: int, color=None) -> None:
-    """The boxes of ``table`` projected into ``camera`` as LineStrips2D, per frame."""
+                  tb: Timebase, first: int, last: int, color=None, look: str = "model") -> None:
+    """The boxes of ``table`` projected into ``camera`` as LineStrips2D, per frame, in the
+    ``look`` of the run (a model's lines bold, the baseline's thin and pale)."""
     rr = _rr()
     order = np.argsort(table.frame, kind="stable")
     t, sz = table.take(order), sizes[order]
     segs, idx = C.projected_paths(camera, t.xyz, t.heading, sz)
     lengths = C.frame_lengths(t.frame[idx], first, last)
     # constant look (width, draw order, and the colour of truth) once, statically
-    rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0, radii=0.75,
+    rec.log(ent, rr.LineStrips2D.from_fields(draw_order=2.0, radii=L.RUN_LOOKS[look]["line"],
                                              colors=color if color is not None else None), static=True)
-    extra = {} if color is not None else {"colors": L.class_colors(t.cls[idx], scene.classes)}
+    extra = {} if color is not None else {"colors": L.run_colors(t.cls[idx], scene.classes, look)}
     rec.send_columns(ent, indexes=tb.rerun_columns(np.arange(first, last + 1)),
                      columns=rr.LineStrips2D.columns(
                          strips=C.segments_arrow(segs, rr.components.LineStrip2DBatch), **extra)
@@ -221,32 +235,38 @@ def log_views(rec, run: Run, scene: Scene, tb: Timebase, cameras: list[str], fir
                              .partition(len3))
 
 
-def log_errors(rec, run: Run, gt: PoseTable, scene: Scene, tb: Timebase, first: int, last: int,
-               shade: float = 1.0) -> bool:
-    """Per-frame mean error and per-class errors (metres) from seg2pose.evaluate; ``shade``
-    (0..1] darkens the run's line colours so that runs compared in one plot stay apart.
-    Returns whether anything was plotted."""
-    rr = _rr()
+def error_series(run: Run, gt: PoseTable, scene: Scene, first: int, last: int
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int, int]]]:
+    """name -> (frames (F,), error (F,) metres, colour) of the per-frame mean error ("mean")
+    and of each class (seg2pose.evaluate.per_frame_errors); frames without a value left out."""
     from seg2pose.evaluate import per_frame_errors
 
     frames, mean, per_class = per_frame_errors(run.poses.in_frames((first, last)),
                                                gt.in_frames((first, last)))
-    if not len(frames):
-        return False
-    series = {"mean": (mean, (255, 255, 255))}
     by_name = {c.name: c for c in scene.classes}
+    series = {"mean": (mean, (255, 255, 255))}
     for name, err in per_class.items():
         series[name] = (err, L.class_color(name, by_name[name].id if name in by_name else 0))
+    out = {}
     for key, (err, color) in series.items():
-        color = tuple(int(round(c * shade)) for c in color)
-        ent = f"metrics/error/{run.name}/{L.safe_name(key)}"
         ok = np.isfinite(err)
-        if not ok.any():
-            continue
-        rec.log(ent, rr.SeriesLines(colors=[color], names=[f"{run.name} {key}"]), static=True)
-        rec.send_columns(ent, indexes=tb.rerun_columns(np.asarray(frames)[ok]),
-                         columns=rr.Scalars.columns(scalars=np.asarray(err, float)[ok]))
-    return True
+        if ok.any():
+            out[key] = (np.asarray(frames)[ok], np.asarray(err, float)[ok], color)
+    return out
+
+
+def log_errors(rec, run: Run, gt: PoseTable, scene: Scene, tb: Timebase, first: int,
+               last: int) -> bool:
+    """The run's error series (``error_series``) under metrics/error/<run>: one plot per run.
+    Returns whether anything was plotted."""
+    rr = _rr()
+    series = error_series(run, gt, scene, first, last)
+    for key, (frames, err, color) in series.items():
+        ent = f"metrics/error/{run.name}/{L.safe_name(key)}"
+        rec.log(ent, rr.SeriesLines(colors=[color], names=[key]), static=True)
+        rec.send_columns(ent, indexes=tb.rerun_columns(frames),
+                         columns=rr.Scalars.columns(scalars=err))
+    return bool(series)
 
 
 # --- the whole recording ------------------------------------------------------------------------
@@ -277,19 +297,19 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(rec, f"{L.cam_path(cam)}/gt", scene.cameras[cam], gt, gsz, scene, tb,
                           first, last, color=L.GT_COLOR)
     metrics = False
-    for i, run in enumerate(sel.runs):
+    for run in sel.runs:
+        look = L.run_look(run.meta)
         poses = run.poses.in_frames((first, last))
         sz = C.sizes_of(poses, scene)
-        log_boxes(rec, f"world/road_users/{run.name}", poses, sz, scene, tb, first, last)
+        log_boxes(rec, f"world/road_users/{run.name}", poses, sz, scene, tb, first, last, look=look)
         if style.trail > 1:
             log_trails(rec, f"world/road_users/{run.name}/trails", poses, scene, tb, first, last,
                        style.trail)
         run_cams = [c for c in cameras if c in (run.cameras or cameras)]
         for cam in run_cams:
             log_projected(rec, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
-                          sz, scene, tb, first, last)
+                          sz, scene, tb, first, last, look=look)
         log_views(rec, run, scene, tb, run_cams, first, last)
         if gt is not None:
-            metrics |= log_errors(rec, run, gt, scene, tb, first, last,
-                                  shade=(1.0, 0.55, 0.8, 0.4)[i % 4])
+            metrics |= log_errors(rec, run, gt, scene, tb, first, last)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes))

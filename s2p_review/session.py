@@ -67,6 +67,20 @@ class RecordResult:
     notes: tuple[str, ...]
 
 
+def _error_max(scene: Scene, sel: Selection) -> float | None:
+    """The top of the runs' common error axis: a little above the largest error, metres."""
+    if not scene.gt_path.exists() or not sel.runs:
+        return None
+    from seg2pose.io.poses import read_poses
+
+    from s2p_review.recording import error_series
+
+    gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last))
+    top = [float(e.max()) for r in sel.runs
+           for _, e, _ in error_series(r, gt, scene, sel.first, sel.last).values()]
+    return 1.05 * max(top) if top else None
+
+
 def record(scene: Scene, runs: list[Path], to: Targets | Path,
            options: RecordOptions | None = None) -> RecordResult:
     """Record ``scene`` with ``runs`` (run folders) to Rerun; ``to``: where (a Path is short for
@@ -90,7 +104,8 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
     tb = scene_timebase(scene, opts.start_ns)
     bp = L.blueprint(sel.cameras, [r.name for r in sel.runs],
                      with_metrics=scene.gt_path.exists() and bool(sel.runs),
-                     eye=L.default_eye(scene), fps=scene.fps)
+                     eye=L.default_eye(scene), fps=scene.fps, error_max=_error_max(scene, sel),
+                     timeline=L.TIME if tb.start_ns is not None else L.TIMELINE)
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in sel.runs) if sel.runs else "scene")
     shot_viewer = None

@@ -93,8 +93,8 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
     elif sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or
                                                    os.environ.get("WAYLAND_DISPLAY")):
         raise ViewerError("no display to open the viewer on (DISPLAY / WAYLAND_DISPLAY unset); "
-                          "use --save FILE.rrd and open it with `rerun FILE.rrd` where there is "
-                          "one, or --screenshot FILE.png")
+                          "write a recording (.rrd) and open it with `rerun FILE.rrd` where there is "
+                          "one, or take a headless screenshot")
     port = port or free_port()
     saved = {k: os.environ.get(k) for k in ("XDG_DATA_HOME", "XDG_CONFIG_HOME")}
     if headless:  # a throw-away viewer must not read or write the user's saved layouts
@@ -174,10 +174,10 @@ def view_reports(client) -> list[tuple[str, str, str]]:
 
 def screenshot_when_loaded(client, png: Path, frame: int | None = None, force: bool = False,
                            settle: float = 1.5, max_size: int | None = None,
-                           min_end: int | None = None) -> bytes:
+                           min_end: int | None = None, timeline: str = "frame") -> bytes:
     """Wait for the recording, put the cursor on ``frame``, let it paint, save a PNG atomically."""
     png = Path(png)
-    wait_loaded(client, min_end=frame if min_end is None else min_end)
+    wait_loaded(client, timeline=timeline, min_end=frame if min_end is None else min_end)
     if frame is not None:
         set_frame(client, frame)
     time.sleep(settle)  # the software rasteriser needs a few frames to upload and paint
@@ -189,24 +189,53 @@ def screenshot_when_loaded(client, png: Path, frame: int | None = None, force: b
     return data
 
 
+MCAP_TIMELINE = "message_log_time"  # the timeline Rerun's MCAP loader makes of log times
+
+
+def _mcap_time(source: Path, frame: int | None) -> int | None:
+    """The log time (ns) of ``frame`` in an ``s2p export`` file (its metadata record ``s2p``:
+    start_ns, fps); None for the middle of the file or a file without that record."""
+    if frame is None:
+        return None
+    from mcap.reader import make_reader
+
+    with open(source, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}.get("s2p")
+    if not meta or "fps" not in meta:
+        raise S2PError(f"{source}: not an `s2p export` file, so frame {frame} has no known time; "
+                       "leave the frame out to take the middle of the file")
+    return int(meta.get("start_ns", 0)) + int(round(frame * 1e9 / float(meta["fps"])))
+
+
 def take_screenshot(source: Path | str, png_path: Path, *, frame: int | None = None,
                     force: bool = False, max_size: int | None = None) -> Path:
-    """Open an .rrd (``source``) in a fresh headless viewer and save a screenshot of it (the
-    README picture). ``frame``: where to put the time cursor (default: the middle)."""
+    """Open a recording (.rrd) or an MCAP export (.mcap; Rerun lays it out by itself and draws
+    its images, camera calibrations and poses, not its scene updates or image annotations) in a
+    fresh headless viewer and save a screenshot of it (the README picture). ``frame``: where to
+    put the time cursor (default: the middle)."""
+    import numpy as np
+
     source = Path(source)
     if not source.exists():
         raise S2PError(f"{source}: recording not found")
     check_writable(Path(png_path), force)
+    mcap = source.suffix.lower() == ".mcap"
+    timeline = MCAP_TIMELINE if mcap else "frame"
+    at = _mcap_time(source, frame) if mcap else frame
     client = spawn_viewer(headless=True)
     try:
         client.open(str(source.resolve()))
-        st = wait_loaded(client)
-        if frame is None:
+        st = wait_loaded(client, timeline=timeline)
+        if at is None:
             rec = next((r for r in st.recordings if r.store_id == st.active_recording), None)
-            tl = next((t for t in rec.timelines if t.name == "frame"), None) if rec else None
+            tl = next((t for t in rec.timelines if t.name == timeline), None) if rec else None
             if tl is not None and tl.start is not None and tl.end is not None:
-                frame = (tl.start + tl.end) // 2
-        screenshot_when_loaded(client, Path(png_path), frame=frame, force=force, max_size=max_size)
+                at = (tl.start + tl.end) // 2
+        if mcap and at is not None:
+            client.set_time(timeline, timestamp=np.datetime64(int(at), "ns"), play_state="paused")
+            at = None
+        screenshot_when_loaded(client, Path(png_path), frame=at, force=force, max_size=max_size,
+                               timeline=timeline)
     finally:
         stop(client)
     return Path(png_path)

@@ -516,3 +516,57 @@ def test_box_path_covers_all_edges():
     pairs = {tuple(sorted(p)) for p in zip(C.PATH[:-1], C.PATH[1:])}
     assert pairs == {tuple(sorted(e)) for e in C.EDGES.tolist()}
     assert len(C.PATH) == 16
+
+
+def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
+    """The baseline's boxes are hollow and pale, Seg2PoseNet's solid in the class colours; box
+    labels are data (hover, selection), never drawn over each other."""
+    import rerun.chunk as rc
+
+    scene, base, s2pn, root = tiny
+    out = record(scene, [base, s2pn], root / "looks.rrd", NO_IMAGES).rrd
+    static, cols = {}, {}
+    for ch in rc.RrdReader(out).stream():
+        b = ch.to_record_batch()
+        for run in ("run-base", "run-s2pn"):
+            if ch.entity_path != f"/world/road_users/{run}":
+                continue
+            if ch.is_static:
+                static[run] = {n: b.column(n).to_pylist()[0] for n in b.schema.names
+                               if n.startswith("Boxes3D:")}
+            else:
+                cols[run] = np.array([c for row in b.column("Boxes3D:colors").to_pylist() for c in row])
+    assert static["run-base"]["Boxes3D:show_labels"] == [False]
+    assert static["run-s2pn"]["Boxes3D:show_labels"] == [False]
+    fills = {r: static[r]["Boxes3D:fill_mode"][0] for r in static}
+    assert fills["run-s2pn"] != fills["run-base"]
+    rgba = lambda c: np.array([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255, c & 255]).T  # noqa: E731
+    car = np.array(L.class_color("car"))
+    b, s = rgba(cols["run-base"]), rgba(cols["run-s2pn"])
+    assert any((s[:, :3] == car).all(axis=1)) and not any((b[:, :3] == car).all(axis=1))
+    # the baseline is half-way to grey: less saturated than Seg2PoseNet's colours
+    sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
+    assert sat(b) < 0.6 * sat(s)
+
+
+def test_video_stored_small_is_shown_at_camera_size(tiny):
+    """--image-scale 0.5: JPEGs of half the camera's size, scaled back by the image entity's
+    transform so that they cover the camera's whole image."""
+    import cv2
+    import rerun.chunk as rc
+
+    scene, base, _, root = tiny
+    out = record(scene, [base], root / "small.rrd",
+                 RecordOptions(cameras=["c0"], style=LogStyle(masks=False, image_scale=0.5))).rrd
+    scale = blob = None
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path != "/world/cameras/c0/image":
+            continue
+        b = ch.to_record_batch()
+        if ch.is_static:
+            scale = b.column("Transform3D:scale").to_pylist()[0][0]
+        else:
+            blob = bytes(b.column("EncodedImage:blob").to_pylist()[0][0])
+    img = cv2.imdecode(np.frombuffer(blob, np.uint8), 1)
+    assert img.shape[:2] == (60, 80)
+    assert scale == [2.0, 2.0, 1.0]

@@ -121,10 +121,14 @@ def test_cli_import(utocs, tmp_path):
 
     from seg2pose.cli import app
 
-    r = CliRunner().invoke(app, ["import-utocs", str(utocs), "-o", str(tmp_path / "sc"), "--no-frames"])
+    r = CliRunner().invoke(app, ["import-utocs", str(utocs), "-o", str(tmp_path / "sc"), "--no-frames",
+                                 "--start-time", "2021-06-14T10:00:00+02:00"])
     assert r.exit_code == 0, r.output
     assert "imported 2 cameras" in r.output
     assert not (tmp_path / "sc" / "video").exists()
+    from seg2pose.io.scene import load_scene
+
+    assert load_scene(tmp_path / "sc").start_time_ns == 1623657600 * 10**9  # 08:00 UTC
 
 
 from hypothesis import HealthCheck, given, settings  # noqa: E402

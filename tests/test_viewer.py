@@ -72,7 +72,8 @@ def test_views_report_no_warnings(viewer, data):
     time.sleep(1.5)  # let every view paint once so that it has reported
     st = viewer.get_state()
     names = sorted(v.name for v in st.views)
-    assert names == sorted(["world", "camera c0", "camera c1", "error (m) vs frame"])
+    assert names == sorted(["world", "camera c0", "camera c1", "error (m): run-base",
+                            "error (m): run-s2pn"])
     assert all(v.visible for v in st.views)
     assert V.view_reports(viewer) == []
     # the cameras sit on the right half and show the video there, not elsewhere
@@ -238,3 +239,21 @@ def test_connect_sets_time_cursor(viewer, data):
     st = viewer.get_state()
     rec = next(r for r in st.recordings if r.store_id == st.active_recording)
     assert rec.current_timeline == "frame" and rec.current_time == 11
+
+
+def test_screenshot_of_an_mcap_export_shows_video(data):
+    """`s2p screenshot F.mcap` works (Rerun's MCAP loader has a log-time timeline, not `frame`)
+    and its camera views show the video."""
+    from typer.testing import CliRunner
+
+    from seg2pose.cli import app
+    from s2p_review.mcap_export import export_mcap
+
+    _, video, runs, root = data
+    res = export_mcap(video, runs[1], root / "v.mcap")
+    png = root / "mcap.png"
+    r = CliRunner().invoke(app, ["screenshot", str(res.path), "-o", str(png), "--frame", "4"])
+    assert r.exit_code == 0, r.output
+    img = _decode(png.read_bytes())
+    assert _near(img, video_rgb(4), tol=12).mean() > 0.05
+    assert _near(img, video_rgb(12), tol=12).mean() < 0.01  # the frame asked for, not another

@@ -22,6 +22,9 @@ DEMO_SCENE = Path("demo_scene")
 SAMPLE_LOGS = Path("sample_logs")
 DEMO_CONFIGS = ("mono-1", "tri-T")
 SAMPLE_FRAMES = 160  # frames in the sample recording and MCAP
+DEMO_START = "2021-06-14T08:00:00Z"  # the demo scene's clock: frame 0 (the sample files show real times)
+# the sample files stay a few MB: video frames at half size, JPEG quality 60, images every 2nd frame
+SAMPLE_IMAGES = {"image_scale": 0.5, "jpeg_quality": 60, "mask_every": 2, "video_every": 2}
 
 
 def _step(msg: str) -> float:
@@ -43,12 +46,18 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     t0 = time.perf_counter()
     summary: dict = {"scene": str(scene_dir)}
     marker = scene_dir / "scene.json"
-    if marker.exists() and json.loads(marker.read_text()).get("extra", {}).get("generator", {}).get("seed") == seed:
+    made = json.loads(marker.read_text()).get("extra", {}).get("generator", {}) if marker.exists() else {}
+    if made.get("seed") == seed and made.get("video"):
         _step(f"reusing the synthetic scene in {scene_dir} (delete it to regenerate)")
     else:
-        _step(f"generating a small synthetic junction in {scene_dir}")
-        generate_scene(scene_dir, preset="small", seed=seed, force=True)
+        _step(f"generating a small synthetic junction with video in {scene_dir}")
+        generate_scene(scene_dir, preset="small", seed=seed, video=True, force=True)
     scene = load_scene(scene_dir)
+    if scene.start_time is None:  # a clock, so that the sample files show real times
+        import dataclasses
+
+        scene = dataclasses.replace(scene, start_time=DEMO_START)
+        scene.save()
 
     _step("default heights by bisection on the training split (paper 3.2)")
     from seg2pose.heights import update_default_heights
@@ -63,9 +72,13 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         train_scene(scene, models, TrainConfig.demo(), progress=True)
 
     gt = read_poses(scene.gt_path)
+    test = scene.split_range("test")
     results = {}
     runs = []
+    unseen = {}
     for cfg in DEMO_CONFIGS:
+        seen = seen_truth(scene, scene.rig.configs[cfg], gt, test)
+        unseen[cfg] = len(gt.in_frames(test)) - len(seen)
         for baseline in (True, False):
             name = f"{cfg} {'baseline' if baseline else 'Seg2PoseNet'}"
             run_dir = scene_dir / "out" / f"run-{cfg}-{'baseline' if baseline else 's2pn'}"
@@ -73,15 +86,18 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
             run_scene(scene, run_dir, config=cfg, baseline=baseline,
                       models_dir=None if baseline else models, split="test", force=True)
             est = read_run_poses(run_dir)
-            results[name] = evaluate(est, gt, scene.rig.center[:2],
-                                     frame_range=scene.split_range("test"))
+            results[name] = evaluate(est, seen, scene.rig.center[:2], frame_range=test)
             runs.append(run_dir)
     typer.echo("")
     typer.echo(format_table(results))
+    typer.echo("gt: the road users a camera of the configuration sees (they have a mask there) in "
+               "the test frames; not counted: " + ", ".join(
+                   f"{n} seen by no camera of {cfg}" for cfg, n in unseen.items()))
     summary["mean_error"] = {k: r.mean_error for k, r in results.items()}
 
     if record:
         from s2p_review.mcap_export import ExportOptions, export_mcap
+        from s2p_review.recording import LogStyle
         from s2p_review.session import RecordOptions, Targets, record as record_rrd
 
         logs_dir.mkdir(parents=True, exist_ok=True)
@@ -91,9 +107,15 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         first = scene.split_range("test")[0]
         frames = (first, first + SAMPLE_FRAMES - 1)  # keeps each sample file a few MB
         _step(f"writing the Rerun recording {rrd} (test frames {frames[0]}..{frames[1]})")
-        record_rrd(scene, tri, Targets(rrd=rrd, force=True), RecordOptions(frames=frames))
-        _step(f"writing the MCAP export {mcap}")
-        export_mcap(scene, tri[-1], mcap, ExportOptions(frames=frames), force=True)
+        img = SAMPLE_IMAGES
+        style = LogStyle(image_scale=img["image_scale"], jpeg_quality=img["jpeg_quality"])
+        record_rrd(scene, tri, Targets(rrd=rrd, force=True),
+                   RecordOptions(frames=frames, mask_every=img["mask_every"],
+                                 video_every=img["video_every"], style=style))
+        _step(f"writing the MCAP export {mcap} and its Foxglove layout")
+        export_mcap(scene, tri[-1], mcap, ExportOptions(
+            frames=frames, mask_every=img["mask_every"], video=False,
+            image_scale=img["image_scale"], jpeg_quality=img["jpeg_quality"]), force=True)
         summary["rrd"], summary["mcap"] = str(rrd), str(mcap)
 
     typer.echo("")
@@ -102,8 +124,25 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     typer.echo(f"  pose tracks        {scene_dir}/out/run-*/poses.csv (+ views.csv per view)")
     if record:
         typer.echo(f"  Rerun recording    {summary['rrd']}   open with:  rerun {summary['rrd']}")
-        typer.echo(f"  MCAP export        {summary['mcap']}  (Foxglove, or: rerun {summary['mcap']})")
+        typer.echo(f"  MCAP export        {summary['mcap']}  open in Foxglove with the layout "
+                   f"{Path(summary['mcap']).with_suffix('.layout.json')}")
     return summary
+
+
+def seen_truth(scene, cameras: list[str], gt, frame_range):
+    """The rows of ``gt`` (PoseTable) within ``frame_range`` whose road user has a mask in one
+    of ``cameras`` in that frame: what the configuration can see at all."""
+    import numpy as np
+
+    from seg2pose.io.mots import iter_mots
+
+    gt = gt.in_frames(frame_range)
+    seen = set()
+    for cam in cameras:
+        for f, t in iter_mots(scene.masks_path(cam), frame_range=frame_range):
+            seen.update((f, int(k)) for k in t.track_id)
+    keep = np.array([(int(f), int(k)) in seen for f, k in zip(gt.frame, gt.track_id)], bool)
+    return gt.take(np.flatnonzero(keep))
 
 
 def register(app: typer.Typer) -> None:

@@ -24,6 +24,18 @@ def _notes(notes) -> None:
         typer.echo(f"note: {note}{hint}")
 
 
+START_HELP = ("time of the first frame (frame 0), ISO 8601 with a zone, e.g. 2021-06-14T08:00:00Z "
+              "(default: the scene's start_time; without one, times count from 0)")
+SCALE_HELP = ("store video frames at this fraction of the camera's size (smaller files; the "
+              "viewers show them at full size)")
+
+
+def _start_ns(text: str | None) -> int | None:
+    from seg2pose.io.scene import parse_start_time
+
+    return None if text is None else parse_start_time(text, field="--start-time")
+
+
 def register(app: typer.Typer) -> None:
     @app.command(rich_help_panel=REVIEW)
     @speaks_flags
@@ -42,6 +54,8 @@ def register(app: typer.Typer) -> None:
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
         masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks"),
         video: bool = typer.Option(True, "--video/--no-video", help="show the video frames (when the scene has video)"),
+        start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
+        image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
         force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
     ) -> None:
         """Review a scene and its runs in the Rerun viewer.
@@ -59,7 +73,9 @@ def register(app: typer.Typer) -> None:
                            "--screenshot FILE.png")
         opts = RecordOptions(frames=parse_frames(frames), cameras=list(camera) or None,
                              mask_every=mask_every, video_every=video_every,
-                             style=LogStyle(masks=masks, video=video))
+                             style=LogStyle(masks=masks, video=video,
+                                            image_scale=image_scale),
+                             start_ns=_start_ns(start_time))
         res = record(load_scene(scene), list(run), to, opts)
         _notes(res.notes)
         if res.rrd is not None:
@@ -76,17 +92,25 @@ def register(app: typer.Typer) -> None:
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the run's frames"),
         mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="export masks every k-th frame (default: automatic, as for `s2p review`)"),
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="export video frames every k-th frame (default: automatic)"),
-        force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
+        video: bool = typer.Option(True, "--video/--no-video", help="also export the plain video frames (the display images show the video under the masks either way)"),
+        start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
+        image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing file and its layout"),
     ) -> None:
-        """Export a scene and a run as MCAP, for Foxglove (and an exact s2p round trip)."""
+        """Export a scene and a run as MCAP, for Foxglove and archives.
+
+        Foxglove schemas plus lossless s2p records (an exact round trip), with a Foxglove layout
+        beside it (NAME.layout.json)."""
         from seg2pose.io.scene import load_scene
         from s2p_review.mcap_export import ExportOptions, export_mcap
 
         res = export_mcap(load_scene(scene), run, out, ExportOptions(
-            frames=parse_frames(frames), mask_every=mask_every, video_every=video_every), force=force)
+            frames=parse_frames(frames), mask_every=mask_every, video_every=video_every,
+            video=video, start_ns=_start_ns(start_time), image_scale=image_scale), force=force)
         _notes(res.notes)
         p = res.path
-        typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB); open it in Foxglove, or: rerun {p}")
+        typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB) and its Foxglove layout {res.layout}; "
+                   f"open both in Foxglove (Layouts > Import from file); for Rerun use `s2p review -o FILE.rrd`")
 
     @app.command("import-mcap", rich_help_panel=REVIEW)
     @speaks_flags
@@ -104,12 +128,15 @@ def register(app: typer.Typer) -> None:
     @app.command("screenshot", rich_help_panel=REVIEW)
     @speaks_flags
     def screenshot_cmd(
-        rrd: Path = typer.Argument(..., help="recording (.rrd) to open"),
+        rrd: Path = typer.Argument(..., help="recording (.rrd), or MCAP export (.mcap: Rerun lays it out itself and draws its images and cameras, not its boxes)"),
         out: Path = typer.Option(..., "-o", "--out", help="output .png"),
-        frame: int | None = typer.Option(None, "--frame", help="time cursor (default: middle frame)"),
+        frame: int | None = typer.Option(None, "--frame", help="time cursor, a frame number (default: the middle)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
     ) -> None:
-        """Save a screenshot of a recording, opened in a headless viewer."""
+        """Save a screenshot of a recording or MCAP export, opened in a headless viewer.
+
+        The README picture: s2p screenshot sample_logs/demo.rrd -o docs/screenshot.png --frame 560
+        --force."""
         from s2p_review.viewer import take_screenshot
 
         typer.echo(f"wrote {take_screenshot(rrd, out, frame=frame, force=force)}")

@@ -115,6 +115,7 @@ def import_utocs_cmd(
     fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default 1/0.075 s, the paper's CARLA interval)"),
     size_scale: float = typer.Option(1.0, "--size-scale", help="multiply lengths, widths and heights by this (2 if the recording stores CARLA's half extents)"),
     frames: bool = typer.Option(True, "--frames/--no-frames", help="bring the recording's images or videos along"),
+    start_time: Optional[str] = typer.Option(None, "--start-time", help="time of frame 0, ISO 8601 with a zone, e.g. 2021-06-14T08:00:00Z (reviews and exports then show real times)"),
     force: bool = typer.Option(False, "--force", help="replace the scene folder if it exists"),
 ) -> None:
     """Import a UTOCS (CARLA) recording as a scene folder.
@@ -123,7 +124,7 @@ def import_utocs_cmd(
     from seg2pose.io.utocs import import_utocs
 
     import_utocs(src, out, force=force, fps=fps, size_scale=size_scale, copy_frames=frames,
-                 log=typer.echo)
+                 log=typer.echo, start_time=start_time)
 
 
 def heights_cmd(

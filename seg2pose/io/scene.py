@@ -14,6 +14,7 @@ scene.json, version 1::
                    "distortion": {"model": "opencv", "k1": 0, ...}}], # optional
       "configs": {"mono-1": ["c0"], "stereo-10": ["c0", "c1"]},
       "splits": {"train": [0, 6999], "val": [7150, 14149], "test": [14300, 21299]},  # optional
+      "start_time": "2021-06-14T08:00:00.000Z",   # optional: UTC time of frame 0 (ISO 8601)
       "extra": {...}   # free-form provenance (generator settings etc.)
     }
 """
@@ -69,6 +70,7 @@ class Scene:
     splits: dict[str, tuple[int, int]] = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     ground_file: str = "ground_points.csv"
+    start_time: str | None = None  # ISO 8601 time of frame 0 with its zone (see parse_start_time)
 
     def __post_init__(self) -> None:
         self.ground = GroundSurface(self.ground_points, file=self.root / self.ground_file)
@@ -115,6 +117,11 @@ class Scene:
         return None
 
     @property
+    def start_time_ns(self) -> int | None:
+        """UTC time of frame 0, nanoseconds since the Unix epoch (None: unknown)."""
+        return None if self.start_time is None else parse_start_time(self.start_time)
+
+    @property
     def gt_path(self) -> Path:
         return self.root / "gt" / "poses.csv"
 
@@ -145,6 +152,8 @@ class Scene:
              "configs": self.rig.configs}
         if self.splits:
             d["splits"] = {k: list(v) for k, v in self.splits.items()}
+        if self.start_time is not None:
+            d["start_time"] = self.start_time
         if self.extra:
             d["extra"] = self.extra
         return d
@@ -282,7 +291,29 @@ def load_scene(root: str | Path) -> Scene:
     extra = d.get("extra") or {}
     if not isinstance(extra, dict):
         raise InputError("expected an object", file=path, field="extra")
+    start = d.get("start_time")
+    if start is not None:
+        parse_start_time(start, file=path, field="start_time")
     pts = read_ground_points(root / gfile)
     return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
                  ground_points=pts, classes=classes, splits=splits,
-                 extra=extra, ground_file=gfile)
+                 extra=extra, ground_file=gfile, start_time=start)
+
+
+def parse_start_time(text, file: str | Path | None = None, field: str | None = None) -> int:
+    """An ISO 8601 time with its zone (``2021-06-14T08:00:00Z``, ``...+02:00``) -> UTC
+    nanoseconds since the Unix epoch. A time without a zone is refused: it would be read
+    differently on another machine."""
+    import datetime as dt
+
+    want = "expected an ISO 8601 time with a zone, e.g. 2021-06-14T08:00:00Z"
+    if not isinstance(text, str):
+        raise InputError(f"{want}, got {text!r}", file=file, field=field)
+    try:
+        t = dt.datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InputError(f"{want}, got {text!r}", file=file, field=field) from None
+    if t.tzinfo is None:
+        raise InputError(f"{want} (no zone in {text!r})", file=file, field=field)
+    delta = t - dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
+    return (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000

@@ -34,7 +34,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import check_writable
 from seg2pose.io.poses import PoseTable, write_poses
-from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
+from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time
 
 MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
 # camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
@@ -216,10 +216,14 @@ def default_splits(frames: np.ndarray, gap: int = 150) -> dict[str, tuple[int, i
 
 def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                  fps: float | None = None, size_scale: float = 1.0, copy_frames: bool = True,
-                 log=say) -> Scene:
+                 log=say, start_time: str | None = None) -> Scene:
     """Convert a UTOCS recording ``src`` into a scene folder ``out`` (see module docstring):
-    scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist)."""
+    scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist).
+    start_time: the recording's time of frame 0 (ISO 8601 with a zone; UTOCS files do not
+    carry it), kept as the scene's start_time."""
     src, out = Path(src), Path(out)
+    if start_time is not None:
+        parse_start_time(start_time, field="start_time")
     if not src.is_dir():
         raise InputError("UTOCS source folder not found", file=src)
     check_writable(out / "scene.json", force)
@@ -268,6 +272,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
     scene = Scene(root=out, name=src.name, fps=float(fps or 1.0 / CARLA_FRAME_TIME),
                   rig=Rig(cameras=cameras, configs=configs, name="utocs"), ground_points=ground,
                   classes=specs, splits=default_splits(gt.frame) if len(gt) else {},
+                  start_time=start_time,
                   extra={"source": {"format": "utocs", "path": str(src.resolve()),
                                     "world": "CARLA y mirrored: (x, y, z) -> (x, -y, z)",
                                     "frames": n_files, "size_scale": size_scale,
