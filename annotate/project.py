@@ -23,6 +23,7 @@ from typing import Callable, Mapping
 
 from annotate import journal as J
 from annotate.edits import EditsMixin
+from annotate.estimates import scene_frames
 from annotate.place import PlacementMixin
 from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
@@ -55,7 +56,7 @@ class Change:
         return next(iter(pick)) if len(pick) == 1 else None
 
 
-@dataclass
+@dataclass(slots=True)
 class _Entry:
     seq: int
     name: str
@@ -109,8 +110,12 @@ class Project(EditsMixin, PlacementMixin):
             scene = load_scene(scene)
         p = cls(scene, read_only, frames, run, snapshot_every)
         if not read_only:
-            p.folder.mkdir(exist_ok=True)
-            p._lock = J.Lock(p.folder, scene.name)
+            try:
+                p.folder.mkdir(exist_ok=True)
+                p._lock = J.Lock(p.folder, scene.name)
+            except OSError as e:
+                raise J.JournalError(f"{p.folder}: cannot write annotations here ({e.strerror}); "
+                                     "open the project read-only to look at it") from None
             if p._lock.note:
                 p.notes.append(p._lock.note)
         try:
@@ -238,23 +243,22 @@ class Project(EditsMixin, PlacementMixin):
 
     def undo(self) -> Change | None:
         """Take back the last edit (None when there is nothing to undo)."""
-        if not self._s.undo:
-            return None
-        e = self._s.undo[-1]
-        before = set(self._s.tracks)
-        seq, _ = self._apply_durably({"kind": "undo", "of": e.seq}, e.inverse)
-        self._s.redo.append(self._s.undo.pop())
-        return self._changed("undo", e.name, seq, op_tracks(e.ops), before)
+        return self._step("undo")
 
     def redo(self) -> Change | None:
         """Do again the last undone edit (None when there is nothing to redo)."""
-        if not self._s.redo:
+        return self._step("redo")
+
+    def _step(self, kind: str) -> Change | None:
+        src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
+        if not src:
             return None
-        e = self._s.redo[-1]
+        e = src[-1]
         before = set(self._s.tracks)
-        seq, _ = self._apply_durably({"kind": "redo", "of": e.seq}, e.ops)
-        self._s.undo.append(self._s.redo.pop())
-        return self._changed("redo", e.name, seq, op_tracks(e.ops), before)
+        seq, _ = self._apply_durably({"kind": kind, "of": e.seq},
+                                     e.inverse if kind == "undo" else e.ops)
+        dst.append(src.pop())
+        return self._changed(kind, e.name, seq, op_tracks(e.ops), before)
 
     def _changed(self, kind: str, name: str, seq: int, tracks: set[int], before: set[int]
                  ) -> Change:
@@ -301,16 +305,21 @@ class Project(EditsMixin, PlacementMixin):
         if kind == "header":
             J.check_header(rec, path, self.fingerprint)
             return
-        seq = int(rec["seq"])
-        if seq <= self._s.seq:
+        s = self._s
+        seq = rec["seq"]
+        if seq <= s.seq:
             return  # already in the snapshot
-        if seq != self._s.seq + 1:
-            raise ValueError(f"record {seq} follows record {self._s.seq}: records are missing")
-        self._s.seq = seq
+        if seq != s.seq + 1:
+            raise ValueError(f"record {seq} follows record {s.seq}: records are missing")
+        s.seq = seq
         if kind == "edit":
-            inverse = apply_ops(self._s.tracks, rec["ops"])
-            _push(self._s.undo, _Entry(seq, rec["name"], rec["ops"], inverse))
-            self._s.redo.clear()
+            ops = rec["ops"]
+            inverse = apply_ops(s.tracks, ops)
+            s.undo.append(_Entry(seq, rec["name"], ops, inverse))
+            if len(s.undo) > UNDO_LIMIT:
+                del s.undo[: len(s.undo) - UNDO_LIMIT]
+            if s.redo:
+                s.redo.clear()
         elif kind in ("undo", "redo"):
             src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
             if not src or src[-1].seq != rec["of"]:
@@ -361,7 +370,12 @@ class Project(EditsMixin, PlacementMixin):
         self._cache.clear()
         self._stale.clear()
         self.notes = []
-        self._load()
+        try:
+            self._load()
+        except J.JournalError:
+            # the writer may have compacted the journal while we listed it: look again once
+            self._s, self.notes = _State(), []
+            self._load()
         new = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
         changed = {t for t in old.keys() | new.keys() if old.get(t) != new.get(t)}
         ch = Change("refresh", "refresh", self._s.seq, frozenset(changed),
@@ -410,37 +424,6 @@ def _state_from_snapshot(d: dict, path: Path, fingerprint: str) -> _State:
                       int(d["seq"]))
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise J.JournalError(f"{path}: not a valid snapshot ({e})") from None
-
-
-def scene_frames(scene: Scene) -> tuple[int, int] | None:
-    """(first, last) frame of a scene: its splits' extent, else the last frame of its masks
-    files (read from their ends), else None (unknown: only frame >= 0 is checked)."""
-    if scene.splits:
-        return 0, max(b for _, b in scene.splits.values())
-    if isinstance(scene.extra.get("frames"), int):
-        return 0, int(scene.extra["frames"]) - 1
-    last = -1
-    for cam in scene.cameras:
-        last = max(last, _last_mask_frame(scene.masks_path(cam)))
-    return (0, last) if last >= 0 else None
-
-
-def _last_mask_frame(path: Path) -> int:
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, 2)
-            f.seek(max(f.tell() - 65536, 0))
-            lines = f.read().splitlines()
-    except OSError:
-        return -1
-    for line in reversed(lines):
-        parts = line.split()
-        if parts and not parts[0].startswith(b"#"):
-            try:
-                return int(parts[0])
-            except ValueError:
-                return -1
-    return -1
 
 
 __all__ = ["Project", "Change", "S2PError", "UNDO_LIMIT"]

@@ -11,7 +11,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 
@@ -72,8 +72,7 @@ def mask_frames(scene: Scene, cam: str, first: int, last: int, every: int = 1
         return
     h, w = scene.cameras[cam].height, scene.cameras[cam].width
     # the runs are checked once per batch when painted (see ``paint``), not here per line
-    stream = iter(iter_mots(path, known_classes=[c.id for c in scene.classes],
-                            frame_range=(first, last), check_rles=False))
+    stream = iter(scene.iter_masks(cam, (first, last), check_rles=False))  # checks the size
     pending = next(stream, None)
     for f in range(first, last + 1, every):
         while pending is not None and pending[0] < f:

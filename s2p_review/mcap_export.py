@@ -46,7 +46,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError
-from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from s2p_review import columns as C
@@ -268,7 +268,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     psz = C.sizes_of(poses, scene)
     gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last)) if scene.gt_path.exists() else None
     t0 = tb.ns1(sel.first)
-    with atomic_path(out_path) as tmp, open(tmp, "wb") as f:
+    with replacing(out_path, force, folder=False) as tmp, open(tmp, "wb") as f:
         out = _Writer(f)
         out.pb.add_attachment(create_time=0, log_time=t0, name=SCENE_FILE, media_type=MEDIA_JSON,
                               data=(scene.root / SCENE_FILE).read_bytes())

@@ -14,6 +14,7 @@ from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import temp_sibling_dir
 from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
+from seg2pose.io.validate import inside, safe_name
 from s2p_review import mcap_records as R
 
 
@@ -71,6 +72,41 @@ def _move_into(tmp: Path, out_dir: Path) -> None:
     shutil.rmtree(tmp)
 
 
+_MALFORMED = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError)
+
+
+def _parsed(fn, messages: list, topic: str, path: Path, *args):
+    """``fn(messages, *args)``; a malformed message becomes one InputError naming the file,
+    the topic and the message (by its index and frame)."""
+    try:
+        return fn(messages, *args)
+    except _MALFORMED as e:
+        for i, m in enumerate(messages):
+            try:
+                fn([m], *args)
+            except _MALFORMED as e1:
+                frame = m.get("frame", "?") if isinstance(m, dict) else "?"
+                raise InputError(f"malformed {topic} message {i} (frame {frame}): "
+                                 f"{type(e1).__name__}: {e1}", file=path) from None
+        raise InputError(f"malformed {topic} messages: {type(e).__name__}: {e}", file=path) from None
+
+
+def _check_restored(run_dir: Path, path: Path) -> None:
+    """Read the restored tables back with the ordinary readers: values a run could not hold
+    (inf, negative sizes, duplicate rows) are refused, naming the MCAP file."""
+    from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import read_views
+
+    for name, reader in (("poses.csv", read_poses), ("views.csv", read_views)):
+        if (run_dir / name).exists():
+            try:
+                reader(run_dir / name)
+            except InputError as e:
+                row = f" (row {e.line - 1})" if e.line else ""
+                raise InputError(f"the restored {name} would be invalid{row}: {e.message}",
+                                 file=path) from None
+
+
 def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
     """Restore an ``s2p export`` file as a scene folder: OUT/scene.json and the ground points
     (bytes as exported), OUT/out/<run>/run.json, poses.csv (the exact pose table) and
@@ -85,13 +121,18 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
         scene_d = json.loads(att[SCENE_FILE])
     except json.JSONDecodeError as e:
         raise InputError(f"the scene.json attachment is not JSON: {e.msg}", file=path) from None
-    gfile = str(scene_d.get("ground_points", "ground_points.csv"))
+    if not isinstance(scene_d, dict):
+        raise InputError("the scene.json attachment is not a JSON object", file=path)
+    gfile = scene_d.get("ground_points", "ground_points.csv")
+    # a crafted file could name '../x' or '/home/...' here: it must stay inside OUT
+    inside(out_dir, gfile, file=path, field="scene.json attachment: ground_points",
+           what="ground points file")
     if gfile not in att:
         raise InputError(f"no {gfile} attachment", file=path)
-    run_name = meta.get("run") or "run"
-    if os.sep in run_name or run_name in ("", ".", ".."):
-        run_name = "run"
-    table = R.pose_table(rec.poses, meta.get("poses_with_size", "true") == "true")
+    run_name = safe_name(meta.get("run") or "run", file=path, field="metadata s2p.run",
+                         what="run name")
+    table = _parsed(R.pose_table, rec.poses, R.POSES_TOPIC, path,
+                    meta.get("poses_with_size", "true") == "true")
 
     # build in a temporary sibling folder, then move into place: nothing half-written
     tmp = temp_sibling_dir(out_dir)
@@ -102,8 +143,10 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
         run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
         if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
             run_meta["scene"] = "../.."
-        views = R.views_table(rec.views) if meta.get("has_views") == "true" or rec.views else None
+        views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
+                 if meta.get("has_views") == "true" or rec.views else None)
         write_run_folder(tmp / "out" / run_name, table, views, run_meta)
+        _check_restored(tmp / "out" / run_name, path)
         _move_into(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -160,33 +160,36 @@ class TsaiDistortion:
 DISTORTION_MODELS: dict[str, type] = {"opencv": OpenCVDistortion, "tsai": TsaiDistortion}
 
 
-def distortion_from_dict(d: dict | None, *, file=None) -> Distortion | None:
+MAX_DISTORTION = 1e6  # |parameter|: real lenses stay far below (fisheye k1 ~ -0.5; Tsai f in mm or px)
+
+
+def distortion_from_dict(d: dict | None, *, file=None, where: str = "") -> Distortion | None:
+    """A distortion model from its JSON object; ``where`` (e.g. ``cameras[c0].``) prefixes
+    the field names of errors so that they name the camera."""
+    from seg2pose.io.validate import number
+
     if d is None:
         return None
     if not isinstance(d, dict):
         raise InputError("expected an object {\"model\": ..., parameters}", file=file,
-                         field="distortion")
+                         field=f"{where}distortion")
     model = d.get("model", "opencv")
     if not isinstance(model, str) or model not in DISTORTION_MODELS:
         raise InputError(f"unknown distortion model {model!r}; known: {sorted(DISTORTION_MODELS)}",
-                         file=file, field="distortion.model")
+                         file=file, field=f"{where}distortion.model")
     kwargs = {}
     for k, v in d.items():
         if k == "model":
             continue
-        try:
-            kwargs[k] = float(v)
-        except (TypeError, ValueError):
-            raise InputError(f"expected a number, got {v!r}", file=file,
-                             field=f"distortion.{k}") from None
-        if not np.isfinite(kwargs[k]):
-            raise InputError("NaN or inf", file=file, field=f"distortion.{k}")
+        kwargs[k] = number(v, file=file, field=f"{where}distortion.{k}", lo=-MAX_DISTORTION,
+                           hi=MAX_DISTORTION)
     try:
         dist = DISTORTION_MODELS[model](**kwargs)
     except TypeError as e:
-        raise InputError(f"bad distortion parameters: {e}", file=file, field="distortion") from None
+        raise InputError(f"bad distortion parameters: {e}", file=file,
+                         field=f"{where}distortion") from None
     except InputError as e:  # the model's own validation, located in this file
-        raise InputError(e.message, file=file, field=e.field) from None
+        raise InputError(e.message, file=file, field=f"{where}{e.field}") from None
     return dist
 
 
@@ -225,6 +228,17 @@ class Camera:
             raise InputError("R must be a rotation matrix (orthonormal, det +1)", field="R")
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             raise InputError("focal lengths in K must be positive", field="K")
+        if not np.allclose(self.K[2], [0.0, 0.0, 1.0], rtol=0, atol=1e-9):
+            raise InputError(f"the last row of K must be [0, 0, 1], got {self.K[2].tolist()}",
+                             field="K")
+        from seg2pose.io.validate import MAX_COORD, MAX_PIXEL_COORD
+
+        if np.abs(self.K).max() > MAX_PIXEL_COORD:
+            raise InputError(f"K entries must be within +-{MAX_PIXEL_COORD:g} pixels, got "
+                             f"{np.abs(self.K).max():g}", field="K")
+        if np.abs(self.center).max() > MAX_COORD:
+            raise InputError(f"the camera centre must be within +-{MAX_COORD:g} m of the origin, "
+                             f"got {self.center.tolist()}", field="t")
         if self.distortion is not None and getattr(self.distortion, "is_identity", False):
             self.distortion = None
 
@@ -330,17 +344,13 @@ class Camera:
                 raise InputError(f"missing field '{key}'", file=file, field=f"{where}.{key}")
             return d[key]
 
-        name = str(get("name"))
+        from seg2pose.io.validate import MAX_IMAGE_SIDE, integer, safe_name
+
+        name = safe_name(get("name"), file=file, field=f"{where}.name", what="camera name")
         where = f"cameras[{name}]"
-        try:
-            width, height = int(get("width")), int(get("height"))
-        except (TypeError, ValueError):
-            raise InputError("width and height must be integers", file=file,
-                             field=f"{where}.width/height") from None
-        if width <= 0 or height <= 0:
-            raise InputError(f"image size must be positive, got {width}x{height}", file=file,
-                             field=f"{where}.width/height")
-        dist = distortion_from_dict(d.get("distortion"), file=file)
+        width, height = (integer(get(k), file=file, field=f"{where}.{k}", lo=1, hi=MAX_IMAGE_SIDE)
+                         for k in ("width", "height"))
+        dist = distortion_from_dict(d.get("distortion"), file=file, where=f"{where}.")
 
         def arr(key, shape):
             v = get(key)  # outside the try: InputError is a ValueError too

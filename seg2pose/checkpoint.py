@@ -184,12 +184,17 @@ class ModelSet:
 
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
-             arch: str | None = None, fingerprint: str | None = None, device=None) -> "ModelSet":
-        """The models of one folder, or of several folders as ensembles (residuals averaged)."""
+             arch: str | None = None, fingerprint: str | None = None, device=None,
+             allow_incomplete: bool = False) -> "ModelSet":
+        """The models of one folder, or of several folders as ensembles (residuals averaged).
+        A checkpoint whose training did not finish (metadata "complete": false) is refused
+        unless ``allow_incomplete``."""
         if isinstance(models_dir, (list, tuple)):
             if len(models_dir) == 1:
-                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device)
-            sets = [cls.load(d, cameras, classes, arch, fingerprint, device) for d in models_dir]
+                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device,
+                                allow_incomplete)
+            sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete)
+                    for d in models_dir]
             ms, made = cls(), {}
             for key in sets[0].models:
                 members = tuple(s.models[key] for s in sets)
@@ -210,6 +215,15 @@ class ModelSet:
                         if p not in cache:
                             cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
                             ck = cache[p]
+                            if ck.info.get("complete") is False:
+                                msg = (f"its training did not finish (epoch {ck.info.get('epoch')}, "
+                                       f"val loss {ck.info.get('val_loss')})")
+                                if not allow_incomplete:
+                                    raise InputError(f"{msg}: finish it with `s2p train`, or allow "
+                                                     "incomplete models to use it anyway",
+                                                     file=p.with_suffix(".json"), field="complete")
+                                say(f"{p}: {msg}; used because incomplete models are allowed",
+                                    "warning")
                             if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
                                 say(f"{p} was trained on another scene (fingerprint "
                                     f"{ck.scene_fingerprint}, this scene {fingerprint})", "warning")
@@ -258,8 +272,8 @@ def model_dirs(scene: Scene, models_dir) -> list[Path]:
 
 
 def load_models(scene: Scene, cams: list[str], models_dir=None, arch: str | None = None,
-                device: str | None = None) -> "ModelSet":
+                device: str | None = None, allow_incomplete: bool = False) -> "ModelSet":
     """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``)."""
-    return ModelSet.load(model_dirs(scene, models_dir), cams,
-                         scene.class_names, arch=arch,
-                         fingerprint=scene.fingerprint(), device=pick_device(device))
+    return ModelSet.load(model_dirs(scene, models_dir), cams, scene.class_names, arch=arch,
+                         fingerprint=scene.fingerprint(), device=pick_device(device),
+                         allow_incomplete=allow_incomplete)

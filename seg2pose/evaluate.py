@@ -1,6 +1,8 @@
 """Evaluation against ground truth (paper 4.1.1 / 4.2.1, Figures 6-7, Table 1).
 
-Estimates are matched to ground truth by (frame, track_id). The error of a matched pair is the
+Estimates are matched to ground truth by (frame, track_id), or, for tracks whose ids are not the
+truth's (a tracker's), by ``match="nearest"``: per frame, one-to-one by ground-plane distance
+(Hungarian method) within ``gate`` metres. The error of a matched pair is the
 Euclidean distance in the ground plane (x, y), metres. Errors are also grouped by the distance
 of the *true* position from an origin (the rig centre, projected to the ground plane) in bins of
 ``bin_size`` metres: [0, 5), [5, 10), ... as in the paper's figures.
@@ -45,6 +47,34 @@ def match_poses(est: PoseTable, gt: PoseTable) -> tuple[np.ndarray, np.ndarray]:
     idx_est, idx_gt = ie[a], ig[b]
     order = np.argsort(idx_gt, kind="stable")  # gt order: frame-sorted for sorted gt files
     return idx_est[order].astype(np.int64), idx_gt[order].astype(np.int64)
+
+
+def match_nearest(est: PoseTable, gt: PoseTable, gate: float = 3.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, estimates and truth paired one to one by least ground-plane distance
+    (Hungarian method), pairs farther than ``gate`` metres dropped. Indices into ``est`` (K,)
+    and ``gt`` (K,), in gt order."""
+    from scipy.optimize import linear_sum_assignment
+
+    finite = np.flatnonzero(np.isfinite(est.xyz[:, :2]).all(axis=1))
+    ie_all, ig_all = [], []
+    if len(finite) == 0 or len(gt) == 0:
+        z = np.zeros(0, np.int64)
+        return z, z.copy()
+    eo = finite[np.argsort(est.frame[finite], kind="stable")]
+    go = np.argsort(gt.frame, kind="stable")
+    ef, gf = est.frame[eo], gt.frame[go]
+    for f in np.intersect1d(ef, gf):
+        e = eo[np.searchsorted(ef, f, "left"):np.searchsorted(ef, f, "right")]
+        g = go[np.searchsorted(gf, f, "left"):np.searchsorted(gf, f, "right")]
+        d = np.linalg.norm(est.xyz[e, None, :2] - gt.xyz[None, g, :2], axis=2)
+        r, c = linear_sum_assignment(np.where(d <= gate, d, 1e9))
+        ok = d[r, c] <= gate
+        ie_all.append(e[r[ok]])
+        ig_all.append(g[c[ok]])
+    ie, ig = np.concatenate(ie_all), np.concatenate(ig_all)
+    order = np.argsort(ig, kind="stable")
+    return ie[order].astype(np.int64), ig[order].astype(np.int64)
 
 
 def _nan_mean(x: np.ndarray) -> float:
@@ -121,14 +151,18 @@ def _distance_bins(errors: np.ndarray, distances: np.ndarray, bin_size: float
 
 
 def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZE,
-             frame_range: tuple[int, int] | None = None) -> EvalResult:
-    """Match ``est`` to ``gt`` by (frame, track_id) and measure ground-plane errors.
+             frame_range: tuple[int, int] | None = None, match: str = "ids",
+             gate: float = 3.0) -> EvalResult:
+    """Match ``est`` to ``gt`` by (frame, track_id) (``match="ids"``) or by nearest position
+    within ``gate`` metres (``"nearest"``) and measure ground-plane errors.
 
     origin_xy: (2,) metres, the point distances are measured from (usually the rig centre);
     frame_range: (first, last) inclusive, applied to both tables (None = all frames)."""
     est = est.in_frames(frame_range)
     gt = gt.in_frames(frame_range)
-    ie, ig = match_poses(est, gt)
+    if match not in ("ids", "nearest"):
+        raise ValueError(f"match must be 'ids' or 'nearest', got {match!r}")
+    ie, ig = match_poses(est, gt) if match == "ids" else match_nearest(est, gt, gate)
     origin = np.asarray(origin_xy, dtype=np.float64).reshape(-1)[:2]
     errors = np.linalg.norm(est.xyz[ie, :2] - gt.xyz[ig, :2], axis=1)
     distances = np.linalg.norm(gt.xyz[ig, :2] - origin, axis=1)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.errors import S2PError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.features import N_GEO, scene_geometry
@@ -144,7 +144,7 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         chunk.clear()
 
     nfr = 0
-    for _, t in iter_mots(scene.masks_path(camera), list(by_id), fr):
+    for _, t in scene.iter_masks(camera, fr):
         size = (t.height, t.width)
         chunk.append(t)
         nfr += 1

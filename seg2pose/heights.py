@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.errors import S2PError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 from seg2pose.masks import mask_centers
@@ -49,7 +49,7 @@ def collect_height_views(scene: Scene, split: str | None = "train", center: str 
                 views.setdefault(str(cname), []).append((cam, cen[sel], gt.xyz[g[sel], :2]))
 
         n = 0
-        for _, t in iter_mots(path, names.keys(), fr):
+        for _, t in scene.iter_masks(cam.name, fr):
             pending.append(t)
             n += len(t)
             if n >= chunk:
@@ -79,16 +79,18 @@ def subsample_views(views: list, max_n: int, seed: int = 0) -> list:
 
 
 def update_default_heights(scene: Scene, split: str | None = "train", center: str | None = None,
-                           log=say, write: bool = True, max_per_class: int = 20000
-                           ) -> dict[str, dict]:
+                           log=say, write: bool = True, max_per_class: int = 20000,
+                           views: dict[str, list] | None = None) -> dict[str, dict]:
     """Paper 3.2: per-class default heights by bisection on ``split``, set on ``scene`` and
     (with ``write``) saved into its scene.json by ``Scene.save``. At most
     ``max_per_class`` matched detections per class are used (a uniform sample).
 
     Returns per class name {"old", "new", "closer_share", "n"}; classes without matched masks
-    keep their height (n = 0)."""
-    views = {k: subsample_views(v, max_per_class) for k, v in
-             collect_height_views(scene, split, center).items()}
+    keep their height (n = 0). ``views``: the bisection input per class, when it comes from
+    elsewhere (rough models: ``seg2pose.rough_heights``) rather than the split's masks."""
+    if views is None:
+        views = collect_height_views(scene, split, center)
+    views = {k: subsample_views(v, max_per_class) for k, v in views.items()}
     report: dict[str, dict] = {}
     for c in scene.classes:
         v = views.get(c.name, [])

@@ -13,18 +13,47 @@ from seg2pose.io.scene import Scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
 from seg2pose.pipeline import compute_views, write_run
 
-def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None):
+def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
+                 match: str = "ids", gate: float = 3.0):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
-    (mean of all camera centres); ``split`` restricts both to that split's frames."""
+    (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
+    ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids)."""
     from seg2pose.evaluate import evaluate
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
 
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
-    est = read_run_poses(run_dir)
-    gt = read_poses(scene.gt_path)
-    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
+    run_dir = Path(run_dir)
+    check_run_of_scene(run_dir, scene)
+    classes = [c.name for c in scene.classes]
+    est = read_run_poses(run_dir, known_classes=classes)
+    gt = read_poses(scene.gt_path, known_classes=classes)
+    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split),
+                    match=match, gate=gate)
+
+
+def check_run_of_scene(run_dir: Path, scene: Scene) -> dict:
+    """run.json of a finished run of ``scene``: refuses a folder without run.json or
+    poses.csv (an interrupted or foreign folder) and a run of another scene (by the scene
+    fingerprint: calibration and ground points). Returns run.json's content."""
+    from seg2pose.io.run import read_run_meta
+
+    meta_path = run_dir / "run.json"
+    if not run_dir.is_dir():
+        raise InputError("run folder not found", file=run_dir)
+    if not meta_path.exists():
+        raise InputError("not a finished run: run.json is missing (was `s2p run` interrupted?)",
+                         file=meta_path)
+    meta = read_run_meta(run_dir)
+    if not (run_dir / "poses.csv").exists():
+        raise InputError("not a finished run: poses.csv is missing", file=run_dir / "poses.csv")
+    fp = meta.get("scene_fingerprint")
+    if fp != scene.fingerprint():
+        raise InputError(f"this run was made on another scene (fingerprint {fp!r}; {scene.root} "
+                         f"has {scene.fingerprint()!r}): its poses cannot be compared with this "
+                         "scene's truth", file=meta_path, field="scene_fingerprint")
+    return meta
 
 
 PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",

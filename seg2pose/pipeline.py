@@ -19,7 +19,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.errors import InputError
-from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
@@ -35,13 +35,12 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
                 ) -> Iterator[tuple[int, dict[str, MaskTable]]]:
     """Stream all cameras' masks in lockstep: (frame, {camera: detections of that frame}),
     frames in increasing order; a camera without detections in a frame is absent."""
-    known = [c.id for c in scene.classes]
     its = {}
     for cam in cameras:
         path = scene.masks_path(cam)
         if not path.exists():
             raise InputError(f"no masks for camera {cam!r}", file=path)
-        its[cam] = iter_mots(path, known, frame_range)
+        its[cam] = scene.iter_masks(cam, frame_range)
     heap: list[tuple[int, int, str, MaskTable]] = []
     for k, (cam, it) in enumerate(its.items()):
         nxt = next(it, None)
@@ -225,12 +224,13 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
-              progress: bool = True) -> Path:
+              progress: bool = True, allow_incomplete: bool = False) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
-    averaged (Ensemble); split: a named frame range of the scene."""
+    averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
+    checkpoints whose training did not finish (refused otherwise)."""
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
@@ -239,7 +239,7 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     if not baseline:
         from seg2pose.checkpoint import load_models
 
-        models = load_models(scene, cams, models_dir, arch, device)
+        models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,

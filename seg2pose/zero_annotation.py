@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.checkpoint import Checkpoint, predict_residuals
-from seg2pose.io.mots import iter_mots
 from seg2pose.io.scene import Scene
 from seg2pose.masks import mask_centers
 from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
@@ -35,7 +34,7 @@ def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
     for cam in cams:
         camera = scene.cameras[cam]
         rles, names = [], []
-        for _, t in iter_mots(scene.masks_path(cam), list(by_id), scene.split_range(split)):
+        for _, t in scene.iter_masks(cam, scene.split_range(split)):
             for r, c in zip(t.rles, t.class_id):
                 if by_id[int(c)].name in radial:
                     rles.append(r)

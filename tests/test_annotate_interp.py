@@ -37,10 +37,15 @@ def test_hermite_stop_has_zero_speed_and_no_overshoot():
 
 
 def test_hermite_quarter_turn_hand_computed():
-    # (0,0) heading 0 -> (1,1) heading 90 deg: tangents sqrt(2) along each heading
+    # (0,0) heading 0 -> (1,1) heading 90 deg: the quarter circle about (0, 1). The chord speed
+    # gives tangents sqrt(2); the bend factor 2 tan(22.5 deg) / sin(45 deg) makes them
+    # 4 tan(22.5 deg) = 1.657, the cubic that follows a circle: at t = 0.5 the position is
+    # 0.5 p0 + m0 / 8 + 0.5 p1 - m1 / 8 = (0.5 + 0.207, 0.5 - 0.207), the arc's midpoint
     xy, hd = interpolate([0, 10], [(0, 0), (1, 1)], [0, math.pi / 2], [0, 5, 10], "hermite")
-    r = 0.125 * math.sqrt(2)
-    np.testing.assert_allclose(xy[1], [0.5 + r, 0.5 - r], atol=1e-12)
+    m = 4 * math.tan(math.pi / 8)
+    np.testing.assert_allclose(xy[1], [0.5 + m / 8, 0.5 - m / 8], atol=1e-12)
+    np.testing.assert_allclose(xy[1], [math.sin(math.pi / 4), 1 - math.cos(math.pi / 4)],
+                               atol=1e-12)
     assert abs(hd[1] - math.pi / 4) < 1e-12
     assert hd[0] == 0 and hd[2] == pytest.approx(math.pi / 2)
 

@@ -98,7 +98,7 @@ def test_png_rejects_untracked(tmp_path):
 def test_poses_round_trip_exact(tmp_path):
     rng = np.random.default_rng(1)
     n = 20
-    t = PoseTable(np.sort(rng.integers(0, 9, n)), rng.integers(0, 5, n),
+    t = PoseTable(np.sort(rng.integers(0, 9, n)), rng.permutation(n),
                   np.array(["car", "pedestrian"] * 10, object), rng.normal(size=(n, 3)) * 1e3,
                   np.r_[rng.uniform(-3, 3, n - 1), np.nan], rng.uniform(0.1, 5, (n, 3)))
     write_poses(tmp_path / "p.csv", t)
@@ -203,15 +203,15 @@ def scene_json_with(tmp_path, mutate):
 @pytest.mark.parametrize("mutate,match", [
     (lambda d: d["cameras"][1].update(P=[[1, 0, 0, 0], [0, 1, 0, 0]]), r"field 'cameras\[c1\].P': expected shape \(3, 4\)"),
     (lambda d: d["cameras"][1].update(P=[[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0]]), r"field 'cameras\[c1\].P': P has rank < 3"),
-    (lambda d: d["cameras"][0].update(width=0), r"field 'cameras\[c0\].width/height': image size must be positive"),
+    (lambda d: d["cameras"][0].update(width=0), r"field 'cameras\[c0\].width': expected an integer in \[1, 1048576\], got 0"),
     (lambda d: d["cameras"][0]["K"][0].__setitem__(0, float("nan")), r"scene.json: field 'cameras\[c0\].K': NaN or inf"),
     (lambda d: d.update(version=2), r"field 'version': unsupported version 2"),
     (lambda d: d.update(fps=-1), r"field 'fps'"),
     (lambda d: d.update(classes={"a": 1}), r"field 'classes'"),
-    (lambda d: d["classes"][0].update(default_height="x"), r"field 'classes\[0\]'"),
+    (lambda d: d["classes"][0].update(default_height="x"), r"field 'classes\[0\].default_height': expected a number in \[0, 20\]"),
     (lambda d: d.update(configs={"m": ["nope"]}), r"field 'configs.m': configuration 'm' names unknown cameras"),
     (lambda d: d.update(splits={"train": [5, 1]}), r"field 'splits.train'"),
-    (lambda d: d["cameras"][0].update(distortion={"k1": "x"}), r"field 'distortion.k1'"),
+    (lambda d: d["cameras"][0].update(distortion={"k1": "x"}), r"field 'cameras\[c0\].distortion.k1'"),
     (lambda d: d["cameras"][0].pop("R"), r"field 'cameras\[c0\].R': missing"),
 ])
 def test_scene_bad_input(tmp_path, mutate, match):

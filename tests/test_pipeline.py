@@ -191,6 +191,7 @@ def test_eval_equals_hand_computation(tmp_path):
                     [0, 0, 0], [[4, 2, 1.5]] * 3)
     (tmp_path / "run").mkdir()
     write_poses(tmp_path / "run" / "poses.csv", est)
+    (tmp_path / "run" / "run.json").write_text(json.dumps({"scene_fingerprint": scene.fingerprint()}))
     res = evaluate_run(scene, tmp_path / "run")
     assert res.n_matched == 2
     assert res.mean_error == pytest.approx((5.0 + 0.5) / 2)

@@ -32,8 +32,10 @@ def _root() -> None:
 
 
 from seg2pose.cli import demo, method, review, scene  # noqa: E402  (after app exists)
+from seg2pose.cli import video  # noqa: E402
 
 scene.register(app)
+video.register(app)
 method.register(app)
 review.register(app)
 demo.register(app)
@@ -52,6 +54,11 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     except KeyboardInterrupt:
         rc = INTERRUPTED
+    except OSError as e:  # the disk, not the input: still one line (outputs are atomic)
+        from seg2pose.io.atomic import os_error_message
+
+        typer.secho(f"error: {os_error_message(e)}", fg=typer.colors.RED, err=True)
+        sys.exit(2)
     except typer.Abort:  # end of input at a prompt
         typer.secho("aborted", fg=typer.colors.YELLOW, err=True)
         sys.exit(1)

@@ -39,7 +39,8 @@ def run_cmd(
     arch: Optional[Arch] = typer.Option(None, "--arch", help="refuse models of another architecture"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
-    force: bool = typer.Option(False, "--force", help="replace the run folder if it exists"),
+    allow_incomplete: bool = typer.Option(False, "--allow-incomplete/--no-allow-incomplete", help="use models whose training was interrupted (refused otherwise)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
 
@@ -53,7 +54,8 @@ def run_cmd(
 
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
-                  split=split, force=force, center_method=center, arch=arch, device=device)
+                  split=split, force=force, center_method=center, arch=arch, device=device,
+                  allow_incomplete=allow_incomplete)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
@@ -110,6 +112,8 @@ def eval_cmd(
     run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
+    match: Literal["ids", "nearest"] = typer.Option("ids", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track or masks-from-video)"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: the farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the ground truth.
 
@@ -120,7 +124,7 @@ def eval_cmd(
     from seg2pose.io.scene import load_scene
     from seg2pose.paper_table import evaluate_run
 
-    res = evaluate_run(load_scene(scene), run, split=split)
+    res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:

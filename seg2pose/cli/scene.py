@@ -80,7 +80,7 @@ def synth(
     match: Literal["center", "all"] = typer.Option("center", "--match", help="center: keep a mask only when the road user's true 3D centre projects inside it (the paper's association); all: every visible mask"),
     workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
-    force: bool = typer.Option(False, "--force", help="replace the scene folder if it exists"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (the new scene is built beside it and swapped in when complete)"),
 ) -> None:
     """Make a synthetic junction scene with ground truth (the paper's CARLA stand-in).
 
@@ -116,7 +116,7 @@ def import_utocs_cmd(
     size_scale: float = typer.Option(1.0, "--size-scale", help="multiply lengths, widths and heights by this (2 if the recording stores CARLA's half extents)"),
     frames: bool = typer.Option(True, "--frames/--no-frames", help="bring the recording's images or videos along"),
     start_time: Optional[str] = typer.Option(None, "--start-time", help="time of frame 0, ISO 8601 with a zone, e.g. 2021-06-14T08:00:00Z (reviews and exports then show real times)"),
-    force: bool = typer.Option(False, "--force", help="replace the scene folder if it exists"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete; nothing of the old scene is kept)"),
 ) -> None:
     """Import a UTOCS (CARLA) recording as a scene folder.
 
@@ -132,6 +132,7 @@ def heights_cmd(
     split: str = typer.Option("train", "--split", help="split whose masks and truth are used ('all' for every frame)"),
     center: Optional[Literal["bbox", "centroid"]] = typer.Option(None, "--center", help="mask centre: bbox or centroid (default: the one measured best, bbox)"),
     dry_run: bool = typer.Option(False, "--dry-run/--no-dry-run", help="only print the heights; leave scene.json as it is"),
+    rough: int = typer.Option(0, "--rough", min=0, help="use N rough-model renders per class instead of masks matched to ground truth (no annotations needed)"),
 ) -> None:
     """Set per-class default heights by bisection on the ground truth (paper 3.2).
 
@@ -140,7 +141,13 @@ def heights_cmd(
     from seg2pose.heights import update_default_heights
     from seg2pose.io.scene import load_scene
 
-    update_default_heights(load_scene(scene), split, center, write=not dry_run, log=typer.echo)
+    sc = load_scene(scene)
+    views = None
+    if rough > 0:
+        from seg2pose.rough_heights import rough_height_views
+
+        views = rough_height_views(sc, rough, center=center)
+    update_default_heights(sc, split, center, write=not dry_run, log=typer.echo, views=views)
 
 
 MaskFormat = Literal["mots", "coco", "png"]
@@ -151,14 +158,14 @@ def convert_masks_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="output file (mots, coco) or folder (png)"),
     format: MaskFormat = typer.Option(..., "-f", "--format", help="output format: mots, coco or png"),
     src_format: Optional[MaskFormat] = typer.Option(None, "--from", help="input format (default: from the name of SRC)"),
-    force: bool = typer.Option(False, "--force", help="replace the output if it exists"),
+    force: bool = typer.Option(False, "--force", help="replace an existing output entirely (a PNG folder keeps none of its old frames)"),
 ) -> None:
     """Convert instance masks between MOTS text, COCO RLE JSON and PNG instance-id images."""
     from seg2pose.io.atomic import check_writable
-    from seg2pose.io.mask_formats import read_masks, write_masks
+    from seg2pose.io.mask_formats import read_masks, save_masks
 
     check_writable(out, force)
     table = read_masks(src, src_format)
-    write_masks(out, table, format)
+    save_masks(out, table, format, force)
     typer.echo(f"{len(table)} masks in {len(np.unique(table.frame))} frames "
                f"({table.width}x{table.height}) -> {out} [{format}]")

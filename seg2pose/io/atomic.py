@@ -1,17 +1,39 @@
-"""Atomic writes: write a temporary file in the same folder, then rename over the final name.
+"""Atomic outputs: nothing half-written under a final name, nothing replaced without ``force``,
+one writer at a time, and the leftovers of killed writers cleaned up.
 
-An interrupted run therefore never leaves a half-written file under a final name.
+- ``atomic_open`` / ``atomic_write_text`` / ``atomic_path``: one file, written as a temporary
+  sibling and renamed over the final name.
+- ``replacing(path, force)``: a whole output (a folder or a file) built beside the final name
+  and swapped in as a unit; with ``force`` the old output is exchanged with the new one in one
+  step (``renameat2(RENAME_EXCHANGE)`` on Linux; elsewhere: moved aside, new renamed in, old
+  removed) and removed only after that. An existing output is never merged with a new one.
+- ``output_lock(path)``: ``.NAME.lock`` beside the output holds the writer's pid; a second
+  writer is refused; the lock of a process that no longer runs is taken over with a note.
+- Temporary siblings are named ``.NAME.partial-PID-...``: ``clean_stale_partials`` removes
+  those of processes that no longer run (a killed writer's leftovers), every time a new
+  output of that name is started.
+- ``os_errors(path)``: disk full, a file where a folder should be, a read-only folder: an
+  S2PError naming the output and the cause (one line in the CLI) instead of a traceback.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import datetime as _dt
+import errno
+import json
 import os
+import re
+import shutil
+import socket
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 from seg2pose.errors import S2PError
+
+_PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:[-.].*)?$")
 
 
 def _umask() -> int:
@@ -20,26 +42,72 @@ def _umask() -> int:
     return mask
 
 
+def _prefix(path: Path) -> str:
+    return f".{path.name}.partial-{os.getpid()}-"
+
+
 def _temp_sibling(path: Path, suffix: str) -> tuple[int, str]:
     """mkstemp in the target's folder, with the permissions a plain open() would give
     (mkstemp makes 0600 files, which other users of a shared scene folder could not read)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_prefix(path), suffix=suffix, dir=path.parent)
     os.chmod(tmp, 0o666 & ~_umask())
     return fd, tmp
 
 
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    except OverflowError:
+        return False
+    return True
+
+
+def clean_stale_partials(path: str | Path) -> list[Path]:
+    """Remove the temporary siblings ``.NAME.partial-PID...`` / ``.NAME.old-PID...`` of
+    ``path`` left by processes that no longer run. Returns what was removed."""
+    path = Path(path)
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for e in entries:
+        m = _PARTIAL.match(e.name)
+        if not m or m.group("name") != path.name or pid_alive(int(m.group("pid"))):
+            continue
+        p = Path(e.path)
+        with contextlib.suppress(OSError):
+            if e.is_dir(follow_symlinks=False):
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            removed.append(p)
+    return removed
+
+
 def temp_sibling_dir(path: str | Path) -> Path:
     """A new empty folder beside ``path`` to build a whole output folder in before renaming
-    it into place (mkdtemp's 0700 widened to what mkdir would give)."""
+    it into place (mkdtemp's 0700 widened to what mkdir would give). Stale ones of killed
+    processes are removed first."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    os.chmod(tmp, 0o777 & ~_umask())
+    with os_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_partials(path)
+        tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), dir=path.parent))
+        os.chmod(tmp, 0o777 & ~_umask())
     return tmp
 
 
 def fsync_dir(path: str | Path) -> None:
-    """Make a file's creation, rename or removal in the folder ``path`` durable."""
+    """Make the creation, rename or removal of a file in folder ``path`` durable (best effort:
+    some file systems cannot fsync a folder)."""
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
         try:
@@ -49,27 +117,84 @@ def fsync_dir(path: str | Path) -> None:
 
 
 def check_writable(path: str | Path, force: bool) -> Path:
-    """Refuse to overwrite an existing file or folder unless ``force``."""
+    """Refuse to replace an existing file or non-empty folder unless ``force``."""
     path = Path(path)
-    if path.exists() and not force:
-        raise S2PError(f"{path} exists; pass --force to overwrite it")
-    return path
+    if force or not (path.exists() or path.is_symlink()):
+        return path
+    if path.is_dir() and not path.is_symlink():
+        with contextlib.suppress(OSError), os.scandir(path) as it:
+            if next(it, None) is None:
+                return path  # an empty folder: nothing to lose
+    raise S2PError(f"{path} exists; pass --force to replace it")
+
+
+# ----------------------------------------------------------------------------------------------
+# errors of the operating system, as one line
+
+
+_OS_CAUSES = {
+    errno.ENOSPC: "the disk is full",
+    errno.EDQUOT: "the disk quota is exceeded",
+    errno.EROFS: "the file system is read-only",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOTDIR: "a file is in the way where a folder is needed",
+    errno.EEXIST: "a file is in the way where a folder is needed",
+    errno.EISDIR: "a folder is in the way where a file is needed",
+    errno.ENAMETOOLONG: "the name is too long",
+    errno.EIO: "an input/output error of the disk",
+}
+
+
+def final_name(path: str | Path) -> str:
+    """``path`` with temporary siblings (``.NAME.partial-PID-...``) named by their final
+    name: what the user asked for, not where it was being built."""
+    parts = Path(path).parts
+    return str(Path(*[(m.group("name") if (m := _PARTIAL.match(p)) else p) for p in parts])) if parts else str(path)
+
+
+def os_error_message(e: OSError, path: str | Path | None = None) -> str:
+    """One line: the output, the cause in words, and the file the system named."""
+    cause = _OS_CAUSES.get(e.errno, e.strerror or type(e).__name__)
+    fname = final_name(e.filename) if e.filename else None
+    if path is None:
+        return f"{fname or '?'}: {cause}"
+    path = final_name(path)
+    where = f" ({fname})" if fname and fname != path else ""
+    return f"cannot write {path}: {cause}{where}"
+
+
+@contextlib.contextmanager
+def os_errors(path: str | Path) -> Iterator[None]:
+    """Turn an OSError while writing the output ``path`` into an S2PError naming it."""
+    try:
+        yield
+    except S2PError:
+        raise
+    except OSError as e:
+        raise S2PError(os_error_message(e, path)) from e
+
+
+# ----------------------------------------------------------------------------------------------
+# single files
 
 
 @contextlib.contextmanager
 def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Open a temporary sibling of ``path`` for writing; rename it to ``path`` on success."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _temp_sibling(path, ".tmp")
+    with os_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _temp_sibling(path, ".tmp")
     try:
-        with os.fdopen(fd, mode, **kwargs) as f:
+        with os_errors(path), os.fdopen(fd, mode, **kwargs) as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        with os_errors(path):
+            os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
 
@@ -88,15 +213,155 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary sibling path for libraries that write files themselves; renamed on success."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _temp_sibling(path, path.suffix or ".tmp")
-    os.close(fd)
+    with os_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _temp_sibling(path, path.suffix or ".tmp")
+        os.close(fd)
     try:
-        yield Path(tmp)
-        # the library may have replaced our file with a private one of its own
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        with os_errors(path):
+            yield Path(tmp)
+            # the library may have replaced our file with a private one of its own
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+# ----------------------------------------------------------------------------------------------
+# whole outputs: lock, build beside, swap in
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def lock_path(path: str | Path) -> Path:
+    path = Path(path)
+    return path.with_name(f".{path.name}.lock")
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path) -> Iterator[Path]:
+    """Hold ``.NAME.lock`` beside ``path`` while writing it. A live holder makes this raise
+    S2PError naming it; the lock of a process on this machine that no longer runs is taken
+    over with a note."""
+    from seg2pose.say import say
+
+    path = Path(path)
+    with os_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    lock = lock_path(path)
+    me = {"pid": os.getpid(), "host": socket.gethostname(), "time": _now()}
+    for attempt in range(3):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                text = lock.read_text(encoding="utf-8", errors="replace")
+            except FileNotFoundError:
+                continue  # released meanwhile
+            try:
+                holder = json.loads(text)
+                pid, host = int(holder["pid"]), str(holder["host"])
+            except (ValueError, KeyError, TypeError):
+                # written by a process killed between creating and filling it: stale once old
+                holder, pid, host = {}, -1, me["host"]
+            if host == me["host"] and not pid_alive(pid) and attempt < 2:
+                say(f"taking over the lock {lock} of process {pid}, which no longer runs "
+                    f"(it started writing {path} at {holder.get('time', '?')})", kind="note")
+                with contextlib.suppress(FileNotFoundError):
+                    if lock.read_text(encoding="utf-8", errors="replace") == text:
+                        lock.unlink()
+                continue
+            raise S2PError(f"{path} is being written by process {pid} on {host or '?'} since "
+                           f"{holder.get('time', '?')}; wait for it to finish (or remove {lock} "
+                           "if that process is gone)") from None
+        except OSError as e:
+            raise S2PError(os_error_message(e, path)) from e
+        try:
+            with os_errors(path), os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(json.dumps(me) + "\n")
+        except BaseException:
+            with contextlib.suppress(OSError):
+                lock.unlink()
+            raise
+        break
+    else:
+        raise S2PError(f"could not take the lock {lock} of {path}")
+    try:
+        yield lock
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the names ``a`` and ``b`` in one step (Linux renameat2 RENAME_EXCHANGE); False
+    where the system cannot."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    AT_FDCWD, RENAME_EXCHANGE = -100, 2
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    if renameat2(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(a))
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
+def swap_in(tmp: Path, path: Path) -> None:
+    """Put the finished ``tmp`` (file or folder) at ``path`` as a unit; an existing ``path``
+    is exchanged with it in one step where possible, and removed only afterwards."""
+    fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+    if path.exists() or path.is_symlink():
+        if _exchange(tmp, path):
+            _remove(tmp)  # now the old output
+        else:
+            old = path.parent / f".{path.name}.old-{os.getpid()}"
+            _remove(old)
+            os.replace(path, old)
+            os.replace(tmp, path)
+            _remove(old)
+    else:
+        os.replace(tmp, path)
+    fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def replacing(path: str | Path, force: bool = False, folder: bool = True) -> Iterator[Path]:
+    """Build the output ``path`` (a folder, or a file when ``folder`` is False) in a
+    temporary sibling that this yields, then swap it in as a unit (``swap_in``). Holds the
+    output's lock meanwhile; refuses an existing ``path`` unless ``force``; on any error or
+    interruption the temporary sibling is removed and ``path`` is as it was."""
+    path = Path(path)
+    with output_lock(path):
+        check_writable(path, force)
+        if folder:
+            tmp = temp_sibling_dir(path)
+        else:
+            with os_errors(path):
+                clean_stale_partials(path)
+                fd, name = _temp_sibling(path, path.suffix or ".tmp")
+                os.close(fd)
+                tmp = Path(name)
+        try:
+            with os_errors(path):
+                yield tmp
+                swap_in(tmp, path)
+        except BaseException:
+            _remove(tmp)
+            raise

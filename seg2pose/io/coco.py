@@ -11,12 +11,17 @@ COCO's iscrowd annotations); it is compressed on reading. A full COCO dataset ob
 (``{"images": [...], "annotations": [...]}``) is read too: an image's ``frame_id`` or ``frame``
 gives the frame when present, else its ``id``. ``category_id`` is used as the class id (COCO's
 person=1, bicycle=2, car=3 line up with this project's pedestrian=1, bicyclist=2, car=3;
-pass ``category_map`` for other numberings).
+pass ``category_map`` for other numberings). ``segmentation`` may also be COCO polygons
+(``[[x0, y0, x1, y1, ...], ...]``, pixel corner coordinates); their image size comes from the
+``images`` entry (``height``, ``width``), else from ``size``. With an ``images`` list, an
+``image_id`` that is not in it is an error. ``coco_categories`` gives a dataset's
+id -> name map (detector results lists carry none: COCO's numbering is assumed).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Iterable
 
@@ -27,6 +32,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.mots import MaskTable
+from seg2pose.io.validate import number
 from seg2pose.masks import decode_counts
 
 
@@ -41,14 +47,15 @@ def _int(rec: dict, key: str, path: Path, i: int, default=None) -> int:
     return int(v)
 
 
-def _records(data, path: Path) -> tuple[list, dict]:
-    """The annotation list and image_id -> frame map of a results list or a dataset object."""
+def _records(data, path: Path) -> tuple[list, dict, dict]:
+    """The annotation list, image_id -> frame and image_id -> (height, width) of a results list
+    or a dataset object."""
     if isinstance(data, list):
-        return data, {}
+        return data, {}, {}
     if isinstance(data, dict) and isinstance(data.get("annotations"), list):
-        frames = {}
+        frames, sizes = {}, {}
         for j, im in enumerate(data.get("images") or []):
-            if not isinstance(im, dict) or not isinstance(im.get("id"), int):
+            if not isinstance(im, dict) or not isinstance(im.get("id"), int) or isinstance(im["id"], bool):
                 raise InputError("expected an object with an integer 'id'", file=path,
                                  field=f"images[{j}]")
             fr = im.get("frame_id", im.get("frame", im["id"]))
@@ -56,7 +63,10 @@ def _records(data, path: Path) -> tuple[list, dict]:
                 raise InputError(f"expected an integer frame, got {fr!r}", file=path,
                                  field=f"images[{j}]")
             frames[im["id"]] = fr
-        return data["annotations"], frames
+            h, w = im.get("height"), im.get("width")
+            if isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0:
+                sizes[im["id"]] = (h, w)
+        return data["annotations"], frames, sizes
     raise InputError("expected a JSON list of detections or a COCO object with 'annotations'",
                      file=path)
 
@@ -68,7 +78,7 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
     is needed only for an empty file; every record must have the same size."""
     path = Path(path)
     data = load_json(path, "masks file")
-    recs, image_frames = _records(data, path)
+    recs, image_frames, image_sizes = _records(data, path)
     kc = set(known_classes) if known_classes is not None else None
     frames, tids, cids, rles, scores = [], [], [], [], []
     hw = None
@@ -79,9 +89,12 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
             fr = _int(r, "frame", path, i)
         else:
             img = _int(r, "image_id", path, i)
+            if image_frames and img not in image_frames:
+                raise InputError(f"image_id {img} matches no entry of 'images'", file=path,
+                                 field=f"[{i}].image_id")
             fr = image_frames.get(img, img)
-        if fr < 0:
-            raise InputError(f"negative frame {fr}", file=path, field=f"[{i}].frame")
+        if not 0 <= fr < 2**62:
+            raise InputError(f"expected a frame number >= 0, got {fr}", file=path, field=f"[{i}].frame")
         cid = _int(r, "category_id", path, i)
         if category_map is not None:
             if cid not in category_map:
@@ -93,6 +106,9 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
                              field=f"[{i}].category_id")
         tid = _int(r, "track_id", path, i, default=-1)
         seg = r.get("segmentation")
+        if isinstance(seg, list):
+            poly_hw = image_sizes.get(r.get("image_id"), hw or size)
+            seg = _polygons(seg, poly_hw, path, i)
         if not isinstance(seg, dict) or "size" not in seg or "counts" not in seg:
             raise InputError("expected an RLE object {'size': [h, w], 'counts': ...}", file=path,
                              field=f"[{i}].segmentation")
@@ -128,8 +144,8 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
             raise InputError("counts must be a string or a list of integers", file=path,
                              field=f"[{i}].segmentation.counts")
         sc = r.get("score")
-        if sc is not None and (isinstance(sc, bool) or not isinstance(sc, (int, float))):
-            raise InputError(f"expected a number, got {sc!r}", file=path, field=f"[{i}].score")
+        if sc is not None:
+            sc = number(sc, file=path, field=f"[{i}].score")
         frames.append(fr)
         tids.append(tid)
         cids.append(cid)
@@ -137,10 +153,48 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
         scores.append(np.nan if sc is None else float(sc))
     if hw is None:
         hw = size if size is not None else (0, 0)
+    seen: dict[tuple[int, int], int] = {}
+    for i, (fr, tid) in enumerate(zip(frames, tids)):
+        if tid >= 0:
+            if (fr, tid) in seen:
+                raise InputError(f"duplicate detection: track {tid} appears twice in frame {fr} "
+                                 f"(also record {seen[fr, tid]})", file=path, field=f"[{i}].track_id")
+            seen[fr, tid] = i
     has_score = len(recs) > 0 and not np.isnan(scores).all()
     t = MaskTable(np.array(frames, np.int64), np.array(tids, np.int64), np.array(cids, np.int64),
                   hw[0], hw[1], rles, np.array(scores) if has_score else None)
     return t.take(np.argsort(t.frame, kind="stable"))
+
+
+def _polygons(seg: list, hw: tuple[int, int] | None, path: Path, i: int) -> dict:
+    """COCO polygons -> {'size', 'counts'} (compressed RLE, the union of the polygons)."""
+    if hw is None:
+        raise InputError("polygon masks need the image size: give 'height' and 'width' in the "
+                         "'images' entry", file=path, field=f"[{i}].segmentation")
+    polys = []
+    for k, p in enumerate(seg):
+        if (not isinstance(p, list) or len(p) < 6 or len(p) % 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           and math.isfinite(v) for v in p)):
+            raise InputError("expected a polygon [x0, y0, x1, y1, ...] of at least 3 points",
+                             file=path, field=f"[{i}].segmentation[{k}]")
+        polys.append([float(v) for v in p])
+    rle = mask_util.merge(mask_util.frPyObjects(polys, hw[0], hw[1]))
+    return {"size": [int(hw[0]), int(hw[1])], "counts": rle["counts"].decode("ascii")}
+
+
+def coco_categories(path: str | Path) -> dict[int, str]:
+    """Category id -> lower-case name of a COCO dataset file's ``categories`` list (empty for a
+    results list)."""
+    path = Path(path)
+    data = load_json(path, "masks file")
+    out = {}
+    cats = data.get("categories") if isinstance(data, dict) else None
+    for j, c in enumerate(cats or []):
+        if not isinstance(c, dict) or not isinstance(c.get("id"), int) or not isinstance(c.get("name"), str):
+            raise InputError("expected {id: int, name: str}", file=path, field=f"categories[{j}]")
+        out[c["id"]] = c["name"].strip().lower()
+    return out
 
 
 def _check_rle(rle: bytes, hw: tuple[int, int], path: Path, i: int) -> None:

@@ -51,3 +51,16 @@ def write_masks(path: str | Path, table, fmt: str) -> None:
     else:
         raise InputError(f"unknown mask format {fmt!r}; use one of {', '.join(MASK_FORMATS)}",
                          field="format")
+
+
+def save_masks(path: str | Path, table, fmt: str, force: bool = False) -> None:
+    """Write ``table`` to ``path`` as one unit: built beside it and swapped in, so an
+    existing output is replaced entirely (``force``; a PNG folder keeps none of its old
+    frames) and an interrupted write leaves it as it was."""
+    from seg2pose.io.atomic import replacing
+
+    if fmt not in MASK_FORMATS:
+        raise InputError(f"unknown mask format {fmt!r}; use one of {', '.join(MASK_FORMATS)}",
+                         field="format")
+    with replacing(path, force, folder=fmt == "png") as tmp:
+        write_masks(tmp, table, fmt)

@@ -7,6 +7,7 @@ non-decreasing, so files can be streamed frame by frame.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -17,6 +18,7 @@ from seg2pose.errors import InputError
 from seg2pose.io.atomic import atomic_open
 from seg2pose.masks import decode_counts
 
+_INT = re.compile(r"^[+-]?[0-9]{1,19}$")
 _BLOCK = 2048  # detections checked together by iter_mots (whole frames; frames are yielded one by one)
 
 
@@ -82,16 +84,15 @@ class MaskTable:
 
 
 def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | None,
-                size: tuple[int, int] | None):
+                size: tuple[int, int] | None, image_size: tuple[int, int] | None = None):
     parts = line.split()
     if len(parts) != 6:
         raise InputError(f"expected 6 fields 'frame track_id class_id height width rle', got {len(parts)}",
                          file=path, line=lineno)
-    try:
-        frame, tid, cid, h, w = (int(p) for p in parts[:5])
-    except ValueError:
+    if not all(_INT.match(p) for p in parts[:5]):  # int() would read "1_4" as 14
         raise InputError(f"expected integers for frame track_id class_id height width, got {parts[:5]}",
-                         file=path, line=lineno) from None
+                         file=path, line=lineno)
+    frame, tid, cid, h, w = (int(p) for p in parts[:5])
     if frame < 0:
         raise InputError(f"negative frame {frame}", file=path, line=lineno)
     if not (frame < 2**62 and -2**62 < tid < 2**62 and -2**62 < cid < 2**62):
@@ -104,6 +105,10 @@ def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | No
     if size is not None and (h, w) != size:
         raise InputError(f"image size {h}x{w} differs from earlier lines ({size[0]}x{size[1]})",
                          file=path, line=lineno)
+    if image_size is not None and (h, w) != tuple(image_size):
+        raise InputError(f"mask size {h}x{w} (height x width) differs from the camera's image "
+                         f"size {image_size[0]}x{image_size[1]} in scene.json", file=path,
+                         line=lineno)
     if known_classes is not None and cid != 0 and cid not in known_classes:
         raise InputError(f"unknown class_id {cid}; the scene knows {sorted(known_classes)}",
                          file=path, line=lineno)
@@ -134,13 +139,30 @@ def _check_rles(rles: list[bytes], linenos: list[int], h: int, w: int, path: Pat
                          file=path, line=linenos[i])
 
 
+def _check_duplicates(frame: np.ndarray, tid: np.ndarray, linenos: list[int], path: Path) -> None:
+    """One detection per (frame, track id) for tracked detections (track id >= 0)."""
+    sel = np.flatnonzero(tid >= 0)
+    if len(sel) < 2:
+        return
+    order = sel[np.lexsort((sel, tid[sel], frame[sel]))]  # by key, then by line
+    same = np.flatnonzero((frame[order[1:]] == frame[order[:-1]]) & (tid[order[1:]] == tid[order[:-1]]))
+    if len(same):
+        k = same[np.argmin(order[same + 1])]  # the earliest line that repeats a detection
+        a, b = int(order[k]), int(order[k + 1])
+        raise InputError(f"duplicate detection: track {int(tid[b])} appears twice in frame "
+                         f"{int(frame[b])} (also line {linenos[a]})", file=path, line=linenos[b])
+
+
 def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
               frame_range: tuple[int, int] | None = None,
-              check_rles: bool = True) -> Iterator[tuple[int, MaskTable]]:
+              check_rles: bool = True, image_size: tuple[int, int] | None = None
+              ) -> Iterator[tuple[int, MaskTable]]:
     """Stream a MOTS txt file frame by frame: yields (frame, MaskTable of that frame).
 
     frame_range: (first, last) inclusive; frames outside are skipped (and reading stops after
-    ``last``). Blank lines and lines starting with '#' are skipped."""
+    ``last``). image_size: (height, width) pixels of the camera the masks belong to; masks of
+    another size are refused. A track id may appear once per frame (-1, "no track", any
+    number of times). Blank lines and lines starting with '#' are skipped."""
     path = Path(path)
     if not path.exists():
         raise InputError("masks file not found", file=path)
@@ -159,6 +181,7 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
         if check_rles:  # False: the caller decodes the runs itself and checks them in bulk
             _check_rles(rles, linenos, h, w, path)
         a = np.array([r[:3] for r in rows], dtype=np.int64)
+        _check_duplicates(a[:, 0], a[:, 1], linenos, path)
         cuts = np.flatnonzero(np.diff(a[:, 0])) + 1
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(a)]):
             yield int(a[lo, 0]), MaskTable(a[lo:hi, 0], a[lo:hi, 1], a[lo:hi, 2], h, w, rles[lo:hi])
@@ -171,7 +194,7 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
                 raise InputError("not ASCII text", file=path, line=lineno) from None
             if not line or line.startswith("#"):
                 continue
-            row = _parse_line(line, path, lineno, kc, size)
+            row = _parse_line(line, path, lineno, kc, size, image_size)
             size = (row[3], row[4])
             frame = row[0]
             if frame < last_frame:

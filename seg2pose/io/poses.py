@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import csv
 import io
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
@@ -21,9 +23,11 @@ import numpy as np
 from seg2pose.errors import InputError
 from seg2pose.io.text import read_text
 from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.validate import MAX_COORD
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]
+_INT = re.compile(r"^[+-]?[0-9]{1,19}$")
 SOURCE_COLUMN = "source"
 SOURCES = ("keyframe", "interpolated", "occluded")
 
@@ -145,6 +149,7 @@ def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
     ncol = len(header)
     frames, tids, classes, nums, sources = [], [], [], [], []
     last_frame = -1
+    seen: dict[tuple[int, int], int] = {}  # (frame, track id) -> line
     for row in reader:
         lineno = reader.line_num
         if not row:
@@ -158,11 +163,10 @@ def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
                 raise InputError(f"unknown source {src!r}; expected one of {', '.join(SOURCES)}",
                                  file=path, line=lineno, field=SOURCE_COLUMN)
             sources.append(src)
-        try:
-            fr, tid = int(row[0]), int(row[1])
-        except ValueError:
+        if not (_INT.match(row[0].strip()) and _INT.match(row[1].strip())):  # int() takes "1_4"
             raise InputError(f"frame and track_id must be integers, got {row[:2]}", file=path,
-                             line=lineno) from None
+                             line=lineno)
+        fr, tid = int(row[0]), int(row[1])
         if not (0 <= fr < 2**62 and -2**62 < tid < 2**62):
             raise InputError(f"frame must be >= 0 and ids within 64 bits, got {fr}, {tid}",
                              file=path, line=lineno)
@@ -179,8 +183,21 @@ def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
         except ValueError:
             raise InputError(f"expected numbers in {','.join(header[3:])}", file=path,
                              line=lineno) from None
-        if not np.all(np.isfinite(v[:3])):
-            raise InputError("x, y, z must be finite", file=path, line=lineno)
+        if not all(math.isfinite(x) and abs(x) <= MAX_COORD for x in v[:3]):
+            raise InputError(f"x, y, z must be finite metres within +-{MAX_COORD:g}, got {v[:3]}",
+                             file=path, line=lineno)
+        if math.isinf(v[3]):
+            raise InputError("heading must be finite radians (or nan for unknown)", file=path,
+                             line=lineno, field="heading")
+        if len(v) > 4 and not all(math.isnan(x) or 0 < x <= 1000 for x in v[4:]):
+            raise InputError(f"l, w, h must be sizes in (0, 1000] metres (or nan for unknown), "
+                             f"got {v[4:]}", file=path, line=lineno)
+        if tid >= 0:
+            key = (fr, tid)
+            if key in seen:
+                raise InputError(f"duplicate row: track {tid} appears twice in frame {fr} (also "
+                                 f"line {seen[key]})", file=path, line=lineno)
+            seen[key] = lineno
         frames.append(fr)
         tids.append(tid)
         classes.append(c)

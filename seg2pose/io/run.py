@@ -21,24 +21,22 @@ over with a note.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import hashlib
 import io
 import json
 import os
 import shutil
-import socket
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable
 
 import numpy as np
 
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import atomic_write_text, fsync_dir, temp_sibling_dir
+from seg2pose.io.atomic import (atomic_write_text, os_errors, output_lock, swap_in,
+                                temp_sibling_dir)
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
-from seg2pose.say import say
 
 RUN_FILE = "run.json"
 POSES_FILE = "poses.csv"
@@ -222,57 +220,10 @@ def read_run_poses(path: str | Path, known_classes: Iterable[str] | None = None)
     return read_poses(Path(path) / POSES_FILE, known_classes=known_classes)
 
 
-def _lock_path(run_dir: Path) -> Path:
-    return run_dir.with_name(f".{run_dir.name}.lock")
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, another user's
-        return True
-    return True
-
-
-@contextlib.contextmanager
-def run_lock(run_dir: str | Path) -> Iterator[Path]:
-    """Hold ``.RUN.lock`` beside ``run_dir`` while writing it. A live holder makes this raise
-    S2PError naming it; the lock of a dead process on this host is taken over with a note."""
-    run_dir = Path(run_dir)
-    run_dir.parent.mkdir(parents=True, exist_ok=True)
-    lock = _lock_path(run_dir)
-    me = {"pid": os.getpid(), "host": socket.gethostname(), "time": now_utc()}
-    for attempt in range(2):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            text = lock.read_text(encoding="utf-8", errors="replace") if lock.exists() else ""
-            try:
-                holder = json.loads(text)
-                pid, host = int(holder["pid"]), str(holder["host"])
-            except (ValueError, KeyError, TypeError):
-                holder, pid, host = {}, -1, ""
-            stale = host == me["host"] and not _pid_alive(pid)
-            if attempt == 0 and stale:
-                say(f"taking over the lock {lock} of process {pid}, which no longer runs "
-                    f"(it started writing {run_dir} at {holder.get('time')})", kind="note")
-                with contextlib.suppress(FileNotFoundError):
-                    if lock.read_text(encoding="utf-8", errors="replace") == text:
-                        lock.unlink()
-                continue
-            raise S2PError(f"{run_dir} is being written by process {pid} on {host or '?'} since "
-                           f"{holder.get('time', '?')}; wait for it to finish (or remove {lock} "
-                           "if that process is gone)") from None
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(json.dumps(me) + "\n")
-        break
-    try:
-        yield lock
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            lock.unlink()
+def run_lock(run_dir: str | Path):
+    """Hold ``.RUN.lock`` beside ``run_dir`` while writing it (``seg2pose.io.atomic.output_lock``:
+    a live holder is refused; the lock of a process that no longer runs is taken over)."""
+    return output_lock(run_dir)
 
 
 def check_run_writable(run_dir: str | Path, force: bool) -> None:
@@ -289,23 +240,16 @@ def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | N
     ``run_dir`` is only replaced with ``force`` (the new folder is swapped in, then the old one
     removed). Returns ``run_dir``."""
     run_dir = Path(run_dir)
-    with run_lock(run_dir):
+    with output_lock(run_dir):
         check_run_writable(run_dir, force)
         tmp = temp_sibling_dir(run_dir)
         try:
-            atomic_write_text(tmp / POSES_FILE, format_poses(poses))
-            if views is not None:
-                atomic_write_text(tmp / VIEWS_FILE, format_views(views))
-            atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
-            fsync_dir(tmp)
-            if run_dir.exists():
-                old = temp_sibling_dir(run_dir)
-                os.replace(run_dir, old / "old")
-                os.replace(tmp, run_dir)
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                os.replace(tmp, run_dir)
-            fsync_dir(run_dir.parent)
+            with os_errors(run_dir):
+                atomic_write_text(tmp / POSES_FILE, format_poses(poses))
+                if views is not None:
+                    atomic_write_text(tmp / VIEWS_FILE, format_views(views))
+                atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
+                swap_in(tmp, run_dir)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

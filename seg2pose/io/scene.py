@@ -35,8 +35,12 @@ from seg2pose.errors import InputError
 from seg2pose.io.text import read_text, load_json
 from seg2pose.ground import GroundSurface
 from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.validate import (FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number,
+                                  safe_name)
 
 SCENE_VERSION = 1
+MAX_CLASS_ID = 65535
+MAX_DEFAULT_HEIGHT = 20.0  # metres above the ground
 SCENE_FILE = "scene.json"
 DEFAULT_CLASSES = [
     {"id": 1, "name": "pedestrian", "default_height": 0.9},
@@ -97,16 +101,42 @@ class Scene:
     def class_sizes(self) -> dict[str, tuple[float, float, float]]:
         """Class name -> typical (l, w, h) metres: extra['class_sizes'] over the defaults."""
         sizes = dict(DEFAULT_CLASS_SIZES)
-        for k, v in (self.extra.get("class_sizes") or {}).items():
-            try:
-                sizes[str(k)] = tuple(float(x) for x in v)[:3]
-            except (TypeError, ValueError):
-                raise InputError("expected [l, w, h] numbers", file=self.root / SCENE_FILE,
-                                 field=f"extra.class_sizes.{k}") from None
+        extra = self.extra.get("class_sizes") or {}
+        if not isinstance(extra, dict):
+            raise InputError("expected an object of class name -> [l, w, h]",
+                             file=self.root / SCENE_FILE, field="extra.class_sizes")
+        for k, v in extra.items():
+            f = f"extra.class_sizes.{k}"
+            if not isinstance(v, list) or len(v) != 3:
+                raise InputError("expected [l, w, h] numbers (metres)", file=self.root / SCENE_FILE,
+                                 field=f)
+            sizes[str(k)] = tuple(number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True,
+                                         hi=1000.0) for x in v)
         return sizes
 
     def masks_path(self, camera: str) -> Path:
         return self.root / "masks" / f"{camera}.txt"
+
+    def iter_masks(self, camera: str, frame_range: tuple[int, int] | None = None,
+                   check_rles: bool = True):
+        """Stream a camera's masks (``masks/<camera>.txt``) frame by frame, checked against the
+        scene's class ids and the camera's image size: (frame, MaskTable) pairs."""
+        from seg2pose.io.mots import iter_mots
+
+        cam = self.cameras[camera]
+        return iter_mots(self.masks_path(camera), [c.id for c in self.classes], frame_range,
+                         check_rles=check_rles, image_size=(cam.height, cam.width))
+
+    def read_masks(self, camera: str, frame_range: tuple[int, int] | None = None):
+        """A camera's masks as one MaskTable (checked like ``iter_masks``; an empty table of
+        the camera's size when the file has no detections)."""
+        from seg2pose.io.mots import MaskTable
+
+        tables = [t for _, t in self.iter_masks(camera, frame_range)]
+        if not tables:
+            cam = self.cameras[camera]
+            return MaskTable.empty(cam.height, cam.width)
+        return MaskTable.concat(tables)
 
     def video_path(self, camera: str) -> Path | None:
         """The camera's video file or image folder, when present."""
@@ -202,6 +232,9 @@ def _parse_ground_points(reader, path: Path) -> tuple[np.ndarray, list[int]]:
             raise InputError(f"expected numbers x,y,z, got {row}", file=path, line=i) from None
         if not np.all(np.isfinite(v)):
             raise InputError("NaN or inf in ground point", file=path, line=i)
+        if max(abs(x) for x in v) > MAX_COORD:
+            raise InputError(f"ground point {v} is more than {MAX_COORD:g} m from the origin; "
+                             "expected metres within +-1e6", file=path, line=i)
         rows.append(v)
         lines.append(i)
     return np.array(rows, dtype=np.float64).reshape(-1, 3), lines
@@ -236,9 +269,7 @@ def load_scene(root: str | Path) -> Scene:
     if version != SCENE_VERSION:
         raise InputError(f"unsupported version {version!r}; this s2p reads version {SCENE_VERSION}",
                          file=path, field="version")
-    fps = _req(d, "fps", path)
-    if not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:
-        raise InputError(f"fps must be a positive number, got {fps!r}", file=path, field="fps")
+    fps = number(_req(d, "fps", path), file=path, field="fps", lo=FPS_RANGE[0], hi=FPS_RANGE[1])
     cams_d = _req(d, "cameras", path)
     if not isinstance(cams_d, list) or not cams_d:
         raise InputError("expected a non-empty list of cameras", file=path, field="cameras")
@@ -253,6 +284,12 @@ def load_scene(root: str | Path) -> Scene:
     configs = d.get("configs") or {}
     if not isinstance(configs, dict) or not all(isinstance(v, list) for v in configs.values()):
         raise InputError("expected an object of name -> list of camera names", file=path, field="configs")
+    for k, v in configs.items():
+        safe_name(k, file=path, field=f"configs.{k}", what="configuration name")
+        for j, n in enumerate(v):
+            if not isinstance(n, str):
+                raise InputError(f"expected a camera name, got {n!r}", file=path,
+                                 field=f"configs.{k}[{j}]")
     try:
         rig = Rig(cameras=cameras, configs={k: [str(n) for n in v] for k, v in configs.items()},
                   name=str(d.get("rig", "rig")))
@@ -263,16 +300,16 @@ def load_scene(root: str | Path) -> Scene:
     if not isinstance(classes_d, list):
         raise InputError("expected a list of {id, name, default_height}", file=path, field="classes")
     for i, c in enumerate(classes_d):
-        try:
-            cs = ClassSpec(id=int(_req(c, "id", path, f"classes[{i}].")),
-                           name=str(_req(c, "name", path, f"classes[{i}].")),
-                           default_height=float(c.get("default_height", 0.9)))
-        except (TypeError, ValueError):
-            raise InputError("expected id (int), name (str), default_height (number)",
-                             file=path, field=f"classes[{i}]") from None
-        if not np.isfinite(cs.default_height) or cs.default_height < 0:
-            raise InputError("default_height must be a finite number >= 0", file=path,
-                             field=f"classes[{i}].default_height")
+        if not isinstance(c, dict):
+            raise InputError("expected an object {id, name, default_height}", file=path,
+                             field=f"classes[{i}]")
+        cs = ClassSpec(id=integer(_req(c, "id", path, f"classes[{i}]."), file=path,
+                                  field=f"classes[{i}].id", lo=1, hi=MAX_CLASS_ID),
+                       name=safe_name(_req(c, "name", path, f"classes[{i}]."), file=path,
+                                      field=f"classes[{i}].name", what="class name"),
+                       default_height=number(c.get("default_height", 0.9), file=path,
+                                             field=f"classes[{i}].default_height", lo=0,
+                                             hi=MAX_DEFAULT_HEIGHT))
         classes.append(cs)
     if len({c.id for c in classes}) != len(classes) or len({c.name for c in classes}) != len(classes):
         raise InputError("class ids and names must be unique", file=path, field="classes")
@@ -281,20 +318,21 @@ def load_scene(root: str | Path) -> Scene:
     if not isinstance(splits_d, dict):
         raise InputError("expected an object of name -> [first, last]", file=path, field="splits")
     for k, v in splits_d.items():
-        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) for x in v) and v[0] <= v[1]):
-            raise InputError("expected [first, last] frame numbers", file=path, field=f"splits.{k}")
+        if not (isinstance(v, list) and len(v) == 2
+                and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x < MAX_ID for x in v)
+                and v[0] <= v[1]):
+            raise InputError("expected [first, last] frame numbers, 0 <= first <= last", file=path,
+                             field=f"splits.{k}")
         splits[k] = (v[0], v[1])
     gfile = d.get("ground_points", "ground_points.csv")
-    if not isinstance(gfile, str) or not gfile:
-        raise InputError("expected a file name relative to the scene folder", file=path,
-                         field="ground_points")
+    gpath = inside(root, gfile, file=path, field="ground_points", what="ground points file")
     extra = d.get("extra") or {}
     if not isinstance(extra, dict):
         raise InputError("expected an object", file=path, field="extra")
     start = d.get("start_time")
     if start is not None:
         parse_start_time(start, file=path, field="start_time")
-    pts = read_ground_points(root / gfile)
+    pts = read_ground_points(gpath)
     return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
                  ground_points=pts, classes=classes, splits=splits,
                  extra=extra, ground_file=gfile, start_time=start)

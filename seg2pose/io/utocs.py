@@ -7,7 +7,11 @@ UTOCS layout (one recording)::
     ground_points.txt   x,y,z per line (metres)
     positions/NNNNNN.json   per frame: [{"type", "id", "x", "y", "z", "l", "w", "h",
                                          "forward_x", "forward_y", ...}, ...]
-    images/cam<id>/NNNNNN.jpg   optional frames (or a video file cam<id>.mp4 / videos/cam<id>.mp4)
+    images/cam<id>/NNNNNN.jpg   optional frames (or a video file cam<id>.mp4 / videos/cam<id>.mp4,
+                        or, with one camera, the folder's only *.mp4|*.avi|*.mkv, e.g. vid.mp4)
+
+A video's k-th frame is the k-th positions file (``extra.video_frames`` in scene.json records
+the first number and the step).
 
 CARLA's world is Unreal's: left-handed, z up. This project's world is right-handed, z up, so the
 import mirrors y: a CARLA point (x, y, z) becomes (x, -y, z), everywhere (cameras, ground
@@ -32,9 +36,10 @@ from seg2pose.camera import Camera, Rig
 from seg2pose.say import say
 from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time
+from seg2pose.io.validate import FPS_RANGE, MAX_COORD, number, safe_name
 
 MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
 # camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
@@ -111,7 +116,9 @@ def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[Utoc
         if not isinstance(c, dict) or "id" not in c or isinstance(c["id"], (dict, list)):
             raise InputError("expected an object with an 'id'", file=path, field=f"cams[{i}]")
         vals = [_num(c, k, path, f"cams[{i}].") for k in ("x", "y", "z", "pitch", "roll", "yaw")]
-        cams.append(UtocsCamera(str(c["id"]), *vals))
+        # the id names files (images/cam<id>/, video/cam<id>.mp4): no way out of the folder
+        cid = safe_name(str(c["id"]), file=path, field=f"cams[{i}].id", what="camera id")
+        cams.append(UtocsCamera(cid, *vals))
     if len({c.id for c in cams}) != len(cams):
         raise InputError("duplicate camera ids", file=path, field="cams")
     return (f, cx, cy), cams
@@ -150,7 +157,17 @@ def read_positions(folder: Path) -> tuple[PoseTable, list[str], int]:
                 raise InputError(f"expected an integer id, got {rid!r}", file=p, field=f"[{i}].id")
             v = [_num(r, k, p, f"[{i}].") for k in ("x", "y", "z", "l", "w", "h",
                                                     "forward_x", "forward_y")]
-            name = t.strip().lower()
+            for k, x in zip(("l", "w", "h"), v[3:6]):
+                if not 0 <= x <= 1000:
+                    raise InputError(f"expected a size in [0, 1000] metres, got {x!r}", file=p,
+                                     field=f"[{i}].{k}")
+            if v[6] == 0 and v[7] == 0:
+                raise InputError("forward vector (forward_x, forward_y) is zero: the heading is "
+                                 "undefined", file=p, field=f"[{i}].forward_x")
+            if max(abs(x) for x in v[:3]) > MAX_COORD:
+                raise InputError(f"position more than {MAX_COORD:g} m from the origin: {v[:3]}",
+                                 file=p, field=f"[{i}].x")
+            name = safe_name(t.strip().lower(), file=p, field=f"[{i}].type", what="type name")
             if name not in seen:
                 seen.append(name)
             frames.append(frame)
@@ -176,14 +193,32 @@ def _class_specs(types: list[str]) -> tuple[list[ClassSpec], dict[str, str]]:
     return specs, mapping
 
 
-def _find_video(src: Path, cam_id: str) -> Path | None:
+def _find_video(src: Path, cam_id: str, only_camera: bool = False) -> Path | None:
+    """cam<id>.<ext> (also under videos/ or video/); with one camera, else the only video."""
     for sub in ("", "videos", "video"):
         for ext in (".mp4", ".avi", ".mkv", ".mov"):
             for stem in (f"cam{cam_id}", f"{cam_id}"):
                 p = src / sub / f"{stem}{ext}" if sub else src / f"{stem}{ext}"
                 if p.is_file():
                     return p
+    if only_camera:
+        found = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in (".mp4", ".avi", ".mkv"))
+        if len(found) > 1:
+            raise InputError(f"several videos ({', '.join(p.name for p in found)}) and one camera: "
+                             "name the camera's video cam<id>.mp4", file=src)
+        return found[0] if found else None
     return None
+
+
+def _frame_numbering(folder: Path) -> dict:
+    """{"first", "step"} of the positions files' numbers (the video's k-th frame is the k-th
+    file); uneven numbering cannot be mapped and is an error."""
+    nums = sorted(int(m.group(1)) for p in folder.iterdir() if (m := _NUM.match(p.name)))
+    steps = np.unique(np.diff(nums)) if len(nums) > 1 else np.array([1])
+    if len(steps) != 1 or steps[0] < 1:
+        raise InputError("positions files are not evenly numbered, so video frames cannot be "
+                         "matched to them", file=folder)
+    return {"first": nums[0], "step": int(steps[0])}
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -226,7 +261,10 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
         parse_start_time(start_time, field="start_time")
     if not src.is_dir():
         raise InputError("UTOCS source folder not found", file=src)
-    check_writable(out / "scene.json", force)
+    if fps is not None:
+        fps = number(fps, field="fps", lo=FPS_RANGE[0], hi=FPS_RANGE[1])
+    size_scale = number(size_scale, field="size_scale", lo=0, lo_open=True, hi=100)
+    check_writable(out, force)
     (f, cx, cy), ucams = read_cameras_json(src / "cameras.json")
     gp = src / "ground_points.txt"
     if not gp.exists():
@@ -249,7 +287,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
             if im is not None:
                 height, width = im.shape[:2]
             frame_sources[name] = ("images", img_dir)
-        elif (v := _find_video(src, uc.id)) is not None:
+        elif (v := _find_video(src, uc.id, only_camera=len(ucams) == 1)) is not None:
             frame_sources[name] = ("video", v)
         if width <= 0 or height <= 0:
             raise InputError(f"cannot infer the image size from Cx={cx}, Cy={cy}",
@@ -269,6 +307,8 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
         log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
             "import it with a size scale of 2 if so")
 
+    video_frames = {n: _frame_numbering(src / "positions") for n, (k, _) in frame_sources.items()
+                    if k == "video"}
     scene = Scene(root=out, name=src.name, fps=float(fps or 1.0 / CARLA_FRAME_TIME),
                   rig=Rig(cameras=cameras, configs=configs, name="utocs"), ground_points=ground,
                   classes=specs, splits=default_splits(gt.frame) if len(gt) else {},
@@ -276,19 +316,22 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                   extra={"source": {"format": "utocs", "path": str(src.resolve()),
                                     "world": "CARLA y mirrored: (x, y, z) -> (x, -y, z)",
                                     "frames": n_files, "size_scale": size_scale,
-                                    "types": {t: mapping[t] for t in types}}})
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "masks").mkdir(exist_ok=True)
-    write_poses(out / "gt" / "poses.csv", gt)
-    if copy_frames:
-        for name, (kind, p) in frame_sources.items():
-            if kind == "images":
-                for im in sorted(p.iterdir()):
-                    if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
-                        _copy(im, out / "video" / name / im.name)
-            else:
-                _copy(p, out / "video" / f"{name}{p.suffix.lower()}")
-    scene.save(out)  # scene.json last: its presence marks a finished import
+                                    "types": {t: mapping[t] for t in types}},
+                                    **({"video_frames": video_frames} if video_frames else {})})
+    # built beside OUT and swapped in as a unit: --force replaces the old scene entirely (its
+    # masks, frames and cameras do not survive), and a killed import leaves OUT as it was
+    with replacing(out, force) as tmp:
+        (tmp / "masks").mkdir()
+        write_poses(tmp / "gt" / "poses.csv", gt)
+        if copy_frames:
+            for name, (kind, p) in frame_sources.items():
+                if kind == "images":
+                    for im in sorted(p.iterdir()):
+                        if im.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                            _copy(im, tmp / "video" / name / im.name)
+                else:
+                    _copy(p, tmp / "video" / f"{name}{p.suffix.lower()}")
+        scene.save(tmp)
     log(f"imported {len(cameras)} cameras, {len(ground)} ground points, {n_files} frames, "
         f"{len(gt)} ground-truth poses of {len(np.unique(gt.track_id))} road users -> {out}")
     if frame_sources:

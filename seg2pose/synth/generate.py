@@ -14,14 +14,13 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from seg2pose.camera import Rig
 from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
 from seg2pose.synth import junction as J
@@ -138,6 +137,15 @@ def _run_tasks(fn, tasks: list, workers: int, progress, desc: str, unit: str):
         bar.close()
 
 
+@contextlib.contextmanager
+def _cleared_state():
+    """The worker state (world, renderers) is dropped however generation ends."""
+    try:
+        yield
+    finally:
+        _STATE.clear()
+
+
 def generate_scene(out: Path, *, preset: str = "small", frames: int | None = None, seed: int = 0,
                    rig=None, video: bool = False, force: bool = False,
                    noise: NoiseConfig | None = None, progress: bool = True,
@@ -206,12 +214,11 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     rng = np.random.default_rng([seed, 31])
     ground = J.sample_ground_points(rng, visible_fn(rig_obj))
 
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "masks").mkdir(parents=True)
-    (tmp / "gt").mkdir()
-    try:
+    # built beside OUT and swapped in as a unit (the old scene, with --force, goes only after
+    # the new one is complete); the lock refuses a second writer of OUT
+    with replacing(out, force) as tmp, _cleared_state():
+        (tmp / "masks").mkdir()
+        (tmp / "gt").mkdir()
         classes = [ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES]
         counts = {n: int(len(np.unique(world.track[world.cls == i]))) for i, n in enumerate(CLASS_NAMES)}
         extra = {
@@ -249,17 +256,4 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
             (tmp / "video").mkdir()
             for _ in _run_tasks(_video_task, cams, workers, progress, "video", "camera"):
                 pass
-        # swap into place: the old scene (with --force) goes only after the new one is complete
-        if out.exists():
-            trash = out.parent / f".{out.name}.old-{os.getpid()}"
-            os.replace(out, trash)
-            os.replace(tmp, out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    finally:
-        _STATE.clear()
     return out

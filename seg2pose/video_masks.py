@@ -1,0 +1,278 @@
+"""Instance masks from a static camera's video by background subtraction.
+
+Per frame: OpenCV MOG2 (or KNN) with shadow detection -> foreground without shadow pixels
+(OpenCV marks shadows 127, foreground 255) -> morphological opening (speckle) and closing
+(joins a road user's fragments) -> connected components of at least ``min_area`` pixels ->
+one instance mask per component, as COCO RLE. Track ids (-1) and classes (0) are left for the
+tracker and the size classes (``seg2pose.track``, ``seg2pose.classify``).
+
+The background model starts from a median image of frames sampled over the first
+``init_frames`` (road users that pass do not survive a median; parked ones are background, as
+they should be), fed to the subtractor before the first real frame, so the first frames are
+usable; ``init="warmup"`` instead runs the subtractor over the first frames once and restarts.
+
+Frames are streamed (one image in memory, plus the initial samples); a truncated video keeps
+what was read and says where it stopped. When the foreground covers more than ``unsettled`` of
+the image (a moving camera, a sudden light change), the frame range is reported.
+
+Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+from pycocotools import mask as mask_util
+
+from seg2pose.errors import InputError
+from seg2pose.io.mots import MaskTable, write_mots
+from seg2pose.io.video import FrameReader
+
+SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
+
+
+@dataclass
+class BgConfig:
+    """Background-subtraction settings (``scene.json`` ``extra.video_masks`` overrides them).
+    The defaults were chosen on synthetic ``--video`` scenes of seeds 101-102 (docs/RESULTS.md)."""
+
+    method: str = "mog2"          # mog2 | knn
+    history: int = 500            # frames the model remembers
+    threshold: float = 16.0       # MOG2 varThreshold (squared Mahalanobis); KNN dist2Threshold
+    shadows: bool = True          # detect shadows and drop their pixels
+    init: str = "median"          # median (background image from samples) | warmup | none
+    init_frames: int = 0          # frames the median / warm-up looks at (0: the whole video)
+    init_samples: int = 25        # images in the median
+    learning_rate: float = -1.0   # how fast the model follows changes after the start; -1: 1/history
+    open_px: int = 3              # opening kernel (pixels): removes noise specks
+    close_px: int = 7             # closing kernel (pixels): joins fragments of one road user
+    min_area: int = 150           # smallest instance, pixels
+    unsettled: float = 0.3        # foreground share of the image that means "background not settled"
+
+    @classmethod
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> "BgConfig":
+        d = d or {}
+        names = {f.name: f.type for f in fields(cls)}
+        out = cls()
+        for k, v in d.items():
+            if k not in names:
+                raise InputError(f"unknown setting {k!r}; known: {', '.join(names)}", file=file,
+                                 field=f"extra.video_masks.{k}")
+            default = getattr(out, k)
+            ok = (isinstance(v, type(default)) or (isinstance(default, float) and isinstance(v, int))) \
+                and not (isinstance(v, bool) and not isinstance(default, bool))
+            if not ok:
+                raise InputError(f"expected {type(default).__name__}, got {v!r}", file=file,
+                                 field=f"extra.video_masks.{k}")
+            setattr(out, k, type(default)(v))
+        out.validate(file)
+        return out
+
+    def validate(self, file: Path | None = None) -> None:
+        def bad(k, msg):
+            raise InputError(msg, file=file, field=f"extra.video_masks.{k}")
+        if self.method not in ("mog2", "knn"):
+            bad("method", f"expected mog2 or knn, got {self.method!r}")
+        if self.init not in ("median", "warmup", "none"):
+            bad("init", f"expected median, warmup or none, got {self.init!r}")
+        for k in ("history", "init_samples"):
+            if getattr(self, k) < 1:
+                bad(k, "must be >= 1")
+        for k in ("open_px", "close_px", "min_area", "init_frames"):
+            if getattr(self, k) < 0:
+                bad(k, "must be >= 0")
+        if not self.threshold > 0:
+            bad("threshold", "must be > 0")
+        if not (self.learning_rate == -1 or 0 <= self.learning_rate <= 1):
+            bad("learning_rate", "must be in [0, 1], or -1 for 1/history")
+        if not 0 < self.unsettled <= 1:
+            bad("unsettled", "must be in (0, 1]")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class VideoMasksResult:
+    """What ``masks_from_video`` did: frames and masks written, where reading stopped."""
+
+    n_frames: int = 0
+    n_masks: int = 0
+    first_frame: int | None = None
+    last_good: int | None = None
+    stopped: str | None = None                     # why reading ended early, else None
+    unsettled: list[tuple[int, int]] = field(default_factory=list)  # frame ranges (inclusive)
+
+
+def labels_to_rles(labels: np.ndarray, ids: np.ndarray) -> list[bytes]:
+    """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
+
+    One pass over the column-major pixels finds every run of equal labels; each component's
+    RLE is its runs with the gaps between them, so no per-component full-image mask is made."""
+    h, w = labels.shape
+    n = h * w
+    flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
+    cut = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    starts = np.r_[0, cut]
+    ends = np.r_[cut, n]
+    vals = flat[starts]
+    out = []
+    if len(ids) == 0:
+        return out
+    order = np.argsort(vals, kind="stable")
+    sv = vals[order]
+    lo = np.searchsorted(sv, ids, side="left")
+    hi = np.searchsorted(sv, ids, side="right")
+    for k in range(len(ids)):
+        sel = order[lo[k]:hi[k]]
+        s, e = starts[sel], ends[sel]
+        counts = np.empty(2 * len(s) + 1, np.int64)
+        counts[0:-1:2] = s - np.r_[0, e[:-1]]
+        counts[1::2] = e - s
+        counts[-1] = n - (e[-1] if len(e) else 0)
+        if counts[-1] == 0:  # pycocotools ends on the last non-empty run
+            counts = counts[:-1]
+        out.append(mask_util.frPyObjects({"size": [h, w], "counts": counts.tolist()}, h, w)["counts"])
+    return out
+
+
+class BackgroundMasks:
+    """Stateful per-frame segmenter: ``apply(image) -> (rles, foreground share)``."""
+
+    def __init__(self, cfg: BgConfig, height: int, width: int):
+        import cv2
+
+        self.cfg = cfg
+        self.height, self.width = height, width
+        if cfg.method == "mog2":
+            self.sub = cv2.createBackgroundSubtractorMOG2(cfg.history, cfg.threshold, cfg.shadows)
+        else:
+            self.sub = cv2.createBackgroundSubtractorKNN(cfg.history, cfg.threshold * 25.0,
+                                                         cfg.shadows)
+        self.lr = -1.0
+        ell = cv2.MORPH_ELLIPSE
+        self.k_open = cv2.getStructuringElement(ell, (cfg.open_px,) * 2) if cfg.open_px > 1 else None
+        self.k_close = cv2.getStructuringElement(ell, (cfg.close_px,) * 2) if cfg.close_px > 1 else None
+
+    def prime(self, images: list[np.ndarray]) -> None:
+        """Start the model from a median background of ``images`` (or learn them in order)."""
+        if not images:
+            return
+        if self.cfg.init == "median":
+            # the (lower) median in uint8: np.median would make a float64 copy (0.5 GB at 720p)
+            bg = np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
+            # enough repetitions for a confident model; afterwards learn at the history's rate
+            self.sub.apply(bg, learningRate=1.0)
+            for _ in range(min(self.cfg.history, 50)):
+                self.sub.apply(bg)
+            self.lr = self.cfg.learning_rate if self.cfg.learning_rate >= 0 else 1.0 / self.cfg.history
+        else:
+            for im in images:
+                self.sub.apply(im)
+
+    def apply(self, image: np.ndarray) -> tuple[list[bytes], float]:
+        import cv2
+
+        raw = self.sub.apply(image, learningRate=self.lr)
+        share = float(np.count_nonzero(raw > SHADOW)) / raw.size
+        fg = (raw > SHADOW).astype(np.uint8)
+        if self.k_open is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
+        if self.k_close is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8, ltype=cv2.CV_32S)
+        ids = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(self.cfg.min_area, 1))
+        ids = ids[ids > 0]
+        return labels_to_rles(labels, ids), share
+
+
+def _ranges(frames: list[int]) -> list[tuple[int, int]]:
+    """Consecutive runs of sorted frame numbers as (first, last) pairs."""
+    out: list[tuple[int, int]] = []
+    for f in frames:
+        if out and f - out[-1][1] <= 1:
+            out[-1] = (out[-1][0], f)
+        else:
+            out.append((f, f))
+    return out
+
+
+def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResult,
+                     first: int | None = None, last: int | None = None,
+                     progress: bool = False, desc: str = "masks") -> Iterator[MaskTable]:
+    """Stream MaskTables (one per frame with masks) of ``reader``'s frames; ``result`` is filled
+    in as frames are read (also when the video stops early)."""
+    from tqdm import tqdm
+
+    w, h, n_header = reader.header()
+    seg = BackgroundMasks(cfg, h, w)
+    if cfg.init != "none":
+        span_lo = first if first is not None else reader.first
+        # median: samples over the whole video by default; warm-up: one history's worth
+        span = cfg.init_frames or (n_header or 300 if cfg.init == "median" else cfg.history)
+        want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
+                                     cfg.init_samples if cfg.init == "median" else span)
+                         .round().astype(np.int64))
+        if reader.is_folder or cfg.init == "median":
+            seg.prime([im for _, im in reader.sample(want)])
+        else:
+            seg.prime([im for _, im in reader.frames(first=span_lo, last=int(want[-1]))])
+    bad: list[int] = []
+    total = None
+    if n_header and last is None and first is None:
+        total = n_header
+    bar = tqdm(total=total, desc=desc, unit="frame", disable=not progress, leave=False)
+    try:
+        for f, im in reader.frames(first, last):
+            if im.shape[:2] != (h, w):
+                raise InputError(f"frame {f} is {im.shape[1]}x{im.shape[0]}, the video header "
+                                 f"says {w}x{h}", file=reader.path)
+            rles, share = seg.apply(im)
+            if result.first_frame is None:
+                result.first_frame = f
+            result.n_frames += 1
+            result.last_good = f
+            if share > cfg.unsettled:
+                bad.append(f)
+            bar.update(1)
+            if rles:
+                result.n_masks += len(rles)
+                z = np.zeros(len(rles), np.int64)
+                yield MaskTable(z + f, z - 1, z, h, w, rles)
+    finally:
+        bar.close()
+        result.stopped = reader.stopped
+        result.unsettled = _ranges(bad)
+
+
+def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = None, *,
+                     camera=None, first_frame: int = 0, frame_step: int = 1,
+                     frames: tuple[int, int] | None = None, progress: bool = False,
+                     log: Callable[[str], None] = print) -> VideoMasksResult:
+    """Background-subtraction masks of one camera's video (file or image folder) written to the
+    MOTS file ``out`` (track id -1, class 0), atomically, as frames stream through.
+
+    camera: its calibration's width/height must match the frames. first_frame, frame_step:
+    scene frame of the first video frame and the step. frames: (first, last) scene frames.
+    Warnings (early end, unsettled background) go to ``log`` and into the result."""
+    cfg = cfg or BgConfig()
+    cfg.validate()
+    reader = FrameReader(Path(video), first=first_frame, step=frame_step)
+    if camera is not None:
+        reader.check_size(camera.width, camera.height)
+    res = VideoMasksResult()
+    lo, hi = frames if frames is not None else (None, None)
+    write_mots(out, iter_video_masks(reader, cfg, res, lo, hi, progress, desc=Path(video).stem))
+    if res.stopped:
+        log(f"warning: {reader.path}: {res.stopped}; kept the masks of frames "
+            f"{res.first_frame}..{res.last_good}")
+    if res.unsettled:
+        spans = ", ".join(f"{a}..{b}" if a != b else f"{a}" for a, b in res.unsettled[:8])
+        more = f" and {len(res.unsettled) - 8} more" if len(res.unsettled) > 8 else ""
+        log(f"warning: {reader.path}: the background model did not settle in frames {spans}{more} "
+            f"(foreground over {cfg.unsettled:.0%} of the image: a moving camera or a light change?)")
+    return res
+

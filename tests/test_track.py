@@ -1,0 +1,122 @@
+"""The mask tracker on masks with known identities."""
+
+import numpy as np
+import pytest
+
+from seg2pose.camera import Camera
+from seg2pose.errors import InputError
+from seg2pose.ground import GroundSurface
+from seg2pose.io.mots import MaskTable, read_mots, write_mots
+from seg2pose.mask_eval import score_masks
+from seg2pose.masks import encode
+from seg2pose.track import TrackConfig, Tracker, track_mots, track_table, world_positions
+
+H, W = 120, 160
+
+
+def box(x0, y0, w, h):
+    m = np.zeros((H, W), np.uint8)
+    m[max(int(y0), 0):max(int(y0 + h), 0), max(int(x0), 0):max(int(x0 + w), 0)] = 1
+    return encode(m)
+
+
+def table(rows):
+    """rows: (frame, truth id, (x0, y0, w, h)) -> MaskTable with the truth id as class_id
+    (so that tests can see which road user each tracked mask came from)."""
+    rows = sorted(rows, key=lambda r: (r[0], r[1]))
+    return MaskTable([r[0] for r in rows], [-1] * len(rows), [r[1] for r in rows], H, W,
+                     [box(*r[2]) for r in rows])
+
+
+def ids_by_truth(t):
+    return {int(c): sorted(set(t.track_id[t.class_id == c].tolist())) for c in np.unique(t.class_id)}
+
+
+def flat_scene():
+    g = [(x, y, 0.0) for x in range(-20, 21, 10) for y in range(-20, 41, 10)]
+    ground = GroundSurface(np.array(g, float))
+    cam = Camera.look_at("c0", np.array([0.0, -10.0, 8.0]), np.array([0.0, 10.0, 0.0]), 150.0, W, H)
+    return cam, ground
+
+
+def test_occlusion_gap_keeps_identity_and_short_tracks_are_dropped():
+    rows = []
+    for f in range(30):
+        rows.append((f, 1, (10 + f, 20, 20, 20)))                 # slow, always visible
+        if not 10 <= f <= 13:                                      # hidden 4 frames
+            rows.append((f, 2, (120 - f, 70, 20, 20)))
+        if 5 <= f <= 7:
+            rows.append((f, 3, (70, 5, 8, 8)))                     # a 3-frame blip
+    t = track_table(table(rows), cfg=TrackConfig(min_length=5))
+    assert ids_by_truth(t) == {1: [1], 2: [2]}                     # blip dropped, ids 1.. in order
+    assert len(t) == 30 + 26
+    # deterministic: the same input gives the same ids
+    t2 = track_table(table(rows), cfg=TrackConfig(min_length=5))
+    assert np.array_equal(t.track_id, t2.track_id) and np.array_equal(t.frame, t2.frame)
+
+
+def test_gap_longer_than_max_gap_starts_a_new_track():
+    rows = [(f, 1, (10 + f, 20, 20, 20)) for f in range(30) if not 10 <= f <= 19]
+    t = track_table(table(rows), cfg=TrackConfig(max_gap=5, min_length=3))
+    assert ids_by_truth(t) == {1: [1, 2]}
+    t = track_table(table(rows), cfg=TrackConfig(max_gap=12, min_length=3))
+    assert ids_by_truth(t) == {1: [1]}
+
+
+def test_world_distance_tracks_small_fast_masks_iou_cannot():
+    cam, ground = flat_scene()
+    # two far-away 3x3 masks moving 4 px a frame: consecutive masks never overlap
+    rows = [(f, k, (20 + 4 * f + 60 * (k - 1), 30, 3, 3)) for f in range(20) for k in (1, 2)]
+    t = table(rows)
+    xy = world_positions(t, cam, ground)
+    assert np.isfinite(xy).all()
+    with_world = track_table(t, cam, ground, TrackConfig(min_length=5))
+    assert ids_by_truth(with_world) == {1: [1], 2: [2]}
+    iou_only = track_table(t, cfg=TrackConfig(min_length=5))
+    assert len(iou_only) == 0                                      # every track one frame long
+
+
+def test_crossing_road_users_swap_no_identity():
+    cam, ground = flat_scene()
+    rows = []
+    for f in range(40):
+        rows.append((f, 1, (10 + 3 * f, 50, 14, 14)))
+        rows.append((f, 2, (130 - 3 * f, 56, 14, 14)))
+    # at the crossing the two masks overlap; the far one is hidden for 3 frames
+    rows = [r for r in rows if not (r[1] == 2 and 19 <= r[0] <= 21)]
+    t = track_table(table(rows), cam, ground, TrackConfig(min_length=5))
+    assert ids_by_truth(t) == {1: [1], 2: [2]}
+
+
+def test_track_mots_streams_two_passes(tmp_path):
+    rows = [(f, 1, (10 + f, 20, 20, 20)) for f in range(12)] + [(3, 2, (100, 90, 6, 6))]
+    src = table(rows)
+    write_mots(tmp_path / "m.txt", src)
+    n, kept = track_mots(tmp_path / "m.txt", tmp_path / "t.txt", cfg=TrackConfig(min_length=5),
+                         log=lambda s: None)
+    assert (n, kept) == (1, 12)
+    out = read_mots(tmp_path / "t.txt")
+    want = track_table(src, cfg=TrackConfig(min_length=5))
+    assert np.array_equal(out.track_id, want.track_id) and out.rles == want.rles
+    write_mots(tmp_path / "e.txt", [])
+    assert track_mots(tmp_path / "e.txt", tmp_path / "e2.txt", log=lambda s: None) == (0, 0)
+
+
+def test_frames_must_increase_and_config_is_checked():
+    tr = Tracker(H, W)
+    tr.update(5, [box(1, 1, 5, 5)])
+    assert tr.final_ids(np.array([0, -1])).tolist() == [-1, -1]    # shorter than min_length
+    with pytest.raises(InputError, match="extra.tracker.speed"):
+        TrackConfig.from_dict({"speed": 3})
+    with pytest.raises(InputError, match="expected a number >= 0"):
+        TrackConfig.from_dict({"max_gap": -1})
+
+
+def test_score_masks_counts_switches_and_recall():
+    truth = table([(f, 1, (10 + f, 20, 20, 20)) for f in range(10)])
+    truth.track_id = np.full(len(truth), 7)
+    est = MaskTable(truth.frame, np.where(truth.frame < 5, 1, 2), truth.class_id, H, W,
+                    list(truth.rles))
+    s = score_masks(truth.frames(), est.frames())
+    assert (s.truth, s.matched, s.pairs, s.kept, s.switches, s.tracks) == (10, 10, 9, 8, 1, 1)
+    assert s.switches_per_100 == 100.0 and s.class_accuracy([1]) == 1.0

@@ -1,0 +1,85 @@
+"""Tiny synthetic videos with known masks, for the video-path tests (rendered here, in
+milliseconds: a smooth random background, sensor noise, moving coloured rectangles)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+H, W = 120, 160
+
+
+def background(seed: int = 0) -> np.ndarray:
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    small = rng.integers(60, 140, size=(12, 16, 3)).astype(np.uint8)
+    return cv2.resize(small, (W, H), interpolation=cv2.INTER_CUBIC)
+
+
+def boxes_at(frame: int, boxes: list[dict]) -> list[tuple[int, tuple[int, int, int, int]]]:
+    """(id, (x0, y0, x1, y1)) of the boxes visible in ``frame``. A box dict: id, x, y (top-left
+    at frame 0), w, h, vx, vy (pixels per frame), frames (first, last)."""
+    out = []
+    for b in boxes:
+        a, z = b.get("frames", (0, 10**9))
+        if not a <= frame <= z:
+            continue
+        x = int(round(b["x"] + b.get("vx", 0) * frame))
+        y = int(round(b["y"] + b.get("vy", 0) * frame))
+        out.append((b["id"], (x, y, x + b["w"], y + b["h"])))
+    return out
+
+
+def render(frame: int, boxes: list[dict], bg: np.ndarray, rng: np.random.Generator,
+           light: float = 0.0) -> np.ndarray:
+    img = bg.astype(np.int16) + int(light)
+    for bid, (x0, y0, x1, y1) in boxes_at(frame, boxes):
+        img[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = (40 + 50 * bid % 200, 200, 230)
+    img = img + rng.normal(0, 2.0, img.shape).round().astype(np.int16)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def truth_mask(frame: int, boxes: list[dict], bid: int) -> np.ndarray:
+    m = np.zeros((H, W), np.uint8)
+    for i, (x0, y0, x1, y1) in boxes_at(frame, boxes):
+        if i == bid:
+            m[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = 1
+    return m
+
+
+def write_folder(folder: Path, n: int, boxes: list[dict], light: dict[int, float] | None = None,
+                 seed: int = 0) -> Path:
+    """PNG frames 000000.png ... (lossless: masks are exact)."""
+    import cv2
+
+    folder.mkdir(parents=True, exist_ok=True)
+    bg = background(seed)
+    rng = np.random.default_rng(seed + 1)
+    for f in range(n):
+        cv2.imwrite(str(folder / f"{f:06d}.png"), render(f, boxes, bg, rng, (light or {}).get(f, 0.0)))
+    return folder
+
+
+def write_video(path: Path, n: int, boxes: list[dict], fourcc: str = "MJPG", seed: int = 0) -> Path:
+    import cv2
+
+    bg = background(seed)
+    rng = np.random.default_rng(seed + 1)
+    wr = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10.0, (W, H))
+    for f in range(n):
+        wr.write(render(f, boxes, bg, rng))
+    wr.release()
+    return path
+
+
+def single_threaded_opencv():
+    """A fixture body: OpenCV on one thread while a test runs. Once OpenCV's worker pool has
+    started, a process forked later (``s2p synth``'s workers in other tests) can hang in it."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(before)
