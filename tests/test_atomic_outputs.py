@@ -204,7 +204,7 @@ def test_import_mcap_malformed_rows_one_line_in_the_cli(tmp_path):
 def test_output_under_a_file_is_one_line(tmp_path):
     s = write_scene(tmp_path / "s")
     (tmp_path / "file").write_text("keep me")
-    r = s2p("convert-masks", s.masks_path("c0"), tmp_path / "file" / "m.json", "--format", "coco")
+    r = s2p("convert-masks", s.masks_path("c0"), "-o", tmp_path / "file" / "m.json", "--format", "coco")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines() == [
         f"error: cannot write {tmp_path / 'file' / 'm.json'}: a file is in the way where a folder "

@@ -277,7 +277,7 @@ def test_eval_refuses_a_half_written_run(scene_and_run, missing):
     scene, run = scene_and_run
     (run / missing).unlink()
     with pytest.raises(InputError, match=rf"{missing}: not a finished run"):
-        evaluate_run(scene, run)
+        evaluate_run(load_scene(scene), run)
 
 
 def test_eval_and_heights_agree_on_classes(scene_and_run):
@@ -291,7 +291,7 @@ def test_eval_and_heights_agree_on_classes(scene_and_run):
     with pytest.raises(InputError, match=r"poses\.csv:\d+: field 'class': unknown class 'tram'"):
         collect_height_views(load_scene(scene), split=None)
     with pytest.raises(InputError, match=r"poses\.csv:\d+: field 'class': unknown class 'tram'"):
-        evaluate_run(scene, run)
+        evaluate_run(load_scene(scene), run)
 
 
 # --- UTOCS --------------------------------------------------------------------------------------
@@ -362,7 +362,8 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     import torch
 
     from seg2pose.io.run import read_run_meta
-    from seg2pose.net import Checkpoint, NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.checkpoint import Checkpoint
+    from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet
     from seg2pose.pipeline import run_scene
 
     s = write_scene(tmp_path / "s")

@@ -171,6 +171,9 @@ def _polygons(seg: list, hw: tuple[int, int] | None, path: Path, i: int) -> dict
     if hw is None:
         raise InputError("polygon masks need the image size: give 'height' and 'width' in the "
                          "'images' entry", file=path, field=f"[{i}].segmentation")
+    if not seg:
+        raise InputError("expected at least one polygon [x0, y0, x1, y1, ...]", file=path,
+                         field=f"[{i}].segmentation")
     polys = []
     for k, p in enumerate(seg):
         if (not isinstance(p, list) or len(p) < 6 or len(p) % 2
