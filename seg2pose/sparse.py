@@ -193,12 +193,17 @@ class SparseSeg2PoseNet(nn.Module):
 
     ``bucket``: window sides are rounded up to this many input pixels, so that crops with
     similar masks share one batch; ``dense_frac``: a window covering this fraction of its map
-    is widened to the whole map and the rest of the trunk runs densely."""
+    is widened to the whole map and the rest of the trunk runs densely (crops whose input
+    window is that large run densely from the start, in one batch). Default: 0.6 for the
+    paper arch, 0.25 for the small archs, where the per-window bookkeeping weighs more
+    (docs/BENCHMARKS.md: lite-hr cars, windows of 0.3-0.7 of the crop, ran 0.7x sparse)."""
 
-    def __init__(self, net: Seg2PoseNet, bucket: int = 8, dense_frac: float = 0.6):
+    def __init__(self, net: Seg2PoseNet, bucket: int = 8, dense_frac: float | None = None):
         super().__init__()
         self.net = net
         self.steps = trunk_steps(net)
+        if dense_frac is None:
+            dense_frac = 0.6 if net.cfg.input_size >= 300 else 0.25
         self.bucket, self.dense_frac = int(bucket), float(dense_frac)
         self.bg = Background(net, self.steps)
 
@@ -254,9 +259,15 @@ class SparseSeg2PoseNet(nn.Module):
         boxes = crop_boxes(x)
         hw = window_sizes(boxes, x.shape[-1], self.bucket)
         out = [None] * len(x)
-        bgs = self.backgrounds(x)
         keys = hw[:, 0] * 100000 + hw[:, 1]
-        for k in np.unique(keys):
+        big = hw[:, 0] * hw[:, 1] >= self.dense_frac * x.shape[-1] ** 2
+        bgs = self.backgrounds(x) if not big.all() else None
+        if big.any():
+            idx = np.flatnonzero(big)
+            for j, y in zip(idx, self.net.trunk(x[idx])):
+                out[j] = y
+            keys[big] = -1
+        for k in np.unique(keys[~big]):
             idx = np.flatnonzero(keys == k)
             y = self.trunk_windows(x[idx], boxes[idx], (int(hw[idx[0], 0]), int(hw[idx[0], 1])), bgs)
             for j, b in enumerate(idx):

@@ -380,3 +380,13 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     run_scene(s, tmp_path / "run", progress=False, allow_incomplete=not complete)
     used = read_run_meta(tmp_path / "run")["models"]
     assert used and all(len(m["sha256"]) == 64 for m in used.values())
+
+
+def test_coco_empty_polygon_list(tmp_path):
+    """Found by the fuzzer: 'segmentation': [] crashed in pycocotools (IndexError)."""
+    recs = [{"frame": 0, "image_id": 0, "category_id": 1, "segmentation": []}]
+    (tmp_path / "m.json").write_text(json.dumps({"images": [{"id": 0, "height": H, "width": W}],
+                                                 "annotations": recs}))
+    with pytest.raises(InputError, match=r"m\.json: field '\[0\]\.segmentation': expected at "
+                                         r"least one polygon"):
+        read_coco(tmp_path / "m.json")

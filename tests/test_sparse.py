@@ -75,12 +75,12 @@ def crops() -> tuple[np.ndarray, list[str]]:
     return out, kinds + ["empty"]
 
 
-def dense_and_sparse(net: Seg2PoseNet, x: np.ndarray, seed: int = 0):
+def dense_and_sparse(net: Seg2PoseNet, x: np.ndarray, seed: int = 0, dense_frac=None):
     xt = torch.from_numpy(np.asarray(x, np.float32))[:, None]
     v = torch.from_numpy(np.random.default_rng(seed).normal(size=(len(x), net.cfg.n_vec))
                          .astype(np.float32))
     with torch.no_grad():
-        return net(xt, v), SparseSeg2PoseNet(net)(xt, v)
+        return net(xt, v), SparseSeg2PoseNet(net, dense_frac=dense_frac)(xt, v)
 
 
 def test_crops_cover_the_cases(crops):
@@ -107,7 +107,9 @@ def test_small_archs_sparse_equals_dense_on_real_masks(arch, crops):
     x, _ = crops
     net = he_init(make_net(arch), seed=1)
     x = downsample_crops(center_cut(x, net.cfg.crop), net.cfg.downsample)
-    d, s = dense_and_sparse(net, x)
+    d, s = dense_and_sparse(net, x, dense_frac=1.0)     # every crop through the windows
+    assert (d - s).abs().max().item() <= TOL
+    d, s = dense_and_sparse(net, x)                     # large windows run densely
     assert (d - s).abs().max().item() <= TOL
     assert d.std(dim=0).min().item() > 0.05
 
@@ -120,10 +122,12 @@ def narrow(size: int, pools: int) -> NetConfig:
 
 
 @settings(max_examples=12, deadline=None)
-@given(size=st.integers(40, 90), pools=st.integers(0, 3), data=st.data())
-def test_random_boxes_anywhere(size, pools, data):
+@given(size=st.integers(40, 90), pools=st.integers(0, 3), dense_frac=st.floats(0.2, 1.0),
+       data=st.data())
+def test_random_boxes_anywhere(size, pools, dense_frac, data):
     """Random blobs in random boxes (touching any border, or the whole crop), several per batch
-    with different windows, on crop sides that pooling floors (odd sizes)."""
+    with different windows, on crop sides that pooling floors (odd sizes); windows switch to
+    the dense path at any size."""
     net = he_init(Seg2PoseNet(narrow(size, pools)), seed=size)
     n = data.draw(st.integers(1, 4))
     rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
@@ -132,7 +136,7 @@ def test_random_boxes_anywhere(size, pools, data):
         y0, x0 = (data.draw(st.integers(0, size - 1)) for _ in range(2))
         y1, x1 = data.draw(st.integers(y0 + 1, size)), data.draw(st.integers(x0 + 1, size))
         x[b, y0:y1, x0:x1] = rng.random((y1 - y0, x1 - x0)) > 0.4
-    d, s = dense_and_sparse(net, x)
+    d, s = dense_and_sparse(net, x, dense_frac=dense_frac)
     assert (d - s).abs().max().item() <= TOL
 
 
@@ -157,7 +161,7 @@ def test_gradients_equal_dense(crops):
         net = he_init(make_net("lite-hr"), seed=2).train()
         xt = torch.from_numpy(center_cut(x, 140).astype(np.float32))[:, None]
         v = torch.ones(len(x), 4)
-        y = (SparseSeg2PoseNet(net).train() if sparse_fwd else net)(xt, v)
+        y = (SparseSeg2PoseNet(net, dense_frac=1.0).train() if sparse_fwd else net)(xt, v)
         (y ** 2).sum().backward()
         grads.append(torch.cat([p.grad.flatten() for p in net.parameters()]))
     scale = grads[0].abs().max().item()

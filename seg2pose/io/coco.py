@@ -178,7 +178,7 @@ def _polygons(seg: list, hw: tuple[int, int] | None, path: Path, i: int) -> dict
     for k, p in enumerate(seg):
         if (not isinstance(p, list) or len(p) < 6 or len(p) % 2
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                           and math.isfinite(v) for v in p)):
+                           and math.isfinite(v) and abs(v) <= 1e7 for v in p)):
             raise InputError("expected a polygon [x0, y0, x1, y1, ...] of at least 3 points",
                              file=path, field=f"[{i}].segmentation[{k}]")
         polys.append([float(v) for v in p])
