@@ -67,7 +67,10 @@ def test_one_cli_style():
 
     root = typer.main.get_command(app)
     assert len(root.commands) >= 14
-    for name, cmd in root.commands.items():
+    commands = dict(root.commands)
+    for name, group in root.commands.items():  # command groups: their commands too
+        commands.update({f"{name} {k}": c for k, c in getattr(group, "commands", {}).items()})
+    for name, cmd in commands.items():
         summary = (cmd.help or "").strip().splitlines()[0]
         assert summary.endswith(".") and len(summary) <= 100, (name, summary)
         for p in cmd.params:
