@@ -77,7 +77,7 @@ def test_batch_matches_single_scene_commands(study, tmp_path):
         del m["created"], m["scene"]  # the time, and the scene's path relative to the run
     assert m1 == m2
     # eval: what `s2p eval --json` prints
-    r2 = cli(["eval", str(a), str(batch_run), "--json"])
+    r2 = cli(["eval", str(a), "--run", str(batch_run), "--json"])
     assert json.loads(r2.output) == json.loads((a / "batch" / "baseline.eval.json").read_text())
     # export: the same MCAP, byte for byte
     out = tmp_path / "a.mcap"
