@@ -66,11 +66,13 @@ class BatchOptions:
 class Step:
     """One step over a scene. inputs/outputs(scene_dir, opts) -> the files (or folders) it
     reads and writes; run(scene_dir, opts, force) -> info for the summary (JSON-ready dict,
-    optionally with "frames")."""
+    optionally with "frames"). A step that does not own its outputs (masks/) replaces them only
+    with force or when its own record shows it made them."""
     name: str
     inputs: Callable[[Path, BatchOptions], list[Path]]
     outputs: Callable[[Path, BatchOptions], list[Path]]
     run: Callable[[Path, BatchOptions, bool], dict]
+    owns_outputs: bool = True  # outputs only s2p batch writes (under batch/): replaced when stale
 
 
 # --- fingerprints ---------------------------------------------------------------------------------
@@ -142,7 +144,8 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
         else:
             inputs = fingerprint(step.inputs(scene_dir, opts), scene_dir, opts.to_dict())
             # our own earlier output (record present) may be replaced; anything else needs force
-            force = opts.force or _record_path(scene_dir, step.name).exists() or step.name != "masks-from-video"
+            force = (step.owns_outputs or opts.force
+                     or _record_path(scene_dir, step.name).exists())
             res["info"] = step.run(scene_dir, opts, force) or {}
             _write_record(step, scene_dir, opts, inputs, res["info"])
     except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
@@ -208,7 +211,7 @@ def _eval_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
 
 
 MASKS_FROM_VIDEO = Step("masks-from-video", lambda s, o: [s / "scene.json", s / "video"],
-                        lambda s, o: [s / "masks"], _masks_run)
+                        lambda s, o: [s / "masks"], _masks_run, owns_outputs=False)
 RUN = Step("run", _run_inputs, lambda s, o: [run_dir(s, o)], _run_run)
 EVAL = Step("eval", lambda s, o: [s / "scene.json", s / "gt", run_dir(s, o)],
             lambda s, o: [eval_path(s, o)], _eval_run)
@@ -254,6 +257,23 @@ def _ray():
 
 def ray_available() -> bool:
     return _ray() is not None
+
+
+def ray_map(address: str | None = None, num_cpus: int | None = None):
+    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
+    and returns the results in order: for ``train_scene(map_groups=...)``. Starts a local Ray
+    (``num_cpus``) or joins ``address`` unless Ray is running already."""
+    ray = _ray()
+    if ray is None:
+        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
+
+    def mapper(fn, items):
+        if not ray.is_initialized():
+            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
+        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
+        return ray.get([remote.remote(x) for x in items])
+
+    return mapper
 
 
 def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,

@@ -18,8 +18,9 @@ their examples are nearly the same views). ``quick`` keeps the paper's one model
 
 Checkpoints (``seg2pose.checkpoint``): ``MODELS/<camera>__<class>.safetensors`` (``__all`` when
 shared). While training, ``<name>.state.pt`` holds the resume state (after every epoch); an
-interrupted ``s2p train`` continues from it. A NaN loss stops training with a message; the
-best checkpoint so far stays on disk.
+interrupted ``s2p train`` continues from it; a damaged one is set aside
+(``.state.pt.damaged-<time>``) and training continues from the last good checkpoint. A NaN loss
+stops training with a message; the best checkpoint so far stays on disk.
 
 This module is the training loop (``train_model``, read it top to bottom) and the protocol;
 the examples each model trains on are assembled by ``seg2pose.training_data``.
@@ -189,11 +190,61 @@ def _lr_factor(schedule: str, steps: int):
     return lambda k: 1.0
 
 
-def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig") -> dict | None:
-    """The resume state of an interrupted training of the same scene and protocol, or None."""
+_RESUME_KEYS = {"run", "epoch", "best", "best_state", "net", "scene_fingerprint", "config"}
+
+
+def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainConfig",
+               path: Path | None) -> dict | None:
+    """Move a damaged resume state out of the way (``.state.pt.damaged-<time>``) and return a
+    resume state rebuilt from the last good checkpoint (weights and best so far; the
+    optimiser starts afresh), or None to train from the start."""
+    import datetime as dt
+    import os
+
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    bad = state_path.with_name(f"{state_path.name}.damaged-{stamp}")
+    os.replace(state_path, bad)
+    why = f"{type(err).__name__}: {(str(err).splitlines() or [''])[0][:100]}"
+    last = None
+    if path is not None and path.exists():
+        try:
+            last = Checkpoint.load(path)
+        except S2PError:
+            last = None
+    info = last.info if last is not None else {}
+    usable = (last is not None and info.get("complete") is False
+              and last.scene_fingerprint == ckpt.scene_fingerprint
+              and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
+              and info.get("train_config", asdict(cfg)) == asdict(cfg))
+    if not usable:
+        say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+            "no checkpoint of this training to continue from, so it starts afresh", "warning")
+        return None
+    r, e = info["run"], info["epoch"]  # 1-based run, epochs done in it, of the best checkpoint
+    weights = {k: v.detach().cpu() for k, v in last.net.state_dict().items()}
+    best = {k: info[k] for k in ("val_loss", "val_error_m", "epoch", "seed", "run", "train_loss")
+            if k in info}
+    say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+        f"continuing from the last good checkpoint {path.name} (run {r}, epoch {e})", "warning")
+    done = e >= cfg.epochs
+    return {"run": r if done else r - 1, "epoch": 0 if done else e, "best": best,
+            "best_state": weights, "net": weights}
+
+
+def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: Path) -> dict | None:
+    """The resume state of an interrupted training of the same scene and protocol, or None; a
+    damaged one is set aside and rebuilt from the last good checkpoint (``_set_aside``; it has
+    no optimiser state then)."""
     if not state_path.exists() or cfg.force:
         return None
-    resume = torch.load(state_path, map_location="cpu", weights_only=False)
+    try:
+        resume = torch.load(state_path, map_location="cpu", weights_only=False)
+        if not isinstance(resume, dict) or not _RESUME_KEYS <= resume.keys():
+            raise ValueError("not an s2p resume state")
+    except Exception as e:  # noqa: BLE001 - torch and pickle raise many kinds on a damaged file
+        return _set_aside(state_path, e, ckpt, cfg, path)
+    if "opt" not in resume:
+        return resume
     if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
         say(f"{state_path} is from another scene or protocol; starting afresh", "warning")
         return None
@@ -222,7 +273,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     n_real = cfg.batch_size - n_rough
     if n_real and (train is None or not len(train.ex)):
         raise S2PError(f"{path.stem}: no training examples")
-    resume = _load_resume(state_path, ckpt, cfg)
+    resume = _load_resume(state_path, ckpt, cfg, path)
     start_run, start_epoch, best = (resume["run"], resume["epoch"], resume["best"]) if resume else (
         0, 0, {"val_loss": math.inf})
     best_state = resume["best_state"] if resume else None
@@ -238,10 +289,11 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
         epoch0 = 0
         if resume is not None and run == start_run and start_epoch > 0:
             net.load_state_dict(resume["net"])
-            opt.load_state_dict(resume["opt"])
-            sched.load_state_dict(resume["sched"])
-            rng.bit_generator.state = resume["rng"]
-            torch.set_rng_state(resume["torch_rng"])
+            if "opt" in resume:  # not when rebuilt from a checkpoint (see _set_aside)
+                opt.load_state_dict(resume["opt"])
+                sched.load_state_dict(resume["sched"])
+                rng.bit_generator.state = resume["rng"]
+                torch.set_rng_state(resume["torch_rng"])
             epoch0 = start_epoch
         net.train()
         bar = tqdm(range(epoch0, cfg.epochs), desc=f"{path.stem} run {run + 1}/{cfg.runs}",
@@ -306,13 +358,17 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 
 def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
-                classes: list[str] | None = None, progress: bool = True) -> Path:
+                classes: list[str] | None = None, progress: bool = True,
+                map_groups=None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
+
+    ``map_groups(fn, groups)``: how the camera groups' trainings are run (default: one after
+    another; ``seg2pose.batch.ray_map`` runs them as Ray tasks, with the same result).
 
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
     from seg2pose.io.poses import read_poses
-    from seg2pose.training_data import model_jobs
+    from seg2pose.training_data import camera_groups, model_jobs
     from seg2pose.zero_annotation import calibrate_radial
 
     cfg = config or TrainConfig()
@@ -335,7 +391,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     if gt is not None:
         gt = gt.take(np.argsort(gt.frame, kind="stable"))
     out.mkdir(parents=True, exist_ok=True)
-    for job in model_jobs(scene, out, cfg, net_cfg, cams, cls_list, gt):
+    def train_job(job) -> None:
         n_rough = 0 if job.rough is None else len(job.rough)
         say(f"{job.path.stem}: {len(job.train)} annotated + {n_rough} rough training examples, "
             f"{len(job.val)} validation")
@@ -358,4 +414,12 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                                    center_method=cfg.center_method)
             say(f"{job.path.stem}: radial calibration from unlabelled masks (m): "
                 + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
+
+    def train_group(group: tuple[str, list[str]]) -> None:
+        # one camera group's models: independent of the other groups (own example random
+        # stream, torch seeded per run), so groups may run in any order or in parallel
+        for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
+            train_job(job)
+
+    list((map_groups or map)(train_group, camera_groups(scene, cams, cfg.share_cameras)))
     return out

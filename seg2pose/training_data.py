@@ -101,47 +101,49 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
     return ExampleSet.concat(tr_parts), ExampleSet.concat(va_parts)
 
 
-def model_jobs(scene: Scene, out: Path, cfg: "TrainConfig", net_cfg: NetConfig, cams: list[str],
+def model_jobs(scene: Scene, out: Path, cfg: "TrainConfig", net_cfg: NetConfig, group: tuple[str, list[str]],
                classes: list[str], gt: PoseTable | None) -> Iterator[ModelJob]:
-    """The models of ``cams`` x ``classes`` still to train, with their examples (built lazily,
-    one model at a time, so memory holds one model's rough pool)."""
+    """The models of one camera group (``camera_groups``) x ``classes`` still to train, with
+    their examples (built lazily, one model at a time, so memory holds one model's rough pool).
+    A group's examples depend on no other group (own random stream), so groups may be trained
+    in any order or in parallel."""
     crop, factor = net_cfg.crop, net_cfg.downsample
     fp = scene.fingerprint()
-    for gkey, gcams in camera_groups(scene, cams, cfg.share_cameras):
-        camera = scene.cameras[gcams[0]]
-        norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
-                                       cfg.residual_scale)
-        todo = _pending(out, gkey, ["*"] if cfg.share_classes else classes, cfg, fp)
-        if not todo:
-            continue
-        rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
-        train_ex, val_ex = _annotated(scene, gcams, gt, cfg, crop, factor, rng)
+    gkey, gcams = group
+    camera = scene.cameras[gcams[0]]
+    norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
+                                   cfg.residual_scale)
+    todo = _pending(out, gkey, ["*"] if cfg.share_classes else classes, cfg, fp)
+    if not todo:
+        return
+    rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
+    train_ex, val_ex = _annotated(scene, gcams, gt, cfg, crop, factor, rng)
 
-        def rough_pool(classes_: list[str], n: int) -> ExampleSet:
-            return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
-                                                     cfg.center_method,
-                                                     detector_noise=cfg.rough_detector_noise,
-                                                     occlusion=cfg.rough_occlusion)
-                                      for cam in gcams for c in classes_])
+    def rough_pool(classes_: list[str], n: int) -> ExampleSet:
+        return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
+                                                 cfg.center_method,
+                                                 detector_noise=cfg.rough_detector_noise,
+                                                 occlusion=cfg.rough_occlusion)
+                                  for cam in gcams for c in classes_])
 
-        for k, path in todo:
-            kcls = classes if k == "*" else [k]
-            tr = train_ex.take(np.flatnonzero(np.isin(train_ex.cls, kcls)))
-            va = val_ex.take(np.flatnonzero(np.isin(val_ex.cls, kcls)))
-            rough = None
-            if cfg.zero_annotation or cfg.rough_every > 0:
-                rough = rough_pool(kcls, cfg.rough_per_class)
-            if cfg.zero_annotation or len(va) == 0:
-                if not cfg.zero_annotation:
-                    say(f"{path.stem}: no annotated validation examples; validating on rough models",
-                        "warning")
-                va = rough_pool(kcls, cfg.rough_val_per_class)
-            if len(tr) == 0 and not cfg.zero_annotation:
-                if rough is None or len(rough) == 0:
-                    say(f"{path.stem}: no training examples at all; skipped", "warning")
-                    continue
-                say(f"{path.stem}: no annotated examples; training on rough models only", "warning")
-            if len(va) == 0:
-                say(f"{path.stem}: no validation examples; skipped", "warning")
+    for k, path in todo:
+        kcls = classes if k == "*" else [k]
+        tr = train_ex.take(np.flatnonzero(np.isin(train_ex.cls, kcls)))
+        va = val_ex.take(np.flatnonzero(np.isin(val_ex.cls, kcls)))
+        rough = None
+        if cfg.zero_annotation or cfg.rough_every > 0:
+            rough = rough_pool(kcls, cfg.rough_per_class)
+        if cfg.zero_annotation or len(va) == 0:
+            if not cfg.zero_annotation:
+                say(f"{path.stem}: no annotated validation examples; validating on rough models",
+                    "warning")
+            va = rough_pool(kcls, cfg.rough_val_per_class)
+        if len(tr) == 0 and not cfg.zero_annotation:
+            if rough is None or len(rough) == 0:
+                say(f"{path.stem}: no training examples at all; skipped", "warning")
                 continue
-            yield ModelJob(k, gkey, gcams, path, norm, tr, rough, va)
+            say(f"{path.stem}: no annotated examples; training on rough models only", "warning")
+        if len(va) == 0:
+            say(f"{path.stem}: no validation examples; skipped", "warning")
+            continue
+        yield ModelJob(k, gkey, gcams, path, norm, tr, rough, va)

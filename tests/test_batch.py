@@ -183,3 +183,65 @@ def test_bad_usage_is_one_clear_error(tmp_path):
     assert "unknown step 'fly'" in str(r.exception)
     r = cli(["batch", str(tmp_path), "run"])
     assert "--baseline or --models" in str(r.exception)
+
+
+def test_masks_from_video_step_matches_the_command(tmp_path):
+    """A study with one video scene and one whose video is missing: the masks written by the
+    batch step are the masks `s2p masks-from-video` writes; the other scene is reported."""
+    from test_video_scene import calibration
+    from video_fixtures import write_folder
+
+    import cv2
+
+    calibration(tmp_path)
+    write_folder(tmp_path / "frames", 16, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
+    st = tmp_path / "st"
+    for n in ("v1", "v2"):
+        r = cli(["new-scene", str(st / n), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+                 str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
+        assert r.exit_code == 0, r.output
+        sj = st / n / "scene.json"
+        d = json.loads(sj.read_text())
+        d.setdefault("extra", {})["video_masks"] = {"min_area": 40, "init_samples": 8}
+        sj.write_text(json.dumps(d))
+    single = tmp_path / "single"
+    shutil.copytree(st / "v1", single, symlinks=True)
+    shutil.rmtree(st / "v2" / "video")  # the bad scene: no video
+    n_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
+        assert cli(["masks-from-video", str(single), "--quiet"]).exit_code == 0
+    finally:
+        cv2.setNumThreads(n_threads)
+    assert r.exit_code == 1, r.output
+    rows = {row["scene"]: row for row in json.loads((st / "summary.json").read_text())["scenes"]}
+    assert rows["v1"]["steps"] == {"masks-from-video": "done"} and rows["v1"]["frames"] == 16
+    assert rows["v2"]["steps"] == {"masks-from-video": "failed"}
+    got = (st / "v1" / "masks" / "c0.txt").read_bytes()
+    assert got == (single / "masks" / "c0.txt").read_bytes() and len(got.splitlines()) == 16
+    # a re-run skips it; masks it did not make are not replaced without --force
+    r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
+    rows = {row["scene"]: row for row in json.loads((st / "summary.json").read_text())["scenes"]}
+    assert rows["v1"]["steps"] == {"masks-from-video": "skipped"}
+
+
+def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
+    """`s2p train --parallel`: the cameras' trainings as Ray tasks give the same checkpoints,
+    byte for byte, as the serial protocol (same seeds, same examples)."""
+    from test_pipeline import make_tiny_scene
+    from test_train import tiny_config
+
+    from seg2pose.batch import ray_map
+    from seg2pose.train import train_scene
+
+    scene = make_tiny_scene(tmp_path / "tiny", frames=30, n_users=6, seed=1)
+    cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3)
+    cams = ["c0", "c1"]
+    ser = train_scene(scene, tmp_path / "serial", cfg, cameras=cams, progress=False)
+    par = train_scene(scene, tmp_path / "ray", cfg, cameras=cams, progress=False,
+                      map_groups=ray_map())
+    files = sorted(p.name for p in ser.iterdir() if p.suffix == ".safetensors")
+    assert len(files) == 2 and files == sorted(p.name for p in par.iterdir() if p.suffix == ".safetensors")
+    for f in files:
+        assert (ser / f).read_bytes() == (par / f).read_bytes()

@@ -85,12 +85,15 @@ def train_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
+    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train the cameras' models in parallel as Ray tasks on this many local CPUs (same seeds, same models)"),
+    address: Optional[str] = typer.Option(None, "--address", help="train the cameras' models as tasks on this Ray cluster"),
 ) -> None:
     """Train Seg2PoseNet on a scene, per camera and class (paper 4.1).
 
     The paper's protocol: best of four runs, Adam 5e-5, batch 16, 64 batches per epoch,
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
+    from seg2pose.batch import ray_map
     from seg2pose.io.scene import load_scene
     from seg2pose.train import TrainConfig, train_scene
 
@@ -103,7 +106,8 @@ def train_cmd(
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force,
                       **{k: v for k, v in over.items() if v is not None})
     out_dir = train_scene(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
-                          progress=True)
+                          progress=True,
+                          map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
 
 
