@@ -197,7 +197,7 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     write_folder(tmp_path / "frames", 16, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
     st = tmp_path / "st"
     for n in ("v1", "v2"):
-        r = cli(["new-scene", str(st / n), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+        r = cli(["new-scene", "-o", str(st / n), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
                  str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
         assert r.exit_code == 0, r.output
         sj = st / n / "scene.json"
@@ -210,8 +210,8 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     n_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
-        assert cli(["masks-from-video", str(single), "--quiet"]).exit_code == 0
+        r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress"])
+        assert cli(["masks-from-video", str(single), "--no-progress"]).exit_code == 0
     finally:
         cv2.setNumThreads(n_threads)
     assert r.exit_code == 1, r.output
@@ -221,7 +221,7 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     got = (st / "v1" / "masks" / "c0.txt").read_bytes()
     assert got == (single / "masks" / "c0.txt").read_bytes() and len(got.splitlines()) == 16
     # a re-run skips it; masks it did not make are not replaced without --force
-    r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
+    r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress"])
     rows = {row["scene"]: row for row in json.loads((st / "summary.json").read_text())["scenes"]}
     assert rows["v1"]["steps"] == {"masks-from-video": "skipped"}
 
