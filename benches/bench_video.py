@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import resource
 import sys
 import tempfile
 import time
@@ -62,8 +61,9 @@ def _masks_child(video: str, out: str, q) -> None:
 
     t = time.perf_counter()
     res = masks_from_video(video, out, BgConfig(), log=lambda s: None)
-    q.put((res.n_frames, res.n_masks, time.perf_counter() - t,
-           resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+    # VmHWM, not ru_maxrss: Linux carries ru_maxrss over fork + exec from the parent
+    hwm = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
+    q.put((res.n_frames, res.n_masks, time.perf_counter() - t, hwm / 1024))
 
 
 def masks_from_video_run(video: Path, out: Path) -> tuple[int, int, float, float]:
@@ -98,8 +98,10 @@ def bgsub_only(video: Path, n: int) -> float:
     return len(frames) / (time.perf_counter() - t)
 
 
-def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float]:
-    """frames/s of the tracker on 20 moving masks per frame, IoU only and with world distances."""
+def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float, float, float]:
+    """frames/s of the tracker on 20 moving masks per frame: IoU only, IoU + world distances,
+    and the same with the splitting of merged masks on; plus the share of frames with a split.
+    The blobs overlap often (they are drawn at random and wrap around): a worst case."""
     from seg2pose.camera import Camera
     from seg2pose.ground import GroundSurface
     from seg2pose.io.mots import MaskTable
@@ -122,12 +124,16 @@ def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float]:
     cam = Camera.look_at("c", np.array([-12.0, -12.0, 10.0]), np.array([-1.0, -1.0, 0.0]), 900.0, W, H)
     g = np.array([(x, y, 0.0) for x in range(-30, 31, 10) for y in range(-30, 31, 10)], float)
     ground = GroundSurface(g)
+    from seg2pose.track import TrackConfig, Tracker, _run
+
     out = []
-    for c, gr in ((None, None), (cam, ground)):
+    for c, gr, split in ((None, None, 0.0), (cam, ground, 0.0), (cam, ground, 0.6)):
         t = time.perf_counter()
-        track_frames(iter(tabs), H, W, c, gr)
+        track_frames(iter(tabs), H, W, c, gr, TrackConfig(split_min=split))
         out.append(n_frames / (time.perf_counter() - t))
-    return out[0], out[1]
+    tr = Tracker(H, W, TrackConfig(split_min=0.6))
+    split_frames = sum(len(m) > len(t) for (m, _), (_, t) in zip(_run(iter(tabs), tr, cam, ground), tabs))
+    return out[0], out[1], out[2], split_frames / n_frames
 
 
 def main() -> None:
@@ -147,9 +153,10 @@ def main() -> None:
         n, m, s, rss = masks_from_video_run(v, tmp / "m.txt")
         print(f"masks-from-video end to end (decode, init, write): {n / s:.1f} frames/s, "
               f"{m / n:.1f} masks/frame, peak RSS {rss:.0f} MiB")
-        iou_fps, world_fps = tracker_fps(min(a.frames, 1000), a.users)
+        iou_fps, world_fps, split_fps, share = tracker_fps(min(a.frames, 1000), a.users)
         print(f"tracker, {a.users} masks/frame: IoU only {iou_fps:.0f} frames/s, IoU + world distance "
-              f"{world_fps:.0f} frames/s")
+              f"{world_fps:.0f} frames/s; with merged-mask splitting {split_fps:.0f} frames/s "
+              f"({100 * share:.0f} % of frames had a split)")
         for n_frames in [int(x) for x in a.memory.split(",") if x]:
             vm = tmp / f"m{n_frames}.mp4"
             write_video(vm, n_frames, a.users)

@@ -86,6 +86,40 @@ def coco_from_masks(masks: Path, out: Path, seed: int) -> int:
     return len(recs)
 
 
+def recall_moving_still(truth: Path, est: Path, cam: str, step_m: float = 0.03) -> dict:
+    """Recall (IoU >= 0.5, truth masks >= 150 px) split by whether the road user moved more
+    than ``step_m`` metres into or out of the frame (gt/poses.csv): background subtraction
+    cannot see road users that stand still for most of the video."""
+    from scipy.optimize import linear_sum_assignment
+
+    from seg2pose.io.poses import read_poses
+    from seg2pose.masks import iou, rle_stats
+
+    gt = read_poses(truth / "gt" / "poses.csv")
+    o = np.lexsort((gt.frame, gt.track_id))
+    tid, fr, xy = gt.track_id[o], gt.frame[o], gt.xyz[o, :2]
+    same = np.r_[False, tid[1:] == tid[:-1]]
+    step = np.where(same, np.r_[0, np.linalg.norm(np.diff(xy, axis=0), axis=1)], 0.0)
+    moved = np.maximum(step, np.r_[step[1:], 0.0]) > step_m
+    moving = {(int(f), int(t)): bool(m) for f, t, m in zip(fr, tid, moved)}
+    est_frames = {f: t for f, t in iter_mots(est / "masks" / f"{cam}.txt")}
+    hit = {True: 0, False: 0}
+    tot = {True: 0, False: 0}
+    for f, tt in iter_mots(truth / "masks" / f"{cam}.txt"):
+        area, _, _ = rle_stats(tt.rles, tt.height, tt.width)
+        ok = np.zeros(len(tt), bool)
+        if f in est_frames:
+            m = iou(tt.rles, est_frames[f].rles, tt.height, tt.width)
+            r, c = linear_sum_assignment(-m)
+            ok[r[m[r, c] >= 0.5]] = True
+        for i in np.flatnonzero(area >= 150):
+            k = moving.get((f, int(tt.track_id[i])), False)
+            tot[k] += 1
+            hit[k] += int(ok[i])
+    return {"recall_moving": hit[True] / max(tot[True], 1), "n_moving": tot[True],
+            "recall_still": hit[False] / max(tot[False], 1), "n_still": tot[False]}
+
+
 def s2p(*args: str) -> str:
     r = subprocess.run([sys.executable, "-c", "from seg2pose.cli import main; main()", *args],
                        capture_output=True, text=True)
@@ -103,7 +137,8 @@ def report(name: str, scene: Path, truth: Path, cam: str, config: str) -> dict:
            "identity_kept": s.identity_kept, "switches_per_100": s.switches_per_100,
            "truth_tracks": s.tracks, "est_tracks": int(len(np.unique(est.track_id))),
            "class_car_ped": s.class_accuracy([1, 3]), "class_all": s.class_accuracy([1, 2, 3]),
-           "baseline_m": ev["mean_error"], "matched": f"{ev['n_matched']}/{ev['n_gt']}"}
+           "baseline_m": ev["mean_error"], "matched": f"{ev['n_matched']}/{ev['n_gt']}",
+           **recall_moving_still(truth, scene, cam)}
     print(json.dumps(row))
     return row
 

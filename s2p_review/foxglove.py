@@ -101,6 +101,8 @@ def scene_update(table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int, lif
     fields = C.box_columns(table.xyz, table.heading, sizes)
     cols = L.class_colors(table.cls, scene.classes) if rgb is None else [rgb] * len(table)
     labels = L.labels(table.cls, table.track_id)
+    if table.source is not None:  # annotated tracks: say which poses were placed by hand
+        labels = [f"{lab} {src}" for lab, src in zip(labels, table.source)]
     for i in range(len(table)):
         if not np.isfinite(table.xyz[i]).all():
             continue

@@ -75,7 +75,8 @@ class ExportOptions:
     video: also the plain video frames (the display images already show the video under the
     masks); image_scale: the size images are shown at, relative to the camera's (calibration
     and annotations follow; the mono16 masks stay full size); jpeg_quality: of video and
-    display images; layout: write the Foxglove layout beside the file."""
+    display images; layout: write the Foxglove layout beside the file; attachments: more files
+    to carry, name -> bytes (e.g. an annotation journal, see ``annotated_mcap``)."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
@@ -86,6 +87,7 @@ class ExportOptions:
     image_scale: float = 1.0
     jpeg_quality: int = 75
     layout: bool = True
+    attachments: dict[str, bytes] | None = None
 
 
 @dataclass(frozen=True)
@@ -276,6 +278,9 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
                               media_type="text/csv", data=(scene.root / scene.ground_file).read_bytes())
         out.pb.add_attachment(create_time=0, log_time=t0, name="run.json", media_type=MEDIA_JSON,
                               data=json.dumps(run.meta, indent=1).encode())
+        for name, data in (opts.attachments or {}).items():
+            out.pb.add_attachment(create_time=0, log_time=t0, name=name,
+                                  media_type="application/octet-stream", data=data)
         out.pb.add_metadata("s2p", {
             "scene": scene.name, "run": run.path.name, "fps": repr(scene.fps),
             "first_frame": str(sel.first), "last_frame": str(sel.last),

@@ -16,6 +16,7 @@ from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
 from seg2pose.io.validate import inside, safe_name
 from s2p_review import mcap_records as R
+from s2p_review.annotated_mcap import restore_annotation_files
 
 
 @dataclass
@@ -110,7 +111,7 @@ def _check_restored(run_dir: Path, path: Path) -> None:
 def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
     """Restore an ``s2p export`` file as a scene folder: OUT/scene.json and the ground points
     (bytes as exported), OUT/out/<run>/run.json, poses.csv (the exact pose table) and
-    views.csv. Refuses a non-empty ``out_dir`` unless ``force``. Returns the run folder."""
+    views.csv, and an annotation journal when the export carries one (OUT/annotations/). Refuses a non-empty ``out_dir`` unless ``force``. Returns the run folder."""
     path, out_dir = Path(path), Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not force:
         raise S2PError(f"{out_dir} exists and is not empty; pass --force to write into it")
@@ -147,6 +148,7 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
                  if meta.get("has_views") == "true" or rec.views else None)
         write_run_folder(tmp / "out" / run_name, table, views, run_meta)
         _check_restored(tmp / "out" / run_name, path)
+        restore_annotation_files(att, tmp, path)
         _move_into(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -1,7 +1,7 @@
 """The lossless s2p channels of an MCAP export (JSON, one message per frame) and their
 inverse, so that ``mcap_import`` restores the run exactly what ``mcap_export`` wrote:
 
-    /s2p/poses   {"frame", "rows": [{frame, track_id, class, x, y, z, heading, l, w, h}]}
+    /s2p/poses   {"frame", "rows": [{frame, track_id, class, x, y, z, heading, l, w, h[, source]}]}
     /s2p/views   {"frame", "columns": ["row", *VIEW_COLUMNS], "rows": [[row, ...], ...]}
 
 Floats are written with Python's shortest exact repr; JSON has no NaN, so null stands for it.
@@ -64,6 +64,8 @@ def pose_messages(table: PoseTable) -> Iterator[tuple[int, dict]]:
                  "z": float(table.xyz[i, 2]), "heading": num(table.heading[i])}
             if table.size is not None:
                 r.update(l=num(table.size[i, 0]), w=num(table.size[i, 1]), h=num(table.size[i, 2]))
+            if table.source is not None:  # annotated poses: keyframe / interpolated / occluded
+                r["source"] = str(table.source[i])
             rows.append(r)
         yield f, {"frame": f, "rows": rows}
 
@@ -78,7 +80,7 @@ def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
     return PoseTable([r["frame"] for r in rows], [r["track_id"] for r in rows],
                      np.array([r["class"] for r in rows], dtype=object),
                      [[r["x"], r["y"], r["z"]] for r in rows], [unnum(r["heading"]) for r in rows],
-                     size)
+                     size, [r["source"] for r in rows] if all("source" in r for r in rows) else None)
 
 
 def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:

@@ -19,7 +19,8 @@ their examples are nearly the same views). ``quick`` keeps the paper's one model
 Checkpoints: ``MODELS/<camera>__<class>.safetensors`` (``__all`` when shared) + ``.json``
 metadata (camera, class, arch, normalisation, scene fingerprint, val loss, epoch, seed, run,
 "complete"). While training, ``<name>.state.pt`` holds the resume state (after every epoch);
-an interrupted ``s2p train`` continues from it. A NaN loss stops training with a message; the
+an interrupted ``s2p train`` continues from it; a damaged one is set aside
+(``.state.pt.damaged-<time>``) and training continues from the last good checkpoint. A NaN loss stops training with a message; the
 best checkpoint so far stays on disk.
 """
 
@@ -167,6 +168,59 @@ def _evaluate(net: Seg2PoseNet, data: _Data, device, residual_scale: float, batc
     return se / (4 * n), err / n
 
 
+_RESUME_KEYS = {"run", "epoch", "best", "best_state", "net", "scene_fingerprint", "config"}
+
+
+def _load_state(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: Path) -> dict | None:
+    """The resume state ``state_path`` as saved by ``train_model``; a damaged one (truncated,
+    or not a resume state at all) is reported and set aside (``_set_aside``)."""
+    try:
+        resume = torch.load(state_path, map_location="cpu", weights_only=False)
+        if not isinstance(resume, dict) or not _RESUME_KEYS <= resume.keys():
+            raise ValueError("not an s2p resume state")
+    except Exception as e:  # noqa: BLE001 - torch and pickle raise many kinds on a damaged file
+        return _set_aside(state_path, e, ckpt, cfg, path)
+    return resume
+
+
+def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainConfig",
+               path: Path | None) -> dict | None:
+    """Move a damaged resume state out of the way (``.state.pt.damaged-<time>``) and return a
+    resume state rebuilt from the last good checkpoint (weights and best so far; the
+    optimiser starts afresh), or None to train from the start."""
+    import datetime as dt
+    import os
+
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    bad = state_path.with_name(f"{state_path.name}.damaged-{stamp}")
+    os.replace(state_path, bad)
+    why = f"{type(err).__name__}: {(str(err).splitlines() or [''])[0][:100]}"
+    last = None
+    if path is not None and path.exists():
+        try:
+            last = Checkpoint.load(path)
+        except S2PError:
+            last = None
+    info = last.info if last is not None else {}
+    usable = (last is not None and info.get("complete") is False
+              and last.scene_fingerprint == ckpt.scene_fingerprint
+              and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
+              and info.get("train_config", asdict(cfg)) == asdict(cfg))
+    if not usable:
+        _say(f"warning: the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+             "no checkpoint of this training to continue from, so it starts afresh")
+        return None
+    r, e = info["run"], info["epoch"]  # 1-based run, epochs done in it, of the best checkpoint
+    weights = {k: v.detach().cpu() for k, v in last.net.state_dict().items()}
+    best = {k: info[k] for k in ("val_loss", "val_error_m", "epoch", "seed", "run", "train_loss")
+            if k in info}
+    _say(f"warning: the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+         f"continuing from the last good checkpoint {path.name} (run {r}, epoch {e})")
+    done = e >= cfg.epochs
+    return {"run": r if done else r - 1, "epoch": 0 if done else e, "best": best,
+            "best_state": weights, "net": weights}
+
+
 def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
                 cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True) -> dict:
     """Best-of-``cfg.runs`` training of one model; writes ``path`` (+ .json) whenever the
@@ -189,8 +243,12 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     best = {"val_loss": math.inf}
     start_run, start_epoch, resume = 0, 0, None
     if state_path.exists() and not cfg.force:
-        resume = torch.load(state_path, map_location="cpu", weights_only=False)
-        if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
+        resume = _load_state(state_path, ckpt, cfg, path)
+        if resume is None:
+            pass
+        elif "opt" not in resume:  # rebuilt from the last good checkpoint
+            start_run, start_epoch, best = resume["run"], resume["epoch"], resume["best"]
+        elif resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
             _say(f"warning: {state_path} is from another scene or protocol; starting afresh")
             resume = None
         else:
@@ -210,10 +268,11 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
         epoch0 = 0
         if resume is not None and run == start_run and start_epoch > 0:
             net.load_state_dict(resume["net"])
-            opt.load_state_dict(resume["opt"])
-            sched.load_state_dict(resume["sched"])
-            rng.bit_generator.state = resume["rng"]
-            torch.set_rng_state(resume["torch_rng"])
+            if "opt" in resume:  # not when rebuilt from a checkpoint (see _set_aside)
+                opt.load_state_dict(resume["opt"])
+                sched.load_state_dict(resume["sched"])
+                rng.bit_generator.state = resume["rng"]
+                torch.set_rng_state(resume["torch_rng"])
             epoch0 = start_epoch
         net.train()
         bar = tqdm(range(epoch0, cfg.epochs), desc=f"{path.stem} run {run + 1}/{cfg.runs}",

@@ -107,18 +107,22 @@ class VideoMasksResult:
     unsettled: list[tuple[int, int]] = field(default_factory=list)  # frame ranges (inclusive)
 
 
-def labels_to_rles(labels: np.ndarray, ids: np.ndarray) -> list[bytes]:
+def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
+                   width: int | None = None) -> list[bytes]:
     """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
 
     One pass over the column-major pixels finds every run of equal labels; each component's
-    RLE is its runs with the gaps between them, so no per-component full-image mask is made."""
-    h, w = labels.shape
+    RLE is its runs with the gaps between them, so no per-component full-image mask is made.
+    ``labels`` may also be a strip of full-height columns starting at column ``x0`` of an
+    image ``width`` wide (the rest of the image is label 0)."""
+    h, w_strip = labels.shape
+    w = w_strip if width is None else int(width)
     n = h * w
     flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
     cut = np.flatnonzero(flat[1:] != flat[:-1]) + 1
-    starts = np.r_[0, cut]
-    ends = np.r_[cut, n]
-    vals = flat[starts]
+    vals = flat[np.r_[0, cut]]
+    starts = np.r_[0, cut] + x0 * h               # a strip's pixels are contiguous in the image
+    ends = np.r_[cut, len(flat)] + x0 * h
     out = []
     if len(ids) == 0:
         return out
@@ -183,8 +187,12 @@ class BackgroundMasks:
             fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
         if self.k_close is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8, ltype=cv2.CV_32S)
-        ids = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(self.cfg.min_area, 1))
+        # labels only, areas by bincount: OpenCV's WithStats variant is several times slower here
+        n, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_32S)
+        if n <= 1:
+            return [], share
+        area = np.bincount(labels[fg.view(bool)], minlength=n)  # foreground pixels only
+        ids = np.flatnonzero(area >= max(self.cfg.min_area, 1))
         ids = ids[ids > 0]
         return labels_to_rles(labels, ids), share
 

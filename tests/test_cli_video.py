@@ -33,6 +33,12 @@ def test_video_commands(tmp_path, monkeypatch, capsys):
     assert "c0: 20 frames -> 20 masks -> 1 tracks (20 masks)" in r.output
     t = read_mots(tmp_path / "sc" / "masks" / "c0.txt")
     assert set(t.track_id.tolist()) == {1} and len(t) == 20
+    # the scene runs end to end: world tracks from the video's masks
+    r = run(app, ["run", sc, "-o", str(tmp_path / "run"), "--baseline", "-c", "mono-c0"])
+    assert r.exit_code == 0, r.output
+    from seg2pose.io.run import read_run_poses
+    poses = read_run_poses(tmp_path / "run")
+    assert len(poses) == 20 and set(poses.track_id.tolist()) == {1}
     r = run(app, ["track", sc, "--quiet", "--set", "min_length=30"])
     assert r.exit_code == 0 and "c0: 0 tracks, 0 masks" in r.output
     (tmp_path / "d.json").write_text(json.dumps([det(f, 1, rle(10, 10, 8, 20)) for f in range(8)]))

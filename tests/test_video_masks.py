@@ -38,6 +38,16 @@ def test_labels_to_rles_equals_pycocotools(vals):
         assert r == want
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 3), min_size=6 * 3, max_size=6 * 3), st.integers(0, 4))
+def test_labels_to_rles_of_a_column_strip(vals, x0):
+    strip = np.array(vals, np.int32).reshape(6, 3)
+    full = np.zeros((6, 3 + 4), np.int32)
+    full[:, x0:x0 + 3] = strip
+    ids = np.unique(strip[strip > 0])
+    assert labels_to_rles(strip, ids, x0=x0, width=7) == labels_to_rles(full, ids)
+
+
 def test_moving_boxes_are_recovered_exactly(tmp_path):
     folder = write_folder(tmp_path / "c0", 30, BOXES)
     res = masks_from_video(folder, tmp_path / "m.txt", CFG, log=lambda s: None)

@@ -31,14 +31,17 @@ def _root() -> None:
     """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
 
 
-from seg2pose.cli import demo, method, review, scene  # noqa: E402  (after app exists)
+from seg2pose.cli import annotation, demo, method, review, scene  # noqa: E402  (after app exists)
 from seg2pose.cli import video  # noqa: E402
+from seg2pose.cli import batch  # noqa: E402
 
 scene.register(app)
 video.register(app)
 method.register(app)
 review.register(app)
 demo.register(app)
+annotation.register(app)
+batch.register(app)
 
 INTERRUPTED = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 

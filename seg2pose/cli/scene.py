@@ -1,5 +1,5 @@
-"""Scene commands: ``s2p info``, ``s2p synth``, ``s2p import-utocs``, ``s2p heights``,
-``s2p convert-masks``."""
+"""Scene commands: ``s2p info``, ``s2p synth``, ``s2p import-utocs``, ``s2p import-tacal``,
+``s2p heights``, ``s2p convert-masks``."""
 
 from __future__ import annotations
 
@@ -118,6 +118,40 @@ def register(app: typer.Typer) -> None:
 
         import_utocs(src, out, force=force, fps=fps, size_scale=size_scale, copy_frames=frames,
                      log=typer.echo, start_time=start_time)
+
+    @app.command("import-tacal", rich_help_panel=SCENE)
+    def import_tacal_cmd(
+        files: list[Path] = typer.Argument(..., help="T-Analyst calibration files (.tacal), one "
+                                           "per camera; the camera is named after the file"),
+        ground: Path = typer.Option(..., "--ground", help="ground points CSV (x,y,z metres per "
+                                    "line, an optional header)"),
+        out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
+        fps: float = typer.Option(..., "--fps", help="the videos' frame rate (frames per second)"),
+        size: Optional[str] = typer.Option(None, "--size", help="image size WIDTHxHEIGHT of "
+                                           "every camera, e.g. 1280x720 (default: twice the "
+                                           "principal point Cx, Cy of each file)"),
+        force: bool = typer.Option(False, "--force", help="replace an existing scene.json"),
+    ) -> None:
+        """Make a scene from T-Analyst .tacal calibrations (Tsai's camera model) and ground
+        points: one configuration per camera and 'all'. Add masks (and video) to it afterwards."""
+        from seg2pose.io.tacal import scene_from_tacals
+
+        wh = None
+        if size is not None:
+            try:
+                w, h = (int(v) for v in size.lower().split("x"))
+            except ValueError:
+                raise InputError(f"expected WIDTHxHEIGHT, got {size!r}", field="--size") from None
+            if w <= 0 or h <= 0:
+                raise InputError(f"image size must be positive, got {size!r}", field="--size")
+            wh = (w, h)
+        s = scene_from_tacals(files, ground, out, fps, wh, force)
+        for c in s.cameras.values():
+            cen = c.center
+            typer.echo(f"camera {c.name}: {c.width}x{c.height}  f={c.K[1, 1]:.1f}px  centre=("
+                       f"{cen[0]:.2f}, {cen[1]:.2f}, {cen[2]:.2f}) m  k={c.distortion.k:g}")
+        typer.echo(f"wrote scene {out} ({len(s.cameras)} cameras, {len(s.ground_points)} ground "
+                   "points); configurations: " + ", ".join(s.rig.configs))
 
     @app.command("heights", rich_help_panel=SCENE)
     def heights_cmd(

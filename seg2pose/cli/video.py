@@ -96,7 +96,8 @@ def register(app: typer.Typer) -> None:
         setting: List[str] = typer.Option([], "--set",
                                           help="a tracker setting KEY=VALUE (repeatable), over scene.json "
                                                "extra.tracker: iou_min, gate_m, gate_growth, max_gap, "
-                                               "min_length, gap_penalty"),
+                                               "min_length, gap_penalty, split_min (e.g. 0.6: split "
+                                               "a mask holding two tracks' previous masks)"),
         classes: bool = typer.Option(False, "--classes/--no-classes",
                                      help="also give masks without a class one from their track's world size"),
         quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),

@@ -196,6 +196,7 @@ def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: s
     from seg2pose.camera import Rig
     from seg2pose.io.atomic import check_writable
     from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
+    from seg2pose.io.validate import safe_name
 
     out = Path(out)
     check_writable(out / SCENE_FILE, force)
@@ -206,7 +207,7 @@ def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: s
     cameras: dict[str, Camera] = {}
     sources: dict[str, str] = {}
     for path in map(Path, files):
-        name = path.stem
+        name = safe_name(path.stem, file=path, what="camera name (from the file name)")
         if name == "all":
             raise InputError("a camera cannot be named 'all' (the configuration of every "
                              "camera); rename the file", file=path)

@@ -1,0 +1,225 @@
+"""Annotation commands: the ``s2p annotate`` family.
+
+    s2p annotate SCENE                     the annotation app on SCENE (= s2p annotate open SCENE)
+    s2p annotate status SCENE              tracks, keyframes and journal of SCENE's annotations
+    s2p annotate export SCENE              gt/poses.csv (source column), MCAP set, T-Analyst CSV
+    s2p annotate import-tanalyst SCENE CSV T-Analyst tracks as keyframes
+    s2p annotate export-tanalyst SCENE -o CSV
+
+A first word that is not a subcommand is the scene (``_SceneOrCommand``); a scene folder that is
+named like a subcommand is opened with ``s2p annotate open NAME``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from typer.core import TyperGroup
+
+from seg2pose.cli.common import ANNOTATION
+from seg2pose.errors import InputError
+
+OPEN = "open"
+
+
+class _SceneOrCommand(TyperGroup):
+    """``s2p annotate SCENE ...`` runs ``s2p annotate open SCENE ...``."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        if args and not args[0].startswith("-") and args[0] not in self.commands:
+            args = [OPEN, *args]
+        return super().parse_args(ctx, args)
+
+
+annotate_app = typer.Typer(
+    cls=_SceneOrCommand, no_args_is_help=True, add_completion=False,
+    help="Annotate road users by keyframes and interpolation (the T-Analyst replacement): "
+         "`s2p annotate SCENE` opens the annotation app; the subcommands below export the "
+         "annotations and bring T-Analyst files in and out.")
+
+
+def start_app(scene: Path, run: Optional[Path]) -> None:
+    """Where the annotation app plugs in: start its server on ``scene`` (with the Seg2Pose
+    estimates of ``run`` for pre-annotation). Until the app exists, say what the project holds
+    and how to work with it from Python."""
+    _status(scene)
+    typer.echo("the interactive annotation app is not part of this version; annotate through "
+               "the Python API (from annotate import Project), see README.md")
+
+
+def _echo_notes(notes: list[str], limit: int = 5) -> None:
+    """The first ``limit`` notes, then how many more (an import can raise hundreds)."""
+    for note in notes[:limit]:
+        typer.echo(f"note: {note}")
+    if len(notes) > limit:
+        typer.echo(f"note: ... and {len(notes) - limit} more like these")
+
+
+def _status(scene: Path) -> None:
+    from annotate import Project
+
+    with Project.open(scene, read_only=True) as p:
+        _echo_notes(p.notes)
+        tracks = list(p.tracks.values())
+        by_cls: dict[str, int] = {}
+        for t in tracks:
+            by_cls[t.cls] = by_cls.get(t.cls, 0) + 1
+        kf = sum(len(t.keyframes) for t in tracks)
+        typer.echo(f"{p.scene.root}: {len(tracks)} tracks ("
+                   + ", ".join(f"{n} {c}" for c, n in sorted(by_cls.items())) + f"), {kf} keyframes, "
+                   f"{p.seq} journal records, frames {p.frame_range}")
+
+
+def _parse_start(text: str) -> int:
+    from seg2pose.io.tanalyst import parse_time
+
+    try:
+        return parse_time(text)
+    except InputError:
+        raise InputError(f"expected HH:MM:SS.mmm, got {text!r}", field="--start") from None
+
+
+def _parse_types(items: list[str]) -> dict[str, str]:
+    out = {}
+    for it in items:
+        typ, sep, cls = it.partition("=")
+        if not sep or not typ.strip() or not cls.strip():
+            raise InputError(f"expected TYPE=CLASS, got {it!r}", field="--type")
+        out[typ.strip()] = cls.strip()
+    return out
+
+
+START_HELP = ("time stamp of the video's first frame (frame 0) on T-Analyst's clock, "
+              "HH:MM:SS.mmm")
+
+
+@annotate_app.command(OPEN)
+def open_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    run: Optional[Path] = typer.Option(None, "--run", help="run folder (from `s2p run`) whose "
+                                       "estimates serve pre-annotation and suggestions"),
+) -> None:
+    """Open the annotation app on a scene (also: `s2p annotate SCENE`)."""
+    start_app(scene, run)
+
+
+@annotate_app.command("status")
+def status_cmd(scene: Path = typer.Argument(..., help="scene folder")) -> None:
+    """Tracks, keyframes and journal of a scene's annotations (reads only; safe while annotating)."""
+    _status(scene)
+
+
+@annotate_app.command("import-tanalyst")
+def import_tanalyst_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    csv: Path = typer.Argument(..., help="T-Analyst tracks CSV (';'-separated, decimal commas)"),
+    start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
+    fps: Optional[float] = typer.Option(None, "--fps", help="the video's frame rate "
+                                        "(default: the scene's)"),
+    types: list[str] = typer.Option([], "--type", help="TYPE=CLASS: the scene class of a "
+                                    "T-Analyst road user type the defaults do not know "
+                                    "(repeatable), e.g. --type Moped=bicyclist"),
+    replace: bool = typer.Option(False, "--replace", help="replace road users imported before"),
+) -> None:
+    """Import T-Analyst tracks as keyframes: one track per road user (ids kept where free),
+    headings from the motion between detections; one undoable edit."""
+    from annotate import Project
+    from annotate.tanalyst_io import import_tanalyst
+    from seg2pose.io.tanalyst import read_tanalyst
+
+    table = read_tanalyst(csv)
+    with Project.open(scene) as p:
+        ch = import_tanalyst(p, table, fps, _parse_start(start), _parse_types(types), file=csv,
+                             replace=replace)
+        _echo_notes(p.notes)
+        kf = sum(len(p.track(t).keyframes) for t in ch.tracks if t in p.tracks)
+    typer.echo(f"imported {len(table)} detections of {len(ch.tracks)} road users as {kf} "
+               f"keyframes (tracks {', '.join(map(str, sorted(ch.tracks)))})")
+
+
+def _export_tanalyst(p, out: Path, start: str, fps, keyframes_only: bool, decimal: str,
+                     force: bool) -> Path:
+    from annotate.tanalyst_io import annotations_to_tanalyst
+    from seg2pose.io.atomic import check_writable
+    from seg2pose.io.tanalyst import write_tanalyst
+
+    if decimal not in (",", "."):
+        raise InputError(f"expected ',' or '.', got {decimal!r}", field="--decimal")
+    check_writable(out, force)
+    t = annotations_to_tanalyst(p, fps, _parse_start(start), keyframes_only, decimal)
+    write_tanalyst(out, t)
+    typer.echo(f"wrote {out}: {len(t)} detections of {len(set(t.road_user_id.tolist()))} road users")
+    return out
+
+
+@annotate_app.command("export-tanalyst")
+def export_tanalyst_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    out: Path = typer.Option(..., "-o", "--out", help="T-Analyst tracks CSV to write"),
+    start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
+    fps: Optional[float] = typer.Option(None, "--fps", help="the video's frame rate "
+                                        "(default: the scene's)"),
+    keyframes_only: bool = typer.Option(False, "--keyframes-only/--every-frame",
+                                        help="only keyframes, or every annotated frame"),
+    decimal: str = typer.Option(",", "--decimal", help="decimal separator: ',' as T-Analyst "
+                                "writes, or '.'"),
+    force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
+) -> None:
+    """Write the annotations as a T-Analyst tracks CSV (road user ids and types as imported)."""
+    from annotate import Project
+
+    with Project.open(scene, read_only=True) as p:
+        _export_tanalyst(p, out, start, fps, keyframes_only, decimal, force)
+
+
+@annotate_app.command("export")
+def export_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="folder for the MCAP set and "
+                                       "the T-Analyst CSV (default: SCENE/export)"),
+    gt: bool = typer.Option(True, "--gt/--no-gt", help="write SCENE/gt/poses.csv (every "
+                            "annotated frame, with a source column) for training"),
+    mcap: bool = typer.Option(True, "--mcap/--no-mcap", help="write OUT/annotations.mcap: "
+                              "video, masks, calibration, annotated tracks and the journal"),
+    tanalyst: bool = typer.Option(True, "--tanalyst/--no-tanalyst",
+                                  help="write OUT/tanalyst.csv"),
+    start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
+    force: bool = typer.Option(False, "--force", help="replace existing outputs (and "
+                               "gt/poses.csv that did not come from an annotation export)"),
+) -> None:
+    """Export the annotations: ground truth for `s2p train`, an MCAP set that `s2p import-mcap`
+    turns back into a working annotation project, and T-Analyst's tracks CSV."""
+    from annotate import Project
+    from annotate.export import export_gt
+
+    out = Path(out) if out is not None else Path(scene) / "export"
+    with Project.open(scene, read_only=True) as p:
+        if gt:
+            path = export_gt(p, force=force)
+            typer.echo(f"wrote {path}")
+        if mcap:
+            _export_mcap(p, out / "annotations.mcap", force)
+        if tanalyst:
+            out.mkdir(parents=True, exist_ok=True)
+            _export_tanalyst(p, out / "tanalyst.csv", start, None, False, ",", force)
+
+
+def _export_mcap(p, path: Path, force: bool) -> None:
+    import tempfile
+
+    from annotate.export import journal_files, write_annotation_run
+    from s2p_review.annotated_mcap import export_annotated_mcap
+
+    with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as tmp:
+        run = write_annotation_run(p, Path(tmp) / "annotations")
+        res = export_annotated_mcap(p.scene, run, path, journal_files(p), force=force)
+    for note in res.notes:
+        typer.echo(f"note: {note}")
+    typer.echo(f"wrote {res.path} ({res.path.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "
+               "restores the scene with its annotation project")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(annotate_app, name="annotate", rich_help_panel=ANNOTATION)
