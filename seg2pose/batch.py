@@ -258,6 +258,23 @@ def ray_available() -> bool:
     return _ray() is not None
 
 
+def ray_map(address: str | None = None, num_cpus: int | None = None):
+    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
+    and returns the results in order: for ``train_scene(map_groups=...)``. Starts a local Ray
+    (``num_cpus``) or joins ``address`` unless Ray is running already."""
+    ray = _ray()
+    if ray is None:
+        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
+
+    def mapper(fn, items):
+        if not ray.is_initialized():
+            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
+        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
+        return ray.get([remote.remote(x) for x in items])
+
+    return mapper
+
+
 def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
               use_ray: bool = True, address: str | None = None, max_parallel: int | None = None,
               progress: bool = True, log: Callable[[str], None] = print) -> StudyResult:

@@ -404,8 +404,12 @@ def _holdout(ex: ExampleSet, frac: float, rng: np.random.Generator) -> tuple[Exa
 
 def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
-                classes: list[str] | None = None, progress: bool = True) -> Path:
+                classes: list[str] | None = None, progress: bool = True,
+                map_groups=None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
+
+    ``map_groups(fn, groups)``: how the camera groups' trainings are run (default: one after
+    another; ``seg2pose.batch.ray_map`` runs them as Ray tasks, with the same result).
 
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
@@ -442,7 +446,11 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
         groups = [("*", cams)]
     else:
         groups = [(c, [c]) for c in cams]
-    for gkey, gcams in groups:
+
+    def train_group(group: tuple[str, list[str]]) -> None:
+        # one camera group's models: independent of the other groups (own example rng,
+        # torch seeded per run), so groups may run in any order or in parallel
+        gkey, gcams = group
         camera = scene.cameras[gcams[0]]
         norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
                                        cfg.residual_scale)
@@ -459,7 +467,7 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
                     continue
             todo.append((k, path))
         if not todo:
-            continue
+            return
         rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
         empty = ExampleSet.empty(crop // factor, factor)
         tr_parts, va_parts = [], []
@@ -526,4 +534,6 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
                                        center_method=cfg.center_method)
                 _say(f"{path.stem}: radial calibration from unlabelled masks (m): "
                      + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
+
+    list((map_groups or map)(train_group, groups))
     return out

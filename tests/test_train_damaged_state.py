@@ -4,26 +4,10 @@ training continues from the last good checkpoint instead of crashing with a torc
 from __future__ import annotations
 
 import json
-import sys
-import types
 
 import pytest
-import torch
 
-from test_pipeline import make_tiny_scene
-from test_train import _fake_rough, tiny_config
-
-
-@pytest.fixture()
-def fake_rough(monkeypatch):
-    mod = types.ModuleType("seg2pose.synth.rough")
-    mod.render_rough_examples = _fake_rough
-    monkeypatch.setitem(sys.modules, "seg2pose.synth.rough", mod)
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    return make_tiny_scene(tmp_path_factory.mktemp("tiny_damaged"), frames=60, n_users=9, seed=1)
+from test_train import fake_rough, tiny, tiny_config  # noqa: F401  (fixtures)
 
 
 def _interrupted(tiny, models, monkeypatch, after: int):

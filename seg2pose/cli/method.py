@@ -100,10 +100,16 @@ def train_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="first of the runs' seeds"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
+    parallel: Optional[int] = typer.Option(None, "--parallel", min=1,
+                                           help="train the cameras' models in parallel as Ray tasks on "
+                                                "this many local CPUs (same seeds, same models)"),
+    address: Optional[str] = typer.Option(None, "--address",
+                                          help="train the cameras' models as tasks on this Ray cluster"),
 ) -> None:
     """Train Seg2PoseNet per camera and class (paper 4.1: best of four, Adam 5e-5, batch 16,
     64 batches/epoch, 50 epochs, every 4th example a rough model). Resumes an interrupted
     training from its checkpoints."""
+    from seg2pose.batch import ray_map
     from seg2pose.train import TrainConfig, train_scene
 
     if demo:
@@ -121,7 +127,8 @@ def train_cmd(
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force, **over)
     out_dir = train_scene(scene, out, cfg,
                           cameras=cameras.split(",") if cameras else None,
-                          classes=classes.split(",") if classes else None, progress=True)
+                          classes=classes.split(",") if classes else None, progress=True,
+                          map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
 
 
