@@ -106,8 +106,13 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
 def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
                        crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                        max_per_class: int | None = None, max_residual: float = 2.5,
-                       rng: np.random.Generator | None = None, augment: int = 0) -> ExampleSet:
+                       rng: np.random.Generator | None = None, augment: int = 0,
+                       sources: tuple[str, ...] | None = None) -> ExampleSet:
     """Masks of ``camera`` in ``split`` matched to the truth (4.1), as examples.
+
+    ``sources``: for annotated truth (a ``source`` column), keep only masks whose matched row
+    has one of these sources (e.g. keyframe and interpolated, not occluded). Masks are matched
+    against every row first, so a skipped row never lends its mask to a neighbour.
 
     ``augment`` = K adds K changed copies of every mask (occlusion cuts, 1 px boundary changes:
     ``seg2pose.augment``) with their normal positions and targets recomputed from the changed
@@ -137,7 +142,10 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
         g = gt.take(np.arange(lo, hi))
         match = match_masks_to_truth(cam, t, g, names, heights)
-        for i in np.flatnonzero(match >= 0):
+        use = match >= 0
+        if sources is not None and g.source is not None:
+            use &= np.isin(g.source[np.maximum(match, 0)], list(sources))
+        for i in np.flatnonzero(use):
             keep_rles.append(t.rles[i])
             keep_cls.append(by_id[int(t.class_id[i])].name)
             keep_xy.append(g.xyz[match[i], :2])

@@ -72,6 +72,9 @@ class TrainConfig:
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)
     augment: int = 0                 # changed copies per annotated training mask (seg2pose.augment)
+    # annotated truth (gt/poses.csv with a source column): "interpolated" trains on keyframes and
+    # the frames interpolated between them, "keyframes" on keyframes alone; occluded rows never
+    annotated_rows: str = "interpolated"
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
     loss: Loss = "mse"               # "mse" (squared error / 2) or "euclid" (distance, = the metric)

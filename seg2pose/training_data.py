@@ -76,6 +76,13 @@ def _pending(out: Path, gkey: str, keys: list[str], cfg: "TrainConfig", fp: str)
     return todo
 
 
+def truth_sources(cfg: "TrainConfig") -> tuple[str, ...]:
+    """The ``source`` values of annotated truth that training uses (never ``occluded``)."""
+    if cfg.annotated_rows not in ("interpolated", "keyframes"):
+        raise ValueError(f"annotated_rows must be 'interpolated' or 'keyframes', got {cfg.annotated_rows!r}")
+    return ("keyframe",) if cfg.annotated_rows == "keyframes" else ("keyframe", "interpolated")
+
+
 def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "TrainConfig",
                crop: int, factor: int, rng: np.random.Generator) -> tuple[ExampleSet, ExampleSet]:
     """Annotated (training, validation) examples of the cameras ``gcams``: the train and val
@@ -89,10 +96,11 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
         has_splits = "train" in scene.splits
         tr = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop, factor,
                                 cfg.center_method, cfg.max_train_per_class, rng=rng,
-                                augment=cfg.augment if has_splits else 0)
+                                augment=cfg.augment if has_splits else 0,
+                                sources=truth_sources(cfg))
         if has_splits and "val" in scene.splits:
             va = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
-                                    cfg.max_val_per_class, rng=rng)
+                                    cfg.max_val_per_class, rng=rng, sources=truth_sources(cfg))
         else:
             say(f"camera {cam}: no val split; holding out 15% of the training examples")
             tr, va = holdout(tr, 0.15, rng)

@@ -80,6 +80,7 @@ def train_cmd(
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)"),
     geometry: Optional[bool] = typer.Option(None, "--geometry/--no-geometry", help="also give the network exact mask-geometry cues: box size, foot and top points, expected height, cuts at the image border"),
+    keyframes_only: bool = typer.Option(False, "--keyframes-only/--interpolated", help="annotated scenes: train only on the annotator's keyframes, or also on the interpolated frames between them (occluded frames are never used)"),
     augment: Optional[int] = typer.Option(None, "--augment", help="K changed copies of every annotated training mask (occlusion cuts, 1 px outline changes; labels stay exact)"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
@@ -104,6 +105,7 @@ def train_cmd(
                 rough_detector_noise=rough_noise, geometry=geometry, augment=augment,
                 device=device, threads=threads, seed=seed)
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force,
+                      annotated_rows="keyframes" if keyframes_only else "interpolated",
                       **{k: v for k, v in over.items() if v is not None})
     out_dir = train_scene(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
                           progress=True,
