@@ -4,13 +4,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo screenshot test test-all bench venv viewer-deps clean
+.PHONY: demo screenshot test bench venv viewer-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# torch first, pinned, so pip takes the CPU build on disk instead of a multi-GB CUDA build
 	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
-	$(BIN)/pip install -q --disable-pip-version-check -e '.[test]'
+	$(BIN)/pip install -q --disable-pip-version-check -e '.[test,scale]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -31,9 +31,6 @@ screenshot: $(STAMP) viewer-deps
 
 test: $(STAMP) viewer-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
-
-test-all: $(STAMP) viewer-deps
-	$(BIN)/python -m pytest -q -p no:cacheprovider -m ''
 
 bench: $(STAMP)
 	for b in benches/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

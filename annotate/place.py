@@ -80,7 +80,9 @@ class PlacementMixin:
                         use_run: bool = True, heading: float | None = None):
         """Put the track's keyframe at ``frame`` on a clicked mask (identified by its track id
         in ``camera``'s masks): the run's Seg2Pose estimate of that road user when a run is
-        loaded and has one (flag ``estimate``), else the mask's normal position (``normal``)."""
+        loaded and has one (flag ``estimate``), else the mask's normal position (``normal``).
+        Heading: ``heading`` if given; else the run's for a track's first keyframe; else the
+        track's own there (interpolated, or along the motion: ``default_heading``)."""
         t, f = self.track(track_id), self._frame(frame)
         est = self._run.at(mask_track, f) if (use_run and self._run is not None) else None
         if est is not None:

@@ -84,6 +84,8 @@ class Project(EditsMixin, PlacementMixin):
         self.frame_range = frames if frames is not None else scene_frames(scene)
         self.fingerprint = scene.fingerprint()
         self.snapshot_every = int(snapshot_every)
+        if self.snapshot_every < 1:
+            raise EditError(f"snapshot_every must be >= 1 record, got {snapshot_every!r}")
         self._s = _State()
         self._cache: dict[int, PoseTable] = {}
         self._stale: dict[int, PoseTable] = {}  # tables of changed tracks: z to reuse

@@ -41,8 +41,10 @@ def main() -> None:
         for c in cases:
             c.run_fully()
             t = time.perf_counter()
-            for _ in range(args.kills):
+            for k in range(1, args.kills + 1):
                 c.kill_once(rng)
+                if k % 50 == 0 and k < args.kills:
+                    print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
             c.run_fully()  # the next writer takes over and cleans up
             left = len(c.leftovers())
             n = c.counts

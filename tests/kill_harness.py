@@ -77,12 +77,21 @@ class Case:
 
     def run_fully(self) -> None:
         """Run to the end once: the reference new output and the command's duration."""
+        self.finish(self.start())
+
+    def start(self) -> tuple[subprocess.Popen, float]:
+        """Put the old output in place and start the command (``finish`` waits for it)."""
         self.put_old()
-        t = time.perf_counter()
-        r = subprocess.run(S2P + [str(a) for a in self.argv], capture_output=True, text=True, env=ENV, timeout=600)
+        p = subprocess.Popen(S2P + [str(a) for a in self.argv], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True, env=ENV)
+        return p, time.perf_counter()
+
+    def finish(self, started: tuple[subprocess.Popen, float]) -> None:
+        p, t = started
+        _, err = p.communicate(timeout=600)
         self.seconds = time.perf_counter() - t
-        if r.returncode != 0:
-            raise RuntimeError(f"{self.name} failed: {r.stderr[-2000:]}")
+        if p.returncode != 0:
+            raise RuntimeError(f"{self.name} failed: {err[-2000:]}")
         self.new = snapshot(self.out)
 
     def kill_once(self, rng: np.random.Generator) -> str:
@@ -91,7 +100,9 @@ class Case:
         self.put_old()
         p = subprocess.Popen(S2P + [str(a) for a in self.argv], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                              env=ENV)
-        time.sleep(rng.uniform(0.15, 1.05) * self.seconds)
+        deadline = time.perf_counter() + rng.uniform(0.15, 1.05) * self.seconds
+        while p.poll() is None and time.perf_counter() < deadline:
+            time.sleep(0.01)
         if p.poll() is None:
             os.kill(p.pid, signal.SIGKILL)
         p.wait()
@@ -103,6 +114,20 @@ class Case:
         """Hidden siblings of the output (temporary builds, locks)."""
         return sorted(p.name for p in self.out.parent.iterdir()
                       if p.name.startswith(f".{self.out.name}."))
+
+    def live_leftovers(self) -> list[str]:
+        """Leftovers that the next writer would not remove: partial outputs of processes
+        that still run, or anything not named like a partial output or a lock."""
+        from seg2pose.io.atomic import _PARTIAL, pid_alive
+
+        out = []
+        for n in self.leftovers():
+            m = _PARTIAL.match(n)
+            if n == f".{self.out.name}.lock":
+                continue
+            if not m or pid_alive(int(m.group("pid"))):
+                out.append(n)
+        return out
 
 
 def build_cases(root: Path, frames: int = 40) -> list[Case]:
@@ -123,8 +148,8 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     other = write_scene(root / "other", frames=5, users=2)
     old = root / "old"
     old.mkdir()
-    run_scene(other.root, old / "run", baseline=True, progress=False)
-    run_scene(scene.root, root / "run", baseline=True, progress=False)
+    run_scene(other, old / "run", baseline=True, progress=False)
+    run_scene(scene, root / "run", baseline=True, progress=False)
     generate_scene(old / "synth", frames=3, seed=1, workers=1, progress=False)
     save_masks(old / "png", read_mots(other.masks_path("c0")), "png")
     import_utocs(write_utocs(root / "utocs-a", frames=2), old / "utocs", log=lambda *a: None)
@@ -134,11 +159,11 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     out.mkdir()
     return [
         Case("run", ["run", scene.root, "-o", out / "run", "--baseline", "--force"], out / "run", old / "run"),
-        Case("synth", ["synth", out / "synth", "--frames", "6", "--seed", "2", "--workers", "1", "--quiet",
+        Case("synth", ["synth", "-o", out / "synth", "--frames", "6", "--seed", "2", "--workers", "1", "--no-progress",
                        "--force"], out / "synth", old / "synth"),
-        Case("convert-masks", ["convert-masks", scene.masks_path("c0"), out / "png", "--format", "png",
+        Case("convert-masks", ["convert-masks", scene.masks_path("c0"), "-o", out / "png", "--format", "png",
                                "--force"], out / "png", old / "png"),
-        Case("import-utocs", ["import-utocs", root / "utocs-b", out / "utocs", "--force"], out / "utocs",
+        Case("import-utocs", ["import-utocs", root / "utocs-b", "-o", out / "utocs", "--force"], out / "utocs",
              old / "utocs"),
         Case("export", ["export", scene.root, "--run", root / "run", "-o", out / "x.mcap", "--force"],
              out / "x.mcap", old / "x.mcap"),

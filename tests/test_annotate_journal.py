@@ -219,3 +219,25 @@ def test_snapshots_compact_without_losing_undo_history(scene):
         assert not p.tracks
     with Project.open(scene, read_only=True) as p:
         assert not p.tracks and p.can_redo
+
+
+def test_a_record_that_cannot_be_replayed_names_file_and_line(scene):
+    with Project.open(scene) as p:
+        p.create_track("car")
+    path = segment(scene)
+    with open(path, "a") as f:  # an edit of a track that never existed, then a complete line
+        f.write('{"seq":2,"kind":"edit","name":"x","ops":[{"op":"set_keyframes","id":9,'
+                '"set":[[1,0.0,0.0,0.0,[]]]}],"t":"now"}\n')
+    with pytest.raises(JournalError, match=r"journal-000000.jsonl:3: cannot replay this record: "
+                                           r"no track 9"):
+        Project.open(scene, read_only=True)
+
+
+def test_a_complete_last_record_without_its_newline_counts_as_torn(scene):
+    with Project.open(scene) as p:
+        p.create_track("car")
+    path = segment(scene)
+    with open(path, "a") as f:
+        f.write('{"seq":2,"kind":"note","text":"cut before its newline"}')
+    with Project.open(scene) as p:
+        assert p.seq == 1 and "journal-000000.jsonl:3: the last line is torn" in p.notes[0]

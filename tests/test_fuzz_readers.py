@@ -165,14 +165,6 @@ def test_ground_points_near_valid(data):
             assert np.abs(pts).max() <= 1e6
 
 
-@FUZZ
-@given(st.binary(max_size=300))
-def test_ground_points_random_bytes(blob):
-    with folder() as d:
-        (d / "g.csv").write_bytes(blob)
-        only_s2p_errors(lambda: read_ground_points(d / "g.csv"))
-
-
 # --- masks: MOTS, COCO, PNG ------------------------------------------------------------------------
 
 @st.composite
@@ -284,12 +276,17 @@ def test_png_near_valid(data):
         only_s2p_errors(lambda: read_png_folder(d / "png"))
 
 
+FILE_READERS = {"g.csv": read_ground_points, "p.csv": read_poses, "m.txt": read_mots,
+                "m.json": read_coco}
+
+
 @FUZZ
-@given(st.binary(max_size=400), st.sampled_from(["m.txt", "m.json"]))
-def test_masks_random_bytes(blob, name):
+@given(st.binary(max_size=400), st.sampled_from(sorted(FILE_READERS)))
+def test_file_readers_random_bytes(blob, name):
+    """Ground points, poses.csv, MOTS and COCO files of random bytes."""
     with folder() as d:
         (d / name).write_bytes(blob)
-        only_s2p_errors(lambda: read_mots(d / name) if name.endswith(".txt") else read_coco(d / name))
+        only_s2p_errors(lambda: FILE_READERS[name](d / name))
 
 
 # --- poses.csv ------------------------------------------------------------------------------------
@@ -331,14 +328,6 @@ def test_poses_near_valid(data):
         if r is not None and len(r):
             assert np.isfinite(r.xyz).all() and not np.isinf(r.heading).any()
             assert r.size is None or ((r.size > 0) | np.isnan(r.size)).all()
-
-
-@FUZZ
-@given(st.binary(max_size=300))
-def test_poses_random_bytes(blob):
-    with folder() as d:
-        (d / "p.csv").write_bytes(blob)
-        only_s2p_errors(lambda: read_poses(d / "p.csv"))
 
 
 # --- UTOCS folders --------------------------------------------------------------------------------

@@ -343,12 +343,12 @@ def test_cli_review_and_errors(tiny):
     runner = CliRunner()
     out = root / "cli.rrd"
     r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--run", str(s2pn),
-                            "--save", str(out), "--frames", "2:7", "--no-video"])
+                            "-o", str(out), "--frames", "2:7", "--no-video"])
     assert r.exit_code == 0, r.output
     assert "rerun " + str(out) in r.output
     rows, _, _ = _rrd_rows(out)
     assert rows["/world/road_users/run-s2pn"] == 6
-    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--save", str(out)])
+    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "-o", str(out)])
     assert r.exit_code != 0 and "--force" in str(r.exception)
 
 
@@ -360,7 +360,7 @@ def test_cli_main_prints_one_line_error(tiny, monkeypatch, capsys):
     scene, _, _, root = tiny
     bad = make_run(scene, root / "bad3", cameras=["zz"])
     monkeypatch.setattr(sys, "argv", ["s2p", "review", str(scene.root), "--run", str(bad),
-                                      "--save", str(root / "x.rrd")])
+                                      "-o", str(root / "x.rrd")])
     with pytest.raises(SystemExit) as e:
         cli.main()
     assert e.value.code == 2

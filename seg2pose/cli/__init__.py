@@ -33,6 +33,7 @@ def _root() -> None:
 
 from seg2pose.cli import annotation, demo, method, review, scene  # noqa: E402  (after app exists)
 from seg2pose.cli import video  # noqa: E402
+from seg2pose.cli import batch  # noqa: E402
 
 scene.register(app)
 video.register(app)
@@ -40,6 +41,7 @@ method.register(app)
 review.register(app)
 demo.register(app)
 annotation.register(app)
+batch.register(app)
 
 INTERRUPTED = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
