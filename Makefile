@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo screenshot test test-all bench venv viewer-deps browser-deps clean
+.PHONY: demo screenshot test bench venv viewer-deps browser-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -39,9 +39,6 @@ screenshot: $(STAMP) viewer-deps
 
 test: $(STAMP) viewer-deps browser-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
-
-test-all: $(STAMP) viewer-deps browser-deps
-	$(BIN)/python -m pytest -q -p no:cacheprovider -m ''
 
 bench: $(STAMP)
 	for b in benches/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -4,7 +4,6 @@ the scene's frame range."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +11,7 @@ import numpy as np
 from annotate.model import EditError
 from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable
-from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.masks import mask_centers
 from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
@@ -53,19 +52,16 @@ class RunEstimates:
     @classmethod
     def load(cls, run: str | Path, scene: Scene) -> "RunEstimates":
         """Read ``RUN/poses.csv``; refuse a run made on another scene (run.json's fingerprint)."""
+        from seg2pose.io.run import RUN_FILE, read_run_meta, read_run_poses
+
         run = Path(run)
-        meta_path = run / "run.json"
-        if meta_path.exists():
-            try:
-                meta = json.loads(meta_path.read_text())
-            except (OSError, ValueError) as e:
-                raise InputError(f"cannot read run metadata: {e}", file=meta_path) from None
-            fp = meta.get("scene_fingerprint") if isinstance(meta, dict) else None
+        if (run / RUN_FILE).exists():
+            fp = read_run_meta(run).get("scene_fingerprint")
             if fp is not None and fp != scene.fingerprint():
                 raise InputError(f"this run was made on another scene (fingerprint {fp}, this "
-                                 f"scene's is {scene.fingerprint()})", file=meta_path,
+                                 f"scene's is {scene.fingerprint()})", file=run / RUN_FILE,
                                  field="scene_fingerprint")
-        table = read_poses(run / "poses.csv", known_classes=[c.name for c in scene.classes])
+        table = read_run_poses(run, known_classes=scene.class_names)
         return cls(table.take(table.track_id >= 0), run)
 
     def at(self, run_track: int, frame: int) -> tuple[float, float, float] | None:

@@ -4,7 +4,7 @@ truth on the frames between the keyframes.
 
     PYTHONPATH=. python benches/annotate_interp.py --tune 0 1 --report 4 5 [--work DIR]
 
-Scenes: ``s2p synth --seed S --ids visit --no-noise`` (small preset, 3 x 240 frames), generated
+Scenes: ``s2p synth --seed S --ids visit --no-detector-noise`` (small preset, 3 x 240 frames), generated
 into --work once. One visit = one track; keyframes at its first frame, every N frames, and its
 last frame (a track exists from its first to its last keyframe). Errors: mean ground-plane
 distance (cm) and mean absolute heading error (degrees) over the interpolated frames; "smooth"

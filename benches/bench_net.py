@@ -71,11 +71,11 @@ def bench_cell(arch: str, device: torch.device, dtype: str, batch: int, train: b
 
 def bench_crops(n: int = 256, runs: bool = True) -> float:
     """Crops/s of the input path: RLE -> 420x420 crop around the bbox centre -> downsample /3.
-    runs=True: crops straight from the RLE runs (examples.crop_runs, what the pipeline uses);
+    runs=True: crops straight from the RLE runs (masks.crop_runs, what the pipeline uses);
     False: full-image decode with pycocotools, then slicing (masks.crop_masks)."""
-    from seg2pose.examples import crop_runs
+    from seg2pose.masks import crop_runs
     from seg2pose.masks import crop_masks, encode, mask_centers
-    from seg2pose.net import downsample_crops
+    from seg2pose.masks import downsample_crops
 
     rng = np.random.default_rng(0)
     h, w = 720, 1280
@@ -101,7 +101,7 @@ def scene_crops(scene_dir: str | None, per_class: int, seed: int = 0):
     import tempfile
     from pathlib import Path
 
-    from seg2pose.examples import crop_runs
+    from seg2pose.masks import crop_runs
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.scene import load_scene
     from seg2pose.masks import mask_centers
@@ -153,7 +153,7 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
     class, the speed-up, max |dense - sparse|, and the distribution of window sizes.
     ``clock``: time.perf_counter (wall) or time.process_time (this process's CPU seconds:
     steadier on a shared machine with one torch thread)."""
-    from seg2pose.net import center_cut, downsample_crops
+    from seg2pose.masks import center_cut, downsample_crops
     from seg2pose.sparse import crop_boxes, sparse_of, window_sizes
 
     net = _random_net(arch)
@@ -223,7 +223,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="short budgets (about 1 minute on a CPU)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--arch", default="lite,lite2,lite-hr,paper")
+    ap.add_argument("--arch", default="lite,lite-hr,paper")
     ap.add_argument("--compile", action="store_true", help="torch.compile the network first "
                     "(the warm-up is excluded from the timing)")
     ap.add_argument("--batch", type=int, default=None,

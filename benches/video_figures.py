@@ -2,7 +2,7 @@
 
     .venv/bin/python benches/video_figures.py VIDEO_SCENE TRUTH_SCENE [--camera c1] [--out DIR]
 
-VIDEO_SCENE: ``s2p synth OUT --video --seed S`` (its masks/ hold the generator's
+VIDEO_SCENE: ``s2p synth -o OUT --video --seed S`` (its masks/ hold the generator's
 detector-like masks, with noise); TRUTH_SCENE: the same seed with ``--no-noise --match all``
 (rendered silhouettes of every visible road user: the truth masks). Two inputs are measured:
 
@@ -132,7 +132,7 @@ def report(name: str, scene: Path, truth: Path, cam: str, config: str) -> dict:
     s = score_masks(iter_mots(truth / "masks" / f"{cam}.txt"), iter_mots(scene / "masks" / f"{cam}.txt"))
     est = read_mots(scene / "masks" / f"{cam}.txt")
     s2p("run", str(scene), "-o", str(scene / "out" / "baseline"), "-c", config, "--baseline", "--force")
-    ev = json.loads(s2p("eval", str(scene), str(scene / "out" / "baseline"), "--match", "nearest", "--json"))
+    ev = json.loads(s2p("eval", str(scene), "--run", str(scene / "out" / "baseline"), "--match", "nearest", "--json"))
     row = {"input": name, "recall": s.recall, "precision": s.precision,
            "identity_kept": s.identity_kept, "switches_per_100": s.switches_per_100,
            "truth_tracks": s.tracks, "est_tracks": int(len(np.unique(est.track_id))),
@@ -163,7 +163,7 @@ def main() -> None:
     if not a.skip_bgsub:
         fresh_scene(a.video_scene, bg)
         t = time.perf_counter()
-        s2p("masks-from-video", str(bg), "--camera", a.camera, "--quiet")
+        s2p("masks-from-video", str(bg), "--camera", a.camera, "--no-progress")
         print(f"masks-from-video: {time.perf_counter() - t:.0f} s")
         rows.append(report("bg-sub", bg, a.truth_scene, a.camera, a.config))
     # detector-style input from the generator's noisy masks, and from the clean truth masks

@@ -50,9 +50,9 @@ def class_colors(names: np.ndarray, classes) -> np.ndarray:
 
 # How a run looks, so that runs compared in one recording tell apart at a glance: a model's
 # boxes solid in full class colours with bold projected lines, the baseline's hollow, pale
-# (half-way to grey) and thin. alpha: of solid boxes; line: radius of projected lines, pixels.
+# (40 % of the way to grey) and thin. alpha: of solid boxes; line: radius of projected lines, pixels.
 RUN_LOOKS = {"model": {"solid": True, "pale": 0.0, "alpha": 150, "line": 1.0},
-             "baseline": {"solid": False, "pale": 0.5, "alpha": 255, "line": 0.5}}
+             "baseline": {"solid": False, "pale": 0.4, "alpha": 255, "line": 0.5}}
 
 
 def run_look(meta: dict) -> str:

@@ -93,8 +93,8 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
     elif sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or
                                                    os.environ.get("WAYLAND_DISPLAY")):
         raise ViewerError("no display to open the viewer on (DISPLAY / WAYLAND_DISPLAY unset); "
-                          "use --save FILE.rrd and open it with `rerun FILE.rrd` where there is "
-                          "one, or --screenshot FILE.png")
+                          "write a recording (.rrd) and open it with `rerun FILE.rrd` where there is "
+                          "one, or take a headless screenshot")
     port = port or free_port()
     saved = {k: os.environ.get(k) for k in ("XDG_DATA_HOME", "XDG_CONFIG_HOME")}
     if headless:  # a throw-away viewer must not read or write the user's saved layouts

@@ -24,8 +24,8 @@ from seg2pose.errors import S2PError
 
 # training variants: name -> the `s2p train` options (the CPU protocol of docs/RESULTS.md)
 VARIANTS = {
-    "s2pn": ["--quick"],
-    "zero": ["--quick", "--zero-annotation", "--rough", "400"],
+    "s2pn": ["--protocol", "quick"],
+    "zero": ["--protocol", "quick", "--zero-annotation", "--rough", "400"],
 }
 VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "zero": "zero-annotation"}
 CONFIGS = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",
@@ -83,7 +83,7 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
         return time.perf_counter() - t
 
     if not (scene / "scene.json").exists():
-        step(["synth", scene, "--preset", preset, "--seed", seed, "--quiet"], "synth")
+        step(["synth", "-o", scene, "--preset", preset, "--seed", seed, "--no-progress"], "synth")
         step(["heights", scene], "heights")
     for v in variants:
         models = scene / f"models-{v}"

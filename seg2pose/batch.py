@@ -10,7 +10,7 @@ Study folder layout (docs/SCALE.md)::
         batch/            what ``s2p batch`` writes for this scene:
           <run>/          the run folder (poses.csv, views.csv, run.json), as ``s2p run`` writes it
           <run>.eval.json ``s2p eval --json`` of that run (scenes with ground truth)
-          <run>.mcap      ``s2p export`` (+ <run>.layout.json), <run>.rrd ``s2p review --save``
+          <run>.mcap      ``s2p export`` (+ <run>.layout.json), <run>.rrd ``s2p review -o``
           .done/<step>.json  the record that makes a re-run skip the step (see below)
       summary.json        per scene: frames, road users, errors, failures
 
@@ -182,9 +182,10 @@ def _run_inputs(scene_dir: Path, opts: BatchOptions) -> list[Path]:
 
 def _run_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
     from seg2pose.io.run import read_run_meta, read_run_poses
+    from seg2pose.io.scene import load_scene
     from seg2pose.pipeline import run_scene
 
-    d = run_scene(scene_dir, run_dir(scene_dir, opts), baseline=opts.baseline,
+    d = run_scene(load_scene(scene_dir), run_dir(scene_dir, opts), baseline=opts.baseline,
                   models_dir=list(opts.models) or None, force=force, progress=False)
     meta = read_run_meta(d)
     poses = read_run_poses(d)

@@ -213,7 +213,6 @@ class Camera:
     width: int
     height: int
     distortion: Distortion | None = None
-    _Rt_cache: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
@@ -402,7 +401,7 @@ class Rig:
             return list(self.cameras.values())
         if config not in self.configs:
             raise InputError(f"unknown configuration {config!r}; known: {', '.join(self.configs)}",
-                             field="--config")
+                             field="config")
         return [self.cameras[n] for n in self.configs[config]]
 
     @property

@@ -18,7 +18,6 @@ covered pixels per downsampling block, so a few thousand lite examples take tens
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,8 +27,9 @@ from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.features import N_GEO, scene_geometry
-from seg2pose.masks import mask_centers
+from seg2pose.masks import block_counts, crop_runs, mask_centers
 from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
+from seg2pose.say import say
 
 
 @dataclass
@@ -76,56 +76,6 @@ class ExampleSet:
                    np.concatenate([s.target for s in sets]), np.concatenate([s.cls for s in sets]),
                    np.concatenate([s.rough for s in sets]), np.concatenate([s.geo for s in sets]))
 
-    def select_class(self, name: str) -> "ExampleSet":
-        return self.take(np.flatnonzero(self.cls == name))
-
-
-def _block_counts(crops: np.ndarray, factor: int) -> np.ndarray:
-    """(N, S, S) 0/1 -> (N, S/f, S/f) uint8 number of covered pixels per f x f block."""
-    if factor == 1:
-        return crops.astype(np.uint8)
-    n, s, _ = crops.shape
-    m = s // factor
-    c = crops[:, :m * factor, :m * factor].reshape(n, m, factor, m, factor)
-    return c.sum(axis=(2, 4), dtype=np.uint16).astype(np.uint8)
-
-
-def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
-              size: int = 420) -> np.ndarray:
-    """Same result as ``masks.crop_masks`` (N, size, size) uint8, computed from the RLE runs
-    without decoding whole images: each foreground run is split at column boundaries into
-    vertical segments, clipped to the crop, and drawn with a +1/-1 difference array summed down
-    the rows. Costs O(crop area) per mask instead of O(image area): several times faster for
-    HD images."""
-    from seg2pose.masks import crop_origin, foreground_runs
-
-    n = len(rles)
-    h = int(height)
-    diff = np.zeros((n, size + 1, size), np.int8)
-    if n == 0:
-        return diff[:, :size].astype(np.uint8)
-    org = crop_origin(centers, size)
-    owner, start, length, _ = foreground_runs(rles)
-    end = start + length
-    c0, c1 = start // h, (end - 1) // h
-    k = c1 - c0 + 1                       # pieces per run (a run may wrap over columns)
-    rep = np.repeat(np.arange(len(start)), k)
-    col = c0[rep] + (np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k))
-    rs = np.maximum(start[rep] - col * h, 0)
-    re = np.minimum(end[rep] - col * h, h)
-    own = owner[rep]
-    cx = col - org[own, 0]
-    y0 = org[own, 1]
-    ry0 = np.clip(rs - y0, 0, size)
-    ry1 = np.clip(re - y0, 0, size)
-    keep = (cx >= 0) & (cx < size) & (ry1 > ry0)
-    own, cx, ry0, ry1 = own[keep], cx[keep], ry0[keep], ry1[keep]
-    # within one column of one mask the kept segments are disjoint, so starts (and ends) are
-    # unique cells and plain fancy assignment is exact
-    diff[own, ry0, cx] += 1
-    diff[own, ry1, cx] -= 1
-    return np.cumsum(diff, axis=1, dtype=np.int8)[:, :size].view(np.uint8)
-
 
 def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarray,
                   normal_xy: np.ndarray, target: np.ndarray, cls: np.ndarray, rough: bool,
@@ -142,11 +92,11 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
         _, _, box = rle_stats(rles, height, width)
         big = int((np.nanmax(box[:, 2:] - box[:, :2], axis=1) > crop).sum())
         if big:
-            print(f"note: {big} of {n} masks are larger than the {crop}x{crop} crop; they are "
-                  "cropped around their centre", file=sys.stderr)
+            say(f"{big} of {n} masks are larger than the {crop}x{crop} crop; they are "
+                "cropped around their centre", "note")
     for s in range(0, n, batch):
         c = crop_runs(rles[s:s + batch], height, width, centers[s:s + batch], size=crop)
-        out[s:s + batch] = _block_counts(c, factor)
+        out[s:s + batch] = block_counts(c, factor)
     return ExampleSet(out, factor, np.asarray(centers, float).reshape(-1, 2),
                       np.asarray(normal_xy, float).reshape(-1, 2), np.asarray(target, float).reshape(-1, 2),
                       np.asarray(cls, object).reshape(-1), np.full(n, bool(rough)),
@@ -156,8 +106,13 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
 def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | None,
                        crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                        max_per_class: int | None = None, max_residual: float = 2.5,
-                       rng: np.random.Generator | None = None, augment: int = 0) -> ExampleSet:
+                       rng: np.random.Generator | None = None, augment: int = 0,
+                       sources: tuple[str, ...] | None = None) -> ExampleSet:
     """Masks of ``camera`` in ``split`` matched to the truth (4.1), as examples.
+
+    ``sources``: for annotated truth (a ``source`` column), keep only masks whose matched row
+    has one of these sources (e.g. keyframe and interpolated, not occluded). Masks are matched
+    against every row first, so a skipped row never lends its mask to a neighbour.
 
     ``augment`` = K adds K changed copies of every mask (occlusion cuts, 1 px boundary changes:
     ``seg2pose.augment``) with their normal positions and targets recomputed from the changed
@@ -171,8 +126,8 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
 
     cam = scene.cameras[camera]
     by_id = scene.class_by_id()
-    names = {c.id: c.name for c in scene.classes}
-    heights = {c.name: c.default_height for c in scene.classes}
+    names = scene.class_names_by_id()
+    heights = scene.default_heights()
     fr = scene.split_range(split)
     gt = gt.in_frames(fr)
     keep_rles: list[bytes] = []
@@ -187,7 +142,10 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
         g = gt.take(np.arange(lo, hi))
         match = match_masks_to_truth(cam, t, g, names, heights)
-        for i in np.flatnonzero(match >= 0):
+        use = match >= 0
+        if sources is not None and g.source is not None:
+            use &= np.isin(g.source[np.maximum(match, 0)], list(sources))
+        for i in np.flatnonzero(use):
             keep_rles.append(t.rles[i])
             keep_cls.append(by_id[int(t.class_id[i])].name)
             keep_xy.append(g.xyz[match[i], :2])
@@ -244,7 +202,7 @@ def labelled_examples(scene: Scene, camera: str, rles: list[bytes], height: int,
     class names (N,): mask centres, normal positions (class default heights), targets = truth -
     normal, geometry features, crops. Masks whose ray misses the ground or whose residual is
     longer than ``max_residual`` metres are dropped (said on stderr when ``where`` is given)."""
-    heights = {c.name: c.default_height for c in scene.classes}
+    heights = scene.default_heights()
     centers = mask_centers(rles, height, width, center_method)
     hts = np.array([heights.get(str(c), 0.9) for c in cls])
     normal, _ = normal_positions(scene.cameras[camera], scene.ground, centers, hts)
@@ -252,8 +210,8 @@ def labelled_examples(scene: Scene, camera: str, rles: list[bytes], height: int,
     ok = np.isfinite(target).all(axis=1) & (np.linalg.norm(target, axis=1) <= max_residual)
     dropped = int((~ok).sum())
     if dropped and where:
-        print(f"note: {where}: {dropped} of {len(ok)} matched masks dropped "
-              f"(normal position missing or residual > {max_residual} m)", file=sys.stderr)
+        say(f"{where}: {dropped} of {len(ok)} matched masks dropped "
+            f"(normal position missing or residual > {max_residual} m)", "note")
     ok = np.flatnonzero(ok)
     rles = [rles[i] for i in ok]
     cls = np.asarray(cls, object)[ok]

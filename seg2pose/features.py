@@ -94,7 +94,7 @@ def scene_geometry(scene, camera: str, rles: Sequence[bytes], height: int, width
     """``mask_geometry`` for masks of ``scene``'s ``camera`` with class names (N,): the default
     heights and typical class heights are looked up in the scene (unknown classes: NaN, whose
     features become 0)."""
-    default = {c.name: c.default_height for c in scene.classes}
+    default = scene.default_heights()
     sizes = scene.class_sizes()
     names = [str(c) for c in np.asarray(class_names, object).reshape(-1)]
     dh = np.array([default.get(c, np.nan) for c in names], float)

@@ -25,8 +25,8 @@ def collect_height_views(scene: Scene, split: str | None = "train", center: str 
     if not scene.gt_path.exists():
         raise S2PError(f"{scene.gt_path}: no ground truth; default heights need it (paper 3.2)")
     fr = scene.split_range(split)
-    names = {c.id: c.name for c in scene.classes}
-    heights = {c.name: c.default_height for c in scene.classes}
+    names = scene.class_names_by_id()
+    heights = scene.default_heights()
     gt = read_poses(scene.gt_path, known_classes=set(names.values())).in_frames(fr)
     views: dict[str, list] = {}
     for cam in scene.cameras.values():

@@ -254,3 +254,72 @@ def merge_bicyclists(person: Sequence[bytes], bicycle: Sequence[bytes], height: 
                              {"size": size, "counts": bicycle[match[i]]}])
         merged.append(m["counts"])
     return merged, match
+
+
+# ----------------------------------------------------------------------------------------------
+# crops: the network's view of a mask
+
+
+def crop_runs(rles: list[bytes], height: int, width: int, centers: np.ndarray,
+              size: int = 420) -> np.ndarray:
+    """Same result as ``masks.crop_masks`` (N, size, size) uint8, computed from the RLE runs
+    without decoding whole images: each foreground run is split at column boundaries into
+    vertical segments, clipped to the crop, and drawn with a +1/-1 difference array summed down
+    the rows. Costs O(crop area) per mask instead of O(image area): several times faster for
+    HD images."""
+    n = len(rles)
+    h = int(height)
+    diff = np.zeros((n, size + 1, size), np.int8)
+    if n == 0:
+        return diff[:, :size].astype(np.uint8)
+    org = crop_origin(centers, size)
+    owner, start, length, _ = foreground_runs(rles)
+    end = start + length
+    c0, c1 = start // h, (end - 1) // h
+    k = c1 - c0 + 1                       # pieces per run (a run may wrap over columns)
+    rep = np.repeat(np.arange(len(start)), k)
+    col = c0[rep] + (np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k))
+    rs = np.maximum(start[rep] - col * h, 0)
+    re = np.minimum(end[rep] - col * h, h)
+    own = owner[rep]
+    cx = col - org[own, 0]
+    y0 = org[own, 1]
+    ry0 = np.clip(rs - y0, 0, size)
+    ry1 = np.clip(re - y0, 0, size)
+    keep = (cx >= 0) & (cx < size) & (ry1 > ry0)
+    own, cx, ry0, ry1 = own[keep], cx[keep], ry0[keep], ry1[keep]
+    # within one column of one mask the kept segments are disjoint, so starts (and ends) are
+    # unique cells and plain fancy assignment is exact
+    diff[own, ry0, cx] += 1
+    diff[own, ry1, cx] -= 1
+    return np.cumsum(diff, axis=1, dtype=np.int8)[:, :size].view(np.uint8)
+
+
+def center_cut(crops: np.ndarray, size: int) -> np.ndarray:
+    """The central size x size part of (N, S, S) crops (S >= size). For crops made by
+    ``crop_runs`` / ``crop_masks`` at the same centres, this equals cropping at ``size``
+    directly when S - size is even (``crop_origin`` rounds centre - size/2)."""
+    s = crops.shape[-1]
+    if s == size:
+        return crops
+    if s < size or (s - size) % 2:
+        raise ValueError(f"cannot cut a {size}x{size} crop from the centre of {s}x{s} crops")
+    o = (s - size) // 2
+    return crops[..., o:o + size, o:o + size]
+
+
+def block_counts(crops: np.ndarray, factor: int) -> np.ndarray:
+    """(N, S, S) 0/1 crops -> (N, S/f, S/f) uint8: the number of covered pixels per f x f
+    block (area downsampling, so thin parts of a mask stay visible)."""
+    if factor == 1:
+        return crops.astype(np.uint8)
+    n, s, _ = crops.shape
+    m = s // factor
+    c = crops[:, :m * factor, :m * factor].reshape(n, m, factor, m, factor)
+    return c.sum(axis=(2, 4), dtype=np.uint16).astype(np.uint8)
+
+
+def downsample_crops(crops: np.ndarray, factor: int) -> np.ndarray:
+    """(N, S, S) uint8 0/1 crops -> (N, S/f, S/f) float32 in [0, 1]: the covered fraction of
+    each f x f block (the network's input; ``block_counts`` / f^2)."""
+    return block_counts(np.asarray(crops), factor).astype(np.float32) / float(factor * factor)

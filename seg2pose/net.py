@@ -29,12 +29,14 @@ The ``lite`` architecture (for CPUs)
 The same crop downsampled by 3 (420 -> 140, each pixel the covered fraction of a 3x3 block),
 blocks of one 3x3 convolution + ReLU + 2x2 max-pool, widths 8-16-24-32-48 (140 -> 4x4), a 4x4
 convolution to 64, then the same head (concat, three dense layers of 64, 2.5 tanh). About 1/200
-of the paper arch's multiply-adds. ``lite2`` is the same trunk on the crop downsampled by 2
-(210 -> 6x6 before the head); in the one CPU run made with it (lr 1e-3) it did not learn
-(docs/RESULTS.md), so ``lite`` is the CPU choice. ``lite-hr`` is the lite trunk on a
+of the paper arch's multiply-adds. (A ``lite2``, the same trunk on the crop downsampled by 2,
+did not learn in the one CPU run made with it, docs/RESULTS.md, and was removed.) ``lite-hr`` is the lite trunk on a
 full-resolution 140x140 crop centred on the mask centre (no downsampling, same cost as
 ``lite``; larger masks are cut around their centre); ``Checkpoint.predict`` cuts it from the
 centre of the pipeline's 420 crops.
+
+Checkpoint files, inference over many masks and model sets live in ``seg2pose.checkpoint``;
+the training loop in ``seg2pose.train``.
 
 Input normalisation (``Normalisation``; recorded in every checkpoint's metadata)
 -----------------------------------------------------------------------------------
@@ -52,16 +54,15 @@ Input normalisation (``Normalisation``; recorded in every checkpoint's metadata)
 
 from __future__ import annotations
 
-import json
-import math
-from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
 from torch import nn
 
 from seg2pose.errors import InputError, S2PError
+
+ARCHS = ("paper", "lite", "lite-hr")
 
 # --------------------------------------------------------------------------------------------
 # configuration
@@ -109,14 +110,6 @@ class NetConfig:
                    convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
 
     @classmethod
-    def lite2(cls, n_classes: int = 0) -> "NetConfig":
-        """The lite trunk on the crop downsampled by 2 only (210 -> 6x6, like the paper's
-        head): 2.25x the cost of ``lite``, finer position detail."""
-        return cls(arch="lite2", downsample=2,
-                   stages=((8, 3, True), (16, 3, True), (24, 3, True), (32, 3, True), (48, 3, True)),
-                   convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
-
-    @classmethod
     def lite_hr(cls, n_classes: int = 0) -> "NetConfig":
         """The lite trunk on a full-resolution 140x140 crop centred on the mask centre (no
         downsampling): the same cost as ``lite``, 3x the resolution, 1/9 of the field of view.
@@ -128,11 +121,10 @@ class NetConfig:
     @classmethod
     def named(cls, arch: str, n_classes: int = 0, n_geo: int = 0) -> "NetConfig":
         """The named arch; ``n_geo`` > 0 appends that many mask-geometry features to the vector."""
-        makers = {"paper": cls.paper, "lite": cls.lite, "lite2": cls.lite2, "lite-hr": cls.lite_hr,
+        makers = {"paper": cls.paper, "lite": cls.lite, "lite-hr": cls.lite_hr,
                   "lite_hr": cls.lite_hr}
         if arch not in makers:
-            raise InputError(f"unknown arch {arch!r}; use 'paper', 'lite', 'lite2' or 'lite-hr'",
-                             field="--arch")
+            raise InputError(f"unknown arch {arch!r}; use one of {', '.join(ARCHS)}", field="arch")
         return replace(makers[arch](n_classes), n_geo=int(n_geo))
 
     def to_dict(self) -> dict:
@@ -191,29 +183,33 @@ class Normalisation:
         return cls(**d)
 
 
-def center_cut(crops: np.ndarray, size: int) -> np.ndarray:
-    """The central size x size part of (N, S, S) crops (S >= size). For crops made by
-    ``crop_runs`` / ``crop_masks`` at the same centres, this equals cropping at ``size``
-    directly when S - size is even (``crop_origin`` rounds centre - size/2)."""
-    s = crops.shape[-1]
-    if s == size:
-        return crops
-    if s < size or (s - size) % 2:
-        raise ValueError(f"cannot cut a {size}x{size} crop from the centre of {s}x{s} crops")
-    o = (s - size) // 2
-    return crops[..., o:o + size, o:o + size]
+def class_onehot(class_names, classes: list[str]) -> np.ndarray:
+    """(N, len(classes)) float32 one-hot of class names in the order of ``classes`` (a row of
+    zeros for a name not in it)."""
+    out = np.zeros((len(class_names), len(classes)), np.float32)
+    idx = {c: i for i, c in enumerate(classes)}
+    for i, c in enumerate(class_names):
+        j = idx.get(str(c))
+        if j is not None:
+            out[i, j] = 1.0
+    return out
 
 
-def downsample_crops(crops: np.ndarray, factor: int) -> np.ndarray:
-    """(N, S, S) uint8 0/1 crops -> (N, S/f, S/f) float32: the covered fraction of each f x f
-    block (area downsampling, so thin parts of a mask stay visible)."""
-    crops = np.asarray(crops)
-    if factor == 1:
-        return crops.astype(np.float32)
-    n, s, _ = crops.shape
-    m = s // factor
-    c = crops[:, :m * factor, :m * factor].reshape(n, m, factor, m, factor)
-    return c.sum(axis=(2, 4), dtype=np.float32) / float(factor * factor)
+def input_vector(cfg: NetConfig, norm: Normalisation, centers: np.ndarray, normal_xy: np.ndarray,
+                 class_names=None, classes: list[str] = (), geo: np.ndarray | None = None
+                 ) -> np.ndarray:
+    """The network's vector input (N, n_vec + n_classes + n_geo) float32: the normalised crop
+    centre and normal position, then (when the net has them) the class one-hot over ``classes``
+    and the mask-geometry features ``geo`` (N, n_geo)."""
+    vec = norm.vector(centers, normal_xy)
+    if cfg.n_classes:
+        vec = np.hstack([vec, class_onehot(np.asarray(class_names), list(classes))])
+    if cfg.n_geo:
+        if geo is None or np.shape(geo) != (len(vec), cfg.n_geo):
+            raise S2PError(f"this model needs ({len(vec)}, {cfg.n_geo}) mask-geometry "
+                           f"features, got {None if geo is None else np.shape(geo)}")
+        vec = np.hstack([vec, np.asarray(geo, np.float32)])
+    return vec.astype(np.float32, copy=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -281,147 +277,3 @@ def autocast(device: torch.device, enabled: bool = True):
     """bf16 autocast on CUDA only (on the CPU bf16 convolutions are slower than fp32 here)."""
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16,
                           enabled=enabled and device.type == "cuda")
-
-
-# --------------------------------------------------------------------------------------------
-# checkpoints: safetensors weights + JSON metadata (also embedded in the safetensors header)
-
-CHECKPOINT_VERSION = 1
-
-
-@dataclass
-class Checkpoint:
-    """A trained model with everything needed to use it: the arch, the normalisation, and
-    which camera/class/scene it belongs to. ``cls`` is a class name or '*' (all classes, with
-    a class one-hot input; ``classes`` lists their order)."""
-
-    net: Seg2PoseNet
-    norm: Normalisation
-    camera: str
-    cls: str
-    scene_fingerprint: str = ""
-    classes: list[str] = field(default_factory=list)
-    info: dict = field(default_factory=dict)   # val_loss, epoch, seed, run, ...
-
-    def metadata(self) -> dict:
-        return {"version": CHECKPOINT_VERSION, "camera": self.camera, "class": self.cls,
-                "classes": self.classes, "arch": self.net.cfg.arch,
-                "net": self.net.cfg.to_dict(), "normalisation": self.norm.to_dict(),
-                "scene_fingerprint": self.scene_fingerprint, **self.info}
-
-    def save(self, path: str | Path) -> None:
-        """Write ``path`` (.safetensors) and its ``.json`` sidecar, both atomically."""
-        from safetensors.torch import save_file
-
-        from seg2pose.io.atomic import atomic_path, atomic_write_text
-
-        path = Path(path)
-        meta = self.metadata()
-        state = {k: v.detach().float().cpu().contiguous() for k, v in self.net.state_dict().items()}
-        with atomic_path(path) as tmp:
-            save_file(state, str(tmp), metadata={"s2p": json.dumps(meta)})
-        atomic_write_text(path.with_suffix(".json"), json.dumps(meta, indent=1) + "\n")
-
-    @classmethod
-    def load(cls, path: str | Path, *, arch: str | None = None, camera: str | None = None,
-             device: str | torch.device = "cpu") -> "Checkpoint":
-        """Load a checkpoint; ``arch`` / ``camera``, when given, must match its metadata."""
-        from safetensors import safe_open
-        from safetensors.torch import load_file
-
-        path = Path(path)
-        if not path.exists():
-            raise InputError("checkpoint not found", file=path)
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = json.loads((f.metadata() or {}).get("s2p", "null"))
-            state = load_file(str(path))
-        except Exception as e:  # safetensors raises its own error types for corrupt files
-            raise InputError(f"not a readable safetensors file ({e})", file=path) from None
-        if not isinstance(meta, dict) or "net" not in meta:
-            raise InputError("no s2p metadata in this safetensors file", file=path)
-        if arch is not None and meta.get("arch") != arch:
-            raise InputError(f"checkpoint is arch {meta.get('arch')!r}, expected {arch!r}",
-                             file=path, field="arch")
-        if camera is not None and meta.get("camera") not in (camera, "*"):
-            raise InputError(f"checkpoint is for camera {meta.get('camera')!r}, expected {camera!r}",
-                             file=path, field="camera")
-        cfg = NetConfig.from_dict(meta["net"])
-        net = Seg2PoseNet(cfg)
-        try:
-            net.load_state_dict(state)
-        except RuntimeError as e:
-            raise InputError(f"weights do not fit arch {cfg.arch!r}: {str(e).splitlines()[0]}",
-                             file=path) from None
-        net.to(device).eval()
-        known = {"version", "camera", "class", "classes", "arch", "net", "normalisation",
-                 "scene_fingerprint"}
-        return cls(net=net, norm=Normalisation.from_dict(meta["normalisation"]),
-                   camera=meta["camera"], cls=meta["class"],
-                   scene_fingerprint=meta.get("scene_fingerprint", ""),
-                   classes=list(meta.get("classes") or []),
-                   info={k: v for k, v in meta.items() if k not in known})
-
-    # ---- inference ----------------------------------------------------------------------------
-    def class_onehot(self, class_names: np.ndarray) -> np.ndarray:
-        """(N, n_classes) float32 one-hot of class names (empty when per-class)."""
-        k = self.net.cfg.n_classes
-        out = np.zeros((len(class_names), k), np.float32)
-        if k:
-            idx = {c: i for i, c in enumerate(self.classes)}
-            for i, c in enumerate(class_names):
-                j = idx.get(str(c))
-                if j is not None:
-                    out[i, j] = 1.0
-        return out
-
-    @torch.no_grad()
-    def predict(self, crops: np.ndarray, centers: np.ndarray, normal_xy: np.ndarray,
-                class_names: np.ndarray | None = None, batch: int = 64,
-                device: torch.device | None = None, origin_xy: np.ndarray | None = None,
-                geo: np.ndarray | None = None, sparse: bool | None = None) -> np.ndarray:
-        """Residuals (N, 2) metres for full-resolution crops (N, S, S) uint8 (S >= the model's
-        crop, usually the pipeline's 420; larger crops are cut around their centre), crop
-        centres (N, 2) pixels and normal positions (N, 2) metres. ``origin_xy`` (2,): the
-        camera centre, needed to apply a radial calibration (``info["radial_offset"]``, per
-        class, metres along the camera-to-road-user direction, subtracted). ``geo`` (N, n_geo):
-        the masks' geometry features (``seg2pose.features``), required when the net uses them.
-        ``sparse``: exact sparse inference (``seg2pose.sparse``; default: on the CPU)."""
-        from seg2pose import sparse as sparse_inference
-
-        device = device or next(self.net.parameters()).device
-        vec = self.norm.vector(centers, normal_xy)
-        if self.net.cfg.n_classes:
-            vec = np.hstack([vec, self.class_onehot(np.asarray(class_names))])
-        if self.net.cfg.n_geo:
-            if geo is None or np.shape(geo) != (len(vec), self.net.cfg.n_geo):
-                raise S2PError(f"this model needs ({len(vec)}, {self.net.cfg.n_geo}) mask-geometry "
-                               f"features, got {None if geo is None else np.shape(geo)}")
-            vec = np.hstack([vec, np.asarray(geo, np.float32)])
-        out = np.zeros((len(crops), 2), np.float32)
-        self.net.eval()
-        if sparse_inference.use_sparse(device, sparse):
-            x = downsample_crops(center_cut(crops, self.net.cfg.crop), self.net.cfg.downsample)
-            out = sparse_inference.predict_inputs(self.net, x, vec, batch, device)
-        else:
-            for s in range(0, len(crops), batch):
-                x = torch.from_numpy(downsample_crops(center_cut(crops[s:s + batch], self.net.cfg.crop),
-                                                      self.net.cfg.downsample))
-                with autocast(device):
-                    y = self.net(x[:, None].to(device), torch.from_numpy(vec[s:s + batch]).to(device))
-                out[s:s + batch] = y.float().cpu().numpy()
-        out = out * self.norm.residual_scale
-        offsets = self.info.get("radial_offset") or {}
-        if offsets and origin_xy is not None and len(out):
-            u = np.asarray(normal_xy, float) - np.asarray(origin_xy, float)[:2]
-            u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
-            names = np.asarray(class_names if class_names is not None else [self.cls] * len(out))
-            off = np.array([offsets.get(str(c), 0.0) for c in names])
-            out = out - off[:, None] * u
-        return out
-
-
-def check_finite_loss(loss: float, where: str) -> None:
-    if not math.isfinite(loss):
-        raise S2PError(f"{where}: the loss became {loss}; training stopped "
-                       "(the best checkpoint so far is kept). Try a lower learning rate.")

@@ -59,12 +59,6 @@ def closer_share(views: list[tuple[Camera, np.ndarray, np.ndarray]], ground: Gro
     return (closer / n if n else float("nan")), n
 
 
-def fraction_closer(camera: Camera, ground: GroundSurface, centers: np.ndarray,
-                    truth_xy: np.ndarray, height: float) -> float:
-    """``closer_share`` for one camera's detections."""
-    return closer_share([(camera, centers, truth_xy)], ground, height)[0]
-
-
 def default_height_bisection(views: list[tuple[Camera, np.ndarray, np.ndarray]],
                              ground: GroundSurface, lo: float = 0.0, hi: float = 4.0,
                              tol: float = 1e-3) -> float:

@@ -9,11 +9,11 @@ from pathlib import Path
 
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.scene import Scene, load_scene
+from seg2pose.io.scene import Scene
 from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.pipeline import _load_models, compute_views, model_dirs, write_run
+from seg2pose.pipeline import compute_views, write_run
 
-def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | None = None,
+def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
                  match: str = "ids", gate: float = 3.0):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
@@ -22,8 +22,6 @@ def evaluate_run(scene: Scene | str | Path, run_dir: str | Path, split: str | No
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     run_dir = Path(run_dir)
@@ -62,7 +60,7 @@ PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "s
                       "tri-I", "tri-L", "tri-T"]
 
 
-def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
+def paper_table(scene: Scene, models_dir: str | Path | None = None,
                 split: str = "test", out_dir: str | Path | None = None,
                 configs: list[str] | None = None, baseline_only: bool = False,
                 force: bool = False, progress: bool = True) -> tuple[Path, str]:
@@ -70,10 +68,9 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
 
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
+    from seg2pose.checkpoint import load_models, model_dirs
     from seg2pose.evaluate import format_table, plot_error_vs_distance
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
     if (out / "results.json").exists() and not force:
         raise S2PError(f"{out} holds a paper table already; pass --force to redo it")
@@ -88,7 +85,7 @@ def paper_table(scene: Scene | str | Path, models_dir: str | Path | None = None,
     # camera's views once per method, then fuse per configuration
     all_cams = [c for c in scene.cameras if any(c in scene.rig.configs[k] for k in configs)]
     for baseline in ([False, True] if not baseline_only else [True]):
-        models = None if baseline else _load_models(scene, all_cams, models_dir, None, None)
+        models = None if baseline else load_models(scene, all_cams, models_dir)
         views, nframes = compute_views(scene, all_cams, scene.split_range(split), models,
                                        progress=progress)
         for cfg in configs:

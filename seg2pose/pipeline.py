@@ -12,20 +12,23 @@ per model: models are per camera and class, or per camera with a class input).
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
-from seg2pose.io.scene import Scene, load_scene
+from seg2pose.io.scene import Scene
 from seg2pose.masks import CROP_SIZE, mask_centers, rle_stats
 from seg2pose.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
-from seg2pose.say import say, warn_once
+from seg2pose.say import warn_once
+
+if TYPE_CHECKING:  # torch is imported only when a run uses models
+    from seg2pose.checkpoint import ModelSet
 
 
 def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
@@ -57,110 +60,11 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 
 
 # ----------------------------------------------------------------------------------------------
-# models
-
-
-def model_filename(camera: str, cls: str) -> str:
-    """``<camera>__<class>.safetensors``; ``all`` in place of the camera or the class for a
-    model serving all cameras (of one device) or all classes."""
-    return f"{'all' if camera == '*' else camera}__{'all' if cls == '*' else cls}.safetensors"
-
-
-@dataclass(eq=False)
-class Ensemble:
-    """Checkpoints from several model folders for one (camera, class): their residuals are
-    averaged (model averaging; e.g. an annotated and a zero-annotation model, or runs with
-    other seeds). ``info`` is the first member's."""
-
-    members: tuple
-
-    @property
-    def info(self) -> dict:
-        return self.members[0].info
-
-
-@dataclass
-class ModelSet:
-    """The checkpoints a run uses, looked up by (camera, class name): a Checkpoint each, or an
-    Ensemble when several model folders are given."""
-
-    models: dict[tuple[str, str], object] = field(default_factory=dict)  # -> Checkpoint | Ensemble
-    paths: dict[tuple[str, str], Path | list[Path]] = field(default_factory=dict)
-
-    @classmethod
-    def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
-             arch: str | None = None, fingerprint: str | None = None, device=None,
-             allow_incomplete: bool = False) -> "ModelSet":
-        """The models of one folder, or of several folders as ensembles (residuals averaged).
-        A checkpoint whose training did not finish (metadata "complete": false) is refused
-        unless ``allow_incomplete``."""
-        if isinstance(models_dir, (list, tuple)):
-            if len(models_dir) == 1:
-                return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device,
-                                allow_incomplete)
-            sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete)
-                    for d in models_dir]
-            ms, made = cls(), {}
-            for key in sets[0].models:
-                members = tuple(s.models[key] for s in sets)
-                ids = tuple(map(id, members))  # one Ensemble per distinct member set (shared models)
-                ms.models[key] = made.setdefault(ids, Ensemble(members))
-                ms.paths[key] = [s.paths[key] for s in sets]
-            return ms
-        from seg2pose.net import Checkpoint
-
-        models_dir = Path(models_dir)
-        ms = cls()
-        missing = []
-        cache: dict[Path, object] = {}
-        for cam in cameras:
-            for c in classes:
-                for name in (model_filename(cam, c), model_filename(cam, "*"),
-                             model_filename("*", c), model_filename("*", "*")):
-                    p = models_dir / name
-                    if p.exists():
-                        if p not in cache:
-                            cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
-                            ck = cache[p]
-                            if ck.info.get("complete") is False:
-                                msg = (f"its training did not finish (epoch {ck.info.get('epoch')}, "
-                                       f"val loss {ck.info.get('val_loss')})")
-                                if not allow_incomplete:
-                                    raise InputError(f"{msg}: finish it with `s2p train`, or pass "
-                                                     "--allow-incomplete to use it anyway",
-                                                     file=p.with_suffix(".json"), field="complete")
-                                say(f"{p}: {msg}; used because incomplete models are allowed",
-                                    "warning")
-                            if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
-                                say(f"{p} was trained on another scene (fingerprint "
-                                    f"{ck.scene_fingerprint}, this scene {fingerprint})", "warning")
-                        ms.models[(cam, c)] = cache[p]
-                        ms.paths[(cam, c)] = p
-                        break
-                else:
-                    missing.append(f"{cam}/{c}")
-        if missing:
-            raise S2PError(f"no Seg2PoseNet model in {models_dir} for {', '.join(missing)}; "
-                           "train with `s2p train` or run with --baseline")
-        return ms
-
-
-# ----------------------------------------------------------------------------------------------
 # per-view estimates
 
 
-class _Warn:
-    """Say a thing once per run."""
-
-    def __init__(self):
-        self.said: set[str] = set()
-
-    def __call__(self, key: str, msg: str) -> None:
-        warn_once(self.said, key, msg)
-
-
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
-                   models: ModelSet | None, warn: _Warn, batch: int = 64
+                   models: ModelSet | None, said: set[str], batch: int = 64
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
     (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground) and
@@ -171,7 +75,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     names = np.array([by_id[c].name if c in by_id else "" for c in table.class_id], dtype=object)
     heights = np.array([by_id[c].default_height if c in by_id else np.nan for c in table.class_id])
     if (table.class_id == 0).any():
-        warn("noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
+        warn_once(said, "noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
     uv = mask_centers(table.rles, table.height, table.width, center_method)
     normal = np.full((n, 3), np.nan)
     ok = np.isfinite(uv[:, 0]) & np.isfinite(heights)
@@ -183,7 +87,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     _, _, box = rle_stats(table.rles, table.height, table.width)
     big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
     if big.any():
-        warn("bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
+        warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
     usable = np.isfinite(normal[:, 0])
     groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
@@ -192,37 +96,12 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
             groups.setdefault(id(ck), (ck, []))[1].append(c)
     for ck, cls_of_model in groups.values():
         sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
+        from seg2pose.checkpoint import predict_residuals
+
         residual[sel] = predict_residuals(scene, cam, ck, [table.rles[i] for i in sel],
                                           table.height, table.width, uv[sel], normal[sel, :2],
                                           names[sel], batch)
     return names, uv, normal, residual
-
-
-def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int, width: int,
-                      uv: np.ndarray, normal_xy: np.ndarray, names: np.ndarray, batch: int = 64
-                      ) -> np.ndarray:
-    """Seg2PoseNet residuals (N, 2) metres of checkpoint ``ck`` for N masks of camera ``cam``
-    with centres uv (N, 2) pixels, normal positions (N, 2) metres and class names (N,): crops
-    straight from the RLE runs and, when the model uses them, the mask-geometry features;
-    one batch of full-resolution crops at a time (bounded memory). An Ensemble gives the mean
-    of its members' residuals."""
-    if isinstance(ck, Ensemble):
-        return np.mean([predict_residuals(scene, cam, m, rles, height, width, uv, normal_xy, names,
-                                          batch) for m in ck.members], axis=0)
-    from seg2pose.examples import crop_runs
-    from seg2pose.features import scene_geometry
-
-    out = np.zeros((len(rles), 2))
-    center = scene.cameras[cam].center[:2]
-    for s in range(0, len(rles), batch):
-        sl = slice(s, s + batch)
-        part = rles[sl]
-        crops = crop_runs(part, height, width, uv[sl])
-        geo = (scene_geometry(scene, cam, part, height, width, uv[sl], normal_xy[sl], names[sl])
-               if ck.net.cfg.n_geo else None)
-        out[sl] = ck.predict(crops, uv[sl], normal_xy[sl], names[sl], batch=batch,
-                             origin_xy=center, geo=geo)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -271,7 +150,7 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
     camera), and the number of frames."""
     from tqdm import tqdm
 
-    warn = _Warn()
+    said: set[str] = set()  # warnings said once per run
     rows: list[ViewTable] = []
 
     def flush(chunk: dict[str, list[MaskTable]]) -> None:
@@ -279,7 +158,7 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, warn)
+            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, said)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
                                   uv, normal, residual))
 
@@ -341,24 +220,7 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
     return write_run_folder(run_dir, poses, views, meta, force=force)
 
 
-def model_dirs(scene: Scene, models_dir) -> list[Path]:
-    """The model folder(s) a run uses: one path, a list of them (averaged), or None for
-    SCENE/models."""
-    dirs = models_dir if isinstance(models_dir, (list, tuple)) else [models_dir] if models_dir else []
-    return [Path(d) for d in dirs] or [scene.root / "models"]
-
-
-def _load_models(scene: Scene, cams: list[str], models_dir, arch, device,
-                 allow_incomplete: bool = False) -> ModelSet:
-    from seg2pose.net import pick_device
-
-    return ModelSet.load(model_dirs(scene, models_dir), cams,
-                         [c.name for c in scene.classes], arch=arch,
-                         fingerprint=scene.fingerprint(), device=pick_device(device),
-                         allow_incomplete=allow_incomplete)
-
-
-def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None = None,
+def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
@@ -369,14 +231,15 @@ def run_scene(scene: Scene | str | Path, run_dir: str | Path, config: str | None
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
     averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
     checkpoints whose training did not finish (refused otherwise)."""
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
     frame_range = scene.split_range(split)
-    models = None if baseline else _load_models(scene, cams, models_dir, arch, device,
-                                                allow_incomplete)
+    models = None
+    if not baseline:
+        from seg2pose.checkpoint import load_models
+
+        models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,

@@ -188,7 +188,7 @@ def window_sizes(boxes: np.ndarray, size: int, bucket: int) -> np.ndarray:
 
 
 class SparseSeg2PoseNet(nn.Module):
-    """Exact sparse forward of a Seg2PoseNet (paper, lite, lite2, lite-hr): the same output as
+    """Exact sparse forward of a Seg2PoseNet (paper, lite, lite-hr): the same output as
     ``net(crops, vec)`` to rounding. Shares ``net``'s parameters (no copy).
 
     ``bucket``: window sides are rounded up to this many input pixels, so that crops with

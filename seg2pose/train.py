@@ -16,12 +16,14 @@ their examples are nearly the same views). ``quick`` keeps the paper's one model
 (measured better than one model for all classes with a class input, ``share_classes``, which
 ``demo`` uses to train a single model).
 
-Checkpoints: ``MODELS/<camera>__<class>.safetensors`` (``__all`` when shared) + ``.json``
-metadata (camera, class, arch, normalisation, scene fingerprint, val loss, epoch, seed, run,
-"complete"). While training, ``<name>.state.pt`` holds the resume state (after every epoch);
-an interrupted ``s2p train`` continues from it; a damaged one is set aside
-(``.state.pt.damaged-<time>``) and training continues from the last good checkpoint. A NaN loss stops training with a message; the
-best checkpoint so far stays on disk.
+Checkpoints (``seg2pose.checkpoint``): ``MODELS/<camera>__<class>.safetensors`` (``__all`` when
+shared). While training, ``<name>.state.pt`` holds the resume state (after every epoch); an
+interrupted ``s2p train`` continues from it; a damaged one is set aside
+(``.state.pt.damaged-<time>``) and training continues from the last good checkpoint. A NaN loss
+stops training with a message; the best checkpoint so far stays on disk.
+
+This module is the training loop (``train_model``, read it top to bottom) and the protocol;
+the examples each model trains on are assembled by ``seg2pose.training_data``.
 """
 
 from __future__ import annotations
@@ -31,18 +33,22 @@ import math
 import sys
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 import torch
 
-from seg2pose.errors import S2PError
-from seg2pose.examples import ExampleSet, annotated_examples, rough_examples
+from seg2pose.checkpoint import Checkpoint
+from seg2pose.errors import InputError, S2PError
+from seg2pose.examples import ExampleSet
 from seg2pose.features import GEO_VERSION, N_GEO
-from seg2pose.io.scene import Scene, load_scene
-from seg2pose.normal import DEFAULT_CENTER_METHOD
-from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, autocast,
-                          check_finite_loss, pick_device)
-from seg2pose.pipeline import model_filename, predict_residuals
+from seg2pose.io.scene import Scene
+from seg2pose.normal import CENTER_METHODS, DEFAULT_CENTER_METHOD
+from seg2pose.net import ARCHS, NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
+from seg2pose.say import say
+
+LrSchedule = Literal["constant", "cosine"]
+Loss = Literal["mse", "euclid"]
 
 
 @dataclass(frozen=True)
@@ -51,7 +57,7 @@ class TrainConfig:
     runs: int = 4                    # best of N
     seed: int = 0                    # run r uses seed + r (the same for every camera)
     lr: float = 5e-5
-    lr_schedule: str = "constant"    # or "cosine" (decay to 5% over each run)
+    lr_schedule: LrSchedule = "constant"  # or "cosine" (decay to 5% over each run)
     batch_size: int = 16
     batches_per_epoch: int = 64
     epochs: int = 50
@@ -66,14 +72,27 @@ class TrainConfig:
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)
     augment: int = 0                 # changed copies per annotated training mask (seg2pose.augment)
+    # annotated truth (gt/poses.csv with a source column): "interpolated" trains on keyframes and
+    # the frames interpolated between them, "keyframes" on keyframes alone; occluded rows never
+    annotated_rows: str = "interpolated"
     max_train_per_class: int | None = None
     max_val_per_class: int | None = 2000
-    loss: str = "mse"                # "mse" (squared error / 2) or "euclid" (distance, = the metric)
+    loss: Loss = "mse"               # "mse" (squared error / 2) or "euclid" (distance, = the metric)
     center_method: str = DEFAULT_CENTER_METHOD
     residual_scale: float = 1.0
     device: str | None = None
     threads: int = 2
     force: bool = False
+
+    def __post_init__(self) -> None:
+        for name, allowed in (("arch", ARCHS + ("lite_hr",)), ("lr_schedule", get_args(LrSchedule)),
+                              ("loss", get_args(Loss)), ("center_method", CENTER_METHODS)):
+            if getattr(self, name) not in allowed:
+                raise InputError(f"unknown {name} {getattr(self, name)!r}; use one of "
+                                 f"{', '.join(a for a in allowed if a != 'lite_hr')}", field=name)
+        for name in ("runs", "epochs", "batch_size", "batches_per_epoch"):
+            if int(getattr(self, name)) < 1:
+                raise InputError(f"{name} must be at least 1, got {getattr(self, name)}", field=name)
 
     def replace(self, **kw) -> "TrainConfig":
         return replace(self, **kw)
@@ -104,10 +123,6 @@ class TrainConfig:
                    max_val_per_class=40)
 
 
-def _say(msg: str) -> None:
-    print(msg, file=sys.stderr)
-
-
 # ----------------------------------------------------------------------------------------------
 # one model
 
@@ -123,16 +138,13 @@ class _Data:
     @classmethod
     def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool,
            geometry: bool = False) -> "_Data":
-        v = norm.vector(ex.centers, ex.normal)
-        if shared:
-            onehot = np.zeros((len(ex), len(classes)), np.float32)
-            idx = {c: i for i, c in enumerate(classes)}
-            for i, c in enumerate(ex.cls):
-                onehot[i, idx[c]] = 1
-            v = np.hstack([v, onehot])
-        if geometry:
-            v = np.hstack([v, ex.geo])
-        return cls(ex, v.astype(np.float32), (ex.target / norm.residual_scale).astype(np.float32))
+        cfg = NetConfig(n_classes=len(classes) if shared else 0, n_geo=N_GEO if geometry else 0)
+        v = input_vector(cfg, norm, ex.centers, ex.normal, ex.cls, classes, ex.geo)
+        return cls(ex, v, (ex.target / norm.residual_scale).astype(np.float32))
+
+    def batch(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(crops (B, 1, S, S), vectors, targets) of the examples ``idx``."""
+        return self.ex.crops_float(idx), self.vec[idx], self.y[idx]
 
 
 def _loss(p: torch.Tensor, y: torch.Tensor, kind: str) -> torch.Tensor:
@@ -145,6 +157,12 @@ def _loss(p: torch.Tensor, y: torch.Tensor, kind: str) -> torch.Tensor:
     if kind == "mse":
         return d2.mean() / 4
     raise S2PError(f"unknown loss {kind!r}; use 'mse' or 'euclid'")
+
+
+def check_finite_loss(loss: float, where: str) -> None:
+    if not math.isfinite(loss):
+        raise S2PError(f"{where}: the loss became {loss}; training stopped "
+                       "(the best checkpoint so far is kept). Try a lower learning rate.")
 
 
 def _evaluate(net: Seg2PoseNet, data: _Data, device, residual_scale: float, batch: int = 256,
@@ -168,19 +186,14 @@ def _evaluate(net: Seg2PoseNet, data: _Data, device, residual_scale: float, batc
     return se / (4 * n), err / n
 
 
+def _lr_factor(schedule: str, steps: int):
+    """Multiplier of the learning rate at step k: constant, or a cosine decay to 5 %."""
+    if schedule == "cosine":
+        return lambda k: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(k, steps) / steps))
+    return lambda k: 1.0
+
+
 _RESUME_KEYS = {"run", "epoch", "best", "best_state", "net", "scene_fingerprint", "config"}
-
-
-def _load_state(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: Path) -> dict | None:
-    """The resume state ``state_path`` as saved by ``train_model``; a damaged one (truncated,
-    or not a resume state at all) is reported and set aside (``_set_aside``)."""
-    try:
-        resume = torch.load(state_path, map_location="cpu", weights_only=False)
-        if not isinstance(resume, dict) or not _RESUME_KEYS <= resume.keys():
-            raise ValueError("not an s2p resume state")
-    except Exception as e:  # noqa: BLE001 - torch and pickle raise many kinds on a damaged file
-        return _set_aside(state_path, e, ckpt, cfg, path)
-    return resume
 
 
 def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainConfig",
@@ -207,18 +220,40 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainCo
               and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
               and info.get("train_config", asdict(cfg)) == asdict(cfg))
     if not usable:
-        _say(f"warning: the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
-             "no checkpoint of this training to continue from, so it starts afresh")
+        say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+            "no checkpoint of this training to continue from, so it starts afresh", "warning")
         return None
     r, e = info["run"], info["epoch"]  # 1-based run, epochs done in it, of the best checkpoint
     weights = {k: v.detach().cpu() for k, v in last.net.state_dict().items()}
     best = {k: info[k] for k in ("val_loss", "val_error_m", "epoch", "seed", "run", "train_loss")
             if k in info}
-    _say(f"warning: the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
-         f"continuing from the last good checkpoint {path.name} (run {r}, epoch {e})")
+    say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
+        f"continuing from the last good checkpoint {path.name} (run {r}, epoch {e})", "warning")
     done = e >= cfg.epochs
     return {"run": r if done else r - 1, "epoch": 0 if done else e, "best": best,
             "best_state": weights, "net": weights}
+
+
+def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: Path) -> dict | None:
+    """The resume state of an interrupted training of the same scene and protocol, or None; a
+    damaged one is set aside and rebuilt from the last good checkpoint (``_set_aside``; it has
+    no optimiser state then)."""
+    if not state_path.exists() or cfg.force:
+        return None
+    try:
+        resume = torch.load(state_path, map_location="cpu", weights_only=False)
+        if not isinstance(resume, dict) or not _RESUME_KEYS <= resume.keys():
+            raise ValueError("not an s2p resume state")
+    except Exception as e:  # noqa: BLE001 - torch and pickle raise many kinds on a damaged file
+        return _set_aside(state_path, e, ckpt, cfg, path)
+    if "opt" not in resume:
+        return resume
+    if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
+        say(f"{state_path} is from another scene or protocol; starting afresh", "warning")
+        return None
+    say(f"resuming {state_path.name[:-len('.state.pt')]} at run {resume['run'] + 1}, "
+        f"epoch {resume['epoch'] + 1}")
+    return resume
 
 
 def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
@@ -233,6 +268,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     if device.type == "cpu":
         torch.set_num_threads(max(1, cfg.threads))
     state_path = path.with_name(path.name + ".state.pt")
+    # batch composition: n_real annotated + n_rough rough-model examples
     n_rough = 0
     if rough is not None and len(rough.ex):
         n_rough = cfg.batch_size if (train is None or not len(train.ex)) else (
@@ -240,30 +276,18 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     n_real = cfg.batch_size - n_rough
     if n_real and (train is None or not len(train.ex)):
         raise S2PError(f"{path.stem}: no training examples")
-    best = {"val_loss": math.inf}
-    start_run, start_epoch, resume = 0, 0, None
-    if state_path.exists() and not cfg.force:
-        resume = _load_state(state_path, ckpt, cfg, path)
-        if resume is None:
-            pass
-        elif "opt" not in resume:  # rebuilt from the last good checkpoint
-            start_run, start_epoch, best = resume["run"], resume["epoch"], resume["best"]
-        elif resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
-            _say(f"warning: {state_path} is from another scene or protocol; starting afresh")
-            resume = None
-        else:
-            start_run, start_epoch, best = resume["run"], resume["epoch"], resume["best"]
-            _say(f"resuming {path.name} at run {start_run + 1}, epoch {start_epoch + 1}")
+    resume = _load_resume(state_path, ckpt, cfg, path)
+    start_run, start_epoch, best = (resume["run"], resume["epoch"], resume["best"]) if resume else (
+        0, 0, {"val_loss": math.inf})
     best_state = resume["best_state"] if resume else None
     steps = cfg.epochs * cfg.batches_per_epoch
     for run in range(start_run, cfg.runs):
+        # a run: a fresh network from its seed (or the resume state of an interrupted one)
         seed = cfg.seed + run
         torch.manual_seed(seed)
         net = Seg2PoseNet(net_cfg).to(device)
         opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-        sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, (lambda k: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(k, steps) / steps)))
-            if cfg.lr_schedule == "cosine" else (lambda k: 1.0))
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_factor(cfg.lr_schedule, steps))
         rng = np.random.default_rng(seed)
         epoch0 = 0
         if resume is not None and run == start_run and start_epoch > 0:
@@ -278,18 +302,12 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
         bar = tqdm(range(epoch0, cfg.epochs), desc=f"{path.stem} run {run + 1}/{cfg.runs}",
                    unit="epoch", disable=not progress, leave=False, file=sys.stderr)
         for epoch in bar:
+            # an epoch: batches drawn at random (with replacement), one Adam step each
             tot = 0.0
             for _ in range(cfg.batches_per_epoch):
-                parts_x, parts_v, parts_y = [], [], []
-                for data, k in ((train, n_real), (rough, n_rough)):
-                    if k:
-                        idx = rng.integers(0, len(data.ex), k)
-                        parts_x.append(data.ex.crops_float(idx))
-                        parts_v.append(data.vec[idx])
-                        parts_y.append(data.y[idx])
-                x = torch.from_numpy(np.concatenate(parts_x)).to(device)
-                v = torch.from_numpy(np.concatenate(parts_v)).to(device)
-                y = torch.from_numpy(np.concatenate(parts_y)).to(device)
+                parts = [data.batch(rng.integers(0, len(data.ex), k))
+                         for data, k in ((train, n_real), (rough, n_rough)) if k]
+                x, v, y = (torch.from_numpy(np.concatenate(p)).to(device) for p in zip(*parts))
                 with autocast(device):
                     p = net(x, v)
                 loss = _loss(p, y, cfg.loss)
@@ -301,6 +319,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
                 opt.step()
                 sched.step()
                 tot += lv
+            # validation; the best epoch over all runs becomes the checkpoint
             val_loss, val_err = _evaluate(net, val, device, cfg.residual_scale, loss=cfg.loss)
             check_finite_loss(val_loss, f"{path.stem} run {run + 1} epoch {epoch + 1} (validation)")
             bar.set_postfix(loss=f"{tot / cfg.batches_per_epoch:.4f}", val=f"{val_loss:.4f}",
@@ -312,6 +331,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
                 ckpt.net.load_state_dict(best_state)
                 ckpt.info = {**ckpt.info, **best, "complete": False}
                 ckpt.save(path)
+            # the resume state after every epoch (an interrupted training continues here)
             with atomic_path(state_path) as tmp:
                 torch.save({"run": run if epoch + 1 < cfg.epochs else run + 1,
                             "epoch": epoch + 1 if epoch + 1 < cfg.epochs else 0,
@@ -323,9 +343,9 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
             if epoch + 1 == cfg.epochs:
                 resume = None  # the next run starts fresh
         bar.close()
-        _say(f"{path.stem} run {run + 1}/{cfg.runs}: best so far val loss {best['val_loss']:.4f} "
-             f"({best.get('val_error_m', float('nan')):.3f} m) at run {best.get('run')}, "
-             f"epoch {best.get('epoch')}")
+        say(f"{path.stem} run {run + 1}/{cfg.runs}: best so far val loss {best['val_loss']:.4f} "
+            f"({best.get('val_error_m', float('nan')):.3f} m) at run {best.get('run')}, "
+            f"epoch {best.get('epoch')}")
     if best_state is None:
         raise S2PError(f"{path.stem}: training produced no checkpoint")
     ckpt.net.load_state_dict(best_state)
@@ -336,73 +356,10 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 
 
 # ----------------------------------------------------------------------------------------------
-# zero-annotation radial calibration
-
-
-def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",
-                     max_per_class: int = 1500, center_method: str = DEFAULT_CENTER_METHOD) -> dict[str, float]:
-    """Per-class radial offsets of a zero-annotation model from *unlabelled* masks.
-
-    The default heights of 3.2 make the normal positions unbiased along the viewing direction
-    (about half closer than the truth, half further). Rough models are not the real road
-    users, so a network trained on them alone learns a radial bias that the real ones do not
-    have. This finds, per class, the median radial component of the model's residuals over
-    the masks of ``split`` (no ground truth used) and stores it in the checkpoint as
-    ``radial_offset``; ``Checkpoint.predict`` subtracts it. Returns the offsets (metres)."""
-    from seg2pose.masks import mask_centers
-    from seg2pose.normal import normal_positions
-
-    ck = Checkpoint.load(path)
-    ck.info.pop("radial_offset", None)
-    cams = ck.info.get("cameras") or [ck.camera]
-    heights = {c.name: c.default_height for c in scene.classes}
-    by_id = scene.class_by_id()
-    classes = ck.classes or [ck.cls]
-    radial: dict[str, list[np.ndarray]] = {c: [] for c in classes}
-    rng = np.random.default_rng(0)
-    for cam in cams:
-        camera = scene.cameras[cam]
-        rles, names = [], []
-        for _, t in scene.iter_masks(cam, scene.split_range(split)):
-            for r, c in zip(t.rles, t.class_id):
-                if by_id[int(c)].name in radial:
-                    rles.append(r)
-                    names.append(by_id[int(c)].name)
-        names = np.array(names, object)
-        for c in classes:
-            sel = np.flatnonzero(names == c)
-            if len(sel) > max_per_class // len(cams):
-                sel = rng.choice(sel, max_per_class // len(cams), replace=False)
-            if not len(sel):
-                continue
-            rl = [rles[i] for i in sel]
-            uv = mask_centers(rl, camera.height, camera.width, center_method)
-            n, _ = normal_positions(camera, scene.ground, uv, heights[c])
-            ok = np.flatnonzero(np.isfinite(n[:, 0]))
-            if not len(ok):
-                continue
-            res = predict_residuals(scene, cam, ck, [rl[i] for i in ok], camera.height,
-                                    camera.width, uv[ok], n[ok, :2], names[sel][ok])
-            u = n[ok, :2] - camera.center[:2]
-            u /= np.linalg.norm(u, axis=1, keepdims=True)
-            radial[c].append(np.sum(res * u, axis=1))
-    offsets = {c: float(np.median(np.concatenate(v))) for c, v in radial.items() if v}
-    ck.info["radial_offset"] = offsets
-    ck.save(path)
-    return offsets
-
-
-# ----------------------------------------------------------------------------------------------
 # a scene
 
 
-def _holdout(ex: ExampleSet, frac: float, rng: np.random.Generator) -> tuple[ExampleSet, ExampleSet]:
-    perm = rng.permutation(len(ex))
-    k = int(round(frac * len(ex)))
-    return ex.take(np.sort(perm[k:])), ex.take(np.sort(perm[:k]))
-
-
-def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = None,
+def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
                 classes: list[str] | None = None, progress: bool = True,
                 map_groups=None) -> Path:
@@ -414,126 +371,58 @@ def train_scene(scene: Scene | str | Path, out_models_dir: str | Path | None = N
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
     from seg2pose.io.poses import read_poses
+    from seg2pose.training_data import camera_groups, model_jobs
+    from seg2pose.zero_annotation import calibrate_radial
 
     cfg = config or TrainConfig()
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if not cfg.zero_annotation and not scene.gt_path.exists():
-        raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it or pass "
-                       "--zero-annotation to train from rough models only")
+        raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it, or train "
+                       "zero-annotation (from rough models only)")
     cams = cameras or list(scene.cameras)
     unknown = [c for c in cams if c not in scene.cameras]
     if unknown:
         raise S2PError(f"unknown cameras {unknown}; the scene has {list(scene.cameras)}")
-    all_classes = [c.name for c in scene.classes]
+    all_classes = scene.class_names
     cls_list = classes or all_classes
     bad = [c for c in cls_list if c not in all_classes]
     if bad:
         raise S2PError(f"unknown classes {bad}; the scene has {all_classes}")
     net_cfg = NetConfig.named(cfg.arch, len(all_classes) if cfg.share_classes else 0,
                               N_GEO if cfg.geometry else 0)
-    crop, factor = net_cfg.crop, net_cfg.downsample
     gt = None if cfg.zero_annotation else read_poses(scene.gt_path, all_classes)
     if gt is not None:
         gt = gt.take(np.argsort(gt.frame, kind="stable"))
-    fp = scene.fingerprint()
     out.mkdir(parents=True, exist_ok=True)
-    if cfg.share_cameras:
-        sizes = {(scene.cameras[c].width, scene.cameras[c].height) for c in cams}
-        if len(sizes) > 1:
-            raise S2PError(f"--share-cameras needs one image size for all cameras, got {sorted(sizes)}")
-        groups = [("*", cams)]
-    else:
-        groups = [(c, [c]) for c in cams]
+    def train_job(job) -> None:
+        n_rough = 0 if job.rough is None else len(job.rough)
+        say(f"{job.path.stem}: {len(job.train)} annotated + {n_rough} rough training examples, "
+            f"{len(job.val)} validation")
+        ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=job.norm, camera=job.camera, cls=job.key,
+                        scene_fingerprint=scene.fingerprint(),
+                        classes=all_classes if job.key == "*" else [],
+                        info={"zero_annotation": cfg.zero_annotation, "cameras": job.cameras,
+                              "train_config": asdict(cfg), "n_train": len(job.train),
+                              "geometry": GEO_VERSION if cfg.geometry else None,
+                              "n_rough": n_rough, "n_val": len(job.val)})
+
+        def data(ex: ExampleSet) -> _Data:
+            return _Data.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
+
+        train_model(None if cfg.zero_annotation else data(job.train),
+                    None if job.rough is None else data(job.rough), data(job.val), net_cfg, cfg,
+                    ck, job.path, progress)
+        if cfg.zero_annotation and cfg.radial_calibration:
+            off = calibrate_radial(scene, job.path, "train" if "train" in scene.splits else None,
+                                   center_method=cfg.center_method)
+            say(f"{job.path.stem}: radial calibration from unlabelled masks (m): "
+                + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
 
     def train_group(group: tuple[str, list[str]]) -> None:
-        # one camera group's models: independent of the other groups (own example rng,
-        # torch seeded per run), so groups may run in any order or in parallel
-        gkey, gcams = group
-        camera = scene.cameras[gcams[0]]
-        norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
-                                       cfg.residual_scale)
-        keys = ["*"] if cfg.share_classes else cls_list
-        todo = []
-        for k in keys:
-            path = out / model_filename(gkey, k)
-            if path.exists() and not cfg.force and not path.with_name(path.name + ".state.pt").exists():
-                meta = Checkpoint.load(path)
-                if meta.info.get("complete"):
-                    if meta.scene_fingerprint != fp:
-                        _say(f"warning: {path} was trained on another scene; --force retrains it")
-                    _say(f"{path.name}: done already (val loss {meta.info.get('val_loss'):.4f}); skipped")
-                    continue
-            todo.append((k, path))
-        if not todo:
-            return
-        rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
-        empty = ExampleSet.empty(crop // factor, factor)
-        tr_parts, va_parts = [], []
-        if gt is not None:
-            for cam in gcams:
-                _say(f"camera {cam}: building examples from the annotated masks")
-                has_splits = "train" in scene.splits
-                tr = annotated_examples(scene, cam, gt, "train" if has_splits else None, crop, factor,
-                                        cfg.center_method, cfg.max_train_per_class, rng=rng,
-                                        augment=cfg.augment if has_splits else 0)
-                if has_splits and "val" in scene.splits:
-                    va = annotated_examples(scene, cam, gt, "val", crop, factor, cfg.center_method,
-                                            cfg.max_val_per_class, rng=rng)
-                else:
-                    _say(f"camera {cam}: no val split; holding out 15% of the training examples")
-                    tr, va = _holdout(tr, 0.15, rng)
-                tr_parts.append(tr)
-                va_parts.append(va)
-        train_ex = ExampleSet.concat(tr_parts) if tr_parts else empty
-        val_ex = ExampleSet.concat(va_parts) if va_parts else empty
+        # one camera group's models: independent of the other groups (own example random
+        # stream, torch seeded per run), so groups may run in any order or in parallel
+        for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
+            train_job(job)
 
-        def rough_pool(classes_: list[str], n: int) -> ExampleSet:
-            return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
-                                                     cfg.center_method,
-                                                     detector_noise=cfg.rough_detector_noise,
-                                                     occlusion=cfg.rough_occlusion)
-                                      for cam in gcams for c in classes_])
-
-        for k, path in todo:
-            kcls = cls_list if k == "*" else [k]
-            tr = train_ex.take(np.flatnonzero(np.isin(train_ex.cls, kcls)))
-            va = val_ex.take(np.flatnonzero(np.isin(val_ex.cls, kcls)))
-            rough = None
-            if cfg.zero_annotation or cfg.rough_every > 0:
-                rough = rough_pool(kcls, cfg.rough_per_class)
-            if cfg.zero_annotation or len(va) == 0:
-                if not cfg.zero_annotation:
-                    _say(f"warning: {path.stem}: no annotated validation examples; validating on rough models")
-                va = rough_pool(kcls, cfg.rough_val_per_class)
-            if len(tr) == 0 and not cfg.zero_annotation:
-                if rough is None or len(rough) == 0:
-                    _say(f"warning: {path.stem}: no training examples at all; skipped")
-                    continue
-                _say(f"warning: {path.stem}: no annotated examples; training on rough models only")
-            if len(va) == 0:
-                _say(f"warning: {path.stem}: no validation examples; skipped")
-                continue
-            _say(f"{path.stem}: {len(tr)} annotated + {0 if rough is None else len(rough)} rough "
-                 f"training examples, {len(va)} validation")
-            ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=norm, camera=gkey, cls=k,
-                            scene_fingerprint=fp, classes=all_classes if k == "*" else [],
-                            info={"zero_annotation": cfg.zero_annotation, "cameras": gcams,
-                                  "train_config": asdict(cfg), "n_train": len(tr),
-                                  "geometry": GEO_VERSION if cfg.geometry else None,
-                                  "n_rough": 0 if rough is None else len(rough), "n_val": len(va)})
-            def data(ex: ExampleSet) -> _Data:
-                return _Data.of(ex, norm, all_classes, k == "*", cfg.geometry)
-
-            train_model(None if cfg.zero_annotation else data(tr),
-                        None if rough is None else data(rough), data(va), net_cfg, cfg, ck, path,
-                        progress)
-            if cfg.zero_annotation and cfg.radial_calibration:
-                off = calibrate_radial(scene, path, "train" if "train" in scene.splits else None,
-                                       center_method=cfg.center_method)
-                _say(f"{path.stem}: radial calibration from unlabelled masks (m): "
-                     + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
-
-    list((map_groups or map)(train_group, groups))
+    list((map_groups or map)(train_group, camera_groups(scene, cams, cfg.share_cameras)))
     return out

@@ -148,8 +148,8 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     other = write_scene(root / "other", frames=5, users=2)
     old = root / "old"
     old.mkdir()
-    run_scene(other.root, old / "run", baseline=True, progress=False)
-    run_scene(scene.root, root / "run", baseline=True, progress=False)
+    run_scene(other, old / "run", baseline=True, progress=False)
+    run_scene(scene, root / "run", baseline=True, progress=False)
     generate_scene(old / "synth", frames=3, seed=1, workers=1, progress=False)
     save_masks(old / "png", read_mots(other.masks_path("c0")), "png")
     import_utocs(write_utocs(root / "utocs-a", frames=2), old / "utocs", log=lambda *a: None)
@@ -159,11 +159,11 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     out.mkdir()
     return [
         Case("run", ["run", scene.root, "-o", out / "run", "--baseline", "--force"], out / "run", old / "run"),
-        Case("synth", ["synth", out / "synth", "--frames", "6", "--seed", "2", "--workers", "1", "--quiet",
+        Case("synth", ["synth", "-o", out / "synth", "--frames", "6", "--seed", "2", "--workers", "1", "--no-progress",
                        "--force"], out / "synth", old / "synth"),
-        Case("convert-masks", ["convert-masks", scene.masks_path("c0"), out / "png", "--format", "png",
+        Case("convert-masks", ["convert-masks", scene.masks_path("c0"), "-o", out / "png", "--format", "png",
                                "--force"], out / "png", old / "png"),
-        Case("import-utocs", ["import-utocs", root / "utocs-b", out / "utocs", "--force"], out / "utocs",
+        Case("import-utocs", ["import-utocs", root / "utocs-b", "-o", out / "utocs", "--force"], out / "utocs",
              old / "utocs"),
         Case("export", ["export", scene.root, "--run", root / "run", "-o", out / "x.mcap", "--force"],
              out / "x.mcap", old / "x.mcap"),

@@ -21,6 +21,7 @@ from hostile_fixtures import write_s2p_mcap, write_scene, write_utocs
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import (clean_stale_partials, output_lock, replacing)
 from seg2pose.io.mots import read_mots
+from seg2pose.io.scene import load_scene
 
 ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
 
@@ -115,7 +116,7 @@ def test_second_concurrent_writer_is_refused(tmp_path):
     write_scene(tmp_path / "s")
     with held_lock(tmp_path / "run") as pid:
         with pytest.raises(S2PError, match=rf"run is being written by process {pid}"):
-            run_scene(tmp_path / "s", tmp_path / "run", baseline=True, progress=False)
+            run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
     with held_lock(tmp_path / "syn") as pid:
         with pytest.raises(S2PError, match=rf"syn is being written by process {pid}"):
             generate_scene(tmp_path / "syn", frames=4, workers=1, progress=False)
@@ -203,7 +204,7 @@ def test_import_mcap_malformed_rows_one_line_in_the_cli(tmp_path):
 def test_output_under_a_file_is_one_line(tmp_path):
     s = write_scene(tmp_path / "s")
     (tmp_path / "file").write_text("keep me")
-    r = s2p("convert-masks", s.masks_path("c0"), tmp_path / "file" / "m.json", "--format", "coco")
+    r = s2p("convert-masks", s.masks_path("c0"), "-o", tmp_path / "file" / "m.json", "--format", "coco")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines() == [
         f"error: cannot write {tmp_path / 'file' / 'm.json'}: a file is in the way where a folder "
@@ -278,7 +279,7 @@ def test_ctrl_c_is_one_line_and_leaves_nothing(tmp_path):
     import signal
 
     p = subprocess.Popen([sys.executable, "-c", "from seg2pose.cli import main; main()", "synth",
-                          str(tmp_path / "syn"), "--frames", "400", "--workers", "1", "--quiet"],
+                          "-o", str(tmp_path / "syn"), "--frames", "400", "--workers", "1", "--no-progress"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     deadline = time.monotonic() + 120
     while p.poll() is None and time.monotonic() < deadline:  # interrupt it while it writes

@@ -58,7 +58,7 @@ def cli(args: list[str]):
 @pytest.fixture(scope="module")
 def study(ray_local, scenes, tmp_path_factory):
     st = make_study(scenes, tmp_path_factory.mktemp("study") / "st")
-    r = cli(["batch", str(st), "run", "eval", "export", "--baseline", "--quiet"])
+    r = cli(["batch", str(st), "run", "eval", "export", "--baseline", "--no-progress"])
     return st, r
 
 
@@ -77,7 +77,7 @@ def test_batch_matches_single_scene_commands(study, tmp_path):
         del m["created"], m["scene"]  # the time, and the scene's path relative to the run
     assert m1 == m2
     # eval: what `s2p eval --json` prints
-    r2 = cli(["eval", str(a), str(batch_run), "--json"])
+    r2 = cli(["eval", str(a), "--run", str(batch_run), "--json"])
     assert json.loads(r2.output) == json.loads((a / "batch" / "baseline.eval.json").read_text())
     # export: the same MCAP, byte for byte
     out = tmp_path / "a.mcap"
@@ -111,7 +111,7 @@ def test_second_run_skips_complete_work(study):
     st, _ = study
     outs = sorted(p for p in st.rglob("*") if p.is_file() and p.name != "summary.json")
     before = {p: p.stat().st_mtime_ns for p in outs}
-    r = cli(["batch", str(st), "run", "eval", "export", "--baseline", "--quiet"])
+    r = cli(["batch", str(st), "run", "eval", "export", "--baseline", "--no-progress"])
     assert r.exit_code == 1
     summ = json.loads((st / "summary.json").read_text())
     rows = {row["scene"]: row for row in summ["scenes"]}
@@ -123,7 +123,7 @@ def test_second_run_skips_complete_work(study):
     # a changed input re-runs the steps that read it, and only those
     gt = st / "b" / "gt" / "poses.csv"
     gt.write_text(gt.read_text() + "\n")
-    r = cli(["batch", str(st), "run", "eval", "--baseline", "--quiet"])
+    r = cli(["batch", str(st), "run", "eval", "--baseline", "--no-progress"])
     rows = {row["scene"]: row for row in json.loads((st / "summary.json").read_text())["scenes"]}
     assert rows["b"]["steps"] == {"run": "skipped", "eval": "done"}
     assert rows["a"]["steps"] == {"run": "skipped", "eval": "skipped"}
@@ -166,7 +166,7 @@ def test_serial_without_ray(scenes, study, tmp_path, monkeypatch):
 
     st = make_study(scenes, tmp_path / "st", names="ad")
     monkeypatch.setattr(cb, "ray_available", lambda: False)
-    r = cli(["batch", str(st), "run", "--baseline", "--quiet"])
+    r = cli(["batch", str(st), "run", "--baseline", "--no-progress"])
     assert r.exit_code == 0, r.output
     assert "Ray is not installed" in r.output and "s2p[scale]" in r.output and "on serial" in r.output
     for n in "ad":
@@ -197,7 +197,7 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     write_folder(tmp_path / "frames", 16, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
     st = tmp_path / "st"
     for n in ("v1", "v2"):
-        r = cli(["new-scene", str(st / n), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+        r = cli(["new-scene", "-o", str(st / n), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
                  str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
         assert r.exit_code == 0, r.output
         sj = st / n / "scene.json"
@@ -210,8 +210,8 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     n_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
-        assert cli(["masks-from-video", str(single), "--quiet"]).exit_code == 0
+        r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress"])
+        assert cli(["masks-from-video", str(single), "--no-progress"]).exit_code == 0
     finally:
         cv2.setNumThreads(n_threads)
     assert r.exit_code == 1, r.output
@@ -221,7 +221,7 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
     got = (st / "v1" / "masks" / "c0.txt").read_bytes()
     assert got == (single / "masks" / "c0.txt").read_bytes() and len(got.splitlines()) == 16
     # a re-run skips it; masks it did not make are not replaced without --force
-    r = cli(["batch", str(st), "masks-from-video", "--serial", "--quiet"])
+    r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress"])
     rows = {row["scene"]: row for row in json.loads((st / "summary.json").read_text())["scenes"]}
     assert rows["v1"]["steps"] == {"masks-from-video": "skipped"}
 

@@ -24,11 +24,11 @@ def test_video_commands(tmp_path, monkeypatch, capsys):
     write_folder(tmp_path / "frames", 20, boxes)
     run = CliRunner().invoke
     sc = str(tmp_path / "sc")
-    r = run(app, ["new-scene", sc, "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+    r = run(app, ["new-scene", "-o", sc, "--video", f"c0={tmp_path / 'frames'}", "--calibration",
                   str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
     assert r.exit_code == 0, r.output
     assert "1 cameras (c0 160x120, 20 frames)" in r.output
-    r = run(app, ["masks-from-video", sc, "--quiet", "--set", "min_area=40", "--set", "init_samples=8"])
+    r = run(app, ["masks-from-video", sc, "--no-progress", "--set", "min_area=40", "--set", "init_samples=8"])
     assert r.exit_code == 0, r.output
     assert "c0: 20 frames -> 20 masks -> 1 tracks (20 masks)" in r.output
     t = read_mots(tmp_path / "sc" / "masks" / "c0.txt")
@@ -39,7 +39,7 @@ def test_video_commands(tmp_path, monkeypatch, capsys):
     from seg2pose.io.run import read_run_poses
     poses = read_run_poses(tmp_path / "run")
     assert len(poses) == 20 and set(poses.track_id.tolist()) == {1}
-    r = run(app, ["track", sc, "--quiet", "--set", "min_length=30"])
+    r = run(app, ["track", sc, "--no-progress", "--set", "min_length=30"])
     assert r.exit_code == 0 and "c0: 0 tracks, 0 masks" in r.output
     (tmp_path / "d.json").write_text(json.dumps([det(f, 1, rle(10, 10, 8, 20)) for f in range(8)]))
     r = run(app, ["import-detections", sc, str(tmp_path / "d.json"), "--camera", "c0", "--force"])

@@ -174,7 +174,7 @@ def test_masks_of_another_size_than_the_camera(tmp_path):
     assert read_mots(p).height == W  # a valid MOTS file on its own
     with pytest.raises(InputError, match=rf"c0\.txt:1: mask size {W}x{H} \(height x width\) differs "
                                          rf"from the camera's image size {H}x{W}"):
-        run_scene(tmp_path / "s", tmp_path / "run", baseline=True, progress=False)
+        run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
     assert not (tmp_path / "run").exists()
     from seg2pose.heights import collect_height_views
 
@@ -251,7 +251,7 @@ def scene_and_run(tmp_path):
     from seg2pose.pipeline import run_scene
 
     write_scene(tmp_path / "s")
-    run_scene(tmp_path / "s", tmp_path / "run", baseline=True, progress=False)
+    run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
     return tmp_path / "s", tmp_path / "run"
 
 
@@ -259,7 +259,7 @@ def test_eval_refuses_a_run_of_another_scene(tmp_path, scene_and_run):
     from seg2pose.paper_table import evaluate_run
 
     scene, run = scene_and_run
-    res = evaluate_run(scene, run)
+    res = evaluate_run(load_scene(scene), run)
     assert res.n_matched > 0 and res.mean_error < 5
     other = tmp_path / "other"
     write_scene(other)
@@ -267,7 +267,7 @@ def test_eval_refuses_a_run_of_another_scene(tmp_path, scene_and_run):
     gp.write_text(gp.read_text().replace("\n2.0,-8.0,0.0", "\n2.0,-8.0,0.5"))  # another ground
     with pytest.raises(InputError, match=r"run\.json: field 'scene_fingerprint': this run was made "
                                          r"on another scene"):
-        evaluate_run(other, run)
+        evaluate_run(load_scene(other), run)
 
 
 @pytest.mark.parametrize("missing", ["run.json", "poses.csv"])
@@ -277,7 +277,7 @@ def test_eval_refuses_a_half_written_run(scene_and_run, missing):
     scene, run = scene_and_run
     (run / missing).unlink()
     with pytest.raises(InputError, match=rf"{missing}: not a finished run"):
-        evaluate_run(scene, run)
+        evaluate_run(load_scene(scene), run)
 
 
 def test_eval_and_heights_agree_on_classes(scene_and_run):
@@ -291,7 +291,7 @@ def test_eval_and_heights_agree_on_classes(scene_and_run):
     with pytest.raises(InputError, match=r"poses\.csv:\d+: field 'class': unknown class 'tram'"):
         collect_height_views(load_scene(scene), split=None)
     with pytest.raises(InputError, match=r"poses\.csv:\d+: field 'class': unknown class 'tram'"):
-        evaluate_run(scene, run)
+        evaluate_run(load_scene(scene), run)
 
 
 # --- UTOCS --------------------------------------------------------------------------------------
@@ -362,7 +362,8 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     import torch
 
     from seg2pose.io.run import read_run_meta
-    from seg2pose.net import Checkpoint, NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.checkpoint import Checkpoint
+    from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet
     from seg2pose.pipeline import run_scene
 
     s = write_scene(tmp_path / "s")
@@ -373,10 +374,10 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     ck.save(s.root / "models" / "all__all.safetensors")
     if not complete:
         with pytest.raises(InputError, match=r"all__all\.json: field 'complete': its training did "
-                                             r"not finish \(epoch 1, val loss 0\.5\).*--allow-incomplete"):
-            run_scene(s.root, tmp_path / "run", progress=False)
+                                             r"not finish \(epoch 1, val loss 0\.5\).*allow incomplete models"):
+            run_scene(s, tmp_path / "run", progress=False)
         assert not (tmp_path / "run").exists()
-    run_scene(s.root, tmp_path / "run", progress=False, allow_incomplete=not complete)
+    run_scene(s, tmp_path / "run", progress=False, allow_incomplete=not complete)
     used = read_run_meta(tmp_path / "run")["models"]
     assert used and all(len(m["sha256"]) == 64 for m in used.values())
 

@@ -240,13 +240,31 @@ def test_coco_bad_input(tmp_path):
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
-def _fuzz(tmp_path, name, data, reader):
+def _fuzz(tmp_path, name, data, reader, writer=None, same=None):
+    """Read fuzzed bytes: either the project's own error, or a result that survives its own
+    round trip exactly (``writer`` then ``reader`` again, compared by ``same``)."""
     p = tmp_path / name
     p.write_bytes(data)
     try:
-        reader(p)
+        got = reader(p)
     except S2PError:
-        pass
+        return None
+    if writer is not None:
+        q = tmp_path / f"again-{name}"
+        writer(q, got)
+        same(reader(q), got)
+    return got
+
+
+def same_poses(a: PoseTable, b: PoseTable):
+    for col in ("frame", "track_id", "cls", "xyz", "heading", "size"):
+        np.testing.assert_array_equal(getattr(a, col), getattr(b, col))
+
+
+def write_ground(path, pts):
+    from seg2pose.io.scene import write_ground_points
+
+    write_ground_points(path, pts)
 
 
 def _text_like():
@@ -258,32 +276,92 @@ def _text_like():
 @FUZZ
 @given(_text_like())
 def test_fuzz_mots(tmp_path, data):
-    _fuzz(tmp_path, "m.txt", data, lambda p: read_mots(p, {1, 2, 3}))
+    _fuzz(tmp_path, "m.txt", data, lambda p: read_mots(p, {1, 2, 3}), write_mots, same_masks)
 
 
 @FUZZ
 @given(st.one_of(_text_like(), st.binary(max_size=40).map(lambda b: b"0 1 1 2 3 " + b + b"\n")))
 def test_fuzz_mots_rle(tmp_path, data):
-    _fuzz(tmp_path, "m.txt", data, read_mots)
+    _fuzz(tmp_path, "m.txt", data, read_mots, write_mots, same_masks)
 
 
 @FUZZ
 @given(_text_like())
 def test_fuzz_poses(tmp_path, data):
-    _fuzz(tmp_path, "p.csv", b"frame,track_id,class,x,y,z,heading\n" + data, read_poses)
-    _fuzz(tmp_path, "p.csv", data, read_poses)
+    _fuzz(tmp_path, "p.csv", b"frame,track_id,class,x,y,z,heading\n" + data, read_poses, write_poses,
+          same_poses)
+    _fuzz(tmp_path, "p.csv", data, read_poses, write_poses, same_poses)
 
 
 @FUZZ
 @given(_text_like())
 def test_fuzz_ground(tmp_path, data):
-    _fuzz(tmp_path, "g.csv", data, read_ground_points)
+    _fuzz(tmp_path, "g.csv", data, read_ground_points, write_ground, np.testing.assert_array_equal)
 
 
 @FUZZ
 @given(_text_like())
 def test_fuzz_coco(tmp_path, data):
     _fuzz(tmp_path, "c.json", data, read_coco)
+
+
+# --- valid inputs, written by hand here, parse to exactly the values written -------------------
+
+finite = st.floats(-1e6, 1e6, allow_nan=False)  # the readers' range for positions, metres
+
+
+@FUZZ
+@given(st.lists(st.tuples(st.integers(0, 10**6), st.integers(-1, 10**6),
+                          st.sampled_from(["car", "pedestrian", "bicyclist"]), finite, finite, finite,
+                          st.floats(allow_infinity=False)), max_size=12,
+                unique_by=lambda r: (r[0], r[1])),  # one row per road user and frame
+       st.booleans(), st.sampled_from([",", ", "]))
+def test_valid_poses_parse_exactly(tmp_path, rows, with_size, sep):
+    rows = sorted(rows, key=lambda r: r[0])
+    head = "frame,track_id,class,x,y,z,heading" + (",l,w,h" if with_size else "")
+    lines = [head] + [sep.join([str(f), str(t), c] + [repr(v) for v in (x, y, z, h)]
+                               + (["4.5", "1.8", "1.5"] if with_size else []))
+                      for f, t, c, x, y, z, h in rows]
+    (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
+    got = read_poses(tmp_path / "p.csv")
+    assert got.frame.tolist() == [r[0] for r in rows] and got.track_id.tolist() == [r[1] for r in rows]
+    assert got.cls.tolist() == [r[2] for r in rows]
+    np.testing.assert_array_equal(got.xyz, np.array([r[3:6] for r in rows], float).reshape(-1, 3))
+    np.testing.assert_array_equal(got.heading, np.array([r[6] for r in rows], float))
+    if with_size:
+        np.testing.assert_array_equal(got.size, np.tile([4.5, 1.8, 1.5], (len(rows), 1)))
+    else:
+        assert got.size is None
+
+
+@FUZZ
+@given(st.lists(st.tuples(*[st.floats(-1e5, 1e5, allow_nan=False)] * 3), min_size=3, max_size=12,
+                unique_by=lambda p: (p[0], p[1])), st.booleans())
+def test_valid_ground_points_parse_exactly(tmp_path, pts, header):
+    text = ("x,y,z\n" if header else "") + "".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in pts)
+    (tmp_path / "g.csv").write_text(text)
+    np.testing.assert_array_equal(read_ground_points(tmp_path / "g.csv"), np.array(pts, float))
+
+
+@FUZZ
+@given(st.lists(st.tuples(st.integers(0, 50), st.integers(0, 99), st.integers(1, 3),
+                          st.integers(0, H - 1), st.integers(0, W - 1), st.integers(1, 6),
+                          st.integers(1, 6)), min_size=1, max_size=10,
+                unique_by=lambda b: (b[0], b[1])))  # one mask per road user and frame
+def test_valid_mots_parse_exactly(tmp_path, boxes):
+    boxes = sorted(boxes, key=lambda b: b[0])
+    masks = []
+    for _, _, _, y, x, h, w in boxes:
+        m = np.zeros((H, W), np.uint8)
+        m[y:y + h, x:x + w] = 1
+        masks.append(m)
+    lines = [f"{f} {t} {c} {H} {W} {encode(m).decode()}" for (f, t, c, *_), m in zip(boxes, masks)]
+    (tmp_path / "m.txt").write_text("\n".join(lines) + "\n")
+    got = read_mots(tmp_path / "m.txt")
+    assert got.frame.tolist() == [b[0] for b in boxes] and got.track_id.tolist() == [b[1] for b in boxes]
+    assert got.class_id.tolist() == [b[2] for b in boxes] and (got.height, got.width) == (H, W)
+    for r, m in zip(got.rles, masks):
+        np.testing.assert_array_equal(decode(r, H, W), m)
 
 
 json_values = st.recursive(
@@ -359,13 +437,13 @@ def test_cli_convert_masks_round_trip(tmp_path):
     t = masks_table(overlap=False)
     write_mots(tmp_path / "a.txt", t)
     run = CliRunner().invoke
-    r = run(app, ["convert-masks", str(tmp_path / "a.txt"), str(tmp_path / "b.json"), "--format", "coco"])
+    r = run(app, ["convert-masks", str(tmp_path / "a.txt"), "-o", str(tmp_path / "b.json"), "--format", "coco"])
     assert r.exit_code == 0, r.output
     assert "9 masks in 3 frames (32x24)" in r.output
-    assert run(app, ["convert-masks", str(tmp_path / "b.json"), str(tmp_path / "png"), "-f", "png"]).exit_code == 0
-    assert run(app, ["convert-masks", str(tmp_path / "png"), str(tmp_path / "c.txt"), "-f", "mots"]).exit_code == 0
+    assert run(app, ["convert-masks", str(tmp_path / "b.json"), "-o", str(tmp_path / "png"), "-f", "png"]).exit_code == 0
+    assert run(app, ["convert-masks", str(tmp_path / "png"), "-o", str(tmp_path / "c.txt"), "-f", "mots"]).exit_code == 0
     same_masks(read_mots(tmp_path / "c.txt"), t, ordered=False)
-    r = run(app, ["convert-masks", str(tmp_path / "png"), str(tmp_path / "c.txt"), "-f", "mots"])
+    r = run(app, ["convert-masks", str(tmp_path / "png"), "-o", str(tmp_path / "c.txt"), "-f", "mots"])
     assert r.exit_code != 0 and "--force" in str(r.exception)
 
 

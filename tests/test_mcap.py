@@ -19,6 +19,15 @@ from review_fixtures import make_run, make_scene
 N_FRAMES = 12
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _opencv_one_thread():
+    """OpenCV on one thread in this module (its worker pool hangs processes forked later)."""
+    from video_fixtures import single_threaded_opencv
+
+    yield from single_threaded_opencv()
+
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     root = tmp_path_factory.mktemp("mcap")

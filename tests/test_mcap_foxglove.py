@@ -27,6 +27,15 @@ START = "2021-06-14T08:00:00Z"
 START_NS = 1623657600 * 10**9
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _opencv_one_thread():
+    """OpenCV on one thread in this module (its worker pool hangs processes forked later)."""
+    from video_fixtures import single_threaded_opencv
+
+    yield from single_threaded_opencv()
+
+
+
 def _messages(path, topics=None) -> list:
     """(topic, log_time, data) of every message, in the file's order (a front-to-back read)."""
     from mcap.stream_reader import StreamReader

@@ -10,8 +10,8 @@ from scipy.optimize import brentq
 from seg2pose.camera import Camera
 from seg2pose.ground import GroundSurface
 from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import (CENTER_METHODS, DEFAULT_CENTER_METHOD, default_height_bisection,
-                             fraction_closer, fuse_views, headings_from_tracks, normal_positions)
+from seg2pose.normal import (CENTER_METHODS, DEFAULT_CENTER_METHOD, closer_share, default_height_bisection,
+                             fuse_views, headings_from_tracks, normal_positions)
 
 W, H = 1280, 720
 
@@ -128,8 +128,8 @@ def test_default_height_bisection_recovers_exact_height():
     centers, _, _ = CAM.project_points(P)
     h = default_height_bisection([(CAM, centers, truth)], g, tol=1e-5)
     assert h == pytest.approx(h_true, abs=1e-4)
-    assert fraction_closer(CAM, g, centers, truth, h_true + 0.05) == 1.0
-    assert fraction_closer(CAM, g, centers, truth, h_true - 0.05) == 0.0
+    assert closer_share([(CAM, centers, truth)], g, h_true + 0.05)[0] == 1.0
+    assert closer_share([(CAM, centers, truth)], g, h_true - 0.05)[0] == 0.0
 
 
 def test_fuse_views_skips_unseen():

@@ -30,6 +30,15 @@ N_FRAMES = 20
 NO_IMAGES = RecordOptions(style=LogStyle(masks=False, video=False))
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _opencv_one_thread():
+    """OpenCV on one thread in this module (its worker pool hangs processes forked later)."""
+    from video_fixtures import single_threaded_opencv
+
+    yield from single_threaded_opencv()
+
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("review")
@@ -334,12 +343,12 @@ def test_cli_review_and_errors(tiny):
     runner = CliRunner()
     out = root / "cli.rrd"
     r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--run", str(s2pn),
-                            "--save", str(out), "--frames", "2:7", "--no-video"])
+                            "-o", str(out), "--frames", "2:7", "--no-video"])
     assert r.exit_code == 0, r.output
     assert "rerun " + str(out) in r.output
     rows, _, _ = _rrd_rows(out)
     assert rows["/world/road_users/run-s2pn"] == 6
-    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "--save", str(out)])
+    r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "-o", str(out)])
     assert r.exit_code != 0 and "--force" in str(r.exception)
 
 
@@ -351,7 +360,7 @@ def test_cli_main_prints_one_line_error(tiny, monkeypatch, capsys):
     scene, _, _, root = tiny
     bad = make_run(scene, root / "bad3", cameras=["zz"])
     monkeypatch.setattr(sys, "argv", ["s2p", "review", str(scene.root), "--run", str(bad),
-                                      "--save", str(root / "x.rrd")])
+                                      "-o", str(root / "x.rrd")])
     with pytest.raises(SystemExit) as e:
         cli.main()
     assert e.value.code == 2
@@ -544,9 +553,9 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     car = np.array(L.class_color("car"))
     b, s = rgba(cols["run-base"]), rgba(cols["run-s2pn"])
     assert any((s[:, :3] == car).all(axis=1)) and not any((b[:, :3] == car).all(axis=1))
-    # the baseline is half-way to grey: less saturated than Seg2PoseNet's colours
+    # the baseline is 40 % of the way to grey: less saturated than Seg2PoseNet's colours
     sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
-    assert sat(b) < 0.6 * sat(s)
+    assert abs(sat(b) - 0.6 * sat(s)) < 1.0  # saturation scales by 1 - 0.4
 
 
 def test_video_stored_small_is_shown_at_camera_size(tiny):

@@ -16,12 +16,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seg2pose import sparse
-from seg2pose.examples import crop_runs
+from seg2pose.checkpoint import Checkpoint
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import encode, mask_centers
-from seg2pose.net import (Checkpoint, NetConfig, Normalisation, Seg2PoseNet, center_cut,
-                          downsample_crops, make_net)
+from seg2pose.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
+from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet, make_net
 from seg2pose.sparse import SparseSeg2PoseNet, crop_boxes, sparse_of
 from seg2pose.synth.generate import generate_scene
 from seg2pose.synth.noise import NoiseConfig

@@ -72,7 +72,7 @@ def _val_loss_untrained(scene, cam):
 
 
 def test_training_lowers_validation_loss_and_resumes(tiny, tmp_path, fake_rough):
-    from seg2pose.net import Checkpoint
+    from seg2pose.checkpoint import Checkpoint
     from seg2pose.train import train_scene
 
     before, before_m = _val_loss_untrained(tiny, "c1")
@@ -192,7 +192,7 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     from seg2pose.features import N_GEO, scene_geometry
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
-    from seg2pose.net import Checkpoint
+    from seg2pose.checkpoint import Checkpoint
     from seg2pose.io.run import read_views
     from seg2pose.pipeline import run_scene
     from seg2pose.train import train_scene

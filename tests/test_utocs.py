@@ -121,7 +121,7 @@ def test_cli_import(utocs, tmp_path):
 
     from seg2pose.cli import app
 
-    r = CliRunner().invoke(app, ["import-utocs", str(utocs), str(tmp_path / "sc"), "--no-frames",
+    r = CliRunner().invoke(app, ["import-utocs", str(utocs), "-o", str(tmp_path / "sc"), "--no-frames",
                                  "--start-time", "2021-06-14T10:00:00+02:00"])
     assert r.exit_code == 0, r.output
     assert "imported 2 cameras" in r.output

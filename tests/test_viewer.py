@@ -216,7 +216,7 @@ def test_cli_screenshot_and_take_screenshot(data):
     _, video, runs, root = data
     png = root / "shot.png"
     r = CliRunner().invoke(app, ["review", str(video.root), "--run", str(runs[1]), "--screenshot",
-                                 str(png), "--save", str(root / "s.rrd"), "--frame", "4"])
+                                 str(png), "-o", str(root / "s.rrd"), "--frame", "4"])
     assert r.exit_code == 0, r.output
     for img in (_decode(png.read_bytes()),
                 # and from the saved .rrd (the README path)

@@ -19,7 +19,7 @@ from typing import Optional
 import typer
 from typer.core import TyperGroup
 
-from seg2pose.cli.common import ANNOTATION
+from seg2pose.cli.common import ANNOTATION, speaks_flags
 from seg2pose.errors import InputError
 
 OPEN = "open"
@@ -36,7 +36,7 @@ class _SceneOrCommand(TyperGroup):
 
 annotate_app = typer.Typer(
     cls=_SceneOrCommand, no_args_is_help=True, add_completion=False,
-    help="Annotate road users by keyframes and interpolation (the T-Analyst replacement): "
+    help="Annotate road users by keyframes and interpolation (the T-Analyst replacement).\n\n"
          "`s2p annotate SCENE` opens the annotation app; the subcommands below export the "
          "annotations and bring T-Analyst files in and out.")
 
@@ -88,6 +88,7 @@ START_HELP = ("time stamp of the video's first frame (frame 0) on T-Analyst's cl
 
 
 @annotate_app.command(OPEN)
+@speaks_flags
 def open_cmd(
     scene: Path = typer.Argument(..., help="scene folder to annotate (edits go to SCENE/annotations/)"),
     run: Optional[Path] = typer.Option(None, "--run", help="run folder of this scene (from `s2p run`): "
@@ -110,12 +111,14 @@ def open_cmd(
 
 
 @annotate_app.command("status")
+@speaks_flags
 def status_cmd(scene: Path = typer.Argument(..., help="scene folder")) -> None:
     """Tracks, keyframes and journal of a scene's annotations (reads only; safe while annotating)."""
     _status(scene)
 
 
 @annotate_app.command("import-tanalyst")
+@speaks_flags
 def import_tanalyst_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     csv: Path = typer.Argument(..., help="T-Analyst tracks CSV (';'-separated, decimal commas)"),
@@ -125,10 +128,12 @@ def import_tanalyst_cmd(
     types: list[str] = typer.Option([], "--type", help="TYPE=CLASS: the scene class of a "
                                     "T-Analyst road user type the defaults do not know "
                                     "(repeatable), e.g. --type Moped=bicyclist"),
-    replace: bool = typer.Option(False, "--replace", help="replace road users imported before"),
+    replace: bool = typer.Option(False, "--replace/--no-replace", help="replace road users imported before"),
 ) -> None:
-    """Import T-Analyst tracks as keyframes: one track per road user (ids kept where free),
-    headings from the motion between detections; one undoable edit."""
+    """Import T-Analyst tracks as keyframes.
+
+    One track per road user (ids kept where free), headings from the motion between
+    detections; one undoable edit."""
     from annotate import Project
     from annotate.tanalyst_io import import_tanalyst
     from seg2pose.io.tanalyst import read_tanalyst
@@ -159,13 +164,14 @@ def _export_tanalyst(p, out: Path, start: str, fps, keyframes_only: bool, decima
 
 
 @annotate_app.command("export-tanalyst")
+@speaks_flags
 def export_tanalyst_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     out: Path = typer.Option(..., "-o", "--out", help="T-Analyst tracks CSV to write"),
     start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
     fps: Optional[float] = typer.Option(None, "--fps", help="the video's frame rate "
                                         "(default: the scene's)"),
-    keyframes_only: bool = typer.Option(False, "--keyframes-only/--every-frame",
+    keyframes_only: bool = typer.Option(False, "--keyframes-only/--no-keyframes-only",
                                         help="only keyframes, or every annotated frame"),
     decimal: str = typer.Option(",", "--decimal", help="decimal separator: ',' as T-Analyst "
                                 "writes, or '.'"),
@@ -179,6 +185,7 @@ def export_tanalyst_cmd(
 
 
 @annotate_app.command("export")
+@speaks_flags
 def export_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="folder for the MCAP set and "
@@ -193,8 +200,10 @@ def export_cmd(
     force: bool = typer.Option(False, "--force", help="replace existing outputs (and "
                                "gt/poses.csv that did not come from an annotation export)"),
 ) -> None:
-    """Export the annotations: ground truth for `s2p train`, an MCAP set that `s2p import-mcap`
-    turns back into a working annotation project, and T-Analyst's tracks CSV."""
+    """Export the annotations as ground truth, an MCAP set and a T-Analyst CSV.
+
+    Ground truth for `s2p train`, an MCAP set that `s2p import-mcap` turns back into a working
+    annotation project, and T-Analyst's tracks CSV."""
     from annotate import Project
     from annotate.export import export_gt
 

@@ -13,7 +13,7 @@ import typer
 
 from seg2pose.batch import (BATCH_DIR, LIBRARY_STEPS, BatchOptions, Step, _scene_inputs,
                             format_summary, ray_available, run_dir, run_study)
-from seg2pose.cli.common import BATCH
+from seg2pose.cli.common import BATCH, speaks_flags
 from seg2pose.errors import InputError
 
 
@@ -40,7 +40,7 @@ def _export(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
 
 
 def _review(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
-    """What ``s2p review SCENE --run RUN --save OUT`` does, with its defaults."""
+    """What ``s2p review SCENE --run RUN -o OUT`` does, with its defaults."""
     from s2p_review.session import RecordOptions, Targets, record
     from seg2pose.io.scene import load_scene
 
@@ -61,7 +61,7 @@ ORDER = ["masks-from-video", "run", "eval", "export", "review"]
 
 
 def register(app: typer.Typer) -> None:
-    app.command("batch", rich_help_panel=BATCH)(batch_cmd)
+    app.command("batch", rich_help_panel=BATCH)(speaks_flags(batch_cmd))
 
 
 def batch_cmd(
@@ -69,7 +69,7 @@ def batch_cmd(
                                            "each a scene folder with scene.json"),
     steps: List[str] = typer.Argument(..., help="steps, run in this order over every scene: "
                                                 "masks-from-video, run, eval, export, review"),
-    baseline: bool = typer.Option(False, "--baseline", help="run: normal positions only, no network "
+    baseline: bool = typer.Option(False, "--baseline/--no-baseline", help="run: normal positions only, no network "
                                                             "(results in SCENE/batch/baseline)"),
     models: Optional[List[Path]] = typer.Option(None, "--models",
                                                 help="run: checkpoint folder (default each SCENE/models); "
@@ -80,15 +80,17 @@ def batch_cmd(
     max_parallel: Optional[int] = typer.Option(None, "--max-parallel", min=1,
                                                help="at most this many scenes at once (default: all; "
                                                     "Ray still runs one task per free CPU)"),
-    serial: bool = typer.Option(False, "--serial", help="no Ray: run the scenes one after another here"),
+    serial: bool = typer.Option(False, "--serial/--no-serial", help="no Ray: run the scenes one after another here"),
     force: bool = typer.Option(False, "--force", help="masks-from-video: also replace masks the "
                                                       "scenes had before the study ran"),
-    quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
 ) -> None:
-    """Run steps over every scene of a study: masks-from-video, run (--baseline or --models),
-    eval, export (MCAP), review (--save: SCENE/batch/RUN.rrd). Each scene's files are written
-    as the single-scene command writes them; complete steps are skipped on a re-run; a bad
-    scene is reported and the others go on. Writes STUDY/summary.json and prints a table."""
+    """Run steps over every scene of a study folder, in parallel with Ray.
+
+    Steps: masks-from-video, run (--baseline or --models), eval, export (MCAP), review
+    (SCENE/batch/RUN.rrd). Each scene's files are written as the single-scene command writes
+    them; complete steps are skipped on a re-run; a bad scene is reported and the others go
+    on. Writes STUDY/summary.json and prints a table."""
     bad = [s for s in steps if s not in STEPS]
     if bad:
         raise InputError(f"unknown step {bad[0]!r}; expected some of {', '.join(ORDER)}", field="STEP")
@@ -102,7 +104,7 @@ def batch_cmd(
         typer.echo("note: Ray is not installed, running the scenes one after another; "
                    "for parallelism: pip install 's2p[scale]'")
     res = run_study(study, [STEPS[s] for s in steps], opts, use_ray=use_ray, address=address,
-                    max_parallel=max_parallel, progress=not quiet, log=typer.echo)
+                    max_parallel=max_parallel, progress=progress, log=typer.echo)
     typer.echo(format_summary(res.rows))
     typer.echo(f"{len(res.rows)} scenes, {res.n_failed} failed, {res.seconds:.1f} s on {res.backend}; "
                f"summary in {Path(study) / 'summary.json'}")

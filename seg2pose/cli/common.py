@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
+from typing import Callable
+
 from seg2pose.errors import InputError
 
 # the groups of ``s2p --help`` (typer's rich_help_panel)
@@ -26,3 +30,27 @@ def parse_frames(text: str | None) -> tuple[int, int] | None:
     if a < 0 or b < a:
         raise InputError(f"expected 0 <= A <= B, got {text!r}", field="--frames")
     return a, b
+
+
+def speaks_flags(command: Callable) -> Callable:
+    """Wrap a command so that a library InputError about one of its parameters (raised with
+    ``field`` = the parameter's name and no file) names the command-line option instead: the
+    library speaks in parameters, the command layer in flags."""
+    flags: dict[str, str] = {}
+    for p in inspect.signature(command).parameters.values():
+        decls = getattr(p.default, "param_decls", None) or ()
+        longs = [d.split("/")[0] for d in decls if d.startswith("--")]
+        flag = longs[0] if longs else "--" + p.name.replace("_", "-")
+        flags[p.name] = flag
+        flags[flag[2:].replace("-", "_")] = flag
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except InputError as e:
+            if e.file is None and e.field is not None and e.field in flags:
+                raise InputError(e.message, line=e.line, field=flags[e.field]) from None
+            raise
+
+    return wrapper

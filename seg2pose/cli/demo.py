@@ -62,8 +62,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
 
     _step("default heights by bisection on the training split (paper 3.2)")
     from seg2pose.heights import update_default_heights
-    update_default_heights(scene, split="train", log=typer.echo)
-    scene = load_scene(scene_dir)
+    update_default_heights(scene, split="train", log=typer.echo)  # saved, and set on scene
 
     models = scene_dir / "models"
     have = sorted(models.glob("*.safetensors")) if models.exists() else []
@@ -148,16 +147,18 @@ def seen_truth(scene, cameras: list[str], gt, frame_range):
 
 
 def register(app: typer.Typer) -> None:
-    @app.command(rich_help_panel=METHOD)
-    def demo(
-        scene: Path = typer.Option(DEMO_SCENE, help="where the demo's synthetic scene goes"),
-        logs: Path = typer.Option(SAMPLE_LOGS, help="where demo.rrd and demo.mcap go"),
-        seed: int = typer.Option(0, help="seed of the synthetic scene"),
-        retrain: bool = typer.Option(False, help="train again even if checkpoints exist"),
-        no_record: bool = typer.Option(False, "--no-record", help="skip the .rrd / .mcap"),
-    ) -> None:
-        """Run Seg2Pose end to end on a small synthetic junction and write sample logs.
+    app.command("demo", rich_help_panel=METHOD)(demo)
 
-        Generates a scene, trains (or reuses) lite Seg2PoseNet models, runs the baseline and
-        Seg2PoseNet, prints the error table, and writes sample_logs/demo.rrd and demo.mcap."""
-        run_demo(scene, logs, seed=seed, retrain=retrain, record=not no_record)
+
+def demo(
+    scene: Path = typer.Option(DEMO_SCENE, "--scene", help="where the demo's synthetic scene goes"),
+    out: Path = typer.Option(SAMPLE_LOGS, "-o", "--out", help="where the sample recording (demo.rrd) and export (demo.mcap) go"),
+    seed: int = typer.Option(0, "--seed", help="seed of the synthetic scene"),
+    retrain: bool = typer.Option(False, "--retrain/--no-retrain", help="train again even if trained models exist"),
+    record: bool = typer.Option(True, "--record/--no-record", help="write the sample recording and export"),
+) -> None:
+    """Run Seg2Pose end to end on a small synthetic junction.
+
+    Generates a scene, trains (or reuses) lite Seg2PoseNet models, runs the baseline and
+    Seg2PoseNet, prints the error table, and writes a Rerun recording and an MCAP export."""
+    run_demo(scene, out, seed=seed, retrain=retrain, record=record)

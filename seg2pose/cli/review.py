@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.cli.common import REVIEW, parse_frames
+from seg2pose.cli.common import REVIEW, parse_frames, speaks_flags
 from seg2pose.errors import S2PError
 
 
@@ -38,27 +38,30 @@ def _start_ns(text: str | None) -> int | None:
 
 def register(app: typer.Typer) -> None:
     @app.command(rich_help_panel=REVIEW)
+    @speaks_flags
     def review(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: list[Path] = typer.Option([], "--run", help="run folder (made by `s2p run`); repeat to compare runs"),
-        save: Path | None = typer.Option(None, "--save", help="write the recording to this .rrd file"),
-        spawn: bool = typer.Option(False, "--spawn", help="open the native Rerun viewer"),
+        save: Path | None = typer.Option(None, "-o", "--out", help="write the recording to this .rrd file"),
+        spawn: bool = typer.Option(False, "--spawn/--no-spawn", help="open the native Rerun viewer"),
         connect: str | None = typer.Option(None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
         screenshot: Path | None = typer.Option(None, "--screenshot", help="run a headless viewer and save a PNG of it here"),
         frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
         frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame) and for a spawned or connected viewer"),
-        follow: bool = typer.Option(False, "--follow", help="make a spawned or connected viewer follow the newest frame"),
+        follow: bool = typer.Option(False, "--follow/--no-follow", help="make a spawned or connected viewer follow the newest frame"),
         camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
         mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
         video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
-        no_masks: bool = typer.Option(False, "--no-masks", help="leave masks out"),
-        no_video: bool = typer.Option(False, "--no-video", help="leave video frames out"),
+        masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks"),
+        video: bool = typer.Option(True, "--video/--no-video", help="show the video frames (when the scene has video)"),
         start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
         image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
         force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
     ) -> None:
-        """Review a scene and its runs in Rerun: masks, normal positions, residuals, fused road
-        users, ground truth and errors, with a blueprint that opens laid out."""
+        """Review a scene and its runs in the Rerun viewer.
+
+        Masks, normal positions, residuals, fused road users, ground truth and errors, with a
+        layout that opens ready to use."""
         from seg2pose.io.scene import load_scene
         from s2p_review.recording import LogStyle
         from s2p_review.session import RecordOptions, Targets, record
@@ -66,11 +69,11 @@ def register(app: typer.Typer) -> None:
         to = Targets(rrd=save, spawn=spawn, connect=connect, screenshot=screenshot, frame=frame,
                      follow=follow, force=force)
         if not to.any():
-            raise S2PError("nothing to do: pass --save FILE.rrd, --spawn, --connect URL or "
+            raise S2PError("nothing to do: pass -o FILE.rrd, --spawn, --connect URL or "
                            "--screenshot FILE.png")
         opts = RecordOptions(frames=parse_frames(frames), cameras=list(camera) or None,
                              mask_every=mask_every, video_every=video_every,
-                             style=LogStyle(masks=not no_masks, video=not no_video,
+                             style=LogStyle(masks=masks, video=video,
                                             image_scale=image_scale),
                              start_ns=_start_ns(start_time))
         res = record(load_scene(scene), list(run), to, opts)
@@ -81,6 +84,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"wrote {res.screenshot}")
 
     @app.command(rich_help_panel=REVIEW)
+    @speaks_flags
     def export(
         scene: Path = typer.Argument(..., help="scene folder"),
         run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
@@ -93,8 +97,10 @@ def register(app: typer.Typer) -> None:
         image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file and its layout"),
     ) -> None:
-        """Export a scene and a run as MCAP for Foxglove and archives (Foxglove schemas +
-        lossless s2p records), with a Foxglove layout beside it (NAME.layout.json)."""
+        """Export a scene and a run as MCAP, for Foxglove and archives.
+
+        Foxglove schemas plus lossless s2p records (an exact round trip), with a Foxglove layout
+        beside it (NAME.layout.json)."""
         from seg2pose.io.scene import load_scene
         from s2p_review.mcap_export import ExportOptions, export_mcap
 
@@ -104,29 +110,33 @@ def register(app: typer.Typer) -> None:
         _notes(res.notes)
         p = res.path
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB) and its Foxglove layout {res.layout}; "
-                   f"open both in Foxglove (Layouts > Import from file); for Rerun use `s2p review --save`")
+                   f"open both in Foxglove (Layouts > Import from file); for Rerun use `s2p review -o FILE.rrd`")
 
     @app.command("import-mcap", rich_help_panel=REVIEW)
+    @speaks_flags
     def import_mcap_cmd(
         file: Path = typer.Argument(..., help=".mcap file written by `s2p export`"),
         out: Path = typer.Option(..., "-o", "--out", help="output folder (becomes a scene folder)"),
         force: bool = typer.Option(False, "--force", help="write into an existing, non-empty folder"),
     ) -> None:
-        """Restore the scene file, ground points and the exact pose table from an s2p MCAP export."""
+        """Restore a scene folder and its run from an MCAP file written by s2p export."""
         from s2p_review.mcap_import import import_mcap
 
         run_dir = import_mcap(file, out, force=force)
         typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")
 
     @app.command("screenshot", rich_help_panel=REVIEW)
+    @speaks_flags
     def screenshot_cmd(
         rrd: Path = typer.Argument(..., help="recording (.rrd), or MCAP export (.mcap: Rerun lays it out itself and draws its images and cameras, not its boxes)"),
         out: Path = typer.Option(..., "-o", "--out", help="output .png"),
         frame: int | None = typer.Option(None, "--frame", help="time cursor, a frame number (default: the middle)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
     ) -> None:
-        """Open a recording or MCAP export in a headless viewer and save a screenshot (the README
-        picture: s2p screenshot sample_logs/demo.rrd -o docs/screenshot.png --frame 560 --force)."""
+        """Save a screenshot of a recording or MCAP export, opened in a headless viewer.
+
+        The README picture: s2p screenshot sample_logs/demo.rrd -o docs/screenshot.png --frame 560
+        --force."""
         from s2p_review.viewer import take_screenshot
 
         typer.echo(f"wrote {take_screenshot(rrd, out, frame=frame, force=force)}")

@@ -9,7 +9,7 @@ from typing import List, Optional
 
 import typer
 
-from seg2pose.cli.common import SCENE, parse_frames
+from seg2pose.cli.common import SCENE, parse_frames, speaks_flags
 from seg2pose.errors import InputError
 
 
@@ -35,8 +35,9 @@ def _pairs(items: list[str], what: str) -> dict:
 
 def register(app: typer.Typer) -> None:
     @app.command("new-scene", rich_help_panel=SCENE)
+    @speaks_flags
     def new_scene_cmd(
-        out: Path = typer.Argument(..., help="scene folder to create"),
+        out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
         video: List[str] = typer.Option(..., "--video",
                                         help="a camera's video file or image folder, as NAME=PATH "
                                              "(repeat per camera); a single PATH names the camera c0"),
@@ -48,8 +49,9 @@ def register(app: typer.Typer) -> None:
         fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
         force: bool = typer.Option(False, "--force", help="replace an existing scene.json in OUT"),
     ) -> None:
-        """Make a scene folder from video, calibration and ground points (no masks yet; they
-        come next from s2p masks-from-video or s2p import-detections)."""
+        """Make a scene folder from video, calibration and ground points.
+
+        No masks yet: they come next from s2p masks-from-video or s2p import-detections."""
         from seg2pose.video_scene import new_scene
 
         videos = {}
@@ -63,6 +65,7 @@ def register(app: typer.Typer) -> None:
         new_scene(out, videos, calibration, ground, fps=fps, force=force, log=typer.echo)
 
     @app.command("masks-from-video", rich_help_panel=SCENE)
+    @speaks_flags
     def masks_from_video_cmd(
         scene: Path = typer.Argument(..., help="scene folder with video/<camera>.mp4 (or image folders)"),
         camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
@@ -77,19 +80,21 @@ def register(app: typer.Typer) -> None:
                                      help="give each track a class from its world size"),
         frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
         force: bool = typer.Option(False, "--force", help="replace existing masks/<camera>.txt"),
-        quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+        progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
     ) -> None:
-        """Instance masks from a static camera's video by background subtraction (OpenCV MOG2
-        with shadow removal, clean-up, connected components), then tracks and size classes,
-        written to masks/<camera>.txt (MOTS). A truncated video keeps what was read; a
-        background that never settles is reported with its frames."""
+        """Instance masks from a static camera's video by background subtraction.
+
+        OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks and
+        size classes, written to masks/<camera>.txt (MOTS). A truncated video keeps what was
+        read; a background that never settles is reported with its frames."""
         from seg2pose.video_scene import scene_masks_from_video
 
         scene_masks_from_video(scene, camera, bg=_pairs(setting, "--set"), track=track,
                                classify=classes, force=force, frames=parse_frames(frames),
-                               progress=not quiet, log=typer.echo)
+                               progress=progress, log=typer.echo)
 
     @app.command("track", rich_help_panel=SCENE)
+    @speaks_flags
     def track_cmd(
         scene: Path = typer.Argument(..., help="scene folder whose masks/<camera>.txt lack track ids"),
         camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
@@ -100,17 +105,20 @@ def register(app: typer.Typer) -> None:
                                                "a mask holding two tracks' previous masks)"),
         classes: bool = typer.Option(False, "--classes/--no-classes",
                                      help="also give masks without a class one from their track's world size"),
-        quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+        progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
     ) -> None:
-        """Track ids for masks without them (mask IoU + world distance of normal positions,
-        Hungarian assignment, re-identification after short gaps); the masks file is rewritten
-        in place (atomically), masks of tracks shorter than min_length dropped."""
+        """Give track ids to masks that have none.
+
+        Mask IoU + world distance of normal positions, Hungarian assignment, re-identification
+        after short gaps; the masks file is rewritten in place (atomically), masks of tracks
+        shorter than min_length dropped."""
         from seg2pose.video_scene import scene_track
 
         scene_track(scene, camera, tracker=_pairs(setting, "--set"), classify=classes,
-                    progress=not quiet, log=typer.echo)
+                    progress=progress, log=typer.echo)
 
     @app.command("import-detections", rich_help_panel=SCENE)
+    @speaks_flags
     def import_detections_cmd(
         scene: Path = typer.Argument(..., help="scene folder"),
         coco: Path = typer.Argument(..., help="a detector's COCO JSON (results list or dataset) for one camera"),
@@ -123,9 +131,10 @@ def register(app: typer.Typer) -> None:
                                          help="added to every frame number (e.g. -1 when image ids start at 1)"),
         force: bool = typer.Option(False, "--force", help="replace an existing masks/<camera>.txt"),
     ) -> None:
-        """Masks from a detector (Mask R-CNN, Detectron2, YOLO-seg...): score threshold, mask
-        NMS, COCO classes mapped to the scene's, person + bicycle -> bicyclist (the paper's
-        Figure 2), then the tracker when the file has no track ids."""
+        """Masks from a detector's COCO output (Mask R-CNN, Detectron2, YOLO-seg...).
+
+        Score threshold, mask NMS, COCO classes mapped to the scene's, person + bicycle ->
+        bicyclist (the paper's Figure 2), then the tracker when the file has no track ids."""
         from seg2pose.detections import DetectionConfig
         from seg2pose.video_scene import scene_import_detections
 

@@ -87,8 +87,16 @@ class Scene:
     def class_by_id(self) -> dict[int, ClassSpec]:
         return {c.id: c for c in self.classes}
 
-    def class_by_name(self) -> dict[str, ClassSpec]:
-        return {c.name: c for c in self.classes}
+    @property
+    def class_names(self) -> list[str]:
+        return [c.name for c in self.classes]
+
+    def class_names_by_id(self) -> dict[int, str]:
+        return {c.id: c.name for c in self.classes}
+
+    def default_heights(self) -> dict[str, float]:
+        """Class name -> default height, metres (paper 3.2)."""
+        return {c.name: c.default_height for c in self.classes}
 
     def class_sizes(self) -> dict[str, tuple[float, float, float]]:
         """Class name -> typical (l, w, h) metres: extra['class_sizes'] over the defaults."""

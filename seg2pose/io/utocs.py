@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.camera import Camera, Rig
+from seg2pose.say import say
 from seg2pose.errors import InputError
 from seg2pose.io.text import load_json
 from seg2pose.io.atomic import check_writable, replacing
@@ -250,7 +251,7 @@ def default_splits(frames: np.ndarray, gap: int = 150) -> dict[str, tuple[int, i
 
 def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                  fps: float | None = None, size_scale: float = 1.0, copy_frames: bool = True,
-                 log=print, start_time: str | None = None) -> Scene:
+                 log=say, start_time: str | None = None) -> Scene:
     """Convert a UTOCS recording ``src`` into a scene folder ``out`` (see module docstring):
     scene.json, ground_points.csv, gt/poses.csv, masks/ (empty), video/ (when frames exist).
     start_time: the recording's time of frame 0 (ISO 8601 with a zone; UTOCS files do not
@@ -304,7 +305,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
     cars = gt.size[gt.cls == "car", 0]
     if len(cars) and np.median(cars) < 3.0 and size_scale == 1.0:
         log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
-            "use --size-scale 2 if so")
+            "import it with a size scale of 2 if so")
 
     video_frames = {n: _frame_numbering(src / "positions") for n, (k, _) in frame_sources.items()
                     if k == "video"}

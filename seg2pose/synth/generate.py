@@ -83,7 +83,7 @@ def check_sees_road(rig: Rig) -> None:
     A, B = np.meshgrid(a, b)
     xy = np.concatenate([J.to_world(arm, A.ravel(), B.ravel()) for arm in J.ARM_ANGLES])
     if not visible_fn(rig)(xy).any():
-        raise InputError(f"no camera of rig {rig.name!r} sees the road (within 70 m)", field="--rig")
+        raise InputError(f"no camera of rig {rig.name!r} sees the road (within 70 m)", field="rig")
 
 
 # --- worker processes: forked with the world in a module global (copy-on-write) -------------
@@ -169,13 +169,13 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     out = Path(out)
     # --- validate everything before any work ---------------------------------------------------
     if preset not in PRESETS:
-        raise InputError(f"unknown preset {preset!r}; use one of {', '.join(PRESETS)}", field="--preset")
+        raise InputError(f"unknown preset {preset!r}; use one of {', '.join(PRESETS)}", field="preset")
     p = PRESETS[preset]
     per_split = p["split"] if frames is None else frames
     if not isinstance(per_split, (int, np.integer)) or per_split <= 0:
-        raise InputError(f"frames per split must be a positive integer, got {frames!r}", field="--frames")
+        raise InputError(f"frames per split must be a positive integer, got {frames!r}", field="frames")
     if not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed must be a non-negative integer, got {seed!r}", field="--seed")
+        raise InputError(f"seed must be a non-negative integer, got {seed!r}", field="seed")
     noise = NoiseConfig() if noise is None else noise
     noise.validate()
     pop = dict(p["population"]) if population is None else dict(population)
@@ -186,9 +186,9 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
             raise InputError(f"population of {k} must be an integer >= 0, got {v!r}",
                              field=f"population.{k}")
     if match not in MATCH_RULES:
-        raise InputError(f"unknown match rule {match!r}; use {' or '.join(MATCH_RULES)}", field="--match")
+        raise InputError(f"unknown match rule {match!r}; use {' or '.join(MATCH_RULES)}", field="match")
     if ids not in ("road_user", "visit"):
-        raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="--ids")
+        raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="ids")
     if sum(pop.values()) == 0:
         raise InputError("population is empty: no road users to render", field="population")
     rig_obj = load_rig(rig, distortion)
@@ -209,7 +209,7 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     sim_stats: dict = {}
     visits = simulate(traffic, n_frames, DT, seed, stats=sim_stats)
     if not visits:
-        raise S2PError("the simulation produced no road users; raise --frames or the population")
+        raise S2PError("the simulation produced no road users; use more frames or a larger population")
     world = build_world(visits, n_frames, seed, ids=ids)
     rng = np.random.default_rng([seed, 31])
     ground = J.sample_ground_points(rng, visible_fn(rig_obj))

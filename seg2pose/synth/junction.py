@@ -55,11 +55,6 @@ def true_height(xy: np.ndarray) -> np.ndarray:
     return base_height(xy) + curb
 
 
-def on_sidewalk(xy: np.ndarray) -> np.ndarray:
-    """(N,) bool: the point is on the raised sidewalk."""
-    return curb_distance(xy) > 0
-
-
 def to_world(arm: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Arm coordinates -> world xy (N, 2): ``a`` metres outwards along the arm from the centre,
     ``b`` metres to the left when looking outwards."""

@@ -63,7 +63,7 @@ def make_device(name: str = "device", *, focal: float = FOCAL, width: int = WIDT
     distortion: optional (k1, k2) radial distortion for every lens (off by default)."""
     if name not in DEVICES:
         raise InputError(f"unknown rig {name!r}; known: {', '.join(DEVICES)} or a rig JSON file",
-                         field="--rig")
+                         field="rig")
     spec = DEVICES[name]
     centre = np.array([spec["pole"][0], spec["pole"][1], spec["height"]])
     dist = OpenCVDistortion(k1=distortion[0], k2=distortion[1]) if distortion else None
@@ -84,7 +84,7 @@ def load_rig(spec: "str | Path | Rig | None", distortion: tuple[float, float] | 
     if distortion is not None:
         if len(distortion) != 2 or not all(np.isfinite(distortion)) or abs(distortion[0]) > 1 \
                 or abs(distortion[1]) > 1:
-            raise InputError(f"expected k1,k2 with |k| <= 1, got {distortion}", field="--distortion")
+            raise InputError(f"expected k1,k2 with |k| <= 1, got {distortion}", field="distortion")
     if spec is None:
         return make_device(distortion=distortion)
     if isinstance(spec, Rig):
@@ -95,7 +95,7 @@ def load_rig(spec: "str | Path | Rig | None", distortion: tuple[float, float] | 
     p = Path(s)
     if p.suffix.lower() == ".json" or p.exists():
         if not p.exists():
-            raise InputError("rig file not found", file=p, field="--rig")
+            raise InputError("rig file not found", file=p, field="rig")
         try:
             d = json.loads(p.read_text(encoding="utf-8"))
         except json.JSONDecodeError as e:
@@ -112,4 +112,4 @@ def load_rig(spec: "str | Path | Rig | None", distortion: tuple[float, float] | 
         except InputError as e:
             raise InputError(str(e), file=p, field=e.field) from None
     raise InputError(f"unknown rig {s!r}; known: {', '.join(DEVICES)} or a rig JSON file",
-                     field="--rig")
+                     field="rig")
