@@ -65,7 +65,7 @@ def test_click_places_keyframe_at_the_clicked_point(ctl):
 
     s = ctl.project.scene
     xy = pixel_to_ground(s.cameras["c1"], s.ground, (640.0, 420.0))  # a point in view
-    h = s.class_by_name()["car"].default_height
+    h = s.default_heights()["car"]
     for mode, height in (("centre", h), ("ground", 0.0)):
         ctl.click_mode = mode
         msg = ctl.click("c1", _pixel(ctl, xy, height))

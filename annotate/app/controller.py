@@ -460,8 +460,7 @@ class Controller:
         t = self.project.track(tid)
         height = 0.0
         if self.click_mode == "centre":
-            spec = self.project.scene.class_by_name().get(t.cls)
-            height = float(spec.default_height) if spec is not None else 0.0
+            height = float(self.project.scene.default_heights().get(t.cls, 0.0))
         self._edit(self.project.place_from_pixel, tid, self.frame, camera, (u, v), height=height)
         k = self.project.track(tid).keyframes[self.frame]
         return f"track {tid}: keyframe {self.frame} at ({k.x:.2f}, {k.y:.2f}) m"
