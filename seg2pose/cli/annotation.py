@@ -100,10 +100,12 @@ def open_cmd(
     native: bool = typer.Option(False, "--native", help="also show the recording in the native Rerun "
                                 "viewer (display only; clicks come from the page)"),
 ) -> None:
-    """Open the annotation app on a scene (also: `s2p annotate SCENE`): a local web page (no
-    internet, no account) with the Rerun viewer — cameras, the annotation's boxes, the run's
-    estimates — and a panel of tracks, keyframes and actions with their keyboard shortcuts.
-    Prints the URL; every edit is journalled at once; stop with Ctrl-C."""
+    """Open the annotation app on a scene (also: `s2p annotate SCENE`).
+
+    A local web page (no internet, no account) with the Rerun viewer — cameras, the
+    annotation's boxes, the run's estimates — and a panel of tracks, keyframes and actions with
+    their keyboard shortcuts. Prints the URL; every edit is journalled at once; stop with
+    Ctrl-C."""
     from annotate.app.serve import run_app
 
     run_app(scene, run, list(camera) or None, port=port, browser=browser, native=native,
