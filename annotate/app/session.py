@@ -106,6 +106,8 @@ class Session:
 
     def _on_viewer_event(self, e) -> None:
         kind = getattr(e, "type", "")
+        if os.environ.get("S2P_ANNOTATE_DEBUG"):
+            print("viewer event:", e, flush=True)
         if kind == "recording_open" and self.ctl.viewer_state == "loading":
             self.ctl.viewer_state = "open"
             self.refresh_panel()
