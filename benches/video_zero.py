@@ -1,0 +1,110 @@
+"""Zero-annotation Seg2PoseNet on background-subtraction masks (issue 13): baseline vs network.
+
+    PYTHONPATH=. .venv/bin/python benches/video_zero.py VIDEO_SCENE --out DIR [--variant NAME ...]
+        [--truth TRUTH_SCENE] [--train-arg=--epochs=10 ...]
+
+VIDEO_SCENE: ``s2p synth -o OUT --frames 200 --video --seed S``. Every step is a real ``s2p``
+command (printed, with its wall time), in a fresh copy of the scene (DIR/bg-S):
+
+1. ``s2p masks-from-video`` (MOG2 + components + tracker + size classes) on camera c1;
+2. ``base-default``: ``s2p run --baseline -c mono-1`` with the scene's default heights;
+3. ``s2p heights --rough 2000 --camera c1`` (no annotations; filmed rough models, since the
+   masks came from video), then ``base-rough``: the baseline with those heights;
+4. per variant: ``s2p train --protocol quick --zero-annotation --camera c1`` (+ the variant's
+   flags), ``s2p run -c mono-1 --models``; variants: ``zero-video`` (rough models filmed and
+   background-subtracted, the default on such scenes), ``zero-clean`` (``--no-rough-video``:
+   clean rough silhouettes, as before this change);
+5. ``s2p eval --match nearest`` for every run (all frames), and with ``--truth`` the same
+   runs on the truth masks (rendered silhouettes of every visible road user, ids = truth ids)
+   for the error budget: ``truth-base`` (rough heights) and ``truth-<variant>``.
+
+Prints one JSON line per run and writes DIR/video_zero-S.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from video_figures import fresh_scene  # noqa: E402
+
+VARIANTS = {"zero-video": [], "zero-clean": ["--no-rough-video"]}
+
+
+def s2p(*args: str) -> str:
+    t = time.perf_counter()
+    r = subprocess.run([sys.executable, "-c", "from seg2pose.cli import main; main()", *args],
+                       capture_output=True, text=True)
+    print(f"$ s2p {' '.join(args)}   [{time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
+    if r.returncode:
+        raise SystemExit(f"s2p {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}")
+    return r.stdout + r.stderr
+
+
+def ev_row(name: str, scene: Path, run: Path, match: str = "nearest") -> dict:
+    out = s2p("eval", str(scene), "--run", str(run), "--match", match, "--json")
+    ev = json.loads(out[out.index("{"):out.rindex("}") + 1])
+    row = {"run": name, "mean_m": ev["mean_error"], "median_m": ev["median_error"],
+           "matched": f"{ev['n_matched']}/{ev['n_gt']}", "per_class": ev["per_class"]}
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("video_scene", type=Path)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--truth", type=Path, help="the same seed with --no-detector-noise --match all")
+    ap.add_argument("--variant", action="append", choices=sorted(VARIANTS))
+    ap.add_argument("--train-arg", action="append", default=[], help="extra s2p train argument")
+    ap.add_argument("--rough-heights", type=int, default=2000)
+    a = ap.parse_args()
+    seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
+    sc = a.out / f"bg-{seed}"
+    rows = []
+    if not (sc / "masks" / "c1.txt").exists():
+        fresh_scene(a.video_scene, sc)
+        print(s2p("masks-from-video", str(sc), "--camera", "c1", "--no-progress"), file=sys.stderr)
+    s2p("run", str(sc), "-o", str(sc / "out" / "base-default"), "-c", "mono-1", "--baseline", "--force")
+    rows.append(ev_row("base-default", sc, sc / "out" / "base-default"))
+    print(s2p("heights", str(sc), "--rough", str(a.rough_heights), "--camera", "c1"), file=sys.stderr)
+    s2p("run", str(sc), "-o", str(sc / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
+    rows.append(ev_row("base-rough", sc, sc / "out" / "base-rough"))
+    tr = None
+    if a.truth:
+        # the truth masks in a scene with the same (rough) heights
+        tr = a.out / f"truth-{seed}"
+        if tr.exists():
+            shutil.rmtree(tr)
+        shutil.copytree(a.truth, tr, ignore=shutil.ignore_patterns("video", "models", "out"))
+        shutil.copy2(sc / "scene.json", tr / "scene.json")
+        s2p("run", str(tr), "-o", str(tr / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
+        rows.append(ev_row("truth-base-rough", tr, tr / "out" / "base-rough", "ids"))
+    for v in a.variant or ["zero-video"]:
+        models = sc / f"models-{v}"
+        t = time.perf_counter()
+        log = s2p("train", str(sc), "--protocol", "quick", "--zero-annotation", "--camera", "c1",
+                  "-o", str(models), "--threads", "1", *VARIANTS[v], *a.train_arg)
+        wall = time.perf_counter() - t
+        (a.out / f"train-{v}-{seed}.log").write_text(log)
+        s2p("run", str(sc), "-o", str(sc / "out" / v), "-c", "mono-1", "--models", str(models), "--force")
+        row = ev_row(v, sc, sc / "out" / v)
+        row["train_wall_s"] = round(wall)
+        rows.append(row)
+        if tr is not None:
+            s2p("run", str(tr), "-o", str(tr / "out" / v), "-c", "mono-1", "--models", str(models),
+                "--force")
+            rows.append(ev_row(f"truth-{v}", tr, tr / "out" / v, "ids"))
+    (a.out / f"video_zero-{seed}.json").write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
