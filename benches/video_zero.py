@@ -65,45 +65,60 @@ def main() -> None:
     ap.add_argument("--truth", type=Path, help="the same seed with --no-detector-noise --match all")
     ap.add_argument("--variant", action="append", choices=sorted(VARIANTS))
     ap.add_argument("--train-arg", action="append", default=[], help="extra s2p train argument")
+    ap.add_argument("--run-arg", action="append", default=[], help="extra s2p run argument (network runs)")
+    ap.add_argument("--tag", default="", help="suffix of the variants' model and run names")
     ap.add_argument("--rough-heights", type=int, default=2000)
     a = ap.parse_args()
     seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
     sc = a.out / f"bg-{seed}"
-    rows = []
+    res_path = a.out / f"video_zero-{seed}.json"
+    # finished steps are kept (the script resumes; new variants add rows)
+    rows = json.loads(res_path.read_text()) if res_path.exists() else {}
+
+    def save(row: dict) -> None:
+        rows[row["run"]] = row
+        res_path.write_text(json.dumps(rows, indent=1))
+
     if not (sc / "masks" / "c1.txt").exists():
         fresh_scene(a.video_scene, sc)
         print(s2p("masks-from-video", str(sc), "--camera", "c1", "--no-progress"), file=sys.stderr)
-    s2p("run", str(sc), "-o", str(sc / "out" / "base-default"), "-c", "mono-1", "--baseline", "--force")
-    rows.append(ev_row("base-default", sc, sc / "out" / "base-default"))
-    print(s2p("heights", str(sc), "--rough", str(a.rough_heights), "--camera", "c1"), file=sys.stderr)
-    s2p("run", str(sc), "-o", str(sc / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
-    rows.append(ev_row("base-rough", sc, sc / "out" / "base-rough"))
+    if "base-rough" not in rows:
+        s2p("run", str(sc), "-o", str(sc / "out" / "base-default"), "-c", "mono-1", "--baseline", "--force")
+        save(ev_row("base-default", sc, sc / "out" / "base-default"))
+        print(s2p("heights", str(sc), "--rough", str(a.rough_heights), "--camera", "c1"), file=sys.stderr)
+        s2p("run", str(sc), "-o", str(sc / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
+        save(ev_row("base-rough", sc, sc / "out" / "base-rough"))
     tr = None
     if a.truth:
         # the truth masks in a scene with the same (rough) heights
         tr = a.out / f"truth-{seed}"
-        if tr.exists():
-            shutil.rmtree(tr)
-        shutil.copytree(a.truth, tr, ignore=shutil.ignore_patterns("video", "models", "out"))
-        shutil.copy2(sc / "scene.json", tr / "scene.json")
-        s2p("run", str(tr), "-o", str(tr / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
-        rows.append(ev_row("truth-base-rough", tr, tr / "out" / "base-rough", "ids"))
+        if "truth-base-rough" not in rows:
+            if tr.exists():
+                shutil.rmtree(tr)
+            shutil.copytree(a.truth, tr, ignore=shutil.ignore_patterns("video", "models", "out"))
+            shutil.copy2(sc / "scene.json", tr / "scene.json")
+            s2p("run", str(tr), "-o", str(tr / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
+            save(ev_row("truth-base-rough", tr, tr / "out" / "base-rough", "ids"))
     for v in a.variant or ["zero-video"]:
-        models = sc / f"models-{v}"
+        name = v + a.tag
+        models = sc / f"models-{name}"
+        # s2p train skips finished models and resumes interrupted ones
         t = time.perf_counter()
         log = s2p("train", str(sc), "--protocol", "quick", "--zero-annotation", "--camera", "c1",
                   "-o", str(models), "--threads", "1", *VARIANTS[v], *a.train_arg)
         wall = time.perf_counter() - t
-        (a.out / f"train-{v}-{seed}.log").write_text(log)
-        s2p("run", str(sc), "-o", str(sc / "out" / v), "-c", "mono-1", "--models", str(models), "--force")
-        row = ev_row(v, sc, sc / "out" / v)
+        (a.out / f"train-{name}-{seed}.log").write_text(log)
+        s2p("run", str(sc), "-o", str(sc / "out" / name), "-c", "mono-1", "--models", str(models),
+            "--force", *a.run_arg)
+        row = ev_row(name, sc, sc / "out" / name)
         row["train_wall_s"] = round(wall)
-        rows.append(row)
+        row["train_args"] = VARIANTS[v] + a.train_arg
+        row["far_residuals"] = json.loads((sc / "out" / name / "run.json").read_text()).get("far_residuals")
+        save(row)
         if tr is not None:
-            s2p("run", str(tr), "-o", str(tr / "out" / v), "-c", "mono-1", "--models", str(models),
-                "--force")
-            rows.append(ev_row(f"truth-{v}", tr, tr / "out" / v, "ids"))
-    (a.out / f"video_zero-{seed}.json").write_text(json.dumps(rows, indent=1))
+            s2p("run", str(tr), "-o", str(tr / "out" / name), "-c", "mono-1", "--models", str(models),
+                "--force", *a.run_arg)
+            save(ev_row(f"truth-{name}", tr, tr / "out" / name, "ids"))
 
 
 if __name__ == "__main__":
