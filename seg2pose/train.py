@@ -375,7 +375,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     resume. Without ground truth only ``zero_annotation`` training is possible."""
     from seg2pose.io.poses import read_poses
     from seg2pose.ood import residual_limits
-    from seg2pose.training_data import camera_groups, model_jobs
+    from seg2pose.training_data import camera_groups, films_rough, model_jobs
     from seg2pose.zero_annotation import calibrate_radial
 
     cfg = config or TrainConfig()
@@ -419,7 +419,10 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
         train_model(None if cfg.zero_annotation else data(job.train),
                     None if job.rough is None else data(job.rough), data(job.val), net_cfg, cfg,
                     ck, job.path, progress)
-        if cfg.zero_annotation and cfg.radial_calibration:
+        # filmed rough models carry the video's artefacts: the calibration's premise (real
+        # masks have no radial bias the rough ones lack) made them worse (docs/RESULTS.md)
+        if cfg.zero_annotation and cfg.radial_calibration and not all(
+                films_rough(scene, c, cfg) for c in job.cameras):
             off = calibrate_radial(scene, job.path, "train" if "train" in scene.splits else None,
                                    center_method=cfg.center_method)
             say(f"{job.path.stem}: radial calibration from unlabelled masks (m): "

@@ -109,18 +109,25 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
     return ExampleSet.concat(tr_parts), ExampleSet.concat(va_parts)
 
 
+def films_rough(scene: Scene, cam: str, cfg: "TrainConfig") -> bool:
+    """Whether the camera's rough models are filmed and background-subtracted
+    (``cfg.rough_video``; None = for zero-annotation training when its masks came from its
+    video)."""
+    from seg2pose.rough_video import masks_from_video
+
+    if cfg.rough_video is not None:
+        return bool(cfg.rough_video)
+    return cfg.zero_annotation and masks_from_video(scene, cam)
+
+
 def rough_looks(scene: Scene, cams: list[str], cfg: "TrainConfig") -> dict:
-    """Camera -> ``rough_video.VideoLook`` for the cameras whose rough models are filmed and
-    background-subtracted (``cfg.rough_video``; None = on for zero-annotation training of
-    cameras whose masks came from their video)."""
-    from seg2pose.rough_video import masks_from_video, video_look
+    """Camera -> ``rough_video.VideoLook`` for the cameras whose rough models are filmed
+    (``films_rough``)."""
+    from seg2pose.rough_video import video_look
 
     out = {}
     for cam in cams:
-        on = cfg.rough_video
-        if on is None:
-            on = cfg.zero_annotation and masks_from_video(scene, cam)
-        if on:
+        if films_rough(scene, cam, cfg):
             say(f"camera {cam}: rough models filmed over the video's background and "
                 "background-subtracted like its masks")
             out[cam] = video_look(scene, cam)
