@@ -6,6 +6,10 @@ the mean squared error that is a constant offset per road user (individual size 
 smoothing along the track can remove it).
 
     .venv/bin/python benches/error_budget.py SCENE TABLE [TABLE ...] [--configs mono-1,tri-I]
+        [--smooth N]
+
+``--smooth N``: the runs' views fused again with positions smoothed along the tracks
+(``s2p paper-table --smooth N``).
 
 TABLE: an ``s2p paper-table`` output folder (its runs/<config>-<method>/ are read).
 """
@@ -22,10 +26,16 @@ from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
 
 
-def budget(scene, run_dir: Path) -> dict:
+def budget(scene, run_dir: Path, smooth: int = 0) -> dict:
     """Error terms of one run on the scene's test split (metres; shares in [0, 1])."""
     gt = read_poses(scene.gt_path)
-    est = read_poses(run_dir / "poses.csv")
+    if smooth:
+        from seg2pose.io.run import read_views
+        from seg2pose.pipeline import fuse
+
+        est = fuse(read_views(run_dir / "views.csv"), scene, smooth)
+    else:
+        est = read_poses(run_dir / "poses.csv")
     lo, hi = scene.split_range("test")
     keep = (gt.frame >= lo) & (gt.frame <= hi)
     ie, ig = match_poses(est, gt)
@@ -52,6 +62,7 @@ def main() -> None:
     ap.add_argument("scene")
     ap.add_argument("tables", nargs="+")
     ap.add_argument("--configs", default="mono-1,tri-I")
+    ap.add_argument("--smooth", type=int, default=0)
     a = ap.parse_args()
     scene = load_scene(a.scene)
     print(f"{'table':<14} {'run':<18} {'poses':>6} {'mean m':>7} {'radial':>7} {'tangential':>10} "
@@ -62,7 +73,7 @@ def main() -> None:
                 rd = Path(t) / "runs" / f"{cfg}-{method}"
                 if not (rd / "poses.csv").exists():
                     continue
-                b = budget(scene, rd)
+                b = budget(scene, rd, a.smooth)
                 print(f"{Path(t).name:<14} {cfg + '-' + method:<18} {b['n']:>6} {b['mean']:>7.3f} "
                       f"{b['radial']:>7.3f} {b['tangential']:>10.3f} {b['worst10_share']:>17.2f} "
                       f"{b['per_user_bias_share']:>29.2f}")
