@@ -59,7 +59,8 @@ LINK_IOU = 0.5  # masks of the two segments in an overlap frame are the same roa
 class Segment:
     """A camera's frame range (scene frames, inclusive): ``first``..``last`` owned,
     ``read_from``..``last`` read (warm-up first), ``match_from``..``first``-1 where the stitch
-    matches it to the segment before; ``n_frames`` owned, ``n_warm`` of warm-up."""
+    matches it to the segment before; ``n_frames`` owned, ``n_warm`` of warm-up, ``n_rest``
+    from ``read_from`` to the video's end."""
     camera: str
     index: int
     first: int
@@ -68,6 +69,7 @@ class Segment:
     match_from: int
     n_frames: int
     n_warm: int = 0
+    n_rest: int = 0
 
     @property
     def name(self) -> str:
@@ -88,7 +90,7 @@ def plan_segments(frames: np.ndarray, segment_frames: int, overlap: int, camera:
         r = max(0, a - overlap)
         out.append(Segment(camera, i, int(frames[a]), int(frames[b - 1]), int(frames[r]),
                            int(frames[max(r, a - (overlap + 1) // 2)]) if a else int(frames[a]),
-                           int(b - a), int(a - r)))
+                           int(b - a), int(a - r), int(n - r)))
     return out
 
 
@@ -183,6 +185,10 @@ def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] 
         return {**done, "status": "skipped"}
     reader = camera_reader(scene, seg.camera)
     out = segment_path(scene.root, seg)
+    if bg.init == "median" and bg.init_frames == 0:
+        # "samples over the whole video" from where the segment starts reading: its own
+        # samples over the rest of the video (the first segment's are the uncut run's)
+        bg = replace(bg, init_frames=seg.n_rest)
     with atomic_path(out) as tmp:  # masks, then tracks, in one temporary file: all or nothing
         res = masks_from_video(reader.path, tmp, bg, camera=scene.cameras[seg.camera],
                                first_frame=reader.first, frame_step=reader.step,

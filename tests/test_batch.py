@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from seg2pose.batch import EVAL, RUN, BatchOptions, Step, run_study
+from seg2pose.batch import BatchOptions, Step, run_study
+from seg2pose.batch_steps import EVAL, RUN
 from seg2pose.synth.generate import generate_scene
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
@@ -227,8 +228,9 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
 
 
 def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
-    """`s2p train --parallel`: the cameras' trainings as Ray tasks give the same checkpoints,
-    byte for byte, as the serial protocol (same seeds, same examples)."""
+    """`s2p train --parallel`: camera x class x run as Ray tasks (2 cameras, a model per class,
+    best of 2 runs) give the same checkpoints, byte for byte, as the serial protocol (same
+    seeds, same examples, the same best run picked); no run files are left."""
     from test_pipeline import make_tiny_scene
     from test_train import tiny_config
 
@@ -236,12 +238,17 @@ def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
     from seg2pose.train import train_scene
 
     scene = make_tiny_scene(tmp_path / "tiny", frames=30, n_users=6, seed=1)
-    cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3)
+    cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3, runs=2, share_classes=False)
     cams = ["c0", "c1"]
     ser = train_scene(scene, tmp_path / "serial", cfg, cameras=cams, progress=False)
     par = train_scene(scene, tmp_path / "ray", cfg, cameras=cams, progress=False,
                       map_groups=ray_map())
-    files = sorted(p.name for p in ser.iterdir() if p.suffix == ".safetensors")
-    assert len(files) == 2 and files == sorted(p.name for p in par.iterdir() if p.suffix == ".safetensors")
+    files = sorted(p.name for p in ser.iterdir())
+    assert files == sorted(p.name for p in par.iterdir())
+    models = [f for f in files if f.endswith(".safetensors")]
+    assert len(models) >= 4 and not any(".run" in f or ".state" in f for f in files), files
     for f in files:
-        assert (ser / f).read_bytes() == (par / f).read_bytes()
+        assert (ser / f).read_bytes() == (par / f).read_bytes(), f
+    runs = [json.loads((ser / f).read_text())["run"] for f in files if f.endswith(".json")]
+    print(f"\nbest runs of the {len(models)} models: {runs}")
+    assert set(runs) <= {1, 2}

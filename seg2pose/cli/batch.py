@@ -11,8 +11,8 @@ from typing import List, Optional
 
 import typer
 
-from seg2pose.batch import (BATCH_DIR, LIBRARY_STEPS, BatchOptions, Step, _scene_inputs,
-                            format_summary, ray_available, run_dir, run_study)
+from seg2pose.batch import BATCH_DIR, BatchOptions, Step, format_summary, ray_available, run_study
+from seg2pose.batch_steps import LIBRARY_STEPS, _scene_inputs, run_dir
 from seg2pose.cli.common import BATCH, speaks_flags
 from seg2pose.errors import InputError
 
