@@ -252,3 +252,36 @@ def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
     runs = [json.loads((ser / f).read_text())["run"] for f in files if f.endswith(".json")]
     print(f"\nbest runs of the {len(models)} models: {runs}")
     assert set(runs) <= {1, 2}
+
+
+def test_long_video_segments_as_ray_tasks(ray_local, tmp_path):
+    """A 200-frame video cut into 2 segments by `s2p batch masks-from-video --segment-frames
+    100` on Ray: the segments run as tasks of their own; the masks are those of the library's
+    serial split."""
+    from test_video_scene import calibration
+    from video_fixtures import write_folder
+
+    from seg2pose.segments import scene_masks_segmented
+
+    calibration(tmp_path)
+    write_folder(tmp_path / "frames", 200, [dict(id=1, x=-40, y=60, w=12, h=20, vx=2.5, vy=0),
+                                            dict(id=2, x=250, y=20, w=14, h=14, vx=-2.2, vy=0)])
+    st = tmp_path / "st"
+    r = cli(["new-scene", "-o", str(st / "v"), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+             str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
+    assert r.exit_code == 0, r.output
+    sj = st / "v" / "scene.json"
+    d = json.loads(sj.read_text())
+    d.setdefault("extra", {})["video_masks"] = {"min_area": 40, "init_samples": 8, "history": 30}
+    sj.write_text(json.dumps(d))
+    lib = tmp_path / "lib"
+    shutil.copytree(st / "v", lib)
+    r = cli(["batch", str(st), "masks-from-video", "--segment-frames", "100", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    row = json.loads((st / "summary.json").read_text())["scenes"][0]
+    assert row["segments"] == 2 and row["frames"] == 200 and row["seam_id_changes"] == 0
+    assert len(list((st / "v" / "batch" / "segments" / "c0").glob("*.json"))) == 2
+    scene_masks_segmented(lib, 100, log=lambda s: None)
+    got = (st / "v" / "masks" / "c0.txt").read_bytes()
+    assert got == (lib / "masks" / "c0.txt").read_bytes()
+    assert len({ln.split()[1] for ln in got.splitlines()}) == 2, got.decode()[:2000]
