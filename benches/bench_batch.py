@@ -107,15 +107,51 @@ def bench_video_segments(root: Path, n_frames: int) -> None:
     assert not row["failures"], row
     segs = json.loads(sorted((sc.root / "batch" / "segments" / "c0").glob("*.json"))[-1].read_text())
     stitch = res.results["masks-from-video"][0]["seconds"]
+    seg_cpu = [r["cpu_seconds"] for r in res.parts["masks-from-video"]]
+    path = max(seg_cpu) + res.results["masks-from-video"][0]["cpu_seconds"]
     print(f"2 segments on Ray (2 warm workers): {t_par:.1f} s wall, of which the stitch and size "
           f"classes {stitch:.1f} s; the later "
           f"segment read {segs['info']['read']} frames (warm-up {segs['inputs']['segment']['n_warm']}); "
           f"load {os.getloadavg()[0]:.1f}")
     print(f"wall-time ratio uncut / 2 segments: {t_ser / t_par:.2f} "
           f"(at most {n_frames / segs['info']['read']:.2f} with this warm-up)")
+    print(f"CPU: the segments' tasks {' + '.join(f'{c:.1f}' for c in seg_cpu)} s, stitch + classes "
+          f"{res.results['masks-from-video'][0]['cpu_seconds']:.1f} s; critical path {path:.1f} s vs "
+          f"{c_ser:.1f} s uncut: ratio {c_ser / path:.2f} on 2 cores of one's own (load-independent)")
     s = score_masks(iter_mots(uncut), iter_mots(sc.root / "masks" / "c0.txt"), min_area=0)
-    print(f"seam against the uncut run: {s.switches} ID switches over {s.tracks} tracks, recall "
-          f"{s.recall:.4f}, precision {s.precision:.4f}; the stitch's own count: {row['seams']}")
+    at = switch_frames(uncut, sc.root / "masks" / "c0.txt")
+    border, warm = n_frames // 2, segs["inputs"]["segment"]["n_warm"]
+    near = sum(1 for f in at if abs(f - border) <= warm)
+    print(f"against the uncut run: {s.switches} ID switches over {s.tracks} tracks, {near} of them "
+          f"within the warm-up ({warm} frames) of the border {border}, the others at frames "
+          f"{[f for f in at if abs(f - border) > warm]}; recall {s.recall:.4f}, precision "
+          f"{s.precision:.4f}; the stitch's own count: {row['seams']}")
+
+
+def switch_frames(truth: Path, est: Path) -> list[int]:
+    """Frames where a track of ``truth`` changes its matched id in ``est`` (as score_masks)."""
+    from scipy.optimize import linear_sum_assignment
+
+    from seg2pose.io.mots import iter_mots
+    from seg2pose.masks import iou
+
+    other = {f: t for f, t in iter_mots(est)}
+    last: dict[int, int] = {}
+    out = []
+    for f, tt in iter_mots(truth):
+        ee = other.get(f)
+        if ee is None or not len(ee):
+            continue
+        m = iou(tt.rles, ee.rles, tt.height, tt.width)
+        r, c = linear_sum_assignment(-m)
+        for i, j in zip(r, c):
+            if m[i, j] < 0.5:
+                continue
+            a, b = int(tt.track_id[i]), int(ee.track_id[j])
+            if a in last and last[a] != b:
+                out.append(f)
+            last[a] = b
+    return out
 
 
 def bench_models(root: Path) -> None:
@@ -128,7 +164,7 @@ def bench_models(root: Path) -> None:
     from seg2pose.train import TrainConfig, train_scene
 
     torch.set_num_threads(1)
-    sd = generate_scene(root / "train", frames=60, seed=5, progress=False, workers=1)
+    sd = generate_scene(root / "train", frames=150, seed=5, progress=False, workers=1)
     scene = load_scene(sd)
     cfg = TrainConfig.quick().replace(epochs=1, rough_every=0, threads=1)
     t0 = time.process_time()

@@ -148,14 +148,14 @@ def _failure(e: Exception) -> str:
 
 def attempt_part(step: Step, scene_dir: str | Path, part) -> dict:
     """Run one part of a step (a video segment); never raises for the scene's own errors."""
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     res = {"scene": Path(scene_dir).name, "part": part, "status": "done", "info": {}, "error": None}
     try:
         res["info"] = step.run_part(Path(scene_dir), part) or {}
         res["status"] = res["info"].get("status", "done")
     except Exception as e:  # noqa: BLE001 - reported as the scene's failure
         res["status"], res["error"] = "failed", _failure(e)
-    res["seconds"] = time.perf_counter() - t
+    res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
     return res
 
 
@@ -163,7 +163,7 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     """Run one step on one scene unless it is complete. Never raises for the scene's own
     errors: returns {scene, step, status: done|skipped|failed, info, error, seconds}."""
     scene_dir = Path(scene_dir)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     res = {"scene": scene_dir.name, "step": step.name, "status": "done", "info": {}, "error": None}
     try:
         if is_complete(step, scene_dir, opts):
@@ -177,7 +177,7 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
         res["status"] = "failed"
         res["error"] = _failure(e)
-    res["seconds"] = time.perf_counter() - t
+    res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
     return res
 
 
@@ -198,8 +198,10 @@ def find_scenes(study: str | Path) -> list[Path]:
 
 @dataclass
 class StudyResult:
-    """Per step, the attempts' results in scene order; ``rows``: the summary's per-scene rows."""
+    """Per step, the attempts' results in scene order (``parts``: the results of its parts, e.g.
+    video segments, as they finished); ``rows``: the summary's per-scene rows."""
     results: dict[str, list[dict]] = field(default_factory=dict)
+    parts: dict[str, list[dict]] = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
     backend: str = "serial"
     dashboard: str | None = None
@@ -259,9 +261,10 @@ def _wave(ray, remote, fn, args: list[tuple], limit: int | None, on_done, log, w
 
 
 def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
-                limit: int | None, progress: bool, log) -> dict[str, str]:
+                limit: int | None, progress: bool, log, results: list) -> dict[str, str]:
     """The parts of ``step`` (video segments) of every scene not complete yet, as tasks of
-    their own, with a bar of frames. Returns {scene: error} of the scenes with a failed part."""
+    their own, with a bar of frames; their results are appended to ``results``. Returns
+    {scene: error} of the scenes with a failed part."""
     from dataclasses import replace
 
     from tqdm import tqdm
@@ -283,6 +286,7 @@ def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
 
     def on_done(r: dict) -> None:
         done["n"] += 1
+        results.append(r)
         if r["status"] == "failed":
             failed.setdefault(r["scene"], f"segment {r['part'].camera} {r['part'].name}: {r['error']}")
         bar.set_postfix(segments=f"{done['n']}/{len(jobs)}", failed=len(failed))
@@ -326,8 +330,9 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
         todo = [s for s in scenes if s.name not in failed]
         results: dict[str, dict] = {}
         if step.parts is not None:
+            out.parts[step.name] = []
             for name, err in _parts_wave(ray, remote_part, step, todo, opts, max_parallel,
-                                         progress, log).items():
+                                         progress, log, out.parts[step.name]).items():
                 results[name] = {"scene": name, "step": step.name, "status": "failed", "info": {},
                                  "error": err, "seconds": 0.0}
         bar = tqdm(total=len(todo), desc=step.name, unit="scene", disable=not progress)
