@@ -149,7 +149,7 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
     monkeypatch.setattr(track, "write_mots", real)
     r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress", "--segment-frames", "120"])
     assert r.exit_code == 0, r.output
-    assert "v: video in 2 segments; id changes at the seams (road users whose track id changes at a border): 0" in r.output
+    assert "v: video in 2 segments; at the seams 0 id changes, 0 tracks not continued" in r.output
     assert (seg_dir / "00000000-00000119.json").stat().st_mtime_ns == first
     row = json.loads((st / "summary.json").read_text())["scenes"][0]
     assert row["segments"] == 2 and row["seam_id_changes"] == 0 and row["frames"] == N
