@@ -161,9 +161,16 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
     r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress", "--segment-frames", "120"])
     row = json.loads((st / "summary.json").read_text())["scenes"][0]
     assert r.exit_code == 0 and row["steps"] == {"masks-from-video": "skipped"}
-    # a segment whose file was damaged is redone
-    p = segment_path(st / "v", plan_scene(st / "v", BORDER)["c0"][1])
+    # a segment whose file was damaged is redone; what a killed task left beside it is removed
+    seg = plan_scene(st / "v", BORDER)["c0"][1]
+    p = segment_path(st / "v", seg)
     p.write_text(p.read_text()[:-50])
+    dead = 2**22 + 12345  # above Linux's largest pid
+    killed = [p.parent / f".{p.name}.partial-{dead}-x1.txt",
+              p.parent / f"..{p.name}.partial-{dead}-x1.txt.partial-{dead}-y2.tmp"]
+    for k in killed:
+        k.write_text("half")
     from seg2pose.segments import run_segment
-    assert run_segment(st / "v", plan_scene(st / "v", BORDER)["c0"][1])["status"] == "done"
-    assert run_segment(st / "v", plan_scene(st / "v", BORDER)["c0"][1])["status"] == "skipped"
+    assert run_segment(st / "v", seg)["status"] == "done"
+    assert not any(k.exists() for k in killed)
+    assert run_segment(st / "v", seg)["status"] == "skipped"
