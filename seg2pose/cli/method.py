@@ -94,7 +94,7 @@ def train_cmd(
     The paper's protocol: best of four runs, Adam 5e-5, batch 16, 64 batches per epoch,
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
-    from seg2pose.batch import ray_map
+    from seg2pose.train_fanout import ray_map
     from seg2pose.io.scene import load_scene
     from seg2pose.train import TrainConfig, train_scene
 
