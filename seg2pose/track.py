@@ -7,12 +7,14 @@ and the world distance between the track's predicted position (constant velocity
 mask's normal position, which stays informative for small, far-away masks whose IoU collapses
 from frame to frame. One Hungarian assignment (``scipy.optimize.linear_sum_assignment``) per
 frame picks the pairs; a pair is allowed when IoU >= ``iou_min`` or the distance is inside a
-gate that widens with the gap. Optionally (``split_min`` > 0), a mask that holds most of two or
-more tracks' masks of the previous frame (road users that overlap in the image and came out of
-background subtraction as one blob) is first split between them, each pixel going to the track
-whose previous mask, moved on by its pixel motion, is nearest. Unmatched masks start tracks; a track lost for up to
-``max_gap`` frames can be picked up again (re-identification after an occlusion); tracks shorter
-than ``min_length`` frames are dropped at the end. Deterministic: same input, same ids.
+gate that widens with the gap. First (``split_min`` > 0, the default), a mask that holds most
+of the predicted masks of two or more established tracks (road users that overlap in the image
+and came out of background subtraction as one blob) is split between them: each track's shape
+(its last whole mask, carried along by its pixel motion while it is merged) is its predicted
+mask, a pixel inside several goes to the nearest road user (the one reaching lowest in the
+image), a pixel outside all to the nearest predicted mask. Unmatched masks start tracks; a
+track lost for up to ``max_gap`` frames can be picked up again (re-identification after an
+occlusion); tracks shorter than ``min_length`` frames are dropped at the end. Deterministic: same input, same ids.
 
 Long sequences are streamed: the first pass keeps only the live tracks and one id per mask,
 the second runs the same (deterministic) tracker again and writes the masks with final ids.
@@ -51,9 +53,9 @@ class TrackConfig:
     max_gap: int = 20         # frames a lost track waits to be picked up again
     min_length: int = 5       # shorter tracks (frames with a mask) are dropped
     gap_penalty: float = 0.02  # cost per missed frame: recent tracks win ties
-    split_min: float = 0.0    # > 0: a mask holding this share of two or more tracks' previous
-    #                           masks is split between them (merged blobs). Off: measured on seed
-    #                           103 at 0.6, recall +1 point, precision -5.5, more ID switches
+    split_min: float = 0.5    # > 0: a mask holding this share of two or more tracks' predicted
+    #                           masks is split between them (merged blobs); 0: off. Chosen on
+    #                           seeds 101-102 (docs/RESULTS.md): recall +3 to +8 points
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> "TrackConfig":
@@ -114,7 +116,7 @@ class Tracker:
 
     def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray
                       ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
-        """Masks holding >= split_min of two or more established tracks' previous-frame masks,
+        """Masks holding >= split_min of two or more established tracks' predicted masks,
         split between those tracks. Returns masks, positions (NaN for split parts, filled in
         by ``positions`` when set) and, per output mask, the index of the input mask it came
         from."""
@@ -127,6 +129,17 @@ class Tracker:
         # each track's shape moved on by its pixel motion: where the road user is expected
         h = self.size[0]
         shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
+        # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
+        # two or more of them can take part
+        bt = mask_util.toBbox([{"size": self.size, "counts": self.shape[i]} for i in recent]).reshape(-1, 4)
+        bt[:, :2] += shift
+        bd = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(-1, 4)
+        meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
+                & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
+        cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
+        if cand.sum() < 2:
+            return rles, xy, src
+        recent, shift = recent[cand], shift[cand]
         pred = {int(i): shift_rle(self.shape[i], int(dx) * h + int(dy), self.size)
                 for i, (dx, dy) in zip(recent, shift)}
         objs_t = [{"size": self.size, "counts": pred[int(i)]} for i in recent]
@@ -237,11 +250,8 @@ class Tracker:
             has = np.isfinite(xy[cols]).all(axis=1)
             self.pos[rows] = np.where(has[:, None], xy[cols], self.pos[rows])
             px = (box[cols] - self.box[rows]) / gap
-            # a part cut from a merged blob moves with its share of the blob, not its road
-            # user: its track keeps the motion it had
-            whole = ~self.out_split[cols]
-            old = self.pxvel[rows[whole]]
-            self.pxvel[rows[whole]] = np.where(np.isnan(old), px[whole], 0.6 * old + 0.4 * px[whole])
+            old = self.pxvel[rows]
+            self.pxvel[rows] = np.where(np.isnan(old), px, 0.6 * old + 0.4 * px)
             self.box[rows] = box[cols]
             self.last[rows] = frame
             for r, cc in zip(rows, cols):

@@ -151,7 +151,7 @@ def test_merged_blob_is_split_between_its_tracks():
             got, want = decode(out.rles[i[0]], H, W), decode(box(*bx), H, W)
             assert (got & want).sum() / (got | want).sum() > 0.85, (f, k)
     # without splitting, one of the two loses its mask there and the ids still hold
-    plain = track_table(t, cfg=TrackConfig(min_length=5))
+    plain = track_table(t, cfg=TrackConfig(min_length=5, split_min=0.0))
     assert len(plain) == 45
 
 
