@@ -86,8 +86,8 @@ def train_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
-    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train the cameras' models in parallel as Ray tasks on this many local CPUs (same seeds, same models)"),
-    address: Optional[str] = typer.Option(None, "--address", help="train the cameras' models as tasks on this Ray cluster"),
+    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best run picked as in serial (same seeds, same models)"),
+    address: Optional[str] = typer.Option(None, "--address", help="train camera x class x run as tasks on this Ray cluster, e.g. ray://head:10001 or auto"),
 ) -> None:
     """Train Seg2PoseNet on a scene, per camera and class (paper 4.1).
 

@@ -174,7 +174,9 @@ class FrameReader:
             return out
         ks = sorted((f - self.first) // self.step for f in want if (f - self.first) % self.step == 0)
         if len(ks) > 1 and min(np.diff(ks)) < 48:  # close together: reading through is cheaper
-            for f, im in self.frames(last=self.first + ks[-1] * self.step):
+            # (from the first one: a segment late in a long video must not decode from frame 0)
+            for f, im in self.frames(first=self.first + ks[0] * self.step,
+                                     last=self.first + ks[-1] * self.step):
                 if f in want:
                     out.append((f, im))
             return out
