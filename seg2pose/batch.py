@@ -387,6 +387,7 @@ def summary_rows(scenes: list[Path], results: dict[str, list[dict]]) -> list[dic
             if "seams" in info:  # long videos in segments: the stitch's id changes per border
                 row["segments"], row["seams"] = info["segments"], info["seams"]
                 row["seam_id_changes"] = info["seam_id_changes"]
+                row["seam_unlinked"] = info.get("seam_unlinked", 0)
         rows.append(row)
     return rows
 

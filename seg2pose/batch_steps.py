@@ -31,7 +31,8 @@ def _masks_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
                 "masks": sum(r["masks"] for r in res.values()),
                 "segments": sum(r["segments"] for r in res.values()),
                 "seams": {c: r["seams"] for c, r in res.items() if r["seams"]},
-                "seam_id_changes": sum(x["id_changes"] for r in res.values() for x in r["seams"])}
+                "seam_id_changes": sum(x["id_changes"] for r in res.values() for x in r["seams"]),
+                "seam_unlinked": sum(x["unlinked"] for r in res.values() for x in r["seams"])}
     res = scene_masks_from_video(scene_dir, force=force, progress=False, log=lambda s: None)
     return {"frames": max((r.n_frames for r in res.values()), default=0),
             "masks": sum(r.n_masks for r in res.values())}

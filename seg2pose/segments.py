@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections import defaultdict
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -42,7 +43,7 @@ from scipy.optimize import linear_sum_assignment
 
 from seg2pose.classify import classify_mots, size_rules
 from seg2pose.errors import InputError
-from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable
+from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable, pid_alive
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.video import image_files
@@ -173,6 +174,21 @@ def segment_done(scene_dir: str | Path, seg: Segment, inputs: dict | None = None
     return d.get("info") or {}
 
 
+def clean_killed(out: Path) -> list[Path]:
+    """Remove the temporary files a killed segment task left beside ``out``:
+    ``.NAME.partial-PID...`` and the libraries' own temporaries inside those
+    (``..NAME.partial-PID...``), when process PID no longer runs."""
+    gone = []
+    pat = re.compile(rf"^\.+{re.escape(out.name)}\.partial-(\d+)")
+    if out.parent.is_dir():
+        for p in out.parent.iterdir():
+            m = pat.match(p.name)
+            if m and not pid_alive(int(m.group(1))):
+                p.unlink(missing_ok=True)
+                gone.append(p)
+    return gone
+
+
 def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] = lambda s: None
                 ) -> dict:
     """Masks and tracks of one segment (module docstring), unless its record says it is done.
@@ -185,6 +201,7 @@ def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] 
         return {**done, "status": "skipped"}
     reader = camera_reader(scene, seg.camera)
     out = segment_path(scene.root, seg)
+    clean_killed(out)
     if bg.init == "median" and bg.init_frames == 0:
         # "samples over the whole video" from where the segment starts reading: its own
         # samples over the rest of the video (the first segment's are the uncut run's)

@@ -149,7 +149,7 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
     monkeypatch.setattr(track, "write_mots", real)
     r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress", "--segment-frames", "120"])
     assert r.exit_code == 0, r.output
-    assert "v: video in 2 segments; id changes at the seams (road users whose track id changes at a border): 0" in r.output
+    assert "v: video in 2 segments; at the seams 0 id changes, 0 tracks not continued" in r.output
     assert (seg_dir / "00000000-00000119.json").stat().st_mtime_ns == first
     row = json.loads((st / "summary.json").read_text())["scenes"][0]
     assert row["segments"] == 2 and row["seam_id_changes"] == 0 and row["frames"] == N
@@ -161,9 +161,16 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
     r = cli(["batch", str(st), "masks-from-video", "--serial", "--no-progress", "--segment-frames", "120"])
     row = json.loads((st / "summary.json").read_text())["scenes"][0]
     assert r.exit_code == 0 and row["steps"] == {"masks-from-video": "skipped"}
-    # a segment whose file was damaged is redone
-    p = segment_path(st / "v", plan_scene(st / "v", BORDER)["c0"][1])
+    # a segment whose file was damaged is redone; what a killed task left beside it is removed
+    seg = plan_scene(st / "v", BORDER)["c0"][1]
+    p = segment_path(st / "v", seg)
     p.write_text(p.read_text()[:-50])
+    dead = 2**22 + 12345  # above Linux's largest pid
+    killed = [p.parent / f".{p.name}.partial-{dead}-x1.txt",
+              p.parent / f"..{p.name}.partial-{dead}-x1.txt.partial-{dead}-y2.tmp"]
+    for k in killed:
+        k.write_text("half")
     from seg2pose.segments import run_segment
-    assert run_segment(st / "v", plan_scene(st / "v", BORDER)["c0"][1])["status"] == "done"
-    assert run_segment(st / "v", plan_scene(st / "v", BORDER)["c0"][1])["status"] == "skipped"
+    assert run_segment(st / "v", seg)["status"] == "done"
+    assert not any(k.exists() for k in killed)
+    assert run_segment(st / "v", seg)["status"] == "skipped"

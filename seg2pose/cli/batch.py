@@ -114,8 +114,9 @@ def batch_cmd(
     typer.echo(format_summary(res.rows))
     for r in res.rows:
         if r.get("seams"):
-            typer.echo(f"{r['scene']}: video in {r['segments']} segments; id changes at the seams "
-                       f"(road users whose track id changes at a border): {r['seam_id_changes']}")
+            typer.echo(f"{r['scene']}: video in {r['segments']} segments; at the seams "
+                       f"{r['seam_id_changes']} id changes, {r['seam_unlinked']} tracks not "
+                       "continued (a floor of the ID switches there, docs/SCALE.md)")
     typer.echo(f"{len(res.rows)} scenes, {res.n_failed} failed, {res.seconds:.1f} s on {res.backend}; "
                f"summary in {Path(study) / 'summary.json'}")
     if res.n_failed:
