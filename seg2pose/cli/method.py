@@ -118,8 +118,8 @@ def eval_cmd(
     run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
-    match: Literal["ids", "nearest"] = typer.Option("ids", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track or masks-from-video)"),
-    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: the farthest pair, metres"),
+    match: Literal["auto", "ids", "nearest"] = typer.Option("auto", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track, masks-from-video or import-detections); auto: nearest when the run's ids are not the truth's, and says so"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest or auto: the farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the ground truth.
 
@@ -131,6 +131,8 @@ def eval_cmd(
     from seg2pose.paper_table import evaluate_run
 
     res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
+    if res.match_note:
+        typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:
