@@ -89,15 +89,15 @@ def train_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
-    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train the cameras' models in parallel as Ray tasks on this many local CPUs (same seeds, same models)"),
-    address: Optional[str] = typer.Option(None, "--address", help="train the cameras' models as tasks on this Ray cluster"),
+    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best run picked as in serial (same seeds, same models)"),
+    address: Optional[str] = typer.Option(None, "--address", help="train camera x class x run as tasks on this Ray cluster, e.g. ray://head:10001 or auto"),
 ) -> None:
     """Train Seg2PoseNet on a scene, per camera and class (paper 4.1).
 
     The paper's protocol: best of four runs, Adam 5e-5, batch 16, 64 batches per epoch,
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
-    from seg2pose.batch import ray_map
+    from seg2pose.train_fanout import ray_map
     from seg2pose.io.scene import load_scene
     from seg2pose.train import TrainConfig, train_scene
 
@@ -121,8 +121,8 @@ def eval_cmd(
     run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
-    match: Literal["ids", "nearest"] = typer.Option("ids", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track or masks-from-video)"),
-    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: the farthest pair, metres"),
+    match: Literal["auto", "ids", "nearest"] = typer.Option("auto", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track, masks-from-video or import-detections); auto: nearest when the run's ids are not the truth's, and says so"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest or auto: the farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the ground truth.
 
@@ -134,6 +134,8 @@ def eval_cmd(
     from seg2pose.paper_table import evaluate_run
 
     res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
+    if res.match_note:
+        typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:
