@@ -99,8 +99,9 @@ def bgsub_only(video: Path, n: int) -> float:
 
 
 def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float, float, float]:
-    """frames/s of the tracker on 20 moving masks per frame: IoU only, IoU + world distances,
-    and the same with the splitting of merged masks on; plus the share of frames with a split.
+    """frames/s of the tracker on 20 moving masks per frame: IoU only and IoU + world distances
+    (both without splitting), and the default (world distances + splitting of merged masks);
+    plus the share of frames with a split.
     The blobs overlap often (they are drawn at random and wrap around): a worst case."""
     from seg2pose.camera import Camera
     from seg2pose.ground import GroundSurface
@@ -127,11 +128,11 @@ def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float, float, float
     from seg2pose.track import TrackConfig, Tracker, _run
 
     out = []
-    for c, gr, split in ((None, None, 0.0), (cam, ground, 0.0), (cam, ground, 0.6)):
+    for c, gr, split in ((None, None, 0.0), (cam, ground, 0.0), (cam, ground, TrackConfig().split_min)):
         t = time.perf_counter()
         track_frames(iter(tabs), H, W, c, gr, TrackConfig(split_min=split))
         out.append(n_frames / (time.perf_counter() - t))
-    tr = Tracker(H, W, TrackConfig(split_min=0.6))
+    tr = Tracker(H, W, TrackConfig())
     split_frames = sum(len(m) > len(t) for (m, _), (_, t) in zip(_run(iter(tabs), tr, cam, ground), tabs))
     return out[0], out[1], out[2], split_frames / n_frames
 
@@ -154,9 +155,9 @@ def main() -> None:
         print(f"masks-from-video end to end (decode, init, write): {n / s:.1f} frames/s, "
               f"{m / n:.1f} masks/frame, peak RSS {rss:.0f} MiB")
         iou_fps, world_fps, split_fps, share = tracker_fps(min(a.frames, 1000), a.users)
-        print(f"tracker, {a.users} masks/frame: IoU only {iou_fps:.0f} frames/s, IoU + world distance "
-              f"{world_fps:.0f} frames/s; with merged-mask splitting {split_fps:.0f} frames/s "
-              f"({100 * share:.0f} % of frames had a split)")
+        print(f"tracker, {a.users} masks/frame, no splitting: IoU only {iou_fps:.0f} frames/s, IoU + "
+              f"world distance {world_fps:.0f} frames/s; default (with merged-mask splitting) "
+              f"{split_fps:.0f} frames/s ({100 * share:.0f} % of frames had a split)")
         for n_frames in [int(x) for x in a.memory.split(",") if x]:
             vm = tmp / f"m{n_frames}.mp4"
             write_video(vm, n_frames, a.users)

@@ -13,39 +13,24 @@ import numpy as np
 from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.scene import Scene
+from seg2pose.io.video import camera_reader
 from s2p_review import columns as C
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
-
-def video_frames(path: Path, first: int, last: int, every: int = 1
+def video_frames(scene: Scene, cam: str, first: int, last: int, every: int = 1
                  ) -> Iterator[tuple[int, np.ndarray]]:
-    """(frame, BGR image (H, W, 3) uint8) of a video file or image folder for frames
-    first..last, every k-th counted from ``first``; stops early where the video ends."""
-    import cv2
-
-    path = Path(path)
-    if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        for f in range(first, min(last, len(files) - 1) + 1, every):
-            img = cv2.imread(str(files[f]))
-            if img is None:
-                raise InputError("cannot read image", file=files[f])
-            yield f, img
+    """(frame, BGR image (H, W, 3) uint8) of the camera's video file or image folder for scene
+    frames first..last, every k-th counted from ``first``; nothing when the camera has no video;
+    stops early where the video ends. Frames carry the scene's numbering
+    (``seg2pose.io.video.camera_reader``: ``extra.video_frames`` of a video file, the number in
+    each image's name), so a recording whose frames start elsewhere than 0 or step by more
+    than 1 is shown under the right masks."""
+    if scene.video_path(cam) is None:
         return
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise InputError("cannot open video (unreadable or unsupported codec)", file=path)
-    try:
-        cap.set(cv2.CAP_PROP_POS_FRAMES, first)
-        for f in range(first, last + 1):
-            ok, img = cap.read()
-            if not ok:
-                break
-            if (f - first) % every == 0:
-                yield f, img
-    finally:
-        cap.release()
+    reader = camera_reader(scene, cam)
+    for f, img in reader.frames(first, last):
+        if (f - first) % every == 0:
+            yield f, img
 
 
 def encode_jpeg(img: np.ndarray, quality: int = 75, max_width: int | None = None) -> bytes:

@@ -200,9 +200,8 @@ def _camera_stream(scene: Scene, name: str, rank: int, sel: Selection, tb: Timeb
     names = {c.id: c.name for c in scene.classes}
     masks = imagery.mask_frames(scene, name, sel.first, sel.last, sel.cadence.masks)
     pending_mask = next(masks, None)
-    vp = scene.video_path(name)
     # every frame is decoded: the display images need the video at the mask frames too
-    video = imagery.video_frames(vp, sel.first, sel.last) if vp is not None else iter(())
+    video = imagery.video_frames(scene, name, sel.first, sel.last)
     pending_video = next(video, None)
     centres: dict[int, list] = {}
     if run.views is not None:

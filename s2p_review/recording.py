@@ -126,7 +126,7 @@ def log_video(rec, scene: Scene, tb: Timebase, cam: str, first: int, last: int, 
         rec.send_columns(ent, indexes=tb.rerun_columns(frames),
                          columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)))
 
-    for f, img in imagery.video_frames(path, first, last, every):
+    for f, img in imagery.video_frames(scene, cam, first, last, every):
         if not sent and not frames and img.shape[1] > width:  # shown at the camera's size
             h = max(1, int(round(img.shape[0] * width / img.shape[1])))
             rec.log(ent, rr.Transform3D(scale=[img.shape[1] / width, img.shape[0] / h, 1.0]),

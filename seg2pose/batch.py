@@ -49,10 +49,12 @@ MAX_RETRIES = 3  # Ray retries of a task whose worker died
 @dataclass(frozen=True)
 class BatchOptions:
     """What the steps share: the run's method (baseline or Seg2PoseNet with models folders),
-    and force (also replace masks the scene had before the study ran)."""
+    force (also replace masks the scene had before the study ran), and segment_frames (cut
+    videos longer than 1.5 segments into segments of about this many frames; 0: never)."""
     baseline: bool = True
     models: tuple[str, ...] = ()
     force: bool = False
+    segment_frames: int = 0  # not in to_dict: the split gives the same masks (segments.py)
 
     @property
     def run_name(self) -> str:
@@ -67,12 +69,16 @@ class Step:
     """One step over a scene. inputs/outputs(scene_dir, opts) -> the files (or folders) it
     reads and writes; run(scene_dir, opts, force) -> info for the summary (JSON-ready dict,
     optionally with "frames"). A step that does not own its outputs (masks/) replaces them only
-    with force or when its own record shows it made them."""
+    with force or when its own record shows it made them. A step with ``parts(scene_dir, opts)
+    -> [part]`` has independent pieces (video segments, each with ``frames``) run first as tasks
+    of their own by ``run_part(scene_dir, part) -> info``; its ``run`` then finds them done."""
     name: str
     inputs: Callable[[Path, BatchOptions], list[Path]]
     outputs: Callable[[Path, BatchOptions], list[Path]]
     run: Callable[[Path, BatchOptions, bool], dict]
     owns_outputs: bool = True  # outputs only s2p batch writes (under batch/): replaced when stale
+    parts: Callable[[Path, BatchOptions], list] | None = None
+    run_part: Callable[[Path, object], dict] | None = None
 
 
 # --- fingerprints ---------------------------------------------------------------------------------
@@ -131,11 +137,33 @@ def _write_record(step: Step, scene_dir: Path, opts: BatchOptions, inputs: dict,
     atomic_write_text(rec, json.dumps({"inputs": inputs, "outputs": outs, "info": info}, indent=1))
 
 
+def _may_replace(step: Step, scene_dir: Path, opts: BatchOptions) -> bool:
+    # our own earlier output (record present) may be replaced; anything else needs force
+    return step.owns_outputs or opts.force or _record_path(scene_dir, step.name).exists()
+
+
+def _failure(e: Exception) -> str:
+    return str(e) if isinstance(e, S2PError) else f"{type(e).__name__}: {e}"
+
+
+def attempt_part(step: Step, scene_dir: str | Path, part) -> dict:
+    """Run one part of a step (a video segment); never raises for the scene's own errors."""
+    t, cpu = time.perf_counter(), time.process_time()
+    res = {"scene": Path(scene_dir).name, "part": part, "status": "done", "info": {}, "error": None}
+    try:
+        res["info"] = step.run_part(Path(scene_dir), part) or {}
+        res["status"] = res["info"].get("status", "done")
+    except Exception as e:  # noqa: BLE001 - reported as the scene's failure
+        res["status"], res["error"] = "failed", _failure(e)
+    res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
+    return res
+
+
 def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     """Run one step on one scene unless it is complete. Never raises for the scene's own
     errors: returns {scene, step, status: done|skipped|failed, info, error, seconds}."""
     scene_dir = Path(scene_dir)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     res = {"scene": scene_dir.name, "step": step.name, "status": "done", "info": {}, "error": None}
     try:
         if is_complete(step, scene_dir, opts):
@@ -143,79 +171,14 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
             res["info"] = json.loads(_record_path(scene_dir, step.name).read_text()).get("info", {})
         else:
             inputs = fingerprint(step.inputs(scene_dir, opts), scene_dir, opts.to_dict())
-            # our own earlier output (record present) may be replaced; anything else needs force
-            force = (step.owns_outputs or opts.force
-                     or _record_path(scene_dir, step.name).exists())
+            force = _may_replace(step, scene_dir, opts)
             res["info"] = step.run(scene_dir, opts, force) or {}
             _write_record(step, scene_dir, opts, inputs, res["info"])
     except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
         res["status"] = "failed"
-        res["error"] = str(e) if isinstance(e, S2PError) else f"{type(e).__name__}: {e}"
-    res["seconds"] = time.perf_counter() - t
+        res["error"] = _failure(e)
+    res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
     return res
-
-
-# --- the library's steps (export and review come from the command layer) -------------------------
-
-def run_dir(scene_dir: Path, opts: BatchOptions) -> Path:
-    return scene_dir / BATCH_DIR / opts.run_name
-
-
-def _scene_inputs(scene_dir: Path) -> list[Path]:
-    from seg2pose.io.scene import SCENE_FILE
-
-    return [scene_dir / SCENE_FILE, scene_dir / "ground_points.csv", scene_dir / "masks"]
-
-
-def _masks_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
-    from seg2pose.video_scene import scene_masks_from_video
-
-    res = scene_masks_from_video(scene_dir, force=force, progress=False, log=lambda s: None)
-    return {"frames": max((r.n_frames for r in res.values()), default=0),
-            "masks": sum(r.n_masks for r in res.values())}
-
-
-def _run_inputs(scene_dir: Path, opts: BatchOptions) -> list[Path]:
-    models = [] if opts.baseline else [Path(m) for m in opts.models] or [scene_dir / "models"]
-    return _scene_inputs(scene_dir) + models
-
-
-def _run_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
-    from seg2pose.io.run import read_run_meta, read_run_poses
-    from seg2pose.io.scene import load_scene
-    from seg2pose.pipeline import run_scene
-
-    d = run_scene(load_scene(scene_dir), run_dir(scene_dir, opts), baseline=opts.baseline,
-                  models_dir=list(opts.models) or None, force=force, progress=False)
-    meta = read_run_meta(d)
-    poses = read_run_poses(d)
-    return {"frames": int(meta["n_frames"]), "detections": int(meta["n_views"]),
-            "poses": int(meta["n_poses"]), "road_users": int(len(set(poses.track_id.tolist())))}
-
-
-def eval_path(scene_dir: Path, opts: BatchOptions) -> Path:
-    return scene_dir / BATCH_DIR / f"{opts.run_name}.eval.json"
-
-
-def _eval_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
-    from seg2pose.io.scene import load_scene
-    from seg2pose.paper_table import evaluate_run
-
-    scene = load_scene(scene_dir)
-    if not scene.gt_path.exists():  # nothing to evaluate: not a failure
-        atomic_write_text(eval_path(scene_dir, opts), json.dumps(None))
-        return {"ground_truth": False}
-    res = evaluate_run(scene, run_dir(scene_dir, opts)).to_dict()
-    atomic_write_text(eval_path(scene_dir, opts), json.dumps(res, indent=1))
-    return {"ground_truth": True, "mean_error": res["mean_error"], "recall": res["recall"]}
-
-
-MASKS_FROM_VIDEO = Step("masks-from-video", lambda s, o: [s / "scene.json", s / "video"],
-                        lambda s, o: [s / "masks"], _masks_run, owns_outputs=False)
-RUN = Step("run", _run_inputs, lambda s, o: [run_dir(s, o)], _run_run)
-EVAL = Step("eval", lambda s, o: [s / "scene.json", s / "gt", run_dir(s, o)],
-            lambda s, o: [eval_path(s, o)], _eval_run)
-LIBRARY_STEPS = {s.name: s for s in (MASKS_FROM_VIDEO, RUN, EVAL)}
 
 
 # --- the study ------------------------------------------------------------------------------------
@@ -235,8 +198,10 @@ def find_scenes(study: str | Path) -> list[Path]:
 
 @dataclass
 class StudyResult:
-    """Per step, the attempts' results in scene order; ``rows``: the summary's per-scene rows."""
+    """Per step, the attempts' results in scene order (``parts``: the results of its parts, e.g.
+    video segments, as they finished); ``rows``: the summary's per-scene rows."""
     results: dict[str, list[dict]] = field(default_factory=dict)
+    parts: dict[str, list[dict]] = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
     backend: str = "serial"
     dashboard: str | None = None
@@ -259,28 +224,71 @@ def ray_available() -> bool:
     return _ray() is not None
 
 
-def ray_map(address: str | None = None, num_cpus: int | None = None):
-    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
-    and returns the results in order: for ``train_scene(map_groups=...)``. Starts a local Ray
-    (``num_cpus``) or joins ``address`` unless Ray is running already."""
-    ray = _ray()
+def _wave(ray, remote, fn, args: list[tuple], limit: int | None, on_done, log, what: str) -> None:
+    """Run ``fn(*a)`` for every ``a`` of ``args``: as Ray tasks (``remote``), at most ``limit``
+    at once, or here one after another; ``on_done(result)`` as each finishes."""
     if ray is None:
-        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
+        for a in args:
+            on_done(fn(*a))
+        return
+    pending, queue = [], list(args)
+    while queue or pending:
+        while queue and len(pending) < (limit or len(args)):
+            pending.append(remote.remote(*queue.pop(0)))
+        ready, pending = ray.wait(pending, num_returns=1)
+        for ref in ready:
+            try:
+                on_done(ray.get(ref))
+            except Exception as e:  # noqa: BLE001 - retries used up: reported by the caller
+                log(f"{what}: a task failed after {MAX_RETRIES} retries: {e}")
 
-    def mapper(fn, items):
-        if not ray.is_initialized():
-            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
-        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
-        return ray.get([remote.remote(x) for x in items])
 
-    return mapper
+def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
+                limit: int | None, progress: bool, log, results: list) -> dict[str, str]:
+    """The parts of ``step`` (video segments) of every scene not complete yet, as tasks of
+    their own, with a bar of frames; their results are appended to ``results``. Returns
+    {scene: error} of the scenes with a failed part."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    failed: dict[str, str] = {}
+    jobs = []
+    for s in scenes:
+        try:
+            if not is_complete(step, s, opts):
+                o = replace(opts, force=_may_replace(step, s, opts))
+                jobs += [(step, str(s), p) for p in step.parts(s, o)]
+        except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
+            failed[s.name] = _failure(e)
+    if not jobs:
+        return failed
+    bar = tqdm(total=sum(int(p.n_frames) for *_, p in jobs), desc=f"{step.name} segments",
+               unit="frame", disable=not progress)
+    done = {"n": 0}
+
+    def on_done(r: dict) -> None:
+        done["n"] += 1
+        results.append(r)
+        if r["status"] == "failed":
+            failed.setdefault(r["scene"], f"segment {r['part'].camera} {r['part'].name}: {r['error']}")
+        bar.set_postfix(segments=f"{done['n']}/{len(jobs)}", failed=len(failed))
+        bar.update(int(r["part"].n_frames))
+
+    _wave(ray, remote, attempt_part, jobs, limit, on_done, log, f"{step.name} segments")
+    bar.close()
+    if done["n"] < len(jobs):  # lost for good: the scene's own task runs what is missing
+        log(f"{step.name}: {len(jobs) - done['n']} segment tasks were lost; their scenes run "
+            "them in their own task")
+    return failed
 
 
 def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
               use_ray: bool = True, address: str | None = None, max_parallel: int | None = None,
               progress: bool = True, log: Callable[[str], None] = print) -> StudyResult:
     """Run ``steps`` in order over every scene of ``study``: each step is one wave of tasks
-    (one per scene still without a failure), on Ray (``ray.init(address)``; a running Ray
+    (one per scene still without a failure; a step with parts, e.g. long videos in segments,
+    first runs its parts as tasks of their own), on Ray (``ray.init(address)``; a running Ray
     session is reused) or serially in-process. Writes STUDY/summary.json."""
     from tqdm import tqdm
 
@@ -290,6 +298,7 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
         raise S2PError("a Ray address was given but Ray is not installed: pip install 's2p[scale]'")
     out = StudyResult(backend="serial")
     t0 = time.perf_counter()
+    remote = remote_part = None
     if ray is not None:
         if not ray.is_initialized():
             ctx = ray.init(address=address, include_dashboard=None, log_to_driver=False)
@@ -298,12 +307,19 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
         if out.dashboard:
             log(f"Ray dashboard: http://{out.dashboard}")
         remote = ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)(attempt)
+        remote_part = ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)(attempt_part)
     failed: set[str] = set()
     for step in steps:
         todo = [s for s in scenes if s.name not in failed]
+        results: dict[str, dict] = {}
+        if step.parts is not None:
+            out.parts[step.name] = []
+            for name, err in _parts_wave(ray, remote_part, step, todo, opts, max_parallel,
+                                         progress, log, out.parts[step.name]).items():
+                results[name] = {"scene": name, "step": step.name, "status": "failed", "info": {},
+                                 "error": err, "seconds": 0.0}
         bar = tqdm(total=len(todo), desc=step.name, unit="scene", disable=not progress)
         frames = 0
-        results: dict[str, dict] = {}
 
         def done(r: dict) -> None:
             nonlocal frames
@@ -312,26 +328,14 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
             bar.set_postfix(frames=frames, failed=sum(x["status"] == "failed" for x in results.values()))
             bar.update(1)
 
-        if ray is None:
-            for s in todo:
-                done(attempt(step, s, opts))
-        else:
-            limit = max_parallel or len(todo)
-            pending, queue = [], list(todo)
-            while queue or pending:
-                while queue and len(pending) < limit:
-                    pending.append(remote.remote(step, str(queue.pop(0)), opts))
-                ready, pending = ray.wait(pending, num_returns=1)
-                for ref in ready:
-                    try:
-                        done(ray.get(ref))
-                    except Exception as e:  # noqa: BLE001 - retries used up: the scene failed
-                        log(f"{step.name}: a task failed after {MAX_RETRIES} retries: {e}")
-            for s in todo:  # a task lost for good (its worker died every time)
-                if s.name not in results:
-                    results[s.name] = {"scene": s.name, "step": step.name, "status": "failed",
-                                       "info": {}, "error": "the task's worker died on every retry",
-                                       "seconds": 0.0}
+        _wave(ray, remote, attempt, [(step, s if ray is None else str(s), opts)
+                                     for s in todo if s.name not in results],
+              max_parallel, done, log, step.name)
+        for s in todo:  # a task lost for good (its worker died every time)
+            if s.name not in results:
+                results[s.name] = {"scene": s.name, "step": step.name, "status": "failed",
+                                   "info": {}, "error": "the task's worker died on every retry",
+                                   "seconds": 0.0}
         bar.close()
         out.results[step.name] = [results[s.name] for s in todo]
         failed |= {n for n, r in results.items() if r["status"] == "failed"}
@@ -363,6 +367,10 @@ def summary_rows(scenes: list[Path], results: dict[str, list[dict]]) -> list[dic
                 row["road_users"] = info["road_users"]
             if "mean_error" in info:
                 row["mean_error_m"], row["recall"] = info["mean_error"], info.get("recall")
+            if "seams" in info:  # long videos in segments: the stitch's id changes per border
+                row["segments"], row["seams"] = info["segments"], info["seams"]
+                row["seam_id_changes"] = info["seam_id_changes"]
+                row["seam_unlinked"] = info.get("seam_unlinked", 0)
         rows.append(row)
     return rows
 

@@ -77,6 +77,18 @@ def match_nearest(est: PoseTable, gt: PoseTable, gate: float = 3.0
     return ie[order].astype(np.int64), ig[order].astype(np.int64)
 
 
+def choose_match(est: PoseTable, gt: PoseTable, gate: float = 3.0) -> tuple[str, int, int]:
+    """"ids" when the run's track ids are the truth's, else "nearest" (a tracker's ids: ``s2p
+    track``, ``masks-from-video``, ``import-detections``). Returns (match, pairs by id within
+    ``gate`` metres, pairs by position). Ids are the truth's when at least half of the pairs
+    found by position are also found by id: a tracker's ids 1, 2, ... meet a truth track of the
+    same number nearby only by chance."""
+    ie, ig = match_poses(est, gt)
+    by_id = int(np.count_nonzero(np.linalg.norm(est.xyz[ie, :2] - gt.xyz[ig, :2], axis=1) <= gate))
+    by_pos = len(match_nearest(est, gt, gate)[0])
+    return ("ids" if by_id >= 0.5 * by_pos else "nearest"), by_id, by_pos
+
+
 def _nan_mean(x: np.ndarray) -> float:
     return float(np.mean(x)) if len(x) else float("nan")
 
@@ -103,6 +115,8 @@ class EvalResult:
     bin_size: float = BIN_SIZE
     # absolute heading differences (K,) radians in [0, pi], NaN where either heading is unknown
     heading_errors: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    match: str = "ids"        # how estimates were paired with the truth: ids | nearest
+    match_note: str = ""      # why, when "auto" chose
 
     @property
     def mean_heading_error_deg(self) -> float:
@@ -130,6 +144,7 @@ class EvalResult:
             "mean_error": num(self.mean_error), "median_error": num(self.median_error),
             "per_class": {k: num(v) for k, v in self.per_class.items()},
             "mean_heading_error_deg": num(self.mean_heading_error_deg),
+            "match": self.match,
             "bin_size": float(self.bin_size),
             "bins": [{"lo": float(lo), "hi": float(hi), "count": int(c), "mean_error": num(m)}
                      for lo, hi, c, m in self.bins],
@@ -154,14 +169,22 @@ def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZ
              frame_range: tuple[int, int] | None = None, match: str = "ids",
              gate: float = 3.0) -> EvalResult:
     """Match ``est`` to ``gt`` by (frame, track_id) (``match="ids"``) or by nearest position
-    within ``gate`` metres (``"nearest"``) and measure ground-plane errors.
+    within ``gate`` metres (``"nearest"``), or the one that fits the run's ids (``"auto"``, see
+    ``choose_match``; ``match_note`` of the result says why), and measure ground-plane errors.
 
     origin_xy: (2,) metres, the point distances are measured from (usually the rig centre);
     frame_range: (first, last) inclusive, applied to both tables (None = all frames)."""
     est = est.in_frames(frame_range)
     gt = gt.in_frames(frame_range)
-    if match not in ("ids", "nearest"):
-        raise ValueError(f"match must be 'ids' or 'nearest', got {match!r}")
+    if match not in ("ids", "nearest", "auto"):
+        raise ValueError(f"match must be 'ids', 'nearest' or 'auto', got {match!r}")
+    note = ""
+    if match == "auto":
+        match, by_id, by_pos = choose_match(est, gt, gate)
+        if match == "nearest":
+            note = (f"the run's track ids are not the truth's (only {by_id} of the {by_pos} pairs "
+                    f"found by position within {gate:g} m share an id, e.g. ids from a tracker): "
+                    "estimates were paired with the truth per frame by position")
     ie, ig = match_poses(est, gt) if match == "ids" else match_nearest(est, gt, gate)
     origin = np.asarray(origin_xy, dtype=np.float64).reshape(-1)[:2]
     errors = np.linalg.norm(est.xyz[ie, :2] - gt.xyz[ig, :2], axis=1)
@@ -173,7 +196,7 @@ def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZ
                       mean_error=_nan_mean(errors), per_class=per_class,
                       bins=_distance_bins(errors, distances, bin_size), errors=errors,
                       distances=distances, classes=classes, frames=gt.frame[ig],
-                      bin_size=float(bin_size), heading_errors=dh)
+                      bin_size=float(bin_size), heading_errors=dh, match=match, match_note=note)
 
 
 def per_frame_errors(est: PoseTable, gt: PoseTable

@@ -60,7 +60,7 @@ def video_look(scene: Scene, camera: str, samples: int | None = None) -> VideoLo
     """The camera's ``VideoLook``: the median of ``samples`` frames spread over its video
     (the subtractor's own start, ``BgConfig.init_samples`` by default) and the noise measured
     as the robust spread (1.4826 MAD) of frame minus background."""
-    from seg2pose.video_scene import camera_reader
+    from seg2pose.io.video import camera_reader
 
     cfg = BgConfig.from_dict(scene.extra.get("video_masks"), file=scene.root / "scene.json")
     reader = camera_reader(scene, camera)

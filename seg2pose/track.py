@@ -7,12 +7,14 @@ and the world distance between the track's predicted position (constant velocity
 mask's normal position, which stays informative for small, far-away masks whose IoU collapses
 from frame to frame. One Hungarian assignment (``scipy.optimize.linear_sum_assignment``) per
 frame picks the pairs; a pair is allowed when IoU >= ``iou_min`` or the distance is inside a
-gate that widens with the gap. Optionally (``split_min`` > 0), a mask that holds most of two or
-more tracks' masks of the previous frame (road users that overlap in the image and came out of
-background subtraction as one blob) is first split between them, each pixel going to the track
-whose previous mask, moved on by its pixel motion, is nearest. Unmatched masks start tracks; a track lost for up to
-``max_gap`` frames can be picked up again (re-identification after an occlusion); tracks shorter
-than ``min_length`` frames are dropped at the end. Deterministic: same input, same ids.
+gate that widens with the gap. First (``split_min`` > 0, the default), a mask that holds most
+of the predicted masks of two or more established tracks (road users that overlap in the image
+and came out of background subtraction as one blob) is split between them: each track's shape
+(its last whole mask, carried along by its pixel motion while it is merged) is its predicted
+mask, a pixel inside several goes to the nearest road user (the one reaching lowest in the
+image), a pixel outside all to the nearest predicted mask. Unmatched masks start tracks; a
+track lost for up to ``max_gap`` frames can be picked up again (re-identification after an
+occlusion); tracks shorter than ``min_length`` frames are dropped at the end. Deterministic: same input, same ids.
 
 Long sequences are streamed: the first pass keeps only the live tracks and one id per mask,
 the second runs the same (deterministic) tracker again and writes the masks with final ids.
@@ -33,11 +35,12 @@ from seg2pose.errors import InputError
 from seg2pose.ground import GroundSurface
 from seg2pose.video_masks import labels_to_rles
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
-from seg2pose.masks import decode
+from seg2pose.masks import decode, decode_counts
 
 _BLOCK = 256          # frames whose normal positions are computed together
 _INVALID = 1e6        # cost of a forbidden pair
 TRACK_HEIGHT = 0.8    # metres: one default height for all masks (no class is known yet)
+SPLIT_MIN_AGE = 3     # masks a track needs before a blob is split for it (not a fragment)
 
 
 @dataclass
@@ -50,9 +53,9 @@ class TrackConfig:
     max_gap: int = 20         # frames a lost track waits to be picked up again
     min_length: int = 5       # shorter tracks (frames with a mask) are dropped
     gap_penalty: float = 0.02  # cost per missed frame: recent tracks win ties
-    split_min: float = 0.0    # > 0: a mask holding this share of two or more tracks' previous
-    #                           masks is split between them (merged blobs). Off: measured on seed
-    #                           103 at 0.6, recall +1 point, precision -5.5, more ID switches
+    split_min: float = 0.5    # > 0: a mask holding this share of two or more tracks' predicted
+    #                           masks is split between them (merged blobs); 0: off. Chosen on
+    #                           seeds 101-102 (docs/RESULTS.md): recall +3 to +8 points
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> "TrackConfig":
@@ -85,9 +88,15 @@ class Tracker:
         self.pos = np.zeros((0, 2))            # last world position (x, y) metres, NaN unknown
         self.vel = np.zeros((0, 2))            # metres per frame
         self.box = np.zeros((0, 2))            # last mask's box centre, pixels
-        self.pxvel = np.zeros((0, 2))          # its motion, pixels per frame
-        self.rles: list[bytes] = []
+        self.pxvel = np.zeros((0, 2))          # its motion, pixels per frame (NaN: seen once)
+        self.rles: list[bytes] = []            # last mask of each live track
+        # last whole mask (not a part cut from a merged blob), carried along by the track's
+        # motion while it is merged: what the road user looks like when nothing hides it
+        self.shape: list[bytes] = []
+        self._pred: dict[int, bytes] = {}      # this frame's predicted masks, by track row
         self.length: list[int] = []            # masks per id (index = provisional id)
+        # world positions (D, 2) of masks made by splitting; None: unknown (IoU only)
+        self.positions: Callable[[list[bytes]], np.ndarray] | None = None
 
     def _cost(self, frame: int, rles: list[bytes], xy: np.ndarray) -> np.ndarray:
         c = self.cfg
@@ -107,24 +116,43 @@ class Tracker:
 
     def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray
                       ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
-        """Masks holding >= split_min of two or more previous-frame track masks, split between
-        those tracks. Returns masks, positions (NaN for split parts) and, per output mask, the
-        index of the input mask it came from."""
+        """Masks holding >= split_min of two or more established tracks' predicted masks,
+        split between those tracks. Returns masks, positions (NaN for split parts, filled in
+        by ``positions`` when set) and, per output mask, the index of the input mask it came
+        from."""
         src = np.arange(len(rles))
-        recent = np.flatnonzero(frame - self.last == 1)
+        recent = np.flatnonzero((frame - self.last == 1)
+                                & (np.asarray(self.length, np.int64)[self.ids] >= SPLIT_MIN_AGE)
+                                if len(self.ids) else np.zeros(0, bool))
         if self.cfg.split_min <= 0 or len(recent) < 2 or not rles:
             return rles, xy, src
-        objs_t = [{"size": self.size, "counts": self.rles[i]} for i in recent]
+        # each track's shape moved on by its pixel motion: where the road user is expected
+        h = self.size[0]
+        shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
+        # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
+        # two or more of them can take part
+        bt = mask_util.toBbox([{"size": self.size, "counts": self.shape[i]} for i in recent]).reshape(-1, 4)
+        bt[:, :2] += shift
+        bd = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(-1, 4)
+        meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
+                & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
+        cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
+        if cand.sum() < 2:
+            return rles, xy, src
+        recent, shift = recent[cand], shift[cand]
+        pred = {int(i): shift_rle(self.shape[i], int(dx) * h + int(dy), self.size)
+                for i, (dx, dy) in zip(recent, shift)}
+        objs_t = [{"size": self.size, "counts": pred[int(i)]} for i in recent]
         objs_d = [{"size": self.size, "counts": r} for r in rles]
         iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(rles)), float).reshape(len(recent), len(rles))
         at = mask_util.area(objs_t).astype(np.float64)
         ad = mask_util.area(objs_d).astype(np.float64)
         frac = iou * (at[:, None] + ad[None, :]) / (1.0 + iou) / np.maximum(at[:, None], 1.0)
         inside = (frac >= self.cfg.split_min) & (frac == frac.max(axis=1, keepdims=True))
-        merged = np.flatnonzero(inside.sum(axis=0) >= 2)
-        if len(merged) == 0:
+        merged = set(np.flatnonzero(inside.sum(axis=0) >= 2).tolist())
+        if not merged:
             return rles, xy, src
-        out_r, out_xy, out_src = [], [], []
+        out_r, out_xy, out_src, split_rows = [], [], [], []
         for d in range(len(rles)):
             if d not in merged:
                 out_r.append(rles[d])
@@ -132,37 +160,48 @@ class Tracker:
                 out_src.append(d)
                 continue
             members = recent[inside[:, d]]
-            for part in self._split(rles[d], [self.rles[i] for i in members], self.pxvel[members]):
+            for part in self._split(rles[d], [pred[int(i)] for i in members]):
+                split_rows.append(len(out_r))
                 out_r.append(part)
                 out_xy.append(np.full(2, np.nan))
                 out_src.append(d)
-        return out_r, np.array(out_xy, float).reshape(-1, 2), np.array(out_src, np.int64)
+        self._pred = pred
+        out_xy = np.array(out_xy, float).reshape(-1, 2)
+        if self.positions is not None and split_rows:
+            out_xy[split_rows] = self.positions([out_r[i] for i in split_rows])
+        return out_r, out_xy, np.array(out_src, np.int64)
 
-    def _split(self, blob: bytes, previous: list[bytes], shift: np.ndarray, min_px: int = 20
-               ) -> list[bytes]:
-        """The blob's pixels shared out to the nearest previous mask, moved on by ``shift``
-        (K, 2) pixels (distance transform in the blob's box); parts under ``min_px`` pixels
-        are dropped."""
+    def _split(self, blob: bytes, predicted: list[bytes], min_px: int = 20) -> list[bytes]:
+        """The blob's pixels shared out between road users with the ``predicted`` masks (their
+        shapes moved on by their motion): a pixel inside predicted masks goes to the nearest
+        of those road users (the lowest mask bottom in the image: the camera looks down on the
+        ground, so lower is nearer and hides the others); a pixel outside all of them to the
+        nearest predicted mask (distance transform). Works in the blob's box; parts under
+        ``min_px`` pixels are dropped."""
         import cv2
 
         h, w = self.size
         x0, y0, bw, bh = (int(v) for v in mask_util.toBbox({"size": self.size, "counts": blob}))
-        cols = slice(x0, x0 + bw)
-        m = decode(blob, h, w)[:, cols]                              # a full-height strip
-        dist = []
-        for r, (dx, dy) in zip(previous, np.round(np.nan_to_num(shift)).astype(int)):
-            prev = decode(r, h, w)
-            moved = np.zeros((h, bw), np.uint8)                      # prev moved by (dx, dy)
-            sx0, sx1 = max(x0 - dx, 0), min(x0 + bw - dx, w)
-            sy0, sy1 = max(-dy, 0), min(h - dy, h)
-            if sx1 > sx0 and sy1 > sy0:
-                moved[sy0 + dy:sy1 + dy, sx0 - (x0 - dx):sx1 - (x0 - dx)] = prev[sy0:sy1, sx0:sx1]
-            dist.append(cv2.distanceTransform((moved[y0:y0 + bh] == 0).astype(np.uint8),
-                                              cv2.DIST_L2, 3))
-        owner = np.argmin(np.stack(dist), axis=0)
+        m = decode(blob, h, w)[y0:y0 + bh, x0:x0 + bw] > 0
+        pred = np.zeros((len(predicted), bh, bw), np.uint8)
+        bottom = np.zeros(len(predicted))
+        for k, r in enumerate(predicted):
+            full = decode(r, h, w)
+            pred[k] = full[y0:y0 + bh, x0:x0 + bw]
+            rows = np.flatnonzero(full.any(axis=1))
+            bottom[k] = rows[-1] if len(rows) else -1
+        dist = np.stack([cv2.distanceTransform((p == 0).astype(np.uint8), cv2.DIST_L2, 3)
+                         for p in pred])
+        owner = np.argmin(dist, axis=0)
+        covered = pred.astype(bool)
+        if covered.any():
+            # among the predicted masks that hold a pixel, the nearest road user takes it
+            rank = np.where(covered, bottom[:, None, None], -np.inf)
+            front = np.argmax(rank, axis=0)
+            owner = np.where(covered.any(axis=0), front, owner)
         lab = np.zeros((h, bw), np.int32)
-        lab[y0:y0 + bh] = np.where(m[y0:y0 + bh] > 0, owner + 1, 0)
-        counts = np.bincount(lab.ravel(), minlength=len(previous) + 1)
+        lab[y0:y0 + bh] = np.where(m, owner + 1, 0)
+        counts = np.bincount(lab.ravel(), minlength=len(predicted) + 1)
         keep = np.flatnonzero(counts[1:] >= min_px) + 1
         return labels_to_rles(lab, keep, x0=x0, width=w)  # all parts in one pass
 
@@ -181,8 +220,12 @@ class Tracker:
             self.pos, self.vel = self.pos[keep], self.vel[keep]
             self.box, self.pxvel = self.box[keep], self.pxvel[keep]
             self.rles = [self.rles[i] for i in keep]
+            self.shape = [self.shape[i] for i in keep]
+        self._pred = {}
         rles, xy, self.out_source = self._split_merged(frame, list(rles), xy)
         self.out_rles = rles
+        self.out_split = np.r_[False, self.out_source[1:] == self.out_source[:-1]] | \
+            np.r_[self.out_source[:-1] == self.out_source[1:], False]
         d = len(rles)
         out = np.full(d, -1, np.int64)
         if d:
@@ -207,11 +250,14 @@ class Tracker:
             has = np.isfinite(xy[cols]).all(axis=1)
             self.pos[rows] = np.where(has[:, None], xy[cols], self.pos[rows])
             px = (box[cols] - self.box[rows]) / gap
-            self.pxvel[rows] = 0.6 * self.pxvel[rows] + 0.4 * px
+            old = self.pxvel[rows]
+            self.pxvel[rows] = np.where(np.isnan(old), px, 0.6 * old + 0.4 * px)
             self.box[rows] = box[cols]
             self.last[rows] = frame
             for r, cc in zip(rows, cols):
                 self.rles[r] = rles[cc]
+                whole_mask = not self.out_split[cc] or int(r) not in self._pred
+                self.shape[r] = rles[cc] if whole_mask else self._pred[int(r)]
             out[cols] = self.ids[rows]
         # births
         new = np.setdiff1d(np.arange(d), cols)
@@ -223,8 +269,9 @@ class Tracker:
             self.pos = np.vstack([self.pos, xy[new]])
             self.vel = np.vstack([self.vel, np.zeros((len(new), 2))])
             self.box = np.vstack([self.box, box[new]])
-            self.pxvel = np.vstack([self.pxvel, np.zeros((len(new), 2))])
+            self.pxvel = np.vstack([self.pxvel, np.full((len(new), 2), np.nan)])  # unknown yet
             self.rles.extend(rles[i] for i in new)
+            self.shape.extend(rles[i] for i in new)
             out[new] = nid
         for i in out:
             self.length[i] += 1
@@ -238,6 +285,43 @@ class Tracker:
         new = np.full(len(self.length), -1, np.int64)
         new[long_] = np.arange(1, int(long_.sum()) + 1)  # provisional ids are in birth order
         return np.where(p >= 0, new[np.maximum(p, 0)], -1)
+
+
+def shift_rle(rle: bytes, k: int, size: list[int]) -> bytes:
+    """A COCO RLE moved by ``k`` pixels along the column-major pixel order (k = dx * H + dy
+    moves it dx columns right and dy rows down; pixels that a vertical move pushes past the
+    bottom of a column wrap into the next one, which is negligible for prediction)."""
+    if k == 0:
+        return rle
+    h, w = size
+    n = h * w
+    counts = decode_counts([rle])[0].tolist()
+    if k > 0:
+        counts[0] += k
+    else:
+        drop = -k                                # pixels to cut from the front
+        i = 0
+        while i < len(counts) and counts[i] <= drop:
+            drop -= counts[i]
+            i += 1
+        counts = counts[i:]
+        if counts:
+            counts[0] -= drop
+        if i % 2:                                # the first run must be background
+            counts = [0] + counts
+    out, total = [], 0
+    for c in counts:                             # trim to the image
+        c = min(c, n - total)
+        out.append(c)
+        total += c
+        if total >= n:
+            break
+    if total < n:                                # the rest is background
+        if len(out) % 2:                         # the last run is background already
+            out[-1] += n - total
+        else:
+            out.append(n - total)
+    return mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"]
 
 
 def world_positions(table: MaskTable, camera: Camera | None, ground: GroundSurface | None,
@@ -276,6 +360,11 @@ def _run(frames: Iterable[tuple[int, MaskTable]], tr: Tracker, camera: Camera | 
     """Per frame with masks: the frame's masks after splitting (class ids and scores of the
     mask each came from) and their provisional ids."""
     last_frame = None
+    if camera is not None and ground is not None:
+        def parts_xy(rles: list[bytes]) -> np.ndarray:
+            z = np.zeros(len(rles), np.int64)
+            return world_positions(MaskTable(z, z - 1, z, tr.size[0], tr.size[1], rles), camera, ground)
+        tr.positions = parts_xy
     for block in _blocks(frames):
         xy = world_positions(MaskTable.concat([t for _, t in block]), camera, ground)
         k = 0

@@ -260,9 +260,12 @@ def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: P
 
 
 def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
-                cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True) -> dict:
+                cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True,
+                runs: list[int] | None = None) -> dict:
     """Best-of-``cfg.runs`` training of one model; writes ``path`` (+ .json) whenever the
-    validation loss improves and keeps a resume state beside it. Returns the best info."""
+    validation loss improves and keeps a resume state beside it. Returns the best info.
+    ``runs``: only these runs (0-based; default all), e.g. one run per task when the runs are
+    fanned out (seg2pose/train_fanout.py): runs are independent, each seeded by its number."""
     from tqdm import tqdm
 
     from seg2pose.io.atomic import atomic_path
@@ -284,7 +287,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
         0, 0, {"val_loss": math.inf})
     best_state = resume["best_state"] if resume else None
     steps = cfg.epochs * cfg.batches_per_epoch
-    for run in range(start_run, cfg.runs):
+    for run in [r for r in (range(cfg.runs) if runs is None else runs) if r >= start_run]:
         # a run: a fresh network from its seed (or the resume state of an interrupted one)
         seed = cfg.seed + run
         torch.manual_seed(seed)
@@ -368,8 +371,10 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 map_groups=None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
 
-    ``map_groups(fn, groups)``: how the camera groups' trainings are run (default: one after
-    another; ``seg2pose.batch.ray_map`` runs them as Ray tasks, with the same result).
+    ``map_groups(fn, items)``: given (e.g. ``seg2pose.train_fanout.ray_map``), the camera
+    groups' examples and then every camera x class x run are tasks of it
+    (seg2pose/train_fanout.py), with the same checkpoints as the default, one model after
+    another.
 
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
@@ -398,7 +403,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     if gt is not None:
         gt = gt.take(np.argsort(gt.frame, kind="stable"))
     out.mkdir(parents=True, exist_ok=True)
-    def train_job(job) -> None:
+    def train_job(job, runs: list[int] | None = None, path: Path | None = None) -> dict:
         n_rough = 0 if job.rough is None else len(job.rough)
         seen = ExampleSet.concat([e for e in (job.train, job.rough) if e is not None
                                   and not (cfg.zero_annotation and e is job.train)])
@@ -416,9 +421,14 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
         def data(ex: ExampleSet) -> _Data:
             return _Data.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
 
-        train_model(None if cfg.zero_annotation else data(job.train),
-                    None if job.rough is None else data(job.rough), data(job.val), net_cfg, cfg,
-                    ck, job.path, progress)
+        best = train_model(None if cfg.zero_annotation else data(job.train),
+                           None if job.rough is None else data(job.rough), data(job.val), net_cfg,
+                           cfg, ck, path or job.path, progress, runs)
+        if runs is None:
+            finish_job(job)
+        return best
+
+    def finish_job(job) -> None:
         # filmed rough models carry the video's artefacts: the calibration's premise (real
         # masks have no radial bias the rough ones lack) made them worse (docs/RESULTS.md)
         if cfg.zero_annotation and cfg.radial_calibration and not all(
@@ -428,11 +438,18 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
             say(f"{job.path.stem}: radial calibration from unlabelled masks (m): "
                 + ", ".join(f"{k} {v:+.3f}" for k, v in off.items()))
 
-    def train_group(group: tuple[str, list[str]]) -> None:
+    def group_jobs(group: tuple[str, list[str]]) -> list:
         # one camera group's models: independent of the other groups (own example random
         # stream, torch seeded per run), so groups may run in any order or in parallel
-        for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
-            train_job(job)
+        return list(model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt))
 
-    list((map_groups or map)(train_group, camera_groups(scene, cams, cfg.share_cameras)))
+    groups = camera_groups(scene, cams, cfg.share_cameras)
+    if map_groups is None:
+        for group in groups:
+            for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
+                train_job(job)
+    else:  # camera x class x run as tasks, the best run picked as above (same models)
+        from seg2pose.train_fanout import fan_out
+
+        fan_out(map_groups, groups, group_jobs, train_job, finish_job, cfg, scene.fingerprint())
     return out

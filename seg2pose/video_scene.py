@@ -21,24 +21,9 @@ from seg2pose.io.atomic import check_writable
 from seg2pose.io.mots import write_mots
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
 from seg2pose.io.text import load_json, read_text
-from seg2pose.io.video import VIDEO_EXTS, FrameReader
+from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
 from seg2pose.track import TrackConfig, track_mots
 from seg2pose.video_masks import BgConfig, VideoMasksResult, masks_from_video
-
-
-def camera_reader(scene: Scene, camera: str) -> FrameReader:
-    """The camera's frames with the scene's numbering (``extra.video_frames.<camera>``)."""
-    path = scene.video_path(camera)
-    if path is None:
-        raise InputError(f"camera {camera!r} has no video (video/{camera}.mp4 or an image folder "
-                         f"video/{camera}/)", file=scene.root / "video")
-    vf = (scene.extra.get("video_frames") or {}).get(camera) or {}
-    try:
-        first, step = int(vf.get("first", 0)), int(vf.get("step", 1))
-    except (TypeError, ValueError):
-        raise InputError("expected integers first, step", file=scene.root / SCENE_FILE,
-                         field=f"extra.video_frames.{camera}") from None
-    return FrameReader(path, first=first, step=step)
 
 
 def _cameras(scene: Scene, cameras: list[str] | None) -> list[str]:

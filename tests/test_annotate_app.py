@@ -12,7 +12,8 @@ import pytest
 
 from annotate import Project
 from annotate.app import controller as C
-from annotate.app.controller import ACTIONS, SHORTCUTS, Controller
+from annotate.app.actions import ACTIONS, SHORTCUTS
+from annotate.app.controller import Controller
 
 
 @pytest.fixture(scope="module")

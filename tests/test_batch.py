@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from seg2pose.batch import EVAL, RUN, BatchOptions, Step, run_study
+from seg2pose.batch import BatchOptions, Step, run_study
+from seg2pose.batch_steps import EVAL, RUN
 from seg2pose.synth.generate import generate_scene
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
@@ -227,21 +228,60 @@ def test_masks_from_video_step_matches_the_command(tmp_path):
 
 
 def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
-    """`s2p train --parallel`: the cameras' trainings as Ray tasks give the same checkpoints,
-    byte for byte, as the serial protocol (same seeds, same examples)."""
+    """`s2p train --parallel`: camera x class x run as Ray tasks (2 cameras, a model per class,
+    best of 2 runs) give the same checkpoints, byte for byte, as the serial protocol (same
+    seeds, same examples, the same best run picked); no run files are left."""
     from test_pipeline import make_tiny_scene
     from test_train import tiny_config
 
-    from seg2pose.batch import ray_map
+    from seg2pose.train_fanout import ray_map
     from seg2pose.train import train_scene
 
     scene = make_tiny_scene(tmp_path / "tiny", frames=30, n_users=6, seed=1)
-    cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3)
+    cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3, runs=2, share_classes=False)
     cams = ["c0", "c1"]
     ser = train_scene(scene, tmp_path / "serial", cfg, cameras=cams, progress=False)
     par = train_scene(scene, tmp_path / "ray", cfg, cameras=cams, progress=False,
                       map_groups=ray_map())
-    files = sorted(p.name for p in ser.iterdir() if p.suffix == ".safetensors")
-    assert len(files) == 2 and files == sorted(p.name for p in par.iterdir() if p.suffix == ".safetensors")
+    files = sorted(p.name for p in ser.iterdir())
+    assert files == sorted(p.name for p in par.iterdir())
+    models = [f for f in files if f.endswith(".safetensors")]
+    assert len(models) >= 4 and not any(".run" in f or ".state" in f for f in files), files
     for f in files:
-        assert (ser / f).read_bytes() == (par / f).read_bytes()
+        assert (ser / f).read_bytes() == (par / f).read_bytes(), f
+    runs = [json.loads((ser / f).read_text())["run"] for f in files if f.endswith(".json")]
+    print(f"\nbest runs of the {len(models)} models: {runs}")
+    assert set(runs) <= {1, 2}
+
+
+def test_long_video_segments_as_ray_tasks(ray_local, tmp_path):
+    """A 200-frame video cut into 2 segments by `s2p batch masks-from-video --segment-frames
+    100` on Ray: the segments run as tasks of their own; the masks are those of the library's
+    serial split."""
+    from test_video_scene import calibration
+    from video_fixtures import write_folder
+
+    from seg2pose.segments import scene_masks_segmented
+
+    calibration(tmp_path)
+    write_folder(tmp_path / "frames", 200, [dict(id=1, x=-40, y=60, w=12, h=20, vx=2.5, vy=0),
+                                            dict(id=2, x=250, y=20, w=14, h=14, vx=-2.2, vy=0)])
+    st = tmp_path / "st"
+    r = cli(["new-scene", "-o", str(st / "v"), "--video", f"c0={tmp_path / 'frames'}", "--calibration",
+             str(tmp_path / "calib.json"), "--ground", str(tmp_path / "ground.csv"), "--fps", "10"])
+    assert r.exit_code == 0, r.output
+    sj = st / "v" / "scene.json"
+    d = json.loads(sj.read_text())
+    d.setdefault("extra", {})["video_masks"] = {"min_area": 40, "init_samples": 8, "history": 30}
+    sj.write_text(json.dumps(d))
+    lib = tmp_path / "lib"
+    shutil.copytree(st / "v", lib)
+    r = cli(["batch", str(st), "masks-from-video", "--segment-frames", "100", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    row = json.loads((st / "summary.json").read_text())["scenes"][0]
+    assert row["segments"] == 2 and row["frames"] == 200 and row["seam_id_changes"] == 0
+    assert len(list((st / "v" / "batch" / "segments" / "c0").glob("*.json"))) == 2
+    scene_masks_segmented(lib, 100, log=lambda s: None)
+    got = (st / "v" / "masks" / "c0.txt").read_bytes()
+    assert got == (lib / "masks" / "c0.txt").read_bytes()
+    assert len({ln.split()[1] for ln in got.splitlines()}) == 2, got.decode()[:2000]

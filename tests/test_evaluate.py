@@ -117,3 +117,33 @@ def test_heading_error():
     r = evaluate(est, gt, origin_xy=(0, 0))
     assert r.mean_heading_error_deg == pytest.approx((np.degrees(2 * np.pi - 6.2) + 90) / 2)
     assert r.to_dict()["mean_heading_error_deg"] == pytest.approx(r.mean_heading_error_deg)
+
+
+def _tracker_like():
+    """Three road users 4 m apart walking along x for 6 frames; the estimate is 0.3 m off in y
+    and carries a tracker's ids: numbered in order of appearance, not the truth's 7, 3, 5."""
+    rows_gt, rows_est = [], []
+    for f in range(6):
+        for k, (tid, est_id) in enumerate(((7, 1), (3, 2), (5, 3))):
+            rows_gt.append((f, tid, "pedestrian", 0.5 * f, 4.0 * k))
+            rows_est.append((f, est_id, "pedestrian", 0.5 * f, 4.0 * k + 0.3))
+    return table(rows_est), table(rows_gt)
+
+
+def test_nearest_pairs_tracker_ids_and_auto_chooses_it():
+    from seg2pose.evaluate import choose_match
+
+    est, gt = _tracker_like()
+    by_ids = evaluate(est, gt, (0.0, 0.0))
+    assert by_ids.n_matched == 6 * 1  # only id 3 exists in both: paired with the wrong user
+    near = evaluate(est, gt, (0.0, 0.0), match="nearest")
+    assert near.n_matched == 18 and near.mean_error == pytest.approx(0.3)
+    assert choose_match(est, gt, 3.0) == ("nearest", 0, 18)  # id 3's pairs are 4.3 m apart
+    auto = evaluate(est, gt, (0.0, 0.0), match="auto")
+    assert (auto.match, auto.n_matched, auto.mean_error) == ("nearest", 18, pytest.approx(0.3))
+    assert "0 of the 18 pairs" in auto.match_note and auto.to_dict()["match"] == "nearest"
+    # the truth's own ids (and an error inside the gate): auto keeps matching by id, silently
+    same = table([(f, t, c, x, y + 0.3) for f, t, c, x, y in
+                  zip(gt.frame, gt.track_id, gt.cls, gt.xyz[:, 0], gt.xyz[:, 1])])
+    auto = evaluate(same, gt, (0.0, 0.0), match="auto")
+    assert (auto.match, auto.n_matched, auto.match_note) == ("ids", 18, "")

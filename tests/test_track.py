@@ -151,5 +151,43 @@ def test_merged_blob_is_split_between_its_tracks():
             got, want = decode(out.rles[i[0]], H, W), decode(box(*bx), H, W)
             assert (got & want).sum() / (got | want).sum() > 0.85, (f, k)
     # without splitting, one of the two loses its mask there and the ids still hold
-    plain = track_table(t, cfg=TrackConfig(min_length=5))
+    plain = track_table(t, cfg=TrackConfig(min_length=5, split_min=0.0))
     assert len(plain) == 45
+
+
+def test_split_gives_the_overlap_to_the_road_user_in_front():
+    """A pedestrian walks in front of a waiting car (its mask reaches lower in the image:
+    nearer the camera) and the two come out of background subtraction as one blob in frames
+    5-16. Split by the predicted masks, the pixels both could own go to the pedestrian: the
+    pedestrian's part is its own box, the car's part its box less the pedestrian's."""
+    from seg2pose.masks import decode
+
+    car = (60, 30, 60, 30)                                 # bottom row 59
+
+    def ped(f):
+        return (20 + 6 * f, 40, 12, 36)                    # bottom row 75: in front
+
+    def overlaps(f):
+        return ped(f)[0] + 12 > car[0] and ped(f)[0] < car[0] + car[2]
+
+    rows, blob = [], {}
+    for f in range(20):
+        if overlaps(f):
+            blob[f] = encode(decode(box(*car), H, W) | decode(box(*ped(f)), H, W))
+            rows.append((f, 9, (0, 0, 1, 1)))              # replaced by the blob below
+        else:
+            rows += [(f, 1, car), (f, 2, ped(f))]
+    assert sorted(blob) == list(range(5, 17))
+    t = table(rows)
+    for i in np.flatnonzero(t.class_id == 9):
+        t.rles[i] = blob[int(t.frame[i])]
+    out = track_table(t, cfg=TrackConfig(min_length=5, split_min=0.5))
+    assert sorted(set(out.track_id.tolist())) == [1, 2]    # no switch, no new track
+    for f in blob:
+        p = decode(box(*ped(f)), H, W).astype(bool)
+        want = {1: decode(box(*car), H, W).astype(bool) & ~p, 2: p}
+        for k, m in want.items():
+            i = np.flatnonzero((out.frame == f) & (out.track_id == k))
+            assert len(i) == 1, (f, k)
+            got = decode(out.rles[i[0]], H, W).astype(bool)
+            assert (got & m).sum() / (got | m).sum() > 0.9, (f, k)

@@ -119,3 +119,38 @@ def test_config_from_scene_is_validated(tmp_path):
         BgConfig.from_dict({"method": "magic"})
     with pytest.raises(InputError, match=r"extra.video_masks.min_area'.*expected int"):
         BgConfig.from_dict({"min_area": "x"})
+
+
+def _best_iou(t, f, truth):
+    got = [decode(t.rles[i], H, W) for i in np.flatnonzero(t.frame == f)]
+    return max((_iou(g, truth) for g in got), default=0.0)
+
+
+def test_a_road_user_that_stops_stays_foreground(tmp_path):
+    """A box drives in (frames 0-9) and waits for 70 frames. The background comes from the
+    first 10 frames; OpenCV's own update (history 20) absorbs the waiting box within a few
+    dozen frames, the selective update never learns it."""
+    boxes = [dict(id=1, x=-40, y=20, w=24, h=30, vx=8, frames=(0, 9)),
+             dict(id=1, x=40, y=20, w=24, h=30, vx=0, frames=(10, 79))]
+    folder = write_folder(tmp_path / "c0", 80, boxes)
+    seen = {}
+    for update in ("selective", "all"):
+        cfg = BgConfig(min_area=40, init_samples=10, init_frames=10, history=20, update=update)
+        masks_from_video(folder, tmp_path / f"{update}.txt", cfg, log=lambda s: None)
+        t = read_mots(tmp_path / f"{update}.txt")
+        seen[update] = np.array([_best_iou(t, f, truth_mask(f, boxes, 1)) for f in range(80)])
+    assert seen["selective"][3:].min() > 0.9          # on the image from frame 3
+    assert seen["all"][60:].max() < 0.5
+
+
+def test_slow_lighting_drift_is_followed(tmp_path):
+    """An empty scene brightens by 0.2 grey levels per frame (16 in all, a cloud moving off):
+    the selective update follows it (no foreground, nothing unsettled); a background kept
+    from the start does not settle."""
+    folder = write_folder(tmp_path / "c0", 80, [], light={f: 0.2 * f for f in range(80)})
+    got = {}
+    for update in ("selective", "none"):
+        cfg = BgConfig(min_area=40, init_samples=5, init_frames=5, history=10, update=update)
+        got[update] = masks_from_video(folder, tmp_path / f"{update}.txt", cfg, log=lambda s: None)
+    assert got["selective"].unsettled == [] and got["selective"].n_masks == 0
+    assert got["none"].unsettled and got["none"].unsettled[-1][1] == 79

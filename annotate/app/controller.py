@@ -19,82 +19,13 @@ from typing import Callable
 
 import numpy as np
 
-from annotate import EditError, LockedError, Project
-from annotate.edits import NUDGE_STEPS, ROTATE_STEPS
+from annotate import LockedError, Project
+from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, CLICK_MODES, Actions
 from seg2pose.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
 HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
-CLICK_MODES = ("centre", "ground", "mask")
-CLICK_MODE_HELP = {
-    "centre": "click the middle of the road user (ray meets the ground raised by the class's default height)",
-    "ground": "click where the road user touches the ground",
-    "mask": "click a mask: its Seg2Pose estimate (with --run) or its normal position",
-}
-
-
-@dataclass(frozen=True)
-class Action:
-    """A panel button: ``name`` (the controller method's argument), its label, its keyboard
-    shortcut (as the page's key handler spells it: modifiers ``Ctrl+``/``Alt+``/``Shift+``
-    then the key) and the group it is shown in."""
-
-    name: str
-    label: str
-    key: str
-    group: str
-
-
-def _nudges() -> list[Action]:
-    out = []
-    for step, mod in zip(NUDGE_STEPS, ("Alt+", "", "Shift+")):
-        cm = round(step * 100)
-        for key, (dx, dy), word in (("w", (0, 1), "+y"), ("s", (0, -1), "-y"),
-                                    ("d", (1, 0), "+x"), ("a", (-1, 0), "-x")):
-            out.append(Action(f"nudge:{dx * step:g}:{dy * step:g}", f"{word} {cm} cm",
-                              f"{mod}{key}", "nudge"))
-    return out
-
-
-def _rotations() -> list[Action]:
-    out = []
-    for deg, mod in zip(ROTATE_STEPS, ("Alt+", "", "Shift+")):
-        out.append(Action(f"rotate:{deg:g}", f"⟲ {deg:g}°", f"{mod}q", "rotate"))
-        out.append(Action(f"rotate:{-deg:g}", f"⟳ {deg:g}°", f"{mod}e", "rotate"))
-    return out
-
-
-ACTIONS: list[Action] = [
-    Action("prev_frame", "◀ frame", "ArrowLeft", "time"),
-    Action("next_frame", "frame ▶", "ArrowRight", "time"),
-    Action("back10", "◀◀ 10", "Shift+ArrowLeft", "time"),
-    Action("fwd10", "10 ▶▶", "Shift+ArrowRight", "time"),
-    Action("prev_keyframe", "◀ keyframe", "[", "time"),
-    Action("next_keyframe", "keyframe ▶", "]", "time"),
-    Action("next_suggestion", "next suggested keyframe", "g", "time"),
-    Action("prev_track", "◀ track", "Shift+t", "track"),
-    Action("next_track", "track ▶", "t", "track"),
-    Action("new_track", "new track", "n", "track"),
-    Action("delete_keyframe", "delete keyframe", "Delete", "track"),
-    Action("click_mode", "click mode", "c", "track"),
-    Action("accept_estimate", "accept estimate", "y", "track"),
-    Action("accept_every", "accept estimates every N", "Shift+y", "track"),
-    Action("occluded", "occluded from here", "o", "span"),
-    Action("outside", "outside from here", "x", "span"),
-    Action("visible", "visible here", "v", "span"),
-    Action("split", "split here", "Shift+x", "span"),
-    Action("merge", "merge previous track into this", "m", "span"),
-    Action("interpolation", "cycle interpolation", "i", "span"),
-    Action("undo", "undo", "Ctrl+z", "history"),
-    Action("redo", "redo", "Ctrl+y", "history"),
-    *_nudges(), *_rotations(),
-]
-ACTION_BY_NAME = {a.name: a for a in ACTIONS}
-SHORTCUTS = {a.key: a.name for a in ACTIONS}
-SHORTCUTS["Ctrl+Shift+z"] = "redo"
-
-
 @dataclass
 class _Holder:
     controller: "Controller"
@@ -107,7 +38,7 @@ _HOLDERS_LOCK = threading.RLock()  # open() closes a silent holder while holding
 
 
 @dataclass
-class Controller:
+class Controller(Actions):
     """The state of one page of the app (see the module docstring). Build with ``open``."""
 
     project: Project
@@ -255,179 +186,6 @@ class Controller:
             except S2PError as e:
                 self.message = str(e)
             return self.message
-
-    def _need_track(self) -> int:
-        if self.selected is None:
-            raise EditError("no track selected: pick one in the list (t / Shift+t) or make one (n)")
-        return self.selected
-
-    def _edit(self, fn, *args, **kw):
-        if self.read_only:
-            raise EditError(self.read_only_reason or "this project is open read-only")
-        ch = fn(*args, **kw)
-        if ch is not None:
-            self._tracks_changed(ch.tracks)
-        return ch
-
-    def _do(self, name: str) -> str | None:
-        p = self.project
-        if name.startswith("goto:"):
-            self.goto(int(name.split(":")[1]))
-            return None
-        if name.startswith("select:"):
-            tid = int(name.split(":")[1])
-            self._select(tid if tid in p.tracks else None)
-            return None
-        if name.startswith("class:"):
-            cls = name.split(":", 1)[1]
-            if cls not in [c.name for c in p.scene.classes]:
-                raise EditError(f"unknown class {cls!r}")
-            self.new_class = cls
-            self._save()
-            return f"new tracks are {cls}"
-        if name.startswith("every:"):
-            self.every = max(1, int(name.split(":")[1]))
-            self._save()
-            return f"accept estimates every {self.every} frames"
-        if name.startswith("nudge:"):
-            _, dx, dy = name.split(":")
-            self._edit(p.nudge, self._need_track(), self.frame, float(dx), float(dy))
-            return f"moved by ({float(dx) * 100:+.0f}, {float(dy) * 100:+.0f}) cm"
-        if name.startswith("rotate:"):
-            deg = float(name.split(":")[1])
-            self._edit(p.rotate, self._need_track(), self.frame, deg)
-            return f"turned {deg:+g}°"
-        if name not in ACTION_BY_NAME:
-            raise EditError(f"unknown action {name!r}")
-        return getattr(self, "_a_" + name)()
-
-    # time
-    def _a_prev_frame(self):
-        self.goto(self.frame - 1)
-
-    def _a_next_frame(self):
-        self.goto(self.frame + 1)
-
-    def _a_back10(self):
-        self.goto(self.frame - 10)
-
-    def _a_fwd10(self):
-        self.goto(self.frame + 10)
-
-    def _keyframes(self) -> list[int]:
-        return self.project.track(self._need_track()).frames
-
-    def _a_next_keyframe(self):
-        later = [f for f in self._keyframes() if f > self.frame]
-        if not later:
-            return "no keyframe after this frame"
-        self.goto(later[0])
-
-    def _a_prev_keyframe(self):
-        earlier = [f for f in self._keyframes() if f < self.frame]
-        if not earlier:
-            return "no keyframe before this frame"
-        self.goto(earlier[-1])
-
-    def _a_next_suggestion(self):
-        s = self.suggestions()
-        if not s:
-            return "no suggestions: the annotation agrees with the estimates / masks"
-        later = [x for x in s if x[1] > self.frame] or s
-        tid, f, d = later[0]
-        self._select(tid)
-        self.goto(f)
-        return f"track {tid}, frame {f}: {d:.2f} m from the estimate"
-
-    # tracks
-    def _a_next_track(self, step: int = 1):
-        ids = sorted(self.project.tracks)
-        if not ids:
-            return "no tracks yet: make one with n"
-        i = ids.index(self.selected) + step if self.selected in ids else (0 if step > 0 else -1)
-        self._select(ids[i % len(ids)])
-
-    def _a_prev_track(self):
-        return self._a_next_track(-1)
-
-    def _a_new_track(self):
-        ch = self._edit(self.project.create_track, self.new_class)
-        self._select(ch.track)
-        return f"track {ch.track} ({self.new_class}): click it in a camera view"
-
-    def _a_delete_keyframe(self):
-        self._edit(self.project.delete_keyframe, self._need_track(), self.frame)
-        return f"keyframe {self.frame} deleted"
-
-    def _a_click_mode(self):
-        self.click_mode = CLICK_MODES[(CLICK_MODES.index(self.click_mode) + 1) % len(CLICK_MODES)]
-        self._save()
-        return f"click mode {self.click_mode}: {CLICK_MODE_HELP[self.click_mode]}"
-
-    def _a_accept_estimate(self):
-        self._edit(self.project.accept_estimate, self._need_track(), self.frame)
-        return f"estimate taken at frame {self.frame}"
-
-    def _a_accept_every(self):
-        t = self.project.track(self._need_track())
-        self._edit(self.project.accept_estimate, t.id, every=self.every, frames=self.frame_range)
-        return f"estimates taken every {self.every} frames"
-
-    # spans
-    def _span_end(self) -> int:
-        t = self.project.track(self._need_track())
-        later = [f for f in t.frames if f > self.frame]
-        return later[0] - 1 if later else max(self.frame, t.last if t.last is not None else self.frame)
-
-    def _a_occluded(self):
-        a, b = self.frame, self._span_end()
-        self._edit(self.project.mark, self.selected, a, b, "occluded")
-        return f"frames {a}..{b} occluded"
-
-    def _a_outside(self):
-        a, b = self.frame, self._span_end()
-        self._edit(self.project.mark, self.selected, a, b, "outside")
-        return f"frames {a}..{b} outside the view"
-
-    def _a_visible(self):
-        t = self.project.track(self._need_track())
-        span = [(a, b) for a, b, _ in t.spans if a <= self.frame <= b]
-        if not span:
-            return "this frame is not in an occluded or outside span"
-        self._edit(self.project.mark, t.id, span[0][0], span[0][1], "visible")
-        return f"frames {span[0][0]}..{span[0][1]} visible again"
-
-    def _a_split(self):
-        ch = self._edit(self.project.split_track, self._need_track(), self.frame)
-        new = max(ch.created) if ch.created else None
-        self._select(new)
-        return f"split at frame {self.frame}: the rest is track {new}"
-
-    def _a_merge(self):
-        keep = self._need_track()
-        if self.previous is None or self.previous not in self.project.tracks:
-            return "select the track to merge first, then this one, then merge"
-        other = self.previous
-        self._edit(self.project.merge_tracks, keep, other)
-        self.previous = None
-        return f"track {other} merged into {keep}"
-
-    def _a_interpolation(self):
-        from annotate import METHODS
-
-        tid = self._need_track()
-        cur = self.project.interpolation(tid)
-        nxt = METHODS[(list(METHODS).index(cur) + 1) % len(METHODS)]
-        self._edit(self.project.set_interpolation, tid, nxt)
-        return f"track {tid} interpolates {nxt}"
-
-    def _a_undo(self):
-        ch = self._edit(self.project.undo)
-        return f"undid {ch.name}" if ch else "nothing to undo"
-
-    def _a_redo(self):
-        ch = self._edit(self.project.redo)
-        return f"redid {ch.name}" if ch else "nothing to redo"
 
     # --- clicks -----------------------------------------------------------------------------------
     def click(self, camera: str | None, uv, hint_where: str = "") -> str:

@@ -18,7 +18,8 @@ from pathlib import Path
 
 os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the widget from the web
 
-from annotate.app.controller import SHORTCUTS, Controller  # noqa: E402
+from annotate.app.actions import SHORTCUTS  # noqa: E402
+from annotate.app.controller import Controller  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
 from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
                                        camera_of_view, log_scene, new_recording)

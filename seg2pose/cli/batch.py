@@ -11,8 +11,8 @@ from typing import List, Optional
 
 import typer
 
-from seg2pose.batch import (BATCH_DIR, LIBRARY_STEPS, BatchOptions, Step, _scene_inputs,
-                            format_summary, ray_available, run_dir, run_study)
+from seg2pose.batch import BATCH_DIR, BatchOptions, Step, format_summary, ray_available, run_study
+from seg2pose.batch_steps import LIBRARY_STEPS, _scene_inputs, run_dir
 from seg2pose.cli.common import BATCH, speaks_flags
 from seg2pose.errors import InputError
 
@@ -78,8 +78,13 @@ def batch_cmd(
                                           help="a Ray cluster to run on, e.g. ray://head:10001 or auto "
                                                "(default: a local Ray on this machine's cores)"),
     max_parallel: Optional[int] = typer.Option(None, "--max-parallel", min=1,
-                                               help="at most this many scenes at once (default: all; "
-                                                    "Ray still runs one task per free CPU)"),
+                                               help="at most this many tasks (scenes, video segments) at "
+                                                    "once (default: all; Ray still runs one per free CPU)"),
+    segment_frames: int = typer.Option(36000, "--segment-frames", min=0,
+                                       help="masks-from-video: cut videos longer than 1.5 times this "
+                                            "many frames into segments of about this length that run "
+                                            "in parallel and are stitched back, track ids continued "
+                                            "(36000 = 20 min at 30 fps; 0: never cut)"),
     serial: bool = typer.Option(False, "--serial/--no-serial", help="no Ray: run the scenes one after another here"),
     force: bool = typer.Option(False, "--force", help="masks-from-video: also replace masks the "
                                                       "scenes had before the study ran"),
@@ -87,8 +92,8 @@ def batch_cmd(
 ) -> None:
     """Run steps over every scene of a study folder, in parallel with Ray.
 
-    Steps: masks-from-video, run (--baseline or --models), eval, export (MCAP), review
-    (SCENE/batch/RUN.rrd). Each scene's files are written as the single-scene command writes
+    Steps: masks-from-video (long videos cut into segments, --segment-frames), run (--baseline
+    or --models), eval, export (MCAP), review (SCENE/batch/RUN.rrd). Each scene's files are written as the single-scene command writes
     them; complete steps are skipped on a re-run; a bad scene is reported and the others go
     on. Writes STUDY/summary.json and prints a table."""
     bad = [s for s in steps if s not in STEPS]
@@ -98,7 +103,8 @@ def batch_cmd(
         raise InputError("the run step needs --baseline or --models", field="STEP")
     if baseline and models:
         raise InputError("give --baseline or --models, not both", field="--models")
-    opts = BatchOptions(baseline=not models, models=tuple(str(m) for m in models or ()), force=force)
+    opts = BatchOptions(baseline=not models, models=tuple(str(m) for m in models or ()), force=force,
+                        segment_frames=segment_frames)
     use_ray = not serial and (ray_available() or address is not None)
     if not serial and not use_ray:
         typer.echo("note: Ray is not installed, running the scenes one after another; "
@@ -106,6 +112,11 @@ def batch_cmd(
     res = run_study(study, [STEPS[s] for s in steps], opts, use_ray=use_ray, address=address,
                     max_parallel=max_parallel, progress=progress, log=typer.echo)
     typer.echo(format_summary(res.rows))
+    for r in res.rows:
+        if r.get("seams"):
+            typer.echo(f"{r['scene']}: video in {r['segments']} segments; at the seams "
+                       f"{r['seam_id_changes']} id changes, {r['seam_unlinked']} tracks not "
+                       "continued (a floor of the ID switches there, docs/SCALE.md)")
     typer.echo(f"{len(res.rows)} scenes, {res.n_failed} failed, {res.seconds:.1f} s on {res.backend}; "
                f"summary in {Path(study) / 'summary.json'}")
     if res.n_failed:

@@ -24,6 +24,8 @@ def register(app: typer.Typer) -> None:
 
 SPARSE_HELP = ("exact sparse inference on the CPU: the network's convolutions only around the "
                "mask (the same result, 3-30x faster)")
+SMOOTH_HELP = ("smooth each tracked road user's positions over this many frames either side "
+               "(a line fitted per window; 0: every frame on its own, the paper's method)")
 MODELS_HELP = ("folder of trained models (default: SCENE/models); repeat it to average the "
                "models of several folders")
 
@@ -36,6 +38,7 @@ def run_cmd(
     models: Optional[List[Path]] = typer.Option(None, "--models", help=MODELS_HELP),
     split: Optional[str] = typer.Option(None, "--split", help="only this split's frames (train, val or test)"),
     center: Center = typer.Option("bbox", "--center", help="mask centre: bbox (the paper's section 5, measured best) or centroid (section 3.2)"),
+    smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP),
     arch: Optional[Arch] = typer.Option(None, "--arch", help="refuse models of another architecture"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
@@ -56,7 +59,7 @@ def run_cmd(
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
-                  allow_incomplete=allow_incomplete, far_residuals=far_residuals)
+                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
@@ -93,15 +96,15 @@ def train_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
-    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train the cameras' models in parallel as Ray tasks on this many local CPUs (same seeds, same models)"),
-    address: Optional[str] = typer.Option(None, "--address", help="train the cameras' models as tasks on this Ray cluster"),
+    parallel: Optional[int] = typer.Option(None, "--parallel", min=1, help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best run picked as in serial (same seeds, same models)"),
+    address: Optional[str] = typer.Option(None, "--address", help="train camera x class x run as tasks on this Ray cluster, e.g. ray://head:10001 or auto"),
 ) -> None:
     """Train Seg2PoseNet on a scene, per camera and class (paper 4.1).
 
     The paper's protocol: best of four runs, Adam 5e-5, batch 16, 64 batches per epoch,
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
-    from seg2pose.batch import ray_map
+    from seg2pose.train_fanout import ray_map
     from seg2pose.io.scene import load_scene
     from seg2pose.train import TrainConfig, train_scene
 
@@ -125,8 +128,8 @@ def eval_cmd(
     run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
     split: Optional[str] = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
-    match: Literal["ids", "nearest"] = typer.Option("ids", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track or masks-from-video)"),
-    gate: float = typer.Option(3.0, "--gate", help="with --match nearest: the farthest pair, metres"),
+    match: Literal["auto", "ids", "nearest"] = typer.Option("auto", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track, masks-from-video or import-detections); auto: nearest when the run's ids are not the truth's, and says so"),
+    gate: float = typer.Option(3.0, "--gate", help="with --match nearest or auto: the farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the ground truth.
 
@@ -138,6 +141,8 @@ def eval_cmd(
     from seg2pose.paper_table import evaluate_run
 
     res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
+    if res.match_note:
+        typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:
@@ -152,6 +157,7 @@ def paper_table_cmd(
     config: Optional[List[str]] = typer.Option(None, "-c", "--config", help="a camera configuration to include (repeatable; default: all)"),
     seg2posenet: bool = typer.Option(True, "--seg2posenet/--no-seg2posenet", help="also the rows with Seg2PoseNet (not only the baseline)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
+    smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP + "; applied to the baseline's rows too"),
     force: bool = typer.Option(False, "--force", help="redo a paper table that exists already"),
 ) -> None:
     """Table 1 and Figure 6 of the paper on this scene.
@@ -164,7 +170,8 @@ def paper_table_cmd(
 
     set_enabled(sparse)
     out_dir, text = paper_table(load_scene(scene), models_dir=models, split=split, out_dir=out,
-                                configs=config or None, baseline_only=not seg2posenet, force=force)
+                                configs=config or None, baseline_only=not seg2posenet, force=force,
+                                smooth=smooth)
     typer.echo(text)
     typer.echo(f"written to {out_dir}")
 
@@ -176,6 +183,7 @@ def bench_accuracy_cmd(
     variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol) or zero (zero-annotation); repeatable; default both"),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
     train_arg: Optional[List[str]] = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
+    smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),
 ) -> None:
     """The accuracy benchmark over several synthetic scenes.
 
@@ -184,5 +192,5 @@ def bench_accuracy_cmd(
     from seg2pose.accuracy import run_benchmark
 
     _, text = run_benchmark(root, seed or [100, 101, 102], preset, tuple(variant or ("s2pn", "zero")),
-                            threads, tuple(train_arg or ()), log=typer.echo)
+                            threads, tuple(train_arg or ()), log=typer.echo, smooth=smooth)
     typer.echo(text)

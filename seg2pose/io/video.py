@@ -14,11 +14,14 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
 from seg2pose.errors import InputError
+
+if TYPE_CHECKING:
+    from seg2pose.io.scene import Scene
 
 VIDEO_EXTS = (".mp4", ".avi", ".mkv", ".mov")
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
@@ -171,7 +174,9 @@ class FrameReader:
             return out
         ks = sorted((f - self.first) // self.step for f in want if (f - self.first) % self.step == 0)
         if len(ks) > 1 and min(np.diff(ks)) < 48:  # close together: reading through is cheaper
-            for f, im in self.frames(last=self.first + ks[-1] * self.step):
+            # (from the first one: a segment late in a long video must not decode from frame 0)
+            for f, im in self.frames(first=self.first + ks[0] * self.step,
+                                     last=self.first + ks[-1] * self.step):
                 if f in want:
                     out.append((f, im))
             return out
@@ -186,3 +191,19 @@ class FrameReader:
         finally:
             cap.release()
         return out
+
+
+def camera_reader(scene: "Scene", camera: str) -> FrameReader:
+    """The camera's frames with the scene's numbering (``extra.video_frames.<camera>``: the
+    first video frame's scene frame and the step; image folders: the number in each name)."""
+    path = scene.video_path(camera)
+    if path is None:
+        raise InputError(f"camera {camera!r} has no video (video/{camera}.mp4 or an image folder "
+                         f"video/{camera}/)", file=scene.root / "video")
+    vf = (scene.extra.get("video_frames") or {}).get(camera) or {}
+    try:
+        first, step = int(vf.get("first", 0)), int(vf.get("step", 1))
+    except (TypeError, ValueError, AttributeError):
+        raise InputError("expected integers first, step", file=scene.root / "scene.json",
+                         field=f"extra.video_frames.{camera}") from None
+    return FrameReader(path, first=first, step=step)
