@@ -11,9 +11,10 @@ command (printed, with its wall time), in a fresh copy of the scene (DIR/bg-S):
 3. ``s2p heights --rough 2000 --camera c1`` (no annotations; filmed rough models, since the
    masks came from video), then ``base-rough``: the baseline with those heights;
 4. per variant: ``s2p train --protocol quick --zero-annotation --camera c1`` (+ the variant's
-   flags), ``s2p run -c mono-1 --models``; variants: ``zero-video`` (rough models filmed and
-   background-subtracted, the default on such scenes), ``zero-clean`` (``--no-rough-video``:
-   clean rough silhouettes, as before this change);
+   flags), ``s2p run -c mono-1 --models``; variants: ``zero-clean`` (``--no-rough-video``, the
+   default: clean rough silhouettes, radial calibration), ``zero-video`` (``--rough-video``:
+   rough models filmed over the video's background and background-subtracted, no radial
+   calibration);
 5. ``s2p eval --match nearest`` for every run (all frames), and with ``--truth`` the same
    runs on the truth masks (rendered silhouettes of every visible road user, ids = truth ids)
    for the error budget: ``truth-base`` (rough heights) and ``truth-<variant>``.
@@ -36,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from video_figures import fresh_scene  # noqa: E402
 
-VARIANTS = {"zero-video": [], "zero-clean": ["--no-rough-video"]}
+VARIANTS = {"zero-video": ["--rough-video"], "zero-clean": ["--no-rough-video"]}
 
 
 def s2p(*args: str) -> str:

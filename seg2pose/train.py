@@ -69,8 +69,8 @@ class TrainConfig:
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
     rough_occlusion: float = 0.0     # share of rough examples partly hidden by a rough occluder
     # rough models filmed over the video's background and background-subtracted like its masks
-    # (seg2pose.rough_video); None: on for zero-annotation when the masks came from the video
-    rough_video: bool | None = None
+    # (seg2pose.rough_video); off: measured worse than clean silhouettes (docs/RESULTS.md)
+    rough_video: bool = False
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)

@@ -111,13 +111,8 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
 
 def films_rough(scene: Scene, cam: str, cfg: "TrainConfig") -> bool:
     """Whether the camera's rough models are filmed and background-subtracted
-    (``cfg.rough_video``; None = for zero-annotation training when its masks came from its
-    video)."""
-    from seg2pose.rough_video import masks_from_video
-
-    if cfg.rough_video is not None:
-        return bool(cfg.rough_video)
-    return cfg.zero_annotation and masks_from_video(scene, cam)
+    (``cfg.rough_video``, for cameras with a video)."""
+    return bool(cfg.rough_video) and scene.video_path(cam) is not None
 
 
 def rough_looks(scene: Scene, cams: list[str], cfg: "TrainConfig") -> dict:

@@ -107,17 +107,18 @@ def test_size_mismatch_is_refused(tiny):
         render_video_examples(cam, tiny.ground, "car", 3, np.random.default_rng(0), look)
 
 
-@pytest.mark.parametrize("zero,source,flag,expect", [
-    (True, "video", None, True), (True, "detections", None, False), (False, "video", None, False),
-    (True, "video", False, False), (False, None, True, True)])
-def test_training_films_rough_models_when_the_masks_came_from_video(tiny, monkeypatch, zero,
-                                                                     source, flag, expect):
+@pytest.mark.parametrize("flag,video,expect", [(False, True, False), (True, True, True),
+                                               (True, False, False)])
+def test_training_films_rough_models_only_when_asked_and_there_is_video(tiny, monkeypatch, flag,
+                                                                       video, expect):
     import seg2pose.rough_video as rv
     from seg2pose.train import TrainConfig
     from seg2pose.training_data import rough_looks
 
     monkeypatch.setattr(rv, "video_look", lambda scene, cam: ("look", cam))
-    monkeypatch.setitem(tiny.extra, "masks_source", {"c1": source} if source else {})
-    cfg = TrainConfig(zero_annotation=zero, rough_video=flag)
+    monkeypatch.setattr(type(tiny), "video_path",
+                        lambda self, cam: (self.root / "v.mp4") if video else None)
+    cfg = TrainConfig(zero_annotation=True, rough_video=flag)
     looks = rough_looks(tiny, ["c1"], cfg)
     assert looks == ({"c1": ("look", "c1")} if expect else {})
+    assert TrainConfig().rough_video is False  # measured worse than clean rough models

@@ -84,7 +84,7 @@ def train_cmd(
     batches: Optional[int] = typer.Option(None, "--batches", min=1, help="batches per epoch (the paper: 64)"),
     lr: Optional[float] = typer.Option(None, "--lr", help="learning rate (the paper: 5e-5)"),
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
-    rough_video: Optional[bool] = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: on for --zero-annotation when the masks came from masks-from-video)"),
+    rough_video: Optional[bool] = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: off; on synthetic video it measured worse than clean rough models, docs/RESULTS.md)"),
     rough_occlusion: Optional[float] = typer.Option(None, "--rough-occlusion", help="share of rough-model examples partly hidden by a rough car or pedestrian in front"),
     rough_every: Optional[int] = typer.Option(None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
