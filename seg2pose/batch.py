@@ -224,23 +224,6 @@ def ray_available() -> bool:
     return _ray() is not None
 
 
-def ray_map(address: str | None = None, num_cpus: int | None = None):
-    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
-    and returns the results in order: for ``train_scene(map_groups=...)``. Starts a local Ray
-    (``num_cpus``) or joins ``address`` unless Ray is running already."""
-    ray = _ray()
-    if ray is None:
-        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
-
-    def mapper(fn, items):
-        if not ray.is_initialized():
-            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
-        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
-        return ray.get([remote.remote(x) for x in items])
-
-    return mapper
-
-
 def _wave(ray, remote, fn, args: list[tuple], limit: int | None, on_done, log, what: str) -> None:
     """Run ``fn(*a)`` for every ``a`` of ``args``: as Ray tasks (``remote``), at most ``limit``
     at once, or here one after another; ``on_done(result)`` as each finishes."""

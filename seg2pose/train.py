@@ -368,9 +368,10 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 map_groups=None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
 
-    ``map_groups(fn, items)``: given (e.g. ``seg2pose.batch.ray_map``), the camera groups'
-    examples and then every camera x class x run are tasks of it (seg2pose/train_fanout.py),
-    with the same checkpoints as the default, one model after another.
+    ``map_groups(fn, items)``: given (e.g. ``seg2pose.train_fanout.ray_map``), the camera
+    groups' examples and then every camera x class x run are tasks of it
+    (seg2pose/train_fanout.py), with the same checkpoints as the default, one model after
+    another.
 
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""

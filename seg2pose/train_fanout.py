@@ -54,7 +54,7 @@ def _move(src: Path, dst: Path) -> None:
 
 def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Callable,
             finish_job: Callable, cfg: "TrainConfig", scene_fp: str) -> None:
-    """Train every model of ``groups`` with ``mapper(fn, items)`` (e.g. ``batch.ray_map``):
+    """Train every model of ``groups`` with ``mapper(fn, items)`` (e.g. ``ray_map``):
     ``group_jobs(group) -> [ModelJob]`` (examples), ``train_job(job, runs, path) -> best
     info`` (one run into ``path``), ``finish_job(job)`` (after the best run is in place)."""
     jobs = [j for js in mapper(group_jobs, groups) for j in js]
@@ -79,3 +79,23 @@ def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Cal
             say(f"{job.path.stem}: best of {cfg.runs} runs is run {r + 1} "
                 f"(val loss {losses[r]:.4f})")
         finish_job(job)
+
+
+def ray_map(address: str | None = None, num_cpus: int | None = None):
+    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
+    and returns the results in order: for ``train_scene(map_groups=...)`` (``s2p train --parallel/--address``). Starts a local Ray
+    (``num_cpus``) or joins ``address`` unless Ray is running already."""
+    from seg2pose.batch import MAX_RETRIES, _ray
+    from seg2pose.errors import S2PError
+
+    ray = _ray()
+    if ray is None:
+        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
+
+    def mapper(fn, items):
+        if not ray.is_initialized():
+            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
+        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
+        return ray.get([remote.remote(x) for x in items])
+
+    return mapper

@@ -234,7 +234,7 @@ def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
     from test_pipeline import make_tiny_scene
     from test_train import tiny_config
 
-    from seg2pose.batch import ray_map
+    from seg2pose.train_fanout import ray_map
     from seg2pose.train import train_scene
 
     scene = make_tiny_scene(tmp_path / "tiny", frames=30, n_users=6, seed=1)
