@@ -63,8 +63,10 @@ PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "s
 def paper_table(scene: Scene, models_dir: str | Path | None = None,
                 split: str = "test", out_dir: str | Path | None = None,
                 configs: list[str] | None = None, baseline_only: bool = False,
-                force: bool = False, progress: bool = True) -> tuple[Path, str]:
+                force: bool = False, progress: bool = True, smooth: int = 0) -> tuple[Path, str]:
     """Table 1 / Figure 6 on this scene: every configuration with and without Seg2PoseNet.
+    ``smooth``: every run's fused positions (the baseline's too) smoothed along each track over
+    this many frames either side (``pipeline.fuse``).
 
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
@@ -93,7 +95,7 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
             cams = scene.rig.configs[cfg]
             write_run(scene, rd, views.of_cameras(cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
-                      nframes, force=True)
+                      nframes, force=True, smooth=smooth)
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)
     s2pn = [r.mean_error for k, r in results.items() if k.endswith("S2PN")]
@@ -105,10 +107,34 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "table.txt", text)
     atomic_write_text(out / "results.json", json.dumps(
-        {"scene": str(scene.root), "split": split,
+        {"scene": str(scene.root), "split": split, "smooth_frames": int(smooth),
          "models": None if baseline_only else (
              [str(d) for d in dirs] if len(dirs := model_dirs(scene, models_dir)) > 1 else str(dirs[0])),
          "results": {k: r.to_dict() for k, r in results.items()}}, indent=1) + "\n")
     plot_error_vs_distance(results, out / "error_vs_distance.png",
                            title=f"{scene.name}: mean error by distance ({split} split)")
     return out, text
+
+
+def refuse_table(scene: Scene, table_dir: str | Path, smooth: int) -> dict:
+    """The runs of a finished paper table fused again from their views.csv with ``smooth``
+    (see ``pipeline.fuse``; no network run) and evaluated on the table's split:
+    {"<config> baseline" | "<config> S2PN": EvalResult}, as ``paper_table`` names them."""
+    from seg2pose.evaluate import evaluate
+    from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import read_views
+    from seg2pose.pipeline import fuse
+
+    table_dir = Path(table_dir)
+    try:
+        split = json.loads((table_dir / "results.json").read_text())["split"]
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(f"not a finished paper table ({e})", file=table_dir / "results.json") from None
+    gt = read_poses(scene.gt_path, known_classes=scene.class_names)
+    out = {}
+    for rd in sorted(p for p in (table_dir / "runs").iterdir() if (p / "views.csv").exists()):
+        cfg, method = rd.name.rsplit("-", 1)
+        poses = fuse(read_views(rd / "views.csv"), scene, smooth)
+        out[f"{cfg} {'baseline' if method == 'baseline' else 'S2PN'}"] = evaluate(
+            poses, gt, scene.rig.center[:2], frame_range=scene.split_range(split))
+    return out

@@ -108,10 +108,14 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
 # fusion and the run folder
 
 
-def fuse(views: ViewTable, scene: Scene) -> PoseTable:
+def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
     """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
     z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
-    sizes from the class. Detections without a track id (-1) are not fused with anything."""
+    sizes from the class. Detections without a track id (-1) are not fused with anything.
+
+    ``smooth`` > 0: each tracked road user's fused (x, y) replaced by a line fitted to its
+    positions within ``smooth`` frames either side (``seg2pose.smoothing``; centred, so no lag
+    on steady motion), before z and the headings."""
     frame, tid = views.frame, views.track_id
     est = views.normal[:, :2] + views.residual
     keep = np.isfinite(est).all(axis=1) & (views.cls != "")
@@ -130,8 +134,12 @@ def fuse(views: ViewTable, scene: Scene) -> PoseTable:
     stack = np.full((len(cams), len(ukeys), 2), np.nan)
     stack[cam_idx, inv] = est       # one detection per (camera, road user, frame)
     xy = fuse_views(stack)
-    z = scene.ground.height(xy)
     out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
+    if smooth > 0:
+        from seg2pose.smoothing import smooth_along_tracks
+
+        xy = smooth_along_tracks(out_tid, ukeys[:, 0], xy, smooth, degree=1)
+    z = scene.ground.height(xy)
     heading = np.full(len(ukeys), np.nan)
     tracked = out_tid >= 0
     heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
@@ -181,7 +189,7 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
 
 
 def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
-             models: ModelSet | None, split: str | None, center_method: str) -> dict:
+             models: ModelSet | None, split: str | None, center_method: str, smooth: int = 0) -> dict:
     """run.json of a run (paths relative to the run folder; the checkpoints named with their
     sha256, so a run says exactly which models made it)."""
     fr = scene.split_range(split)
@@ -204,18 +212,20 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
     return {
         "scene": relative_path(scene.root, run_dir), "scene_fingerprint": scene.fingerprint(),
         "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
-        "center_method": center_method, "models": entries,
+        "center_method": center_method, **({"smooth_frames": int(smooth)} if smooth else {}),
+        "models": entries,
         "split": split, "frame_range": None if fr is None else list(fr), "created": now_utc(),
     }
 
 
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
               config: str | None, models: ModelSet | None, split: str | None,
-              center_method: str, n_frames: int, force: bool = False) -> Path:
-    """Fuse per-view estimates and write the run folder (poses.csv, views.csv, run.json)."""
+              center_method: str, n_frames: int, force: bool = False, smooth: int = 0) -> Path:
+    """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
+    views.csv, run.json)."""
     run_dir = Path(run_dir)
-    poses = fuse(views, scene)
-    meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method),
+    poses = fuse(views, scene, smooth)
+    meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
     return write_run_folder(run_dir, poses, views, meta, force=force)
 
@@ -224,13 +234,14 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
-              progress: bool = True, allow_incomplete: bool = False) -> Path:
+              progress: bool = True, allow_incomplete: bool = False, smooth: int = 0) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
     averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
-    checkpoints whose training did not finish (refused otherwise)."""
+    checkpoints whose training did not finish (refused otherwise); smooth: fused positions
+    smoothed along each track over this many frames either side (0: not; see ``fuse``)."""
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
@@ -243,4 +254,4 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=force)
+                     nframes, force=force, smooth=smooth)

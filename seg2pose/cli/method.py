@@ -24,6 +24,8 @@ def register(app: typer.Typer) -> None:
 
 SPARSE_HELP = ("exact sparse inference on the CPU: the network's convolutions only around the "
                "mask (the same result, 3-30x faster)")
+SMOOTH_HELP = ("smooth each tracked road user's positions over this many frames either side "
+               "(a line fitted per window; 0: every frame on its own, the paper's method)")
 MODELS_HELP = ("folder of trained models (default: SCENE/models); repeat it to average the "
                "models of several folders")
 
@@ -36,6 +38,7 @@ def run_cmd(
     models: Optional[List[Path]] = typer.Option(None, "--models", help=MODELS_HELP),
     split: Optional[str] = typer.Option(None, "--split", help="only this split's frames (train, val or test)"),
     center: Center = typer.Option("bbox", "--center", help="mask centre: bbox (the paper's section 5, measured best) or centroid (section 3.2)"),
+    smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP),
     arch: Optional[Arch] = typer.Option(None, "--arch", help="refuse models of another architecture"),
     device: Optional[str] = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
@@ -55,7 +58,7 @@ def run_cmd(
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
-                  allow_incomplete=allow_incomplete)
+                  allow_incomplete=allow_incomplete, smooth=smooth)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
@@ -147,6 +150,7 @@ def paper_table_cmd(
     config: Optional[List[str]] = typer.Option(None, "-c", "--config", help="a camera configuration to include (repeatable; default: all)"),
     seg2posenet: bool = typer.Option(True, "--seg2posenet/--no-seg2posenet", help="also the rows with Seg2PoseNet (not only the baseline)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
+    smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP + "; applied to the baseline's rows too"),
     force: bool = typer.Option(False, "--force", help="redo a paper table that exists already"),
 ) -> None:
     """Table 1 and Figure 6 of the paper on this scene.
@@ -159,7 +163,8 @@ def paper_table_cmd(
 
     set_enabled(sparse)
     out_dir, text = paper_table(load_scene(scene), models_dir=models, split=split, out_dir=out,
-                                configs=config or None, baseline_only=not seg2posenet, force=force)
+                                configs=config or None, baseline_only=not seg2posenet, force=force,
+                                smooth=smooth)
     typer.echo(text)
     typer.echo(f"written to {out_dir}")
 
@@ -171,6 +176,7 @@ def bench_accuracy_cmd(
     variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol) or zero (zero-annotation); repeatable; default both"),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
     train_arg: Optional[List[str]] = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
+    smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),
 ) -> None:
     """The accuracy benchmark over several synthetic scenes.
 
@@ -179,5 +185,5 @@ def bench_accuracy_cmd(
     from seg2pose.accuracy import run_benchmark
 
     _, text = run_benchmark(root, seed or [100, 101, 102], preset, tuple(variant or ("s2pn", "zero")),
-                            threads, tuple(train_arg or ()), log=typer.echo)
+                            threads, tuple(train_arg or ()), log=typer.echo, smooth=smooth)
     typer.echo(text)
