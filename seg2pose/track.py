@@ -35,7 +35,7 @@ from seg2pose.errors import InputError
 from seg2pose.ground import GroundSurface
 from seg2pose.video_masks import labels_to_rles
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
-from seg2pose.masks import decode, decode_counts
+from seg2pose.masks import decode_counts
 
 _BLOCK = 256          # frames whose normal positions are computed together
 _INVALID = 1e6        # cost of a forbidden pair
@@ -140,8 +140,9 @@ class Tracker:
         if cand.sum() < 2:
             return rles, xy, src
         recent, shift = recent[cand], shift[cand]
-        pred = {int(i): shift_rle(self.shape[i], int(dx) * h + int(dy), self.size)
-                for i, (dx, dy) in zip(recent, shift)}
+        moved = shift_rles([self.shape[i] for i in recent],
+                           [int(dx) * h + int(dy) for dx, dy in shift], self.size)
+        pred = {int(i): r for i, r in zip(recent, moved)}
         objs_t = [{"size": self.size, "counts": pred[int(i)]} for i in recent]
         objs_d = [{"size": self.size, "counts": r} for r in rles]
         iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(rles)), float).reshape(len(recent), len(rles))
@@ -182,14 +183,12 @@ class Tracker:
 
         h, w = self.size
         x0, y0, bw, bh = (int(v) for v in mask_util.toBbox({"size": self.size, "counts": blob}))
-        m = decode(blob, h, w)[y0:y0 + bh, x0:x0 + bw] > 0
-        pred = np.zeros((len(predicted), bh, bw), np.uint8)
-        bottom = np.zeros(len(predicted))
-        for k, r in enumerate(predicted):
-            full = decode(r, h, w)
-            pred[k] = full[y0:y0 + bh, x0:x0 + bw]
-            rows = np.flatnonzero(full.any(axis=1))
-            bottom[k] = rows[-1] if len(rows) else -1
+        strips = decode_columns([blob, *predicted], h, w, x0, x0 + bw)[:, y0:y0 + bh]
+        m = strips[0] > 0
+        pred = strips[1:].astype(np.uint8)
+        # the predicted mask's lowest row, over the whole mask (it may reach past the blob)
+        pb = mask_util.toBbox([{"size": self.size, "counts": r} for r in predicted]).reshape(-1, 4)
+        bottom = np.where(pb[:, 3] > 0, pb[:, 1] + pb[:, 3], -1.0)
         dist = np.stack([cv2.distanceTransform((p == 0).astype(np.uint8), cv2.DIST_L2, 3)
                          for p in pred])
         owner = np.argmin(dist, axis=0)
@@ -287,41 +286,63 @@ class Tracker:
         return np.where(p >= 0, new[np.maximum(p, 0)], -1)
 
 
-def shift_rle(rle: bytes, k: int, size: list[int]) -> bytes:
-    """A COCO RLE moved by ``k`` pixels along the column-major pixel order (k = dx * H + dy
-    moves it dx columns right and dy rows down; pixels that a vertical move pushes past the
-    bottom of a column wrap into the next one, which is negligible for prediction)."""
-    if k == 0:
-        return rle
+def decode_columns(rles: list[bytes], h: int, w: int, x0: int, x1: int) -> np.ndarray:
+    """(N, h, x1 - x0) bool: columns x0..x1-1 of each mask, decoded from the RLE runs that
+    cross them only (a mask's box is a small part of a 1280x720 image)."""
+    counts, off = decode_counts(rles)
+    a, b = x0 * h, x1 * h                        # the columns' span in column-major order
+    out = np.zeros((len(rles), b - a), bool)
+    for i in range(len(rles)):
+        c = counts[off[i]:off[i + 1]]
+        ends = np.cumsum(c)
+        starts = ends - c
+        fg = np.arange(len(c)) % 2 == 1          # runs alternate background, foreground
+        lo, hi = np.clip(starts[fg], a, b) - a, np.clip(ends[fg], a, b) - a
+        keep = hi > lo
+        # +1 where a run starts, -1 where it ends: a cumulative sum fills the runs
+        d = np.bincount(lo[keep], minlength=b - a + 1) - np.bincount(hi[keep], minlength=b - a + 1)
+        out[i] = np.cumsum(d[:-1]) > 0
+    return out.reshape(len(rles), x1 - x0, h).transpose(0, 2, 1)
+
+
+def shift_rles(rles: list[bytes], ks: list[int], size: list[int]) -> list[bytes]:
+    """COCO RLEs each moved by ``ks[i]`` pixels along the column-major pixel order (k = dx * H +
+    dy moves a mask dx columns right and dy rows down; pixels that a vertical move pushes past
+    the bottom of a column wrap into the next one, which is negligible for prediction). The
+    runs of all masks are decoded in one vectorised pass."""
     h, w = size
     n = h * w
-    counts = decode_counts([rle])[0].tolist()
-    if k > 0:
-        counts[0] += k
-    else:
-        drop = -k                                # pixels to cut from the front
-        i = 0
-        while i < len(counts) and counts[i] <= drop:
-            drop -= counts[i]
-            i += 1
-        counts = counts[i:]
-        if counts:
-            counts[0] -= drop
-        if i % 2:                                # the first run must be background
-            counts = [0] + counts
-    out, total = [], 0
-    for c in counts:                             # trim to the image
-        c = min(c, n - total)
-        out.append(c)
-        total += c
-        if total >= n:
-            break
-    if total < n:                                # the rest is background
-        if len(out) % 2:                         # the last run is background already
-            out[-1] += n - total
+    all_counts, off = decode_counts(rles)
+    out_rles = []
+    for i, (rle, k) in enumerate(zip(rles, ks)):
+        if k == 0:
+            out_rles.append(rle)
+            continue
+        counts = all_counts[off[i]:off[i + 1]].copy()
+        if k > 0:
+            counts[0] += k
+        else:                                    # cut -k pixels from the front
+            ends = np.cumsum(counts)
+            j = int(np.searchsorted(ends, -k, side="right"))
+            counts = counts[j:]
+            if len(counts):
+                counts[0] = ends[j] + k
+            if j % 2:                            # the first run must be background
+                counts = np.r_[0, counts]
+        if not len(counts):                      # moved off the image entirely
+            counts = np.array([n], np.int64)
+        ends = np.cumsum(counts)                 # trim to the image
+        j = int(np.searchsorted(ends, n, side="left"))
+        if j < len(counts):
+            counts = counts[:j + 1]
+            counts[-1] -= ends[j] - n
+        elif len(counts) % 2:                    # the rest is background: the last run is
+            counts[-1] += n - ends[-1]
         else:
-            out.append(n - total)
-    return mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"]
+            counts = np.r_[counts, n - ends[-1]]
+        out = counts.tolist()
+        out_rles.append(mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"])
+    return out_rles
 
 
 def world_positions(table: MaskTable, camera: Camera | None, ground: GroundSurface | None,
