@@ -50,12 +50,6 @@ class VideoLook:
     bg: BgConfig
 
 
-def masks_from_video(scene: Scene, camera: str) -> bool:
-    """Whether the camera's masks were made by background subtraction (``s2p
-    masks-from-video`` records it in ``extra.masks_source``)."""
-    return (scene.extra.get("masks_source") or {}).get(camera) == "video"
-
-
 def video_look(scene: Scene, camera: str, samples: int | None = None) -> VideoLook:
     """The camera's ``VideoLook``: the median of ``samples`` frames spread over its video
     (the subtractor's own start, ``BgConfig.init_samples`` by default) and the noise measured

@@ -71,21 +71,7 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
             msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
         log(msg)
         out[c] = res
-    mark_masks_source(scene_dir, names, "video")
     return out
-
-
-def mark_masks_source(scene_dir: str | Path, cameras: list[str], source: str) -> None:
-    """Record in scene.json (``extra.masks_source.<camera>``) where the cameras' masks came
-    from ("video": background subtraction; "detections": a detector's COCO file), so training
-    can make rough-model examples that look like them (``seg2pose.rough_video``)."""
-    scene = load_scene(scene_dir)
-    src = dict(scene.extra.get("masks_source") or {})
-    if all(src.get(c) == source for c in cameras):
-        return
-    src.update({c: source for c in cameras})
-    scene.extra["masks_source"] = src
-    scene.save()
 
 
 def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
@@ -131,7 +117,6 @@ def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path
                               frame_offset=frame_offset, log=log)
     dst.parent.mkdir(parents=True, exist_ok=True)
     write_mots(dst, table)
-    mark_masks_source(scene_dir, [camera], "detections")
     if len(table) and (table.track_id < 0).any():
         tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})},
                                      file=scene.root / SCENE_FILE)

@@ -33,9 +33,6 @@ def test_video_commands(tmp_path, monkeypatch, capsys):
     assert "c0: 20 frames -> 20 masks -> 1 tracks (20 masks)" in r.output
     t = read_mots(tmp_path / "sc" / "masks" / "c0.txt")
     assert set(t.track_id.tolist()) == {1} and len(t) == 20
-    # the scene remembers where the masks came from (zero-annotation training films rough models)
-    extra = json.loads((tmp_path / "sc" / "scene.json").read_text())["extra"]
-    assert extra["masks_source"] == {"c0": "video"}
     # the scene runs end to end: world tracks from the video's masks
     r = run(app, ["run", sc, "-o", str(tmp_path / "run"), "--baseline", "-c", "mono-c0"])
     assert r.exit_code == 0, r.output
@@ -48,8 +45,6 @@ def test_video_commands(tmp_path, monkeypatch, capsys):
     r = run(app, ["import-detections", sc, str(tmp_path / "d.json"), "--camera", "c0", "--force"])
     assert r.exit_code == 0, r.output
     assert "wrote 8 masks" in r.output
-    extra = json.loads((tmp_path / "sc" / "scene.json").read_text())["extra"]
-    assert extra["masks_source"] == {"c0": "detections"}
     # bad input: one line naming the file and what was expected
     (tmp_path / "late.json").write_text(json.dumps([det(25, 1, rle(10, 10, 8, 20))]))
     monkeypatch.setattr(sys, "argv", ["s2p", "import-detections", sc, str(tmp_path / "late.json"),
