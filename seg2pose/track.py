@@ -93,6 +93,8 @@ class Tracker:
         # last whole mask (not a part cut from a merged blob), carried along by the track's
         # motion while it is merged: what the road user looks like when nothing hides it
         self.shape: list[bytes] = []
+        self.shape_box = np.zeros((0, 4))      # its box (x, y, w, h) pixels and area, pixels
+        self.shape_area = np.zeros(0)
         self._pred: dict[int, bytes] = {}      # this frame's predicted masks, by track row
         self._lazy: dict[int, int] = {}        # rows with a predicted mask: their shift
         self.length: list[int] = []            # masks per id (index = provisional id)
@@ -115,8 +117,8 @@ class Tracker:
         cost = 1.0 - np.maximum(iou, closeness) + c.gap_penalty * (gap - 1)[:, None]
         return np.where(ok, cost, _INVALID)
 
-    def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray
-                      ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
+    def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray, bd: np.ndarray,
+                      ad: np.ndarray) -> tuple[list[bytes], np.ndarray, np.ndarray]:
         """Masks holding >= split_min of two or more established tracks' predicted masks,
         split between those tracks. Returns masks, positions (NaN for split parts, filled in
         by ``positions`` when set) and, per output mask, the index of the input mask it came
@@ -132,9 +134,8 @@ class Tracker:
         shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
         # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
         # two or more of them can take part
-        bt = mask_util.toBbox([{"size": self.size, "counts": self.shape[i]} for i in recent]).reshape(-1, 4)
+        bt = self.shape_box[recent]
         bt[:, :2] += shift
-        bd = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(-1, 4)
         meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
                 & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
         cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
@@ -144,8 +145,7 @@ class Tracker:
         # exact upper bounds before any decoding: a track's share inside a mask is at most
         # the overlap of their boxes over the track's predicted area (exact where the shape
         # moves without leaving the image: no pixel wraps into the next column or falls off)
-        at0 = mask_util.area([{"size": self.size, "counts": self.shape[i]} for i in recent]).astype(np.float64)
-        ad = mask_util.area([{"size": self.size, "counts": r} for r in rles]).astype(np.float64)
+        at0 = self.shape_area[recent]
         ow = np.minimum(bt[:, None, 0] + bt[:, None, 2], bd[None, :, 0] + bd[None, :, 2]) \
             - np.maximum(bt[:, None, 0], bd[None, :, 0])
         oh = np.minimum(bt[:, None, 1] + bt[:, None, 3], bd[None, :, 1] + bd[None, :, 3]) \
@@ -196,6 +196,13 @@ class Tracker:
             out_xy[split_rows] = self.positions([out_r[i] for i in split_rows])
         return out_r, out_xy, np.array(out_src, np.int64)
 
+    def _boxes(self, rles: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 4) boxes (x, y, w, h) pixels and (N,) areas, pixels, of RLE masks."""
+        if not rles:
+            return np.zeros((0, 4)), np.zeros(0)
+        objs = [{"size": self.size, "counts": r} for r in rles]
+        return mask_util.toBbox(objs).reshape(-1, 4), mask_util.area(objs).astype(np.float64)
+
     def _predicted(self, r: int) -> bytes:
         """Track row ``r``'s predicted mask this frame (its shape moved on), made on demand."""
         if r not in self._pred:
@@ -226,11 +233,10 @@ class Tracker:
             owner = np.argmin(dist, axis=0)
         else:
             owner = np.zeros((bh, bw), np.int64)
-        if held.any():
-            # among the predicted masks that hold a pixel, the nearest road user takes it
-            rank = np.where(covered, bottom[:, None, None], -np.inf)
-            front = np.argmax(rank, axis=0)
-            owner = np.where(held, front, owner)
+        # among the predicted masks that hold a pixel, the nearest road user takes it: paint
+        # them from the farthest to the nearest (equal bottoms: the first track last)
+        for k in sorted(range(len(predicted)), key=lambda k: (bottom[k], -k)):
+            owner[covered[k]] = k
         lab = np.where(m, owner + 1, 0)
         counts = np.bincount(lab.ravel(), minlength=len(predicted) + 1)
         keep = np.flatnonzero(counts[1:] >= min_px) + 1
@@ -252,15 +258,19 @@ class Tracker:
             self.box, self.pxvel = self.box[keep], self.pxvel[keep]
             self.rles = [self.rles[i] for i in keep]
             self.shape = [self.shape[i] for i in keep]
+            self.shape_box, self.shape_area = self.shape_box[keep], self.shape_area[keep]
         self._pred, self._lazy = {}, {}
-        rles, xy, self.out_source = self._split_merged(frame, list(rles), xy)
+        given = list(rles)
+        bb, area = self._boxes(given)
+        rles, xy, self.out_source = self._split_merged(frame, given, xy, bb, area)
+        if rles is not given:                  # split: boxes of the new masks
+            bb, area = self._boxes(rles)
         self.out_rles = rles
         self.out_split = np.r_[False, self.out_source[1:] == self.out_source[:-1]] | \
             np.r_[self.out_source[:-1] == self.out_source[1:], False]
         d = len(rles)
         out = np.full(d, -1, np.int64)
         if d:
-            bb = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(d, 4)
             box = bb[:, :2] + bb[:, 2:] / 2
         if d == 0:
             return out
@@ -288,7 +298,12 @@ class Tracker:
             for r, cc in zip(rows, cols):
                 self.rles[r] = rles[cc]
                 whole_mask = not self.out_split[cc] or int(r) not in self._lazy
-                self.shape[r] = rles[cc] if whole_mask else self._predicted(int(r))
+                if whole_mask:
+                    self.shape[r], self.shape_box[r], self.shape_area[r] = rles[cc], bb[cc], area[cc]
+                else:
+                    self.shape[r] = self._predicted(int(r))
+                    b, a = self._boxes([self.shape[r]])
+                    self.shape_box[r], self.shape_area[r] = b[0], a[0]
             out[cols] = self.ids[rows]
         # births
         taken = np.zeros(d, bool)
@@ -305,6 +320,8 @@ class Tracker:
             self.pxvel = np.vstack([self.pxvel, np.full((len(new), 2), np.nan)])  # unknown yet
             self.rles.extend(rles[i] for i in new)
             self.shape.extend(rles[i] for i in new)
+            self.shape_box = np.vstack([self.shape_box, bb[new]])
+            self.shape_area = np.r_[self.shape_area, area[new]]
             out[new] = nid
         for i in out:
             self.length[i] += 1
