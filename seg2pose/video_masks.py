@@ -261,15 +261,18 @@ def _ranges(frames: list[int]) -> list[tuple[int, int]]:
 
 def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResult,
                      first: int | None = None, last: int | None = None,
-                     progress: bool = False, desc: str = "masks") -> Iterator[MaskTable]:
+                     progress: bool = False, desc: str = "masks",
+                     init_from: int | None = None) -> Iterator[MaskTable]:
     """Stream MaskTables (one per frame with masks) of ``reader``'s frames; ``result`` is filled
-    in as frames are read (also when the video stops early)."""
+    in as frames are read (also when the video stops early). ``init_from``: the scene frame the
+    starting background's samples start at (default: the first frame read; a video segment
+    passes the video's first frame, so that it starts from the uncut run's background)."""
     from tqdm import tqdm
 
     w, h, n_header = reader.header()
     seg = BackgroundMasks(cfg, h, w)
     if cfg.init != "none":
-        span_lo = first if first is not None else reader.first
+        span_lo = init_from if init_from is not None else first if first is not None else reader.first
         # median: samples over the whole video by default; warm-up: one history's worth
         span = cfg.init_frames or (n_header or 300 if cfg.init == "median" else cfg.history)
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
@@ -310,12 +313,14 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
 def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = None, *,
                      camera=None, first_frame: int = 0, frame_step: int = 1,
                      frames: tuple[int, int] | None = None, progress: bool = False,
-                     log: Callable[[str], None] = print) -> VideoMasksResult:
+                     log: Callable[[str], None] = print, init_from: int | None = None
+                     ) -> VideoMasksResult:
     """Background-subtraction masks of one camera's video (file or image folder) written to the
     MOTS file ``out`` (track id -1, class 0), atomically, as frames stream through.
 
     camera: its calibration's width/height must match the frames. first_frame, frame_step:
     scene frame of the first video frame and the step. frames: (first, last) scene frames.
+    init_from: where the starting background's samples start (``iter_video_masks``).
     Warnings (early end, unsettled background) go to ``log`` and into the result."""
     cfg = cfg or BgConfig()
     cfg.validate()
@@ -324,7 +329,8 @@ def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = 
         reader.check_size(camera.width, camera.height)
     res = VideoMasksResult()
     lo, hi = frames if frames is not None else (None, None)
-    write_mots(out, iter_video_masks(reader, cfg, res, lo, hi, progress, desc=Path(video).stem))
+    write_mots(out, iter_video_masks(reader, cfg, res, lo, hi, progress, desc=Path(video).stem,
+                                     init_from=init_from))
     if res.stopped:
         log(f"warning: {reader.path}: {res.stopped}; kept the masks of frames "
             f"{res.first_frame}..{res.last_good}")
