@@ -120,21 +120,27 @@ class VideoMasksResult:
 
 
 def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
-                   width: int | None = None) -> list[bytes]:
+                   width: int | None = None, y0: int = 0, height: int | None = None) -> list[bytes]:
     """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
 
     One pass over the column-major pixels finds every run of equal labels; each component's
     RLE is its runs with the gaps between them, so no per-component full-image mask is made.
-    ``labels`` may also be a strip of full-height columns starting at column ``x0`` of an
-    image ``width`` wide (the rest of the image is label 0)."""
-    h, w_strip = labels.shape
+    ``labels`` may also be a box at column ``x0``, row ``y0`` of an image ``height`` x
+    ``width`` (the rest of the image is label 0)."""
+    bh, w_strip = labels.shape
     w = w_strip if width is None else int(width)
+    h = bh if height is None else int(height)
     n = h * w
     flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
-    cut = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    change = flat[1:] != flat[:-1]
+    if bh < h:                                    # a box's columns are not contiguous
+        change[bh - 1::bh] = True
+    cut = np.flatnonzero(change) + 1
     vals = flat[np.r_[0, cut]]
-    starts = np.r_[0, cut] + x0 * h               # a strip's pixels are contiguous in the image
-    ends = np.r_[cut, len(flat)] + x0 * h
+    col, row = np.divmod(np.r_[0, cut], bh)
+    starts = (x0 + col) * h + y0 + row
+    col, row = np.divmod(np.r_[cut, len(flat)] - 1, bh)
+    ends = (x0 + col) * h + y0 + row + 1
     out = []
     if len(ids) == 0:
         return out
