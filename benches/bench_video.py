@@ -2,6 +2,7 @@
 mask tracker, and peak memory of masks-from-video over growing videos (flat = streaming).
 
     .venv/bin/python benches/bench_video.py [--frames 600] [--memory 300,1000,3000] [--users 20]
+        [--tracker-only] [--repeat 1]
 
 The video: 1280x720, a textured background with sensor noise, ``--users`` road users (coloured
 blobs of pedestrian to car size) moving across, written as mp4v like ``s2p synth --video``.
@@ -98,10 +99,12 @@ def bgsub_only(video: Path, n: int) -> float:
     return len(frames) / (time.perf_counter() - t)
 
 
-def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float, float, float]:
+def tracker_fps(n_frames: int, n_users: int, repeat: int = 1
+                ) -> tuple[list[float], list[float], list[float], float]:
     """frames/s of the tracker on 20 moving masks per frame: IoU only and IoU + world distances
-    (both without splitting), and the default (world distances + splitting of merged masks);
-    plus the share of frames with a split.
+    (both without splitting), and the default (world distances + splitting of merged masks),
+    each ``repeat`` times, interleaved (so all three see the same load); plus the share of
+    frames with a split.
     The blobs overlap often (they are drawn at random and wrap around): a worst case."""
     from seg2pose.camera import Camera
     from seg2pose.ground import GroundSurface
@@ -127,14 +130,28 @@ def tracker_fps(n_frames: int, n_users: int) -> tuple[float, float, float, float
     ground = GroundSurface(g)
     from seg2pose.track import TrackConfig, Tracker, _run
 
-    out = []
-    for c, gr, split in ((None, None, 0.0), (cam, ground, 0.0), (cam, ground, TrackConfig().split_min)):
-        t = time.perf_counter()
-        track_frames(iter(tabs), H, W, c, gr, TrackConfig(split_min=split))
-        out.append(n_frames / (time.perf_counter() - t))
+    out: list[list[float]] = [[], [], []]
+    for _ in range(repeat):
+        for k, (c, gr, split) in enumerate(((None, None, 0.0), (cam, ground, 0.0),
+                                            (cam, ground, TrackConfig().split_min))):
+            t = time.perf_counter()
+            track_frames(iter(tabs), H, W, c, gr, TrackConfig(split_min=split))
+            out[k].append(n_frames / (time.perf_counter() - t))
     tr = Tracker(H, W, TrackConfig())
     split_frames = sum(len(m) > len(t) for (m, _), (_, t) in zip(_run(iter(tabs), tr, cam, ground), tabs))
     return out[0], out[1], out[2], split_frames / n_frames
+
+
+def tracker_report(a) -> None:
+    def fig(v: list[float]) -> str:
+        v = sorted(v)
+        return f"{v[len(v) // 2]:.0f}" + (f" ({v[0]:.0f}-{v[-1]:.0f})" if len(v) > 1 else "")
+
+    iou_fps, world_fps, split_fps, share = tracker_fps(min(a.frames, 1000), a.users, a.repeat)
+    print(f"tracker, {a.users} masks/frame, no splitting: IoU only {fig(iou_fps)} frames/s, IoU + "
+          f"world distance {fig(world_fps)} frames/s; default (with merged-mask splitting) "
+          f"{fig(split_fps)} frames/s ({100 * share:.0f} % of frames had a split)"
+          + (f"; median (min-max) of {a.repeat} runs" if a.repeat > 1 else ""))
 
 
 def main() -> None:
@@ -142,22 +159,24 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=600, help="frames of the speed video")
     ap.add_argument("--memory", default="300,1000,3000", help="video lengths for peak memory")
     ap.add_argument("--users", type=int, default=20)
+    ap.add_argument("--tracker-only", action="store_true", help="only the tracker figures")
+    ap.add_argument("--repeat", type=int, default=1, help="tracker runs (under load: the spread)")
     a = ap.parse_args()
     import cv2
 
     print(f"OpenCV {cv2.__version__}, threads {cv2.getNumThreads()}, load {open('/proc/loadavg').read().split()[0]}")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
+        if a.tracker_only:
+            tracker_report(a)
+            return
         v = tmp / "v.mp4"
         write_video(v, a.frames, a.users)
         print(f"bg-sub + morphology + components + RLE (decoded frames): {bgsub_only(v, a.frames):.1f} frames/s")
         n, m, s, rss = masks_from_video_run(v, tmp / "m.txt")
         print(f"masks-from-video end to end (decode, init, write): {n / s:.1f} frames/s, "
               f"{m / n:.1f} masks/frame, peak RSS {rss:.0f} MiB")
-        iou_fps, world_fps, split_fps, share = tracker_fps(min(a.frames, 1000), a.users)
-        print(f"tracker, {a.users} masks/frame, no splitting: IoU only {iou_fps:.0f} frames/s, IoU + "
-              f"world distance {world_fps:.0f} frames/s; default (with merged-mask splitting) "
-              f"{split_fps:.0f} frames/s ({100 * share:.0f} % of frames had a split)")
+        tracker_report(a)
         for n_frames in [int(x) for x in a.memory.split(",") if x]:
             vm = tmp / f"m{n_frames}.mp4"
             write_video(vm, n_frames, a.users)

@@ -10,8 +10,9 @@ detector-like masks, with noise); TRUTH_SCENE: the same seed with ``--no-noise -
 2. detector-style COCO: the generator's noisy masks (``coco-noisy``; their own recall against
    the truth is printed for reference) or the clean truth masks (``coco-clean``) as a COCO
    results file without track ids
-   (pedestrian -> person, car -> car, a bicyclist split into a person (top 55 %) and a bicycle
-   (bottom 45 %) mask, scores U(0.5, 1), 5 % duplicates with a lower score, 5 % false positives
+   (pedestrian -> person, car -> car, a bicyclist split into a person (top 60 %) and a bicycle
+   (bottom 55 %) mask that overlap like a rider's legs and the frame, scores U(0.5, 1), 5 %
+   duplicates with a lower score, 5 % false positives
    below the 0.5 threshold), through ``import-detections`` (threshold, NMS, bicyclist merge,
    tracker).
 
@@ -62,13 +63,14 @@ def coco_from_masks(masks: Path, out: Path, seed: int) -> int:
             cls, r = int(t.class_id[i]), t.rles[i]
             score = float(rng.uniform(0.5, 1.0))
             seg = {"size": [t.height, t.width], "counts": r.decode()}
-            if cls == 2:  # bicyclist -> person (top) + bicycle (bottom)
+            if cls == 2:  # bicyclist -> person (top 60 %) + bicycle (bottom 55 %): the
+                # rider's legs overlap the bicycle, as in a detector's output (IoU ~0.15)
                 m = decode(r, t.height, t.width)
                 rows = np.flatnonzero(m.any(axis=1))
-                cut = rows[0] + int(0.55 * (rows[-1] - rows[0] + 1))
+                span = rows[-1] - rows[0] + 1
                 top, bottom = m.copy(), m.copy()
-                top[cut:] = 0
-                bottom[:cut] = 0
+                top[rows[0] + int(0.60 * span):] = 0
+                bottom[:rows[0] + int(0.45 * span)] = 0
                 for part, cat in ((top, 1), (bottom, 2)):
                     if part.any():
                         recs.append({"image_id": f, "category_id": cat, "score": score,

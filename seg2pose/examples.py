@@ -254,16 +254,24 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
 def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
                    crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                    max_residual: float = 2.5, detector_noise: bool = False,
-                   occlusion: float = 0.0) -> ExampleSet:
+                   occlusion: float = 0.0, look=None) -> ExampleSet:
     """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
-    and headings on the ground, rasterised; target = true position - normal position."""
+    and headings on the ground, rasterised; target = true position - normal position.
+    ``look`` (a ``seg2pose.rough_video.VideoLook``): film them over the video's background and
+    segment them as the video path does (``rough_video.render_video_examples``) instead."""
     try:
         from seg2pose.synth.rough import render_rough_examples
     except ImportError as e:
         raise S2PError(f"rough 3D models are not available ({e})") from None
     cam = scene.cameras[camera]
-    rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion)
-    if detector_noise and len(rles):
+    if look is not None:
+        from seg2pose.rough_video import render_video_examples
+
+        rles, xyz, _, _ = render_video_examples(cam, scene.ground, cls, n, rng, look,
+                                             occlusion=max(occlusion, 0.2))
+    else:
+        rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion)
+    if detector_noise and len(rles) and look is None:
         rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:
         return ExampleSet.empty(crop // factor, factor)

@@ -12,6 +12,7 @@ per model: models are per camera and class, or per camera with a class input).
 from __future__ import annotations
 
 import heapq
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 from pathlib import Path
 from typing import Iterator
@@ -64,11 +65,14 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 
 
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
-                   models: ModelSet | None, said: set[str], batch: int = 64
+                   models: ModelSet | None, said: set[str], batch: int = 64,
+                   far: FarResiduals | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
     (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground) and
-    residuals (N, 2) metres (zeros for the baseline or a missed ray)."""
+    residuals (N, 2) metres (zeros for the baseline or a missed ray). ``far``: residuals
+    longer than the model learned (``seg2pose.ood``) are recorded there, and dropped with its
+    fallback policy."""
     camera = scene.cameras[cam]
     by_id = scene.class_by_id()
     n = len(table)
@@ -101,7 +105,53 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         residual[sel] = predict_residuals(scene, cam, ck, [table.rles[i] for i in sel],
                                           table.height, table.width, uv[sel], normal[sel, :2],
                                           names[sel], batch)
+        if far is not None:
+            far.check(table, cam, sel, residual, names, ck.info.get("residual_limit"))
     return names, uv, normal, residual
+
+
+@dataclass
+class FarResiduals:
+    """Views whose residual is longer than their model's training residuals (``seg2pose.ood``):
+    policy "warn" records them, "fallback" also drops their residual (the normal position
+    stays), "off" does nothing."""
+
+    policy: str = "warn"
+    rows: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        from seg2pose.ood import POLICIES
+
+        if self.policy not in POLICIES:
+            raise InputError(f"unknown policy {self.policy!r} for far residuals; use one of "
+                             f"{', '.join(POLICIES)}", field="far_residuals")
+
+    def check(self, table: MaskTable, cam: str, sel: np.ndarray, residual: np.ndarray,
+              names: np.ndarray, limits: dict | None) -> None:
+        from seg2pose.ood import flag_far
+
+        if self.policy == "off" or not len(sel):
+            return
+        flag, lim = flag_far(residual[sel], names[sel], limits)
+        i = sel[flag]
+        if not len(i):
+            return
+        self.rows.append((table.frame[i], table.track_id[i], np.full(len(i), cam, object),
+                          names[i], residual[i].copy(), lim[flag]))
+        if self.policy == "fallback":
+            residual[i] = 0.0
+
+    def summary(self) -> tuple[dict, str | None]:
+        """(run.json entry, flagged.csv text or None)."""
+        from seg2pose.ood import flagged_poses, format_flagged
+
+        if self.policy == "off":
+            return {"policy": "off"}, None
+        cols = [np.concatenate(c) for c in zip(*self.rows)] if self.rows else [np.zeros(0)] * 6
+        n_poses = flagged_poses(cols[0], cols[1])
+        return ({"policy": self.policy, "flagged_views": int(len(cols[0])),
+                 "flagged_poses": n_poses, "file": "flagged.csv"},
+                format_flagged(*cols))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -152,7 +202,7 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
 
 def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
                   models: ModelSet | None, center_method: str = DEFAULT_CENTER_METHOD, chunk_frames: int = 32,
-                  progress: bool = True) -> tuple[ViewTable, int]:
+                  progress: bool = True, far: FarResiduals | None = None) -> tuple[ViewTable, int]:
     """Per-view estimates of all detections of ``cams`` (streamed in lockstep, ``chunk_frames``
     frames per network batch group): the rows of views.csv (sorted by frame, track id,
     camera), and the number of frames."""
@@ -166,7 +216,8 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, said)
+            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, said,
+                                                         far=far)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
                                   uv, normal, residual))
 
@@ -220,28 +271,37 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
               config: str | None, models: ModelSet | None, split: str | None,
-              center_method: str, n_frames: int, force: bool = False, smooth: int = 0) -> Path:
+              center_method: str, n_frames: int, force: bool = False, smooth: int = 0,
+              far: FarResiduals | None = None) -> Path:
     """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
-    views.csv, run.json)."""
+    views.csv, run.json, and flagged.csv when the residuals were checked)."""
     run_dir = Path(run_dir)
     poses = fuse(views, scene, smooth)
     meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
-    return write_run_folder(run_dir, poses, views, meta, force=force)
+    extra = {}
+    if far is not None and models is not None:
+        meta["far_residuals"], text = far.summary()
+        if text is not None:
+            extra["flagged.csv"] = text
+    return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
 
 
 def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
-              progress: bool = True, allow_incomplete: bool = False, smooth: int = 0) -> Path:
+              progress: bool = True, allow_incomplete: bool = False, smooth: int = 0,
+              far_residuals: str = "warn") -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
     models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
     averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
     checkpoints whose training did not finish (refused otherwise); smooth: fused positions
-    smoothed along each track over this many frames either side (0: not; see ``fuse``)."""
+    smoothed along each track over this many frames either side (0: not; see ``fuse``);
+    far_residuals: what to do with residuals longer than the model was trained on
+    (``FarResiduals``: warn, fallback, off)."""
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
@@ -251,7 +311,8 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
         from seg2pose.checkpoint import load_models
 
         models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
+    far = None if models is None else FarResiduals(far_residuals)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
-                                   chunk_frames, progress)
+                                   chunk_frames, progress, far=far)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=force, smooth=smooth)
+                     nframes, force=force, smooth=smooth, far=far)

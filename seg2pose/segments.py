@@ -4,8 +4,10 @@ one MOTS file ``s2p masks-from-video`` writes, so that one long video uses a who
 
 Plan (``plan_segments``): a camera's N frames are cut into round(N / ``segment_frames``) equal
 segments (a video shorter than 1.5 segments is not cut). Segment i *owns* frames [a_i, b_i) and
-*reads* from a_i - ``overlap`` (its warm-up): the background model is primed there as the
-single run primes it at the start, and the tracker meets the road users present at the border.
+*reads* from a_i - ``overlap`` (its warm-up): its background model starts from the uncut run's
+starting background (the same samples from the video's start) and follows the frames of the
+warm-up as the uncut one followed the frames before, so that both agree at the border, and the
+tracker meets the road users present there.
 The default overlap, 2 (max_gap + min_length) frames of the tracker's settings (and a history
 of frames when the background model starts empty, ``init: none``), lets a road user lost for
 up to max_gap frames around the border be seen by both segments.
@@ -60,8 +62,7 @@ LINK_IOU = 0.5  # masks of the two segments in an overlap frame are the same roa
 class Segment:
     """A camera's frame range (scene frames, inclusive): ``first``..``last`` owned,
     ``read_from``..``last`` read (warm-up first), ``match_from``..``first``-1 where the stitch
-    matches it to the segment before; ``n_frames`` owned, ``n_warm`` of warm-up, ``n_rest``
-    from ``read_from`` to the video's end."""
+    matches it to the segment before; ``n_frames`` owned, ``n_warm`` of warm-up."""
     camera: str
     index: int
     first: int
@@ -70,7 +71,6 @@ class Segment:
     match_from: int
     n_frames: int
     n_warm: int = 0
-    n_rest: int = 0
 
     @property
     def name(self) -> str:
@@ -91,7 +91,7 @@ def plan_segments(frames: np.ndarray, segment_frames: int, overlap: int, camera:
         r = max(0, a - overlap)
         out.append(Segment(camera, i, int(frames[a]), int(frames[b - 1]), int(frames[r]),
                            int(frames[max(r, a - (overlap + 1) // 2)]) if a else int(frames[a]),
-                           int(b - a), int(a - r), int(n - r)))
+                           int(b - a), int(a - r)))
     return out
 
 
@@ -202,14 +202,11 @@ def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] 
     reader = camera_reader(scene, seg.camera)
     out = segment_path(scene.root, seg)
     clean_killed(out)
-    if bg.init == "median" and bg.init_frames == 0:
-        # "samples over the whole video" from where the segment starts reading: its own
-        # samples over the rest of the video (the first segment's are the uncut run's)
-        bg = replace(bg, init_frames=seg.n_rest)
     with atomic_path(out) as tmp:  # masks, then tracks, in one temporary file: all or nothing
         res = masks_from_video(reader.path, tmp, bg, camera=scene.cameras[seg.camera],
                                first_frame=reader.first, frame_step=reader.step,
-                               frames=(seg.read_from, seg.last), log=log)
+                               frames=(seg.read_from, seg.last), log=log,
+                               init_from=reader.first)  # the uncut run's starting background
         track_mots(tmp, tmp, scene.cameras[seg.camera], scene.ground, replace(tcfg, min_length=1),
                    log=log)
     info = {"frames": seg.n_frames, "read": res.n_frames, "masks": res.n_masks,

@@ -35,7 +35,7 @@ from seg2pose.errors import InputError
 from seg2pose.ground import GroundSurface
 from seg2pose.video_masks import labels_to_rles
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
-from seg2pose.masks import decode, decode_counts
+from seg2pose.masks import decode_counts, foreground_runs
 
 _BLOCK = 256          # frames whose normal positions are computed together
 _INVALID = 1e6        # cost of a forbidden pair
@@ -93,7 +93,10 @@ class Tracker:
         # last whole mask (not a part cut from a merged blob), carried along by the track's
         # motion while it is merged: what the road user looks like when nothing hides it
         self.shape: list[bytes] = []
+        self.shape_box = np.zeros((0, 4))      # its box (x, y, w, h) pixels and area, pixels
+        self.shape_area = np.zeros(0)
         self._pred: dict[int, bytes] = {}      # this frame's predicted masks, by track row
+        self._lazy: dict[int, int] = {}        # rows with a predicted mask: their shift
         self.length: list[int] = []            # masks per id (index = provisional id)
         # world positions (D, 2) of masks made by splitting; None: unknown (IoU only)
         self.positions: Callable[[list[bytes]], np.ndarray] | None = None
@@ -114,8 +117,8 @@ class Tracker:
         cost = 1.0 - np.maximum(iou, closeness) + c.gap_penalty * (gap - 1)[:, None]
         return np.where(ok, cost, _INVALID)
 
-    def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray
-                      ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
+    def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray, bd: np.ndarray,
+                      ad: np.ndarray) -> tuple[list[bytes], np.ndarray, np.ndarray]:
         """Masks holding >= split_min of two or more established tracks' predicted masks,
         split between those tracks. Returns masks, positions (NaN for split parts, filled in
         by ``positions`` when set) and, per output mask, the index of the input mask it came
@@ -131,27 +134,49 @@ class Tracker:
         shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
         # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
         # two or more of them can take part
-        bt = mask_util.toBbox([{"size": self.size, "counts": self.shape[i]} for i in recent]).reshape(-1, 4)
+        bt = self.shape_box[recent]
         bt[:, :2] += shift
-        bd = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(-1, 4)
         meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
                 & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
         cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
         if cand.sum() < 2:
             return rles, xy, src
-        recent, shift = recent[cand], shift[cand]
-        pred = {int(i): shift_rle(self.shape[i], int(dx) * h + int(dy), self.size)
-                for i, (dx, dy) in zip(recent, shift)}
-        objs_t = [{"size": self.size, "counts": pred[int(i)]} for i in recent]
-        objs_d = [{"size": self.size, "counts": r} for r in rles]
-        iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(rles)), float).reshape(len(recent), len(rles))
+        recent, shift, bt = recent[cand], shift[cand], bt[cand]
+        # exact upper bounds before any decoding: a track's share inside a mask is at most
+        # the overlap of their boxes over the track's predicted area (exact where the shape
+        # moves without leaving the image: no pixel wraps into the next column or falls off)
+        at0 = self.shape_area[recent]
+        ow = np.minimum(bt[:, None, 0] + bt[:, None, 2], bd[None, :, 0] + bd[None, :, 2]) \
+            - np.maximum(bt[:, None, 0], bd[None, :, 0])
+        oh = np.minimum(bt[:, None, 1] + bt[:, None, 3], bd[None, :, 1] + bd[None, :, 3]) \
+            - np.maximum(bt[:, None, 1], bd[None, :, 1])
+        inner = ((bt[:, 0] >= 0) & (bt[:, 0] + bt[:, 2] <= self.size[1])
+                 & (bt[:, 1] >= 0) & (bt[:, 1] + bt[:, 3] <= h))
+        bound = np.minimum(np.maximum(ow, 0) * np.maximum(oh, 0), ad[None, :]) / np.maximum(at0, 1.0)[:, None]
+        may = ~inner[:, None] | (bound >= self.cfg.split_min - 1e-9)          # (T, D)
+        need = may[:, may.sum(axis=0) >= 2].any(axis=1)
+        if not need.any():
+            return rles, xy, src
+        # every track of ``recent`` has a predicted mask (a part matched to it takes that
+        # mask as its shape); only those that may be inside a merged mask are moved now
+        lazy = {int(i): int(dx) * h + int(dy) for i, (dx, dy) in zip(recent, shift)}
+        sel = recent[need]
+        moved = shift_rles([self.shape[i] for i in sel], [lazy[int(i)] for i in sel], self.size)
+        pred = {int(i): r for i, r in zip(sel, moved)}
+        # masks that none of them may be inside cannot hold a share >= split_min: leaving them
+        # out changes no share's row maximum that matters
+        cols = np.flatnonzero(may[need].any(axis=0))
+        objs_t = [{"size": self.size, "counts": r} for r in moved]
+        objs_d = [{"size": self.size, "counts": rles[k]} for k in cols]
+        iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(cols)), float).reshape(len(sel), len(cols))
         at = mask_util.area(objs_t).astype(np.float64)
-        ad = mask_util.area(objs_d).astype(np.float64)
-        frac = iou * (at[:, None] + ad[None, :]) / (1.0 + iou) / np.maximum(at[:, None], 1.0)
-        inside = (frac >= self.cfg.split_min) & (frac == frac.max(axis=1, keepdims=True))
+        frac = iou * (at[:, None] + ad[None, cols]) / (1.0 + iou) / np.maximum(at[:, None], 1.0)
+        inside = np.zeros((len(sel), len(rles)), bool)
+        inside[:, cols] = (frac >= self.cfg.split_min) & (frac == frac.max(axis=1, keepdims=True))
         merged = set(np.flatnonzero(inside.sum(axis=0) >= 2).tolist())
         if not merged:
             return rles, xy, src
+        recent = sel
         out_r, out_xy, out_src, split_rows = [], [], [], []
         for d in range(len(rles)):
             if d not in merged:
@@ -165,11 +190,24 @@ class Tracker:
                 out_r.append(part)
                 out_xy.append(np.full(2, np.nan))
                 out_src.append(d)
-        self._pred = pred
+        self._pred, self._lazy = pred, lazy
         out_xy = np.array(out_xy, float).reshape(-1, 2)
         if self.positions is not None and split_rows:
             out_xy[split_rows] = self.positions([out_r[i] for i in split_rows])
         return out_r, out_xy, np.array(out_src, np.int64)
+
+    def _boxes(self, rles: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 4) boxes (x, y, w, h) pixels and (N,) areas, pixels, of RLE masks."""
+        if not rles:
+            return np.zeros((0, 4)), np.zeros(0)
+        objs = [{"size": self.size, "counts": r} for r in rles]
+        return mask_util.toBbox(objs).reshape(-1, 4), mask_util.area(objs).astype(np.float64)
+
+    def _predicted(self, r: int) -> bytes:
+        """Track row ``r``'s predicted mask this frame (its shape moved on), made on demand."""
+        if r not in self._pred:
+            self._pred[r] = shift_rles([self.shape[r]], [self._lazy[r]], self.size)[0]
+        return self._pred[r]
 
     def _split(self, blob: bytes, predicted: list[bytes], min_px: int = 20) -> list[bytes]:
         """The blob's pixels shared out between road users with the ``predicted`` masks (their
@@ -182,28 +220,27 @@ class Tracker:
 
         h, w = self.size
         x0, y0, bw, bh = (int(v) for v in mask_util.toBbox({"size": self.size, "counts": blob}))
-        m = decode(blob, h, w)[y0:y0 + bh, x0:x0 + bw] > 0
-        pred = np.zeros((len(predicted), bh, bw), np.uint8)
-        bottom = np.zeros(len(predicted))
-        for k, r in enumerate(predicted):
-            full = decode(r, h, w)
-            pred[k] = full[y0:y0 + bh, x0:x0 + bw]
-            rows = np.flatnonzero(full.any(axis=1))
-            bottom[k] = rows[-1] if len(rows) else -1
-        dist = np.stack([cv2.distanceTransform((p == 0).astype(np.uint8), cv2.DIST_L2, 3)
-                         for p in pred])
-        owner = np.argmin(dist, axis=0)
-        covered = pred.astype(bool)
-        if covered.any():
-            # among the predicted masks that hold a pixel, the nearest road user takes it
-            rank = np.where(covered, bottom[:, None, None], -np.inf)
-            front = np.argmax(rank, axis=0)
-            owner = np.where(covered.any(axis=0), front, owner)
-        lab = np.zeros((h, bw), np.int32)
-        lab[y0:y0 + bh] = np.where(m, owner + 1, 0)
+        strips = decode_box([blob, *predicted], h, x0, x0 + bw, y0, y0 + bh)
+        m = strips[0]
+        covered = strips[1:]
+        # the predicted mask's lowest row, over the whole mask (it may reach past the blob)
+        pb = mask_util.toBbox([{"size": self.size, "counts": r} for r in predicted]).reshape(-1, 4)
+        bottom = np.where(pb[:, 3] > 0, pb[:, 1] + pb[:, 3], -1.0)
+        held = covered.any(axis=0)
+        if (m & ~held).any():      # pixels outside every predicted mask: the nearest one
+            dist = np.stack([cv2.distanceTransform((~p).astype(np.uint8), cv2.DIST_L2, 3)
+                             for p in covered])
+            owner = np.argmin(dist, axis=0)
+        else:
+            owner = np.zeros((bh, bw), np.int64)
+        # among the predicted masks that hold a pixel, the nearest road user takes it: paint
+        # them from the farthest to the nearest (equal bottoms: the first track last)
+        for k in sorted(range(len(predicted)), key=lambda k: (bottom[k], -k)):
+            owner[covered[k]] = k
+        lab = np.where(m, owner + 1, 0)
         counts = np.bincount(lab.ravel(), minlength=len(predicted) + 1)
         keep = np.flatnonzero(counts[1:] >= min_px) + 1
-        return labels_to_rles(lab, keep, x0=x0, width=w)  # all parts in one pass
+        return labels_to_rles(lab, keep, x0=x0, width=w, y0=y0, height=h)  # all parts in one pass
 
     def update(self, frame: int, rles: list[bytes], xy: np.ndarray | None = None) -> np.ndarray:
         """Provisional ids of one frame's masks. xy: (D, 2) world positions, metres (normal
@@ -221,15 +258,19 @@ class Tracker:
             self.box, self.pxvel = self.box[keep], self.pxvel[keep]
             self.rles = [self.rles[i] for i in keep]
             self.shape = [self.shape[i] for i in keep]
-        self._pred = {}
-        rles, xy, self.out_source = self._split_merged(frame, list(rles), xy)
+            self.shape_box, self.shape_area = self.shape_box[keep], self.shape_area[keep]
+        self._pred, self._lazy = {}, {}
+        given = list(rles)
+        bb, area = self._boxes(given)
+        rles, xy, self.out_source = self._split_merged(frame, given, xy, bb, area)
+        if rles is not given:                  # split: boxes of the new masks
+            bb, area = self._boxes(rles)
         self.out_rles = rles
         self.out_split = np.r_[False, self.out_source[1:] == self.out_source[:-1]] | \
             np.r_[self.out_source[:-1] == self.out_source[1:], False]
         d = len(rles)
         out = np.full(d, -1, np.int64)
         if d:
-            bb = mask_util.toBbox([{"size": self.size, "counts": r} for r in rles]).reshape(d, 4)
             box = bb[:, :2] + bb[:, 2:] / 2
         if d == 0:
             return out
@@ -256,11 +297,18 @@ class Tracker:
             self.last[rows] = frame
             for r, cc in zip(rows, cols):
                 self.rles[r] = rles[cc]
-                whole_mask = not self.out_split[cc] or int(r) not in self._pred
-                self.shape[r] = rles[cc] if whole_mask else self._pred[int(r)]
+                whole_mask = not self.out_split[cc] or int(r) not in self._lazy
+                if whole_mask:
+                    self.shape[r], self.shape_box[r], self.shape_area[r] = rles[cc], bb[cc], area[cc]
+                else:
+                    self.shape[r] = self._predicted(int(r))
+                    b, a = self._boxes([self.shape[r]])
+                    self.shape_box[r], self.shape_area[r] = b[0], a[0]
             out[cols] = self.ids[rows]
         # births
-        new = np.setdiff1d(np.arange(d), cols)
+        taken = np.zeros(d, bool)
+        taken[cols] = True
+        new = np.flatnonzero(~taken)
         if len(new):
             nid = np.arange(len(self.length), len(self.length) + len(new))
             self.length.extend([0] * len(new))
@@ -272,6 +320,8 @@ class Tracker:
             self.pxvel = np.vstack([self.pxvel, np.full((len(new), 2), np.nan)])  # unknown yet
             self.rles.extend(rles[i] for i in new)
             self.shape.extend(rles[i] for i in new)
+            self.shape_box = np.vstack([self.shape_box, bb[new]])
+            self.shape_area = np.r_[self.shape_area, area[new]]
             out[new] = nid
         for i in out:
             self.length[i] += 1
@@ -287,41 +337,68 @@ class Tracker:
         return np.where(p >= 0, new[np.maximum(p, 0)], -1)
 
 
-def shift_rle(rle: bytes, k: int, size: list[int]) -> bytes:
-    """A COCO RLE moved by ``k`` pixels along the column-major pixel order (k = dx * H + dy
-    moves it dx columns right and dy rows down; pixels that a vertical move pushes past the
-    bottom of a column wrap into the next one, which is negligible for prediction)."""
-    if k == 0:
-        return rle
+def decode_box(rles: list[bytes], h: int, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+    """(N, y1 - y0, x1 - x0) bool: the box rows y0..y1-1, columns x0..x1-1 of each mask (of an
+    image ``h`` rows high), filled from the foreground runs that cross it, all masks at once."""
+    n, bw, bh = len(rles), x1 - x0, y1 - y0
+    owner, start, length, _ = foreground_runs(rles)
+    s = np.clip(start, x0 * h, x1 * h)
+    e = np.clip(start + length, x0 * h, x1 * h)
+    keep = e > s
+    owner, s, e = owner[keep], s[keep], e[keep]
+    c0 = s // h
+    nseg = (e - 1) // h - c0 + 1                 # a run may go on into the next columns
+    rep = np.repeat(np.arange(len(s)), nseg)
+    col = c0[rep] + np.arange(len(rep)) - np.repeat(np.cumsum(nseg) - nseg, nseg)
+    r0 = np.clip(np.maximum(s[rep] - col * h, 0), y0, y1) - y0
+    r1 = np.clip(np.minimum(e[rep] - col * h, h), y0, y1) - y0
+    ok = r1 > r0
+    at = (owner[rep][ok] * bw + col[ok] - x0) * (bh + 1)
+    size = n * bw * (bh + 1)
+    # +1 where a segment starts, -1 where it ends: a cumulative sum along the column fills it
+    d = np.bincount(at + r0[ok], minlength=size) - np.bincount(at + r1[ok], minlength=size)
+    out = np.cumsum(d.reshape(n, bw, bh + 1)[:, :, :bh], axis=2) > 0
+    return out.transpose(0, 2, 1)
+
+
+def shift_rles(rles: list[bytes], ks: list[int], size: list[int]) -> list[bytes]:
+    """COCO RLEs each moved by ``ks[i]`` pixels along the column-major pixel order (k = dx * H +
+    dy moves a mask dx columns right and dy rows down; pixels that a vertical move pushes past
+    the bottom of a column wrap into the next one, which is negligible for prediction). The
+    runs of all masks are decoded in one vectorised pass."""
     h, w = size
     n = h * w
-    counts = decode_counts([rle])[0].tolist()
-    if k > 0:
-        counts[0] += k
-    else:
-        drop = -k                                # pixels to cut from the front
-        i = 0
-        while i < len(counts) and counts[i] <= drop:
-            drop -= counts[i]
-            i += 1
-        counts = counts[i:]
-        if counts:
-            counts[0] -= drop
-        if i % 2:                                # the first run must be background
-            counts = [0] + counts
-    out, total = [], 0
-    for c in counts:                             # trim to the image
-        c = min(c, n - total)
-        out.append(c)
-        total += c
-        if total >= n:
-            break
-    if total < n:                                # the rest is background
-        if len(out) % 2:                         # the last run is background already
-            out[-1] += n - total
+    all_counts, off = decode_counts(rles)
+    out_rles = []
+    for i, (rle, k) in enumerate(zip(rles, ks)):
+        if k == 0:
+            out_rles.append(rle)
+            continue
+        counts = all_counts[off[i]:off[i + 1]].copy()
+        if k > 0:
+            counts[0] += k
+        else:                                    # cut -k pixels from the front
+            ends = np.cumsum(counts)
+            j = int(np.searchsorted(ends, -k, side="right"))
+            counts = counts[j:]
+            if len(counts):
+                counts[0] = ends[j] + k
+            if j % 2:                            # the first run must be background
+                counts = np.r_[0, counts]
+        if not len(counts):                      # moved off the image entirely
+            counts = np.array([n], np.int64)
+        ends = np.cumsum(counts)                 # trim to the image
+        j = int(np.searchsorted(ends, n, side="left"))
+        if j < len(counts):
+            counts = counts[:j + 1]
+            counts[-1] -= ends[j] - n
+        elif len(counts) % 2:                    # the rest is background: the last run is
+            counts[-1] += n - ends[-1]
         else:
-            out.append(n - total)
-    return mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"]
+            counts = np.r_[counts, n - ends[-1]]
+        out = counts.tolist()
+        out_rles.append(mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"])
+    return out_rles
 
 
 def world_positions(table: MaskTable, camera: Camera | None, ground: GroundSurface | None,

@@ -68,6 +68,9 @@ class TrainConfig:
     radial_calibration: bool = True  # zero-annotation only: see calibrate_radial
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
     rough_occlusion: float = 0.0     # share of rough examples partly hidden by a rough occluder
+    # rough models filmed over the video's background and background-subtracted like its masks
+    # (seg2pose.rough_video); off: measured worse than clean silhouettes (docs/RESULTS.md)
+    rough_video: bool = False
     share_classes: bool = False      # one model per camera with a class one-hot input
     share_cameras: bool = False      # one model for all cameras (lenses of one device)
     geometry: bool = False           # append the mask-geometry features (seg2pose.features)
@@ -376,7 +379,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
     from seg2pose.io.poses import read_poses
-    from seg2pose.training_data import camera_groups, model_jobs
+    from seg2pose.ood import residual_limits
+    from seg2pose.training_data import camera_groups, films_rough, model_jobs
     from seg2pose.zero_annotation import calibrate_radial
 
     cfg = config or TrainConfig()
@@ -401,6 +405,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     out.mkdir(parents=True, exist_ok=True)
     def train_job(job, runs: list[int] | None = None, path: Path | None = None) -> dict:
         n_rough = 0 if job.rough is None else len(job.rough)
+        seen = ExampleSet.concat([e for e in (job.train, job.rough) if e is not None
+                                  and not (cfg.zero_annotation and e is job.train)])
         say(f"{job.path.stem}: {len(job.train)} annotated + {n_rough} rough training examples, "
             f"{len(job.val)} validation")
         ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=job.norm, camera=job.camera, cls=job.key,
@@ -409,7 +415,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                         info={"zero_annotation": cfg.zero_annotation, "cameras": job.cameras,
                               "train_config": asdict(cfg), "n_train": len(job.train),
                               "geometry": GEO_VERSION if cfg.geometry else None,
-                              "n_rough": n_rough, "n_val": len(job.val)})
+                              "n_rough": n_rough, "n_val": len(job.val),
+                              "residual_limit": residual_limits(seen.target, seen.cls)})
 
         def data(ex: ExampleSet) -> _Data:
             return _Data.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
@@ -422,7 +429,10 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
         return best
 
     def finish_job(job) -> None:
-        if cfg.zero_annotation and cfg.radial_calibration:
+        # filmed rough models carry the video's artefacts: the calibration's premise (real
+        # masks have no radial bias the rough ones lack) made them worse (docs/RESULTS.md)
+        if cfg.zero_annotation and cfg.radial_calibration and not all(
+                films_rough(scene, c, cfg) for c in job.cameras):
             off = calibrate_radial(scene, job.path, "train" if "train" in scene.splits else None,
                                    center_method=cfg.center_method)
             say(f"{job.path.stem}: radial calibration from unlabelled masks (m): "

@@ -109,6 +109,26 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
     return ExampleSet.concat(tr_parts), ExampleSet.concat(va_parts)
 
 
+def films_rough(scene: Scene, cam: str, cfg: "TrainConfig") -> bool:
+    """Whether the camera's rough models are filmed and background-subtracted
+    (``cfg.rough_video``, for cameras with a video)."""
+    return bool(cfg.rough_video) and scene.video_path(cam) is not None
+
+
+def rough_looks(scene: Scene, cams: list[str], cfg: "TrainConfig") -> dict:
+    """Camera -> ``rough_video.VideoLook`` for the cameras whose rough models are filmed
+    (``films_rough``)."""
+    from seg2pose.rough_video import video_look
+
+    out = {}
+    for cam in cams:
+        if films_rough(scene, cam, cfg):
+            say(f"camera {cam}: rough models filmed over the video's background and "
+                "background-subtracted like its masks")
+            out[cam] = video_look(scene, cam)
+    return out
+
+
 def model_jobs(scene: Scene, out: Path, cfg: "TrainConfig", net_cfg: NetConfig, group: tuple[str, list[str]],
                classes: list[str], gt: PoseTable | None) -> Iterator[ModelJob]:
     """The models of one camera group (``camera_groups``) x ``classes`` still to train, with
@@ -126,12 +146,13 @@ def model_jobs(scene: Scene, out: Path, cfg: "TrainConfig", net_cfg: NetConfig, 
         return
     rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])
     train_ex, val_ex = _annotated(scene, gcams, gt, cfg, crop, factor, rng)
+    looks = rough_looks(scene, gcams, cfg)
 
     def rough_pool(classes_: list[str], n: int) -> ExampleSet:
         return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
                                                  cfg.center_method,
                                                  detector_noise=cfg.rough_detector_noise,
-                                                 occlusion=cfg.rough_occlusion)
+                                                 occlusion=cfg.rough_occlusion, look=looks.get(cam))
                                   for cam in gcams for c in classes_])
 
     for k, path in todo:

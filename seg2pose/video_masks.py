@@ -120,21 +120,27 @@ class VideoMasksResult:
 
 
 def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
-                   width: int | None = None) -> list[bytes]:
+                   width: int | None = None, y0: int = 0, height: int | None = None) -> list[bytes]:
     """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
 
     One pass over the column-major pixels finds every run of equal labels; each component's
     RLE is its runs with the gaps between them, so no per-component full-image mask is made.
-    ``labels`` may also be a strip of full-height columns starting at column ``x0`` of an
-    image ``width`` wide (the rest of the image is label 0)."""
-    h, w_strip = labels.shape
+    ``labels`` may also be a box at column ``x0``, row ``y0`` of an image ``height`` x
+    ``width`` (the rest of the image is label 0)."""
+    bh, w_strip = labels.shape
     w = w_strip if width is None else int(width)
+    h = bh if height is None else int(height)
     n = h * w
     flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
-    cut = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    change = flat[1:] != flat[:-1]
+    if bh < h:                                    # a box's columns are not contiguous
+        change[bh - 1::bh] = True
+    cut = np.flatnonzero(change) + 1
     vals = flat[np.r_[0, cut]]
-    starts = np.r_[0, cut] + x0 * h               # a strip's pixels are contiguous in the image
-    ends = np.r_[cut, len(flat)] + x0 * h
+    col, row = np.divmod(np.r_[0, cut], bh)
+    starts = (x0 + col) * h + y0 + row
+    col, row = np.divmod(np.r_[cut, len(flat)] - 1, bh)
+    ends = (x0 + col) * h + y0 + row + 1
     out = []
     if len(ids) == 0:
         return out
@@ -255,15 +261,18 @@ def _ranges(frames: list[int]) -> list[tuple[int, int]]:
 
 def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResult,
                      first: int | None = None, last: int | None = None,
-                     progress: bool = False, desc: str = "masks") -> Iterator[MaskTable]:
+                     progress: bool = False, desc: str = "masks",
+                     init_from: int | None = None) -> Iterator[MaskTable]:
     """Stream MaskTables (one per frame with masks) of ``reader``'s frames; ``result`` is filled
-    in as frames are read (also when the video stops early)."""
+    in as frames are read (also when the video stops early). ``init_from``: the scene frame the
+    starting background's samples start at (default: the first frame read; a video segment
+    passes the video's first frame, so that it starts from the uncut run's background)."""
     from tqdm import tqdm
 
     w, h, n_header = reader.header()
     seg = BackgroundMasks(cfg, h, w)
     if cfg.init != "none":
-        span_lo = first if first is not None else reader.first
+        span_lo = init_from if init_from is not None else first if first is not None else reader.first
         # median: samples over the whole video by default; warm-up: one history's worth
         span = cfg.init_frames or (n_header or 300 if cfg.init == "median" else cfg.history)
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
@@ -304,12 +313,14 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
 def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = None, *,
                      camera=None, first_frame: int = 0, frame_step: int = 1,
                      frames: tuple[int, int] | None = None, progress: bool = False,
-                     log: Callable[[str], None] = print) -> VideoMasksResult:
+                     log: Callable[[str], None] = print, init_from: int | None = None
+                     ) -> VideoMasksResult:
     """Background-subtraction masks of one camera's video (file or image folder) written to the
     MOTS file ``out`` (track id -1, class 0), atomically, as frames stream through.
 
     camera: its calibration's width/height must match the frames. first_frame, frame_step:
     scene frame of the first video frame and the step. frames: (first, last) scene frames.
+    init_from: where the starting background's samples start (``iter_video_masks``).
     Warnings (early end, unsettled background) go to ``log`` and into the result."""
     cfg = cfg or BgConfig()
     cfg.validate()
@@ -318,7 +329,8 @@ def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = 
         reader.check_size(camera.width, camera.height)
     res = VideoMasksResult()
     lo, hi = frames if frames is not None else (None, None)
-    write_mots(out, iter_video_masks(reader, cfg, res, lo, hi, progress, desc=Path(video).stem))
+    write_mots(out, iter_video_masks(reader, cfg, res, lo, hi, progress, desc=Path(video).stem,
+                                     init_from=init_from))
     if res.stopped:
         log(f"warning: {reader.path}: {res.stopped}; kept the masks of frames "
             f"{res.first_frame}..{res.last_good}")

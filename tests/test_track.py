@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seg2pose.camera import Camera
 from seg2pose.errors import InputError
@@ -191,3 +193,31 @@ def test_split_gives_the_overlap_to_the_road_user_in_front():
             assert len(i) == 1, (f, k)
             got = decode(out.rles[i[0]], H, W).astype(bool)
             assert (got & m).sum() / (got | m).sum() > 0.9, (f, k)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(-12, 12), st.integers(-4, 4))
+def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
+    """decode_box == the dense mask's box; shift_rles == the dense mask moved along the
+    column-major pixel order by dx * H + dy (a move of dx columns and dy rows)."""
+    from seg2pose.masks import decode
+    from seg2pose.track import decode_box, shift_rles
+
+    rng = np.random.default_rng(seed)
+    h, w = 13, 11
+    m = (rng.random((h, w)) < rng.uniform(0.05, 0.6)).astype(np.uint8)
+    r = encode(m)
+    x0 = int(rng.integers(0, w))
+    x1 = int(rng.integers(x0 + 1, w + 1))
+    y0 = int(rng.integers(0, h))
+    y1 = int(rng.integers(y0 + 1, h + 1))
+    assert (decode_box([r, r], h, x0, x1, 0, h) == m[None, :, x0:x1].astype(bool)).all()
+    assert (decode_box([r, r], h, x0, x1, y0, y1) == m[None, y0:y1, x0:x1].astype(bool)).all()
+    flat, k = m.T.ravel(), dx * h + dy               # |k| may exceed the image: all moved out
+    want = np.zeros_like(flat)
+    if 0 <= k < len(flat):
+        want[k:] = flat[:len(flat) - k]
+    elif -len(flat) < k < 0:
+        want[:k] = flat[-k:]
+    moved = shift_rles([r, r, r], [k, 0, k], [h, w])
+    assert (decode(moved[0], h, w).T.ravel() == want).all() and moved[1] == r and moved[2] == moved[0]

@@ -48,6 +48,17 @@ def test_labels_to_rles_of_a_column_strip(vals, x0):
     assert labels_to_rles(strip, ids, x0=x0, width=7) == labels_to_rles(full, ids)
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 3), min_size=4 * 3, max_size=4 * 3), st.integers(0, 4),
+       st.integers(0, 3))
+def test_labels_to_rles_of_a_box(vals, x0, y0):
+    box = np.array(vals, np.int32).reshape(4, 3)
+    full = np.zeros((4 + 3, 3 + 4), np.int32)
+    full[y0:y0 + 4, x0:x0 + 3] = box
+    ids = np.unique(box[box > 0])
+    assert labels_to_rles(box, ids, x0=x0, width=7, y0=y0, height=7) == labels_to_rles(full, ids)
+
+
 def test_moving_boxes_are_recovered_exactly(tmp_path):
     folder = write_folder(tmp_path / "c0", 30, BOXES)
     res = masks_from_video(folder, tmp_path / "m.txt", CFG, log=lambda s: None)

@@ -43,6 +43,7 @@ def run_cmd(
     device: Optional[str] = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
     allow_incomplete: bool = typer.Option(False, "--allow-incomplete/--no-allow-incomplete", help="use models whose training was interrupted (refused otherwise)"),
+    far_residuals: Literal["warn", "fallback", "off"] = typer.Option("warn", "--far-residuals", help="when the network moves a position further than it ever did in training (99th percentile of its training residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for them) or off"),
     force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
@@ -58,10 +59,15 @@ def run_cmd(
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
-                  allow_incomplete=allow_incomplete, smooth=smooth)
+                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
+    far = meta.get("far_residuals") or {}
+    if far.get("flagged_views"):
+        what = "kept at their normal positions" if far["policy"] == "fallback" else "listed"
+        typer.echo(f"warning: {far['flagged_poses']} poses ({far['flagged_views']} views) were moved further "
+                   f"than the network's training residuals; {what} in {d / 'flagged.csv'}", err=True)
 
 
 def train_cmd(
@@ -78,6 +84,7 @@ def train_cmd(
     batches: Optional[int] = typer.Option(None, "--batches", min=1, help="batches per epoch (the paper: 64)"),
     lr: Optional[float] = typer.Option(None, "--lr", help="learning rate (the paper: 5e-5)"),
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
+    rough_video: Optional[bool] = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: off; on synthetic video it measured worse than clean rough models, docs/RESULTS.md)"),
     rough_occlusion: Optional[float] = typer.Option(None, "--rough-occlusion", help="share of rough-model examples partly hidden by a rough car or pedestrian in front"),
     rough_every: Optional[int] = typer.Option(None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
@@ -105,7 +112,7 @@ def train_cmd(
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
                 rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
                 share_classes=share_classes, share_cameras=share_cameras,
-                rough_detector_noise=rough_noise, geometry=geometry, augment=augment,
+                rough_detector_noise=rough_noise, rough_video=rough_video, geometry=geometry, augment=augment,
                 device=device, threads=threads, seed=seed)
     cfg = cfg.replace(zero_annotation=zero_annotation, force=force,
                       annotated_rows="keyframes" if keyframes_only else "interpolated",

@@ -73,7 +73,8 @@ def register(app: typer.Typer) -> None:
                                           help="a background-subtraction setting KEY=VALUE (repeatable), "
                                                "over scene.json extra.video_masks: method (mog2|knn), "
                                                "history, threshold, shadows, init (median|warmup|none), "
-                                               "init_frames, init_samples, learning_rate, open_px, "
+                                               "init_frames, init_samples, learning_rate, update "
+                                               "(selective|all|none), update_every, open_px, "
                                                "close_px, min_area, unsettled"),
         track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
         classes: bool = typer.Option(True, "--classes/--no-classes",
@@ -101,8 +102,9 @@ def register(app: typer.Typer) -> None:
         setting: List[str] = typer.Option([], "--set",
                                           help="a tracker setting KEY=VALUE (repeatable), over scene.json "
                                                "extra.tracker: iou_min, gate_m, gate_growth, max_gap, "
-                                               "min_length, gap_penalty, split_min (e.g. 0.6: split "
-                                               "a mask holding two tracks' previous masks)"),
+                                               "min_length, gap_penalty, split_min (default 0.5: split "
+                                               "a mask holding half of two tracks' predicted masks; "
+                                               "0: never)"),
         classes: bool = typer.Option(False, "--classes/--no-classes",
                                      help="also give masks without a class one from their track's world size"),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),

@@ -234,12 +234,16 @@ def check_run_writable(run_dir: str | Path, force: bool) -> None:
 
 
 def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | None, meta: dict,
-                     force: bool = False) -> Path:
+                     force: bool = False, extra_files: dict[str, str] | None = None) -> Path:
     """Write RUN/poses.csv, RUN/views.csv (when ``views`` is given) and RUN/run.json as a unit:
     into a temporary sibling folder, flushed, then renamed into place; an existing non-empty
     ``run_dir`` is only replaced with ``force`` (the new folder is swapped in, then the old one
-    removed). Returns ``run_dir``."""
+    removed). ``extra_files``: more text files of the run (name -> text, e.g. flagged.csv).
+    Returns ``run_dir``."""
     run_dir = Path(run_dir)
+    for name in extra_files or {}:
+        if Path(name).name != name or name in (POSES_FILE, VIEWS_FILE, RUN_FILE):
+            raise ValueError(f"not an extra run file name: {name!r}")
     with output_lock(run_dir):
         check_run_writable(run_dir, force)
         tmp = temp_sibling_dir(run_dir)
@@ -248,6 +252,8 @@ def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | N
                 atomic_write_text(tmp / POSES_FILE, format_poses(poses))
                 if views is not None:
                     atomic_write_text(tmp / VIEWS_FILE, format_views(views))
+                for name, text in (extra_files or {}).items():
+                    atomic_write_text(tmp / name, text)
                 atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
                 swap_in(tmp, run_dir)
         except BaseException:
