@@ -100,11 +100,13 @@ def bgsub_only(video: Path, n: int) -> float:
 
 
 def tracker_fps(n_frames: int, n_users: int, repeat: int = 1
-                ) -> tuple[list[float], list[float], list[float], float]:
+                ) -> tuple[list[tuple[float, float]], list[tuple[float, float]],
+                           list[tuple[float, float]], float]:
     """frames/s of the tracker on 20 moving masks per frame: IoU only and IoU + world distances
     (both without splitting), and the default (world distances + splitting of merged masks),
-    each ``repeat`` times, interleaved (so all three see the same load); plus the share of
-    frames with a split.
+    each ``repeat`` times, interleaved (so all three see the same load): (frames per second
+    of wall time, frames per second of this process's CPU time) per run; plus the share of
+    frames with a split. On a loaded machine the CPU figure is the steadier one.
     The blobs overlap often (they are drawn at random and wrap around): a worst case."""
     from seg2pose.camera import Camera
     from seg2pose.ground import GroundSurface
@@ -130,28 +132,32 @@ def tracker_fps(n_frames: int, n_users: int, repeat: int = 1
     ground = GroundSurface(g)
     from seg2pose.track import TrackConfig, Tracker, _run
 
-    out: list[list[float]] = [[], [], []]
+    out: list[list[tuple[float, float]]] = [[], [], []]
     for _ in range(repeat):
         for k, (c, gr, split) in enumerate(((None, None, 0.0), (cam, ground, 0.0),
                                             (cam, ground, TrackConfig().split_min))):
-            t = time.perf_counter()
+            t, cpu = time.perf_counter(), time.process_time()
             track_frames(iter(tabs), H, W, c, gr, TrackConfig(split_min=split))
-            out[k].append(n_frames / (time.perf_counter() - t))
+            out[k].append((n_frames / (time.perf_counter() - t), n_frames / (time.process_time() - cpu)))
     tr = Tracker(H, W, TrackConfig())
     split_frames = sum(len(m) > len(t) for (m, _), (_, t) in zip(_run(iter(tabs), tr, cam, ground), tabs))
     return out[0], out[1], out[2], split_frames / n_frames
 
 
 def tracker_report(a) -> None:
-    def fig(v: list[float]) -> str:
+    def one(v: list[float]) -> str:
         v = sorted(v)
         return f"{v[len(v) // 2]:.0f}" + (f" ({v[0]:.0f}-{v[-1]:.0f})" if len(v) > 1 else "")
+
+    def fig(runs: list[tuple[float, float]]) -> str:
+        return f"{one([w for w, _ in runs])} [CPU {one([c for _, c in runs])}]"
 
     iou_fps, world_fps, split_fps, share = tracker_fps(min(a.frames, 1000), a.users, a.repeat)
     print(f"tracker, {a.users} masks/frame, no splitting: IoU only {fig(iou_fps)} frames/s, IoU + "
           f"world distance {fig(world_fps)} frames/s; default (with merged-mask splitting) "
           f"{fig(split_fps)} frames/s ({100 * share:.0f} % of frames had a split)"
-          + (f"; median (min-max) of {a.repeat} runs" if a.repeat > 1 else ""))
+          + (f"; median (min-max) of {a.repeat} runs" if a.repeat > 1 else "")
+          + "; [CPU ...]: frames per second of the process's CPU time")
 
 
 def main() -> None:

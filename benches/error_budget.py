@@ -7,7 +7,7 @@ smoothing along the track can remove it), and the share that is frame-to-frame n
 centred mean over +-4 frames of the road user's errors removes: the most smoothing can gain).
 
     .venv/bin/python benches/error_budget.py SCENE TABLE [TABLE ...] [--configs mono-1,tri-I]
-        [--smooth N]
+        [--smooth N] [--class pedestrian]
 
 ``--smooth N``: the runs' views fused again with positions smoothed along the tracks
 (``s2p paper-table --smooth N``).
@@ -30,7 +30,7 @@ from seg2pose.smoothing import smooth_along_tracks
 NOISE_WINDOW = 4  # frames either side
 
 
-def budget(scene, run_dir: Path, smooth: int = 0) -> dict:
+def budget(scene, run_dir: Path, smooth: int = 0, cls: str | None = None) -> dict:
     """Error terms of one run on the scene's test split (metres; shares in [0, 1])."""
     gt = read_poses(scene.gt_path)
     if smooth:
@@ -41,7 +41,7 @@ def budget(scene, run_dir: Path, smooth: int = 0) -> dict:
     else:
         est = read_poses(run_dir / "poses.csv")
     lo, hi = scene.split_range("test")
-    keep = (gt.frame >= lo) & (gt.frame <= hi)
+    keep = (gt.frame >= lo) & (gt.frame <= hi) & ((gt.cls == cls) if cls else True)
     ie, ig = match_poses(est, gt)
     ok = keep[ig]
     ie, ig = ie[ok], ig[ok]
@@ -71,6 +71,7 @@ def main() -> None:
     ap.add_argument("tables", nargs="+")
     ap.add_argument("--configs", default="mono-1,tri-I")
     ap.add_argument("--smooth", type=int, default=0)
+    ap.add_argument("--class", dest="cls", default=None, help="only this class's poses")
     a = ap.parse_args()
     scene = load_scene(a.scene)
     print(f"{'table':<14} {'run':<18} {'poses':>6} {'mean m':>7} {'radial':>7} {'tangential':>10} "
@@ -81,7 +82,7 @@ def main() -> None:
                 rd = Path(t) / "runs" / f"{cfg}-{method}"
                 if not (rd / "poses.csv").exists():
                     continue
-                b = budget(scene, rd, a.smooth)
+                b = budget(scene, rd, a.smooth, a.cls)
                 print(f"{Path(t).name:<14} {cfg + '-' + method:<18} {b['n']:>6} {b['mean']:>7.3f} "
                       f"{b['radial']:>7.3f} {b['tangential']:>10.3f} {b['worst10_share']:>17.2f} "
                       f"{b['per_user_bias_share']:>29.2f} {b['noise_share']:>25.2f}")

@@ -35,7 +35,7 @@ from seg2pose.errors import InputError
 from seg2pose.ground import GroundSurface
 from seg2pose.video_masks import labels_to_rles
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
-from seg2pose.masks import decode_counts, foreground_runs
+from seg2pose.masks import decode_counts
 
 _BLOCK = 256          # frames whose normal positions are computed together
 _INVALID = 1e6        # cost of a forbidden pair
@@ -161,11 +161,20 @@ class Tracker:
         # mask as its shape); only those that may be inside a merged mask are moved now
         lazy = {int(i): int(dx) * h + int(dy) for i, (dx, dy) in zip(recent, shift)}
         sel = recent[need]
-        moved = shift_rles([self.shape[i] for i in sel], [lazy[int(i)] for i in sel], self.size)
-        pred = {int(i): r for i, r in zip(sel, moved)}
         # masks that none of them may be inside cannot hold a share >= split_min: leaving them
         # out changes no share's row maximum that matters
         cols = np.flatnonzero(may[need].any(axis=0))
+        # the runs of their shapes and of those masks, decoded at once (reused by _split)
+        vals, off = decode_counts([self.shape[i] for i in sel] + [rles[k] for k in cols])
+        runs = [vals[off[j]:off[j + 1]] for j in range(len(off) - 1)]
+        blob_runs = dict(zip(cols.tolist(), runs[len(sel):]))
+        moved, pred_runs = [], {}
+        for j, i in enumerate(sel.tolist()):
+            k = lazy[i]
+            pred_runs[i] = shift_counts(runs[j], k, h * self.size[1]) if k else runs[j]
+            moved.append(mask_util.frPyObjects({"size": self.size, "counts": pred_runs[i].tolist()},
+                                               *self.size)["counts"] if k else self.shape[i])
+        pred = dict(zip(sel.tolist(), moved))
         objs_t = [{"size": self.size, "counts": r} for r in moved]
         objs_d = [{"size": self.size, "counts": rles[k]} for k in cols]
         iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(cols)), float).reshape(len(sel), len(cols))
@@ -177,21 +186,21 @@ class Tracker:
         if not merged:
             return rles, xy, src
         recent = sel
-        out_r, out_xy, out_src, split_rows = [], [], [], []
+        out_r, out_src, split_rows = [], [], []
         for d in range(len(rles)):
             if d not in merged:
                 out_r.append(rles[d])
-                out_xy.append(xy[d])
                 out_src.append(d)
                 continue
             members = recent[inside[:, d]]
-            for part in self._split(rles[d], [pred[int(i)] for i in members]):
+            for part in self._split(rles[d], [pred[int(i)] for i in members],
+                                    [blob_runs[d], *(pred_runs[int(i)] for i in members)]):
                 split_rows.append(len(out_r))
                 out_r.append(part)
-                out_xy.append(np.full(2, np.nan))
                 out_src.append(d)
         self._pred, self._lazy = pred, lazy
-        out_xy = np.array(out_xy, float).reshape(-1, 2)
+        out_xy = xy[out_src].reshape(-1, 2)
+        out_xy[split_rows] = np.nan
         if self.positions is not None and split_rows:
             out_xy[split_rows] = self.positions([out_r[i] for i in split_rows])
         return out_r, out_xy, np.array(out_src, np.int64)
@@ -209,18 +218,20 @@ class Tracker:
             self._pred[r] = shift_rles([self.shape[r]], [self._lazy[r]], self.size)[0]
         return self._pred[r]
 
-    def _split(self, blob: bytes, predicted: list[bytes], min_px: int = 20) -> list[bytes]:
+    def _split(self, blob: bytes, predicted: list[bytes], runs: list[np.ndarray],
+               min_px: int = 20) -> list[bytes]:
         """The blob's pixels shared out between road users with the ``predicted`` masks (their
         shapes moved on by their motion): a pixel inside predicted masks goes to the nearest
         of those road users (the lowest mask bottom in the image: the camera looks down on the
         ground, so lower is nearer and hides the others); a pixel outside all of them to the
         nearest predicted mask (distance transform). Works in the blob's box; parts under
-        ``min_px`` pixels are dropped."""
+        ``min_px`` pixels are dropped. ``runs``: the run lengths of the blob and the predicted
+        masks (uncompressed RLE counts)."""
         import cv2
 
         h, w = self.size
         x0, y0, bw, bh = (int(v) for v in mask_util.toBbox({"size": self.size, "counts": blob}))
-        strips = decode_box([blob, *predicted], h, x0, x0 + bw, y0, y0 + bh)
+        strips = box_of_runs(runs, h, x0, x0 + bw, y0, y0 + bh)
         m = strips[0]
         covered = strips[1:]
         # the predicted mask's lowest row, over the whole mask (it may reach past the blob)
@@ -228,9 +239,14 @@ class Tracker:
         bottom = np.where(pb[:, 3] > 0, pb[:, 1] + pb[:, 3], -1.0)
         held = covered.any(axis=0)
         if (m & ~held).any():      # pixels outside every predicted mask: the nearest one
-            dist = np.stack([cv2.distanceTransform((~p).astype(np.uint8), cv2.DIST_L2, 3)
-                             for p in covered])
-            owner = np.argmin(dist, axis=0)
+            # the first of the nearest (as argmin): a later one must be strictly nearer
+            best = cv2.distanceTransform((~covered[0]).astype(np.uint8), cv2.DIST_L2, 3)
+            owner = np.zeros((bh, bw), np.int64)
+            for k in range(1, len(covered)):
+                dk = cv2.distanceTransform((~covered[k]).astype(np.uint8), cv2.DIST_L2, 3)
+                nearer = dk < best
+                owner[nearer] = k
+                best = np.where(nearer, dk, best)
         else:
             owner = np.zeros((bh, bw), np.int64)
         # among the predicted masks that hold a pixel, the nearest road user takes it: paint
@@ -340,8 +356,23 @@ class Tracker:
 def decode_box(rles: list[bytes], h: int, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
     """(N, y1 - y0, x1 - x0) bool: the box rows y0..y1-1, columns x0..x1-1 of each mask (of an
     image ``h`` rows high), filled from the foreground runs that cross it, all masks at once."""
-    n, bw, bh = len(rles), x1 - x0, y1 - y0
-    owner, start, length, _ = foreground_runs(rles)
+    vals, off = decode_counts(rles)
+    return box_of_runs([vals[off[i]:off[i + 1]] for i in range(len(rles))], h, x0, x1, y0, y1)
+
+
+def box_of_runs(runs: list[np.ndarray], h: int, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+    """``decode_box`` of masks given by their run lengths (uncompressed COCO RLE counts)."""
+    n, bw, bh = len(runs), x1 - x0, y1 - y0
+    per = np.array([len(r) for r in runs], np.int64)
+    counts = np.concatenate(runs)
+    owner = np.repeat(np.arange(n), per)
+    first = np.repeat(np.cumsum(per) - per, per)           # each mask's first run
+    cs = np.cumsum(counts)
+    # positions restart at 0 for each mask: less the pixels of the masks before it
+    before = np.concatenate([[0], cs[np.cumsum(per)[:-1] - 1]])
+    start_all = cs - counts - np.repeat(before, per)
+    fg = (np.arange(len(counts)) - first) % 2 == 1         # runs alternate background, foreground
+    owner, start, length = owner[fg], start_all[fg], counts[fg]
     s = np.clip(start, x0 * h, x1 * h)
     e = np.clip(start + length, x0 * h, x1 * h)
     keep = e > s
@@ -354,10 +385,13 @@ def decode_box(rles: list[bytes], h: int, x0: int, x1: int, y0: int, y1: int) ->
     r1 = np.clip(np.minimum(e[rep] - col * h, h), y0, y1) - y0
     ok = r1 > r0
     at = (owner[rep][ok] * bw + col[ok] - x0) * (bh + 1)
-    size = n * bw * (bh + 1)
-    # +1 where a segment starts, -1 where it ends: a cumulative sum along the column fills it
-    d = np.bincount(at + r0[ok], minlength=size) - np.bincount(at + r1[ok], minlength=size)
-    out = np.cumsum(d.reshape(n, bw, bh + 1)[:, :, :bh], axis=2) > 0
+    # +1 where a segment starts, -1 where it ends: a cumulative sum fills them (added, not
+    # set: in an RLE with an empty background run two segments touch)
+    d = np.zeros((n, bw, bh + 1), np.int8)
+    flat = d.reshape(-1)
+    np.add.at(flat, at + r0[ok], 1)
+    np.add.at(flat, at + r1[ok], -1)
+    out = np.cumsum(d[:, :, :bh], axis=2, dtype=np.int8).view(bool)
     return out.transpose(0, 2, 1)
 
 
@@ -367,38 +401,51 @@ def shift_rles(rles: list[bytes], ks: list[int], size: list[int]) -> list[bytes]
     the bottom of a column wrap into the next one, which is negligible for prediction). The
     runs of all masks are decoded in one vectorised pass."""
     h, w = size
-    n = h * w
     all_counts, off = decode_counts(rles)
     out_rles = []
     for i, (rle, k) in enumerate(zip(rles, ks)):
         if k == 0:
             out_rles.append(rle)
             continue
-        counts = all_counts[off[i]:off[i + 1]].copy()
-        if k > 0:
-            counts[0] += k
-        else:                                    # cut -k pixels from the front
-            ends = np.cumsum(counts)
-            j = int(np.searchsorted(ends, -k, side="right"))
-            counts = counts[j:]
-            if len(counts):
-                counts[0] = ends[j] + k
-            if j % 2:                            # the first run must be background
-                counts = np.r_[0, counts]
-        if not len(counts):                      # moved off the image entirely
-            counts = np.array([n], np.int64)
-        ends = np.cumsum(counts)                 # trim to the image
-        j = int(np.searchsorted(ends, n, side="left"))
-        if j < len(counts):
-            counts = counts[:j + 1]
-            counts[-1] -= ends[j] - n
-        elif len(counts) % 2:                    # the rest is background: the last run is
-            counts[-1] += n - ends[-1]
-        else:
-            counts = np.r_[counts, n - ends[-1]]
-        out = counts.tolist()
+        out = shift_counts(all_counts[off[i]:off[i + 1]], k, h * w).tolist()
         out_rles.append(mask_util.frPyObjects({"size": [h, w], "counts": out}, h, w)["counts"])
     return out_rles
+
+
+def shift_counts(counts: np.ndarray, k: int, n: int) -> np.ndarray:
+    """The run lengths (uncompressed COCO RLE) of a mask of ``n`` pixels moved by ``k`` pixels
+    along the column-major order (see ``shift_rles``); a new array."""
+    counts = counts.copy()
+    last_bg = len(counts) % 2 == 1               # the last run is background
+    if k > 0 and last_bg and counts[-1] > k:     # stays inside: only the end runs change
+        counts[0] += k
+        counts[-1] -= k
+        return counts
+    if k < 0 and counts[0] > -k:
+        counts[0] += k
+        return np.r_[counts[:-1], counts[-1] - k] if last_bg else np.r_[counts, -k]
+    if k > 0:
+        counts[0] += k
+    else:                                    # cut -k pixels from the front
+        ends = np.cumsum(counts)
+        j = int(np.searchsorted(ends, -k, side="right"))
+        counts = counts[j:]
+        if len(counts):
+            counts[0] = ends[j] + k
+        if j % 2:                            # the first run must be background
+            counts = np.r_[0, counts]
+    if not len(counts):                      # moved off the image entirely
+        counts = np.array([n], np.int64)
+    ends = np.cumsum(counts)                 # trim to the image
+    j = int(np.searchsorted(ends, n, side="left"))
+    if j < len(counts):
+        counts = counts[:j + 1]
+        counts[-1] -= ends[j] - n
+    elif len(counts) % 2:                    # the rest is background: the last run is
+        counts[-1] += n - ends[-1]
+    else:
+        counts = np.r_[counts, n - ends[-1]]
+    return counts
 
 
 def world_positions(table: MaskTable, camera: Camera | None, ground: GroundSurface | None,

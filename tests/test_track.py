@@ -221,3 +221,15 @@ def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
         want[:k] = flat[-k:]
     moved = shift_rles([r, r, r], [k, 0, k], [h, w])
     assert (decode(moved[0], h, w).T.ravel() == want).all() and moved[1] == r and moved[2] == moved[0]
+    assert moved[0] == encode(want.reshape(w, h).T)         # the canonical RLE, byte for byte
+
+
+def test_box_of_runs_takes_an_empty_background_run():
+    """Runs 2 bg, 1 fg, 0 bg, 2 fg, 10 bg (not canonical: a writer may make it) fill pixels
+    2-4 of a 5 x 3 image, column-major: column 0 rows 2-4."""
+    from seg2pose.track import box_of_runs
+
+    got = box_of_runs([np.array([2, 1, 0, 2, 10]), np.array([15])], 5, 0, 3, 1, 5)
+    want = np.zeros((5, 3), bool)
+    want[2:5, 0] = True
+    assert (got[0] == want[1:5]).all() and not got[1].any()
