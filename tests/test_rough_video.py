@@ -63,12 +63,16 @@ def test_video_look_measures_the_background_and_the_noise(tiny):
     assert 3.6 < look.noise_sigma < 4.8
 
 
-def test_isolated_examples_are_the_subtractors_masks_of_the_filmed_models(tiny):
-    cam = tiny.cameras["c1"]
+def _filmed(scene, cls: str, n: int, seed: int, neighbours: float):
+    """``n`` filmed rough-model examples of ``cls`` on camera c1 over a synthetic background."""
+    cam = scene.cameras["c1"]
     look = VideoLook(_background(cam.height, cam.width), 2.0, BgConfig(min_area=20))
-    rng = np.random.default_rng(0)
-    rles, xyz, hd, stats = render_video_examples(cam, tiny.ground, "car", 24, rng, look,
-                                                 neighbours=0.0, occlusion=0.0, scale_jitter=0.0)
+    return cam, *render_video_examples(cam, scene.ground, cls, n, np.random.default_rng(seed), look,
+                                       neighbours=neighbours, occlusion=0.0, scale_jitter=0.0)
+
+
+def test_isolated_examples_are_the_subtractors_masks_of_the_filmed_models(tiny):
+    cam, rles, xyz, hd, stats = _filmed(tiny, "car", 24, seed=0, neighbours=0.0)
     assert len(rles) == 24 and xyz.shape == (24, 3) and hd.shape == (24,)
     assert stats["merged"] == 0 and stats["targets"] >= 24 and stats["frames"] >= 3
     ious = []
@@ -86,11 +90,7 @@ def test_isolated_examples_are_the_subtractors_masks_of_the_filmed_models(tiny):
 
 
 def test_neighbours_make_merged_blobs_larger_than_the_target(tiny):
-    cam = tiny.cameras["c1"]
-    look = VideoLook(_background(cam.height, cam.width), 2.0, BgConfig(min_area=20))
-    rng = np.random.default_rng(2)
-    rles, xyz, hd, stats = render_video_examples(cam, tiny.ground, "pedestrian", 40, rng, look,
-                                                 neighbours=1.0, occlusion=0.0, scale_jitter=0.0)
+    cam, rles, xyz, hd, stats = _filmed(tiny, "pedestrian", 40, seed=2, neighbours=1.0)
     assert stats["merged"] >= 5
     area = np.array([decode(r, cam.height, cam.width).sum() for r in rles])
     clean = np.array([_clean(cam, p, h, "pedestrian").sum() for p, h in zip(xyz, hd)])
