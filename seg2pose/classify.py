@@ -9,22 +9,24 @@ the ground nearest the camera. Then
 - height = how far above F the ray through the box's top edge passes, in that plane.
 
 Each class has a width and a height range (``scene.json`` ``extra.size_classes``, defaults from
-``DEFAULT_SIZE_CLASSES``): the 5th-95th percentiles of that class's sizes, read as a log-normal
-distribution. A mask's evidence for a class is the log-likelihood of its size under it, mixed
-with a small share ``OUTLIER`` of "any size" so that one merged blob or fragment cannot outvote
-many good masks. A mask cut by the image border says less:
+``DEFAULT_SIZE_CLASSES``): about the 5th-95th percentiles of that class's sizes, read as a
+log-normal distribution. A mask's evidence for a class is the log-likelihood of its size under
+it, mixed with a share ``OUTLIER`` of "any size" so that merged blobs and fragments cannot
+outvote many good masks. A mask whose box touches the image border says less:
 
-- cut at the left or right (or top) edge: only part of the road user's width (height) is seen,
-  a uniform share of it, so the visible size x counts as E[1/S; S >= x] under the class's size
-  S (small classes explain a small visible piece better, big ones a big piece);
-- cut at the bottom edge: the foot point is not seen, so the sizes are measured at a wrong
-  distance; such masks count with weight ``BOTTOM_CUT_WEIGHT`` (they decide only a track seen
-  cut all the time).
+- at the left or right (or top) edge: the road user may be cut there. With probability
+  ``CUT_WHOLE`` it is whole anyway (it just touches the border); otherwise the visible width
+  (height) x is a uniform share of the true size S, whose density is E[1/S; S >= x]: small
+  classes explain a small visible piece better, big ones a big piece;
+- at the bottom edge: the foot point is not seen, so the sizes are measured at a wrong
+  distance; such masks weigh ``BOTTOM_CUT_WEIGHT``.
 
-A class may have a typical top ``speed`` (m/s): a track faster than that (its
-``SPEED_QUANTILE`` th percentile speed of foot points ``SPEED_WINDOW_S`` apart) loses
-``SPEED_WEIGHT * log(speed / top)`` per mask for that class. Each track gets one class: the one with the
-largest weighted sum over its masks (masks without a track id get their own best class).
+A class may have a top ``speed`` (m/s): a track faster than that (the ``SPEED_QUANTILE`` th
+percentile of its ground-point speeds over ``SPEED_WINDOW_S``) loses ``SPEED_WEIGHT *
+log(speed / top)`` per mask for that class: a car cut by the border down to a pedestrian-sized
+piece is still no pedestrian if it drove there. Each track gets one class, the one with the
+largest weighted sum over its masks (masks without a track id get their own most likely class).
+Defaults and constants were chosen on synthetic seeds 101-102 (docs/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 # width and height ranges (5th-95th percentiles, metres) and top speeds (m/s).
 DEFAULT_SIZE_CLASSES = {
     "pedestrian": {"width": [0.5, 1.0], "height": [1.5, 2.2], "speed": 3.0},
-    "bicyclist": {"width": [0.9, 1.7], "height": [1.5, 2.4]},
+    "bicyclist": {"width": [0.9, 1.7], "height": [1.5, 2.4], "speed": 8.0},
     "car": {"width": [2.0, 5.5], "height": [1.5, 3.9]},
     "truck": {"width": [2.2, 12.0], "height": [2.6, 5.0]},
     "bus": {"width": [2.4, 14.0], "height": [2.8, 5.0]},
@@ -185,7 +187,8 @@ def _loglik_1d(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, cut: np.ndarray) -
     lx = np.log(x)[:, None]
     whole = -0.5 * ((lx - mu) / sg) ** 2 - np.log(sg * np.sqrt(2 * np.pi)) - lx
     part = -mu + sg ** 2 / 2 + log_ndtr((mu - sg ** 2 - lx) / sg)
-    part = np.logaddexp(np.log(CUT_WHOLE) + whole, np.log1p(-CUT_WHOLE) + part)
+    with np.errstate(divide="ignore"):                 # CUT_WHOLE 0 or 1: log 0 = -inf
+        part = np.logaddexp(np.log(CUT_WHOLE) + whole, np.log1p(-CUT_WHOLE) + part)
     return np.where(cut[:, None], part, whole)
 
 
