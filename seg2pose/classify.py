@@ -61,6 +61,7 @@ SPEED_WINDOW_S = 0.5        # seconds between the foot points a speed is measure
 SPEED_QUANTILE = 80         # a track's speed: this percentile of its speeds
 SPEED_WEIGHT = 10.0         # log-likelihood lost per mask and per unit of log(speed / top)
 CUT_SIDE, CUT_TOP, CUT_BOTTOM = 1, 2, 4   # border_cuts bits
+_CHUNK = 50_000             # masks whose rays are cast together
 
 
 @dataclass(frozen=True)
@@ -156,20 +157,27 @@ def foot_and_sizes(boxes: np.ndarray, camera: Camera, ground: GroundSurface
     return F, out
 
 
-def track_points(boxes: np.ndarray, width: int, camera: Camera, ground: GroundSurface
-                 ) -> np.ndarray:
+def track_points(boxes: np.ndarray, width: int, camera: Camera, ground: GroundSurface,
+                 foot: np.ndarray | None = None) -> np.ndarray:
     """(N, 2) metres: ground points that move with the road user, for its speed: below the
     box's bottom centre, or below its inner edge when the box is cut at one side (a road user
     driving in from the border grows from there: its centre moves at half its speed). boxes
-    (N, 4) pixels, width: the image's, pixels."""
+    (N, 4) pixels, width: the image's, pixels; foot: (N, 3) the boxes' foot points when known
+    (foot_and_sizes), so that only the cut boxes cast new rays."""
     b = np.asarray(boxes, float).reshape(-1, 4)
     if not len(b):
         return np.zeros((0, 2))
     x0, y0, bw, bh = b.T
     left, right = x0 <= 1.0, x0 + bw >= width - 1.0
     x = np.where(left & ~right, x0 + bw, np.where(right & ~left, x0, x0 + bw / 2))
-    X, _ = ground.intersect_rays(camera.center, camera.unproject(np.stack([x, y0 + bh], axis=1)), 0.0)
-    return X[:, :2]
+    out = np.full((len(b), 2), np.nan)
+    cast = left != right if foot is not None else np.ones(len(b), bool)
+    if foot is not None:
+        out[~cast] = foot[~cast, :2]
+    if cast.any():
+        px = np.stack([x[cast], (y0 + bh)[cast]], axis=1)
+        out[cast] = ground.intersect_rays(camera.center, camera.unproject(px), 0.0)[0][:, :2]
+    return out
 
 
 def world_sizes(rles: list[bytes], height: int, width: int, camera: Camera,
@@ -276,24 +284,27 @@ def classify_mots(src: str | Path, out: str | Path, camera: Camera, ground: Grou
     per track, into ``out`` (may be ``src``; atomic). Masks that already have a class keep it
     unless ``overwrite_known``. Untracked masks (-1) get their own most likely class. Returns
     track id -> class."""
-    tids, frames, lls, wts, feet = [], [], [], [], []
-    for f, t in iter_mots(src):
-        box = mask_boxes(t.rles, t.height, t.width)
-        _, sizes = foot_and_sizes(box, camera, ground)
-        cuts = border_cuts(box, t.height, t.width)
+    tids, frames, boxes, size = [], [], [], None
+    for f, t in iter_mots(src):             # boxes first: the rays are cast for all at once
         tids.append(t.track_id)
         frames.append(np.full(len(t), f, np.int64))
-        lls.append(size_loglik(sizes, rules, cuts))
-        wts.append(np.where(cuts & CUT_BOTTOM, BOTTOM_CUT_WEIGHT, 1.0)
-                   * np.isfinite(sizes).all(axis=1))
-        if fps:
-            feet.append(track_points(box, t.width, camera, ground))
-    if not tids:
+        boxes.append(mask_boxes(t.rles, t.height, t.width))
+        size = (t.height, t.width)
+    if size is None:
         write_mots(out, [])
         return {}
-    tid, ll, wt = np.concatenate(tids), np.concatenate(lls), np.concatenate(wts)
+    tid, box = np.concatenate(tids), np.concatenate(boxes)
+    ll, wt, points = np.zeros((len(tid), len(rules.ids))), np.zeros(len(tid)), np.zeros((len(tid), 2))
+    for a in range(0, len(tid), _CHUNK):
+        b = slice(a, a + _CHUNK)
+        foot, sizes = foot_and_sizes(box[b], camera, ground)
+        cuts = border_cuts(box[b], *size)
+        ll[b] = size_loglik(sizes, rules, cuts)
+        wt[b] = np.where(cuts & CUT_BOTTOM, BOTTOM_CUT_WEIGHT, 1.0) * np.isfinite(sizes).all(axis=1)
+        if fps:
+            points[b] = track_points(box[b], size[1], camera, ground, foot)
     if fps and np.isfinite(rules.speed).any():
-        speeds = track_speeds(tid, np.concatenate(frames), np.concatenate(feet), fps)
+        speeds = track_speeds(tid, np.concatenate(frames), points, fps)
         v = np.array([speeds.get(int(i), np.nan) for i in tid])
         with np.errstate(invalid="ignore", divide="ignore"):
             over = np.log(v[:, None] / rules.speed[None, :])
