@@ -17,7 +17,9 @@ command (printed, with its wall time), in a fresh copy of the scene (DIR/bg-S):
    calibration);
 5. ``s2p eval --match nearest`` for every run (all frames), and with ``--truth`` the same
    runs on the truth masks (rendered silhouettes of every visible road user, ids = truth ids)
-   for the error budget: ``truth-base`` (rough heights) and ``truth-<variant>``.
+   for the error budget: ``truth-base`` (rough heights) and ``truth-<variant>``;
+6. with ``--smooth N``: base-rough and every variant again with ``s2p run --smooth N`` (positions
+   smoothed along the tracks, the baseline's too, so the comparison stays fair).
 
 Prints one JSON line per run and writes DIR/video_zero-S.json.
 """
@@ -69,6 +71,9 @@ def main() -> None:
     ap.add_argument("--run-arg", action="append", default=[], help="extra s2p run argument (network runs)")
     ap.add_argument("--tag", default="", help="suffix of the variants' model and run names")
     ap.add_argument("--rough-heights", type=int, default=2000)
+    ap.add_argument("--smooth", type=int, default=0,
+                    help="also base-rough and every variant with positions smoothed along the tracks "
+                         "over this many frames either side (rows named ...-smooth<N>)")
     a = ap.parse_args()
     seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
     sc = a.out / f"bg-{seed}"
@@ -89,6 +94,11 @@ def main() -> None:
         print(s2p("heights", str(sc), "--rough", str(a.rough_heights), "--camera", "c1"), file=sys.stderr)
         s2p("run", str(sc), "-o", str(sc / "out" / "base-rough"), "-c", "mono-1", "--baseline", "--force")
         save(ev_row("base-rough", sc, sc / "out" / "base-rough"))
+    sm = f"-smooth{a.smooth}"
+    if a.smooth and f"base-rough{sm}" not in rows:
+        s2p("run", str(sc), "-o", str(sc / "out" / f"base-rough{sm}"), "-c", "mono-1", "--baseline",
+            "--smooth", str(a.smooth), "--force")
+        save(ev_row(f"base-rough{sm}", sc, sc / "out" / f"base-rough{sm}"))
     tr = None
     if a.truth:
         # the truth masks in a scene with the same (rough) heights
@@ -116,6 +126,10 @@ def main() -> None:
         row["train_args"] = VARIANTS[v] + a.train_arg
         row["far_residuals"] = json.loads((sc / "out" / name / "run.json").read_text()).get("far_residuals")
         save(row)
+        if a.smooth and name + sm not in rows:
+            s2p("run", str(sc), "-o", str(sc / "out" / (name + sm)), "-c", "mono-1", "--models", str(models),
+                "--smooth", str(a.smooth), "--force", *a.run_arg)
+            save(ev_row(name + sm, sc, sc / "out" / (name + sm)))
         if tr is not None:
             s2p("run", str(tr), "-o", str(tr / "out" / name), "-c", "mono-1", "--models", str(models),
                 "--force", *a.run_arg)
