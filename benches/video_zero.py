@@ -8,8 +8,8 @@ command (printed, with its wall time), in a fresh copy of the scene (DIR/bg-S):
 
 1. ``s2p masks-from-video`` (MOG2 + components + tracker + size classes) on camera c1;
 2. ``base-default``: ``s2p run --baseline -c mono-1`` with the scene's default heights;
-3. ``s2p heights --rough 2000 --camera c1`` (no annotations; filmed rough models, since the
-   masks came from video), then ``base-rough``: the baseline with those heights;
+3. ``s2p heights --rough 2000 --camera c1`` (no annotations: rough models rendered clean, which
+   give the filmed ones' heights within 1.2 cm, docs/RESULTS.md), then ``base-rough``: the baseline with those heights;
 4. per variant: ``s2p train --protocol quick --zero-annotation --camera c1`` (+ the variant's
    flags), ``s2p run -c mono-1 --models``; variants: ``zero-clean`` (``--no-rough-video``, the
    default: clean rough silhouettes, radial calibration), ``zero-video`` (``--rough-video``:
