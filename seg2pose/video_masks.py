@@ -37,6 +37,7 @@ from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
+TEX_WIN = 5  # window (pixels) of the shadow texture test
 
 
 @dataclass
@@ -49,6 +50,9 @@ class BgConfig:
     history: int = 500            # frames the model remembers
     threshold: float = 16.0       # MOG2 varThreshold (squared Mahalanobis); KNN dist2Threshold
     shadows: bool = True          # detect shadows and drop their pixels
+    shadow_texture: float = 0.3   # a "shadow" pixel whose 7x7 neighbourhood correlates less
+    #                               than this with the background's texture is foreground (a
+    #                               dark car body, not a shadow); 0: OpenCV's shadow test only
     init: str = "median"          # median (background image from samples) | warmup | none
     init_frames: int = 0          # frames the median / warm-up looks at (0: the whole video)
     init_samples: int = 25        # images in the median
@@ -57,6 +61,14 @@ class BgConfig:
     #                               users that stop are not absorbed); all: every pixel (OpenCV's
     #                               own update); none: keep the starting background
     update_every: int = 10        # frames between two selective updates (each learns that many)
+    ghost_after: int = 30         # foreground this many frames without a break is tested for a
+    #                               ghost (a road user of the starting background that left);
+    #                               0: never
+    clean_start: bool = True      # median start: a first pass over the video (every
+    #                               update_every-th frame) learns the empty road where a road user
+    #                               of the median leaves; the masks start from that background
+    ghost_ratio: float = 2.0      # a ghost's outline has this many times the edge strength in the
+    #                               background image as in the frame
     open_px: int = 3              # opening kernel (pixels): removes noise specks
     close_px: int = 5             # closing kernel (pixels): joins fragments of one road user
     min_area: int = 150           # smallest instance, pixels
@@ -93,9 +105,13 @@ class BgConfig:
         for k in ("history", "init_samples", "update_every"):
             if getattr(self, k) < 1:
                 bad(k, "must be >= 1")
-        for k in ("open_px", "close_px", "min_area", "init_frames"):
+        for k in ("open_px", "close_px", "min_area", "init_frames", "ghost_after"):
             if getattr(self, k) < 0:
                 bad(k, "must be >= 0")
+        if not 0 <= self.shadow_texture <= 1:
+            bad("shadow_texture", "must be in [0, 1]")
+        if not self.ghost_ratio > 1:
+            bad("ghost_ratio", "must be > 1")
         if not self.threshold > 0:
             bad("threshold", "must be > 0")
         if not (self.learning_rate == -1 or 0 <= self.learning_rate <= 1):
@@ -161,6 +177,12 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
     return out
 
 
+def median_image(images: list[np.ndarray]) -> np.ndarray:
+    """The per-pixel (lower) median of images (N of (H, W, 3) uint8), in uint8: np.median
+    would make a float64 copy (0.5 GB at 720p)."""
+    return images[0] if len(images) == 1 else np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
+
+
 class BackgroundMasks:
     """Stateful per-frame segmenter: ``apply(image) -> (rles, foreground share)``."""
 
@@ -181,6 +203,12 @@ class BackgroundMasks:
         # pixels this close to the foreground are not learnt by a selective update (a road
         # user's blurred edge, the part of its shadow nearest to it)
         self.k_hold = cv2.getStructuringElement(ell, (15, 15))
+        self.k_ghost = cv2.getStructuringElement(ell, (7, 7))  # a ghost's blurred edge
+        self.k_flat = cv2.getStructuringElement(ell, (TEX_WIN, TEX_WIN))
+        self.fg_age: np.ndarray | None = None  # frames each pixel has been foreground (updates)
+        self._bg_tex: tuple | None = None       # background grey, box mean, box variance
+        self.n_ghosts = 0                       # ghosts learnt away
+        self.ghost_seen: np.ndarray | None = None  # (H, W) bool: pixels a ghost was learnt at
         self.k_open = cv2.getStructuringElement(ell, (cfg.open_px,) * 2) if cfg.open_px > 1 else None
         self.k_close = cv2.getStructuringElement(ell, (cfg.close_px,) * 2) if cfg.close_px > 1 else None
 
@@ -190,10 +218,10 @@ class BackgroundMasks:
             return
         self.primed = True
         if self.cfg.init == "median":
-            # the (lower) median in uint8: np.median would make a float64 copy (0.5 GB at 720p)
-            bg = np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
+            bg = median_image(images)
             # enough repetitions for a confident model; afterwards learn at the history's rate
             self.sub.apply(bg, learningRate=1.0)
+            self._bg_tex = None
             for _ in range(min(self.cfg.history, 50)):
                 self.sub.apply(bg)
             self.lr = self.cfg.learning_rate if self.cfg.learning_rate >= 0 else 1.0 / self.cfg.history
@@ -208,17 +236,15 @@ class BackgroundMasks:
         cfg = self.cfg
         learn = self.lr if cfg.update == "all" or not self.primed else 0.0
         raw = self.sub.apply(image, learningRate=learn)
+        if learn != 0:
+            self._bg_tex = None
         self.n_applied += 1
         share = float(np.count_nonzero(raw > SHADOW)) / raw.size
-        fg = (raw > SHADOW).astype(np.uint8)
-        if self.k_open is not None:
-            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
-        if self.k_close is not None:
-            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        fg = self._foreground(image, raw)
         if self.primed and cfg.update == "selective" and self.n_applied % cfg.update_every == 0:
             # a frame that is mostly foreground is a changed scene (light, a moved camera),
             # not road users: it is learnt whole, so that the model settles again
-            self._learn_background(image, fg, whole=share > cfg.unsettled)
+            self._learn_background(image, fg, whole=share > cfg.unsettled, raw=raw)
         # labels only, areas by bincount: OpenCV's WithStats variant is several times slower here
         n, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_32S)
         if n <= 1:
@@ -229,23 +255,190 @@ class BackgroundMasks:
         return labels_to_rles(labels, ids), share
 
 
-    def _learn_background(self, image: np.ndarray, fg: np.ndarray, whole: bool = False) -> None:
+    def _foreground(self, image: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 0/1 cleaned foreground of the subtractor's output ``raw``: foreground,
+        plus the shadow pixels that are not shadows by their texture (``flat_shadow``), then
+        opening and closing."""
+        import cv2
+
+        fg = (raw > SHADOW).astype(np.uint8)
+        if self.cfg.shadows and self.cfg.shadow_texture > 0:
+            self._texture_test(image, raw, fg)
+        if self.k_open is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
+        if self.k_close is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        return fg
+
+    def _texture_test(self, image: np.ndarray, raw: np.ndarray, fg: np.ndarray) -> None:
+        """Sets ``fg`` (H, W) uint8 at the shadow pixels of ``raw`` whose neighbourhood (5x5)
+        does not carry the background's texture: a shadow darkens the road and keeps its
+        texture (normalised cross-correlation of frame and background near 1); the flat grey
+        or dark body of a car that MOG2's brightness-and-colour test takes for a shadow does
+        not. Only where the background has texture (grey-level spread >= 2)."""
+        import cv2
+
+        # only where shadow pixels are dense (8x8 blocks mostly shadow: a shadow or a body,
+        # not the single noise pixels MOG2 calls shadow all over the image), box by box
+        sh = (raw == SHADOW).view(np.uint8)
+        H, W = raw.shape
+        coarse = cv2.resize(sh, (W // 8, H // 8), interpolation=cv2.INTER_AREA)
+        n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+        for x, y, w, h, area in stats[1:]:
+            if area >= 2:
+                self._texture_box(image, sh, fg, max(8 * y - 8, 0), min(8 * (y + h) + 8, H),
+                                  max(8 * x - 8, 0), min(8 * (x + w) + 8, W))
+
+    def _texture_box(self, image: np.ndarray, sh: np.ndarray, fg: np.ndarray, y0: int, y1: int,
+                     x0: int, x1: int) -> None:
+        """``_texture_test`` in rows y0:y1, columns x0:x1 (sh: the shadow pixels, uint8)."""
+        import cv2
+
+        t = self.cfg.shadow_texture
+        k = (TEX_WIN, TEX_WIN)
+        if self._bg_tex is None:
+            gb = cv2.cvtColor(self.sub.getBackgroundImage(), cv2.COLOR_BGR2GRAY).astype(np.float32)
+            mb = cv2.boxFilter(gb, -1, k)
+            vb = cv2.sqrBoxFilter(gb, -1, k) - mb * mb
+            # t^2 * background variance where it has texture (grey-level spread >= 2), else -1
+            self._bg_tex = (gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32))
+        gb, mb, tvb = (a[y0:y1, x0:x1] for a in self._bg_tex)
+        gi = cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY).astype(np.float32)
+        ma = cv2.boxFilter(gi, -1, k)
+        va = np.maximum(cv2.sqrBoxFilter(gi, -1, k) - ma * ma, 1.0)  # floored: a flat body is flat
+        cab = cv2.boxFilter(gi * gb, -1, k) - ma * mb
+        # ncc = cab / sqrt(va * vb) < t, without the square root
+        flat = ((cab < 0) | (cab * cab < tvb * va)) & (tvb > 0) & sh[y0:y1, x0:x1].view(bool)
+        # a window across a shadow's own edge sees a step the background lacks: those thin
+        # bands are dropped, bodies (wider than a few pixels) kept
+        flat = cv2.morphologyEx(flat.view(np.uint8), cv2.MORPH_OPEN, self.k_flat)
+        fg[y0:y1, x0:x1] |= flat
+
+    def scan(self, image: np.ndarray) -> None:
+        """One step of a first pass (``clean_background``): what ``apply`` does on an update
+        frame, without the components. Between two updates the model does not change, so a
+        first pass only needs every ``update_every``-th frame."""
+        import cv2
+
+        raw = self.sub.apply(image, learningRate=0.0)
+        share = float(np.count_nonzero(raw > SHADOW)) / raw.size
+        fg = self._foreground(image, raw)
+        self._learn_background(image, fg, whole=share > self.cfg.unsettled, raw=raw)
+
+    def _learn_background(self, image: np.ndarray, fg: np.ndarray, whole: bool = False,
+                          raw: np.ndarray | None = None) -> None:
         """One selective update: the frame with every pixel near the cleaned foreground ``fg``
         (H, W) uint8 replaced by the model's background image, learnt at ``update_every``
         frames' worth of the learning rate. Lighting that drifts is followed; road users that
         stop are not. Specks the opening removed are learnt: held back, the pixels that a
-        drift turns foreground one by one would hold their neighbours back in turn."""
+        drift turns foreground one by one would hold their neighbours back in turn.
+
+        Foreground that has lasted ``ghost_after`` frames is tested for a ghost (the place a
+        road user of the starting background has left: ``ghost_mask``); a ghost's pixels are
+        learnt from the frame at once, so the empty road is background again."""
         import cv2
 
-        rate = self.lr if self.lr >= 0 else 1.0 / self.cfg.history
+        cfg = self.cfg
+        rate = self.lr if self.lr >= 0 else 1.0 / cfg.history
         if rate <= 0:
             return
         frame = image
-        if not whole:
+        ghosts = None
+        if whole:
+            self.fg_age = None
+        else:
+            bg = self.sub.getBackgroundImage()
+            if cfg.ghost_after > 0:
+                age = self.fg_age if self.fg_age is not None else np.zeros(fg.shape, np.int32)
+                age = np.where(fg.view(bool), age + cfg.update_every, 0).astype(np.int32)
+                static = age >= cfg.ghost_after
+                if static.any() and raw is not None:
+                    ghosts = ghost_mask(static, image, bg, raw == 0, max(cfg.min_area, 1),
+                                        cfg.ghost_ratio)
+                    if ghosts.any():
+                        ghosts = cv2.dilate(ghosts.view(np.uint8), self.k_ghost).view(bool)
+                        age[ghosts] = 0
+                    else:
+                        ghosts = None
+                self.fg_age = age
             hold = cv2.dilate(fg, self.k_hold).view(bool)
             frame = image.copy()
-            frame[hold] = self.sub.getBackgroundImage()[hold]
-        self.sub.apply(frame, learningRate=min(1.0, rate * self.cfg.update_every))
+            frame[hold] = bg[hold]
+        self.sub.apply(frame, learningRate=min(1.0, rate * cfg.update_every))
+        self._bg_tex = None
+        if ghosts is not None:
+            # restart the model from its background image with the ghost's pixels taken from
+            # the frame (OpenCV's rate 1). Learning them at a high rate instead would shrink the
+            # variances of every other pixel (they would see the noise-free background image
+            # several times) and turn sensor noise into foreground
+            frame = self.sub.getBackgroundImage()
+            frame[ghosts] = image[ghosts]
+            self.sub.apply(frame, learningRate=1.0)
+            self.ghost_seen = ghosts if self.ghost_seen is None else self.ghost_seen | ghosts
+            self.n_ghosts += 1
+
+
+def _edges(img: np.ndarray) -> np.ndarray:
+    """(h, w) float32 gradient strength of a BGR crop: |Sobel| summed over x, y and the
+    channels, after a small blur so that the road's fine texture and noise count little."""
+    import cv2
+
+    b = cv2.GaussianBlur(img, (5, 5), 1.2).astype(np.float32)
+    g = np.abs(cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3))
+    return g.sum(axis=2) if g.ndim == 3 else g
+
+
+def _ncc(a: np.ndarray, b: np.ndarray, k: int = 7) -> np.ndarray:
+    """(h, w) float32 normalised cross-correlation of two grey or BGR uint8 crops over k x k
+    windows (about 0 where either is flat)."""
+    import cv2
+
+    if a.ndim == 3:
+        a, b = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY), cv2.cvtColor(b, cv2.COLOR_BGR2GRAY)
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    ma, mb = cv2.boxFilter(a, -1, (k, k)), cv2.boxFilter(b, -1, (k, k))
+    va = cv2.boxFilter(a * a, -1, (k, k)) - ma * ma
+    vb = cv2.boxFilter(b * b, -1, (k, k)) - mb * mb
+    return (cv2.boxFilter(a * b, -1, (k, k)) - ma * mb) / np.sqrt(np.maximum(va, 1.0) * np.maximum(vb, 1.0))
+
+
+def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,
+               quiet: np.ndarray, min_area: int, ratio: float) -> np.ndarray:
+    """(H, W) bool: the components of ``static`` (H, W) bool (long-lasting foreground) that are
+    ghosts. A road user that stopped has its outline in the frame and not in the background
+    image; a ghost (the background image holds a road user that has left) the other way round.
+    A component of at least ``min_area`` pixels is a ghost when the mean edge strength
+    (``_edges``) along its outline (a 5 px band) is ``ratio`` times larger in ``background``
+    than in ``frame`` (both (H, W, 3) or (H, W) uint8), and at least half of a ring 2-6 px
+    around it is ``quiet`` ((H, W) bool: neither foreground nor shadow) with the background's
+    texture (``_ncc`` >= 0.5). A ghost lies in the empty road; a bright road marking covered
+    by a flat dark car body (which MOG2 may take for background or shadow) has the same
+    outline edges but lies inside the car.
+    """
+    import cv2
+
+    out = np.zeros(static.shape, bool)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(static.view(np.uint8), connectivity=8)
+    H, W = static.shape
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    k_ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (13, 13))
+    for i in range(1, n):
+        x, y, w, h, area = stats[i]
+        if area < min_area:
+            continue
+        x0, y0, x1, y1 = max(x - 8, 0), max(y - 8, 0), min(x + w + 8, W), min(y + h + 8, H)
+        blob = (lab[y0:y1, x0:x1] == i).view(np.uint8)
+        near = cv2.dilate(blob, k)
+        ring = (cv2.dilate(blob, k_ring) - near).view(bool)
+        ok = quiet[y0:y1, x0:x1][ring] & (_ncc(frame[y0:y1, x0:x1], background[y0:y1, x0:x1])[ring] >= 0.5)
+        if not ok.mean() >= 0.5:
+            continue
+        band = (near - cv2.erode(blob, k)).view(bool)
+        e_frame = _edges(frame[y0:y1, x0:x1])[band].mean()
+        e_bg = _edges(background[y0:y1, x0:x1])[band].mean()
+        if e_bg > ratio * max(e_frame, 1e-6):
+            out[y0:y1, x0:x1] |= blob.view(bool)
+    return out
 
 
 def _ranges(frames: list[int]) -> list[tuple[int, int]]:
@@ -257,6 +450,25 @@ def _ranges(frames: list[int]) -> list[tuple[int, int]]:
         else:
             out.append((f, f))
     return out
+
+
+def clean_background(reader: FrameReader, cfg: BgConfig, background: np.ndarray,
+                     first: int | None, last: int | None) -> np.ndarray:
+    """The starting background ``background`` (H, W, 3) uint8 with the empty road put back
+    where a road user of it leaves: a first pass of the selective model over frames
+    first..last (every ``update_every``-th frame; ghosts are learnt away as they show), whose
+    background image is taken wherever a ghost was learnt. Elsewhere the start is unchanged
+    (the light at the start of the video, not at its end)."""
+    h, w = background.shape[:2]
+    seg = BackgroundMasks(cfg, h, w)
+    seg.prime([background])
+    for _, im in reader.frames(first, last, every=cfg.update_every):
+        if im.shape[:2] != (h, w):
+            break  # the second pass reports it
+        seg.scan(im)
+    if seg.ghost_seen is None:
+        return background
+    return np.where(seg.ghost_seen[..., None], seg.sub.getBackgroundImage(), background)
 
 
 def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResult,
@@ -278,7 +490,14 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
                                      cfg.init_samples if cfg.init == "median" else span)
                          .round().astype(np.int64))
-        if reader.is_folder or cfg.init == "median":
+        if cfg.init == "median":
+            ims = [im for _, im in reader.sample(want)]
+            if ims and cfg.clean_start and cfg.ghost_after > 0 and cfg.update == "selective":
+                bg = median_image(ims)
+                del ims
+                ims = [clean_background(reader, cfg, bg, span_lo, int(want[-1]))]
+            seg.prime(ims)
+        elif reader.is_folder:
             seg.prime([im for _, im in reader.sample(want)])
         else:
             seg.prime([im for _, im in reader.frames(first=span_lo, last=int(want[-1]))])
