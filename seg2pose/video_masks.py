@@ -1,7 +1,9 @@
 """Instance masks from a static camera's video by background subtraction.
 
 Per frame: OpenCV MOG2 (or KNN) with shadow detection -> foreground without shadow pixels
-(OpenCV marks shadows 127, foreground 255) -> morphological opening (speckle) and closing
+(OpenCV marks shadows 127, foreground 255), except "shadows" that do not keep the background's
+texture (a flat dark car body passes OpenCV's brightness-and-colour test; ``shadow_texture``)
+-> morphological opening (speckle) and closing
 (joins a road user's fragments) -> connected components of at least ``min_area`` pixels ->
 one instance mask per component, as COCO RLE. Track ids (-1) and classes (0) are left for the
 tracker and the size classes (``seg2pose.track``, ``seg2pose.classify``).
@@ -15,6 +17,13 @@ frames, the frame with the foreground, shadows and a margin around them replaced
 model's own background image. Lighting that drifts is followed; a road user that stops (at a
 red light, a curb) stays foreground instead of being absorbed, as OpenCV's own update does
 within a few seconds; a frame that is mostly foreground (a light change) is learnt whole.
+Foreground that lasts ``ghost_after`` frames is tested for a *ghost* (the place a road user of
+the starting background has left: its outline is in the background image, not in the frame,
+and it lies in quiet, textured road) and a ghost's pixels are learnt at once (``ghost_mask``).
+Road users standing for most of the video are in the median; so by default a first pass over
+the video (every ``update_every``-th frame, which is all the selective model learns from) finds
+the ghosts, and the masks start from the median with the empty road put back where they were
+(``clean_background``, ``clean_start``): the video is read twice, never held.
 
 Frames are streamed (one image in memory, plus the initial samples); a truncated video keeps
 what was read and says where it stopped. When the foreground covers more than ``unsettled`` of
