@@ -83,7 +83,7 @@ def bench_video_segments(root: Path, n_frames: int) -> None:
     stages.append(("tracker", time.process_time() - t))
     t = time.process_time()
     classify_mots(uncut, uncut, scene.cameras["c0"], scene.ground,
-                  size_rules(scene.classes, scene.extra), log=lambda s: None)
+                  size_rules(scene.classes, scene.extra), fps=scene.fps, log=lambda s: None)
     stages.append(("size classes", time.process_time() - t))
     t_ser, c_ser = time.perf_counter() - t0, time.process_time() - c0
     print(f"uncut, in-process: {t_ser:.1f} s wall, {c_ser:.1f} s CPU; load {os.getloadavg()[0]:.1f}")

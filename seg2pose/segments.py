@@ -373,7 +373,8 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
         dst.parent.mkdir(parents=True, exist_ok=True)
         info = stitch_camera(scene, segs, dst, tcfg, log=log)
         classify_mots(dst, dst, scene.cameras[c], scene.ground,
-                      size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE), log=log)
+                      size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE),
+                      fps=scene.fps, log=log)
         log(f"{c}: {info['frames']} frames in {info['segments']} segments -> {info['tracks']} "
             f"tracks ({info['masks']} masks); at the seams: "
             f"{sum(x['id_changes'] for x in info['seams'])} id changes, "

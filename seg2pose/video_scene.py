@@ -65,7 +65,8 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
                                           progress=progress, log=log)
             msg += f" -> {n_tracks} tracks ({n_kept} masks)"
         if rules is not None:
-            votes = classify_mots(dst, dst, scene.cameras[c], scene.ground, rules, log=log)
+            votes = classify_mots(dst, dst, scene.cameras[c], scene.ground, rules,
+                                  fps=scene.fps, log=log)
             names_by_id = {k.id: k.name for k in scene.classes}
             counts = np.unique(list(votes.values()), return_counts=True) if votes else ([], [])
             msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
@@ -90,7 +91,7 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
                              known_classes=[k.id for k in scene.classes], progress=progress, log=log)
         if classify:
             classify_mots(src, src, scene.cameras[c], scene.ground,
-                          size_rules(scene.classes, scene.extra, file=sj), log=log)
+                          size_rules(scene.classes, scene.extra, file=sj), fps=scene.fps, log=log)
         log(f"{c}: {n} tracks, {kept} masks")
         out[c] = n
     return out
