@@ -41,12 +41,12 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 from pycocotools import mask as mask_util
 
+from seg2pose.bg_checks import flat_shadows, ghost_mask, texture_stats
 from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
-TEX_WIN = 5  # window (pixels) of the shadow texture test
 
 
 @dataclass
@@ -213,7 +213,6 @@ class BackgroundMasks:
         # user's blurred edge, the part of its shadow nearest to it)
         self.k_hold = cv2.getStructuringElement(ell, (15, 15))
         self.k_ghost = cv2.getStructuringElement(ell, (7, 7))  # a ghost's blurred edge
-        self.k_flat = cv2.getStructuringElement(ell, (TEX_WIN, TEX_WIN))
         self.fg_age: np.ndarray | None = None  # frames each pixel has been foreground (updates)
         self._bg_tex: tuple | None = None       # background grey, box mean, box variance
         self.n_ghosts = 0                       # ghosts learnt away
@@ -266,62 +265,20 @@ class BackgroundMasks:
 
     def _foreground(self, image: np.ndarray, raw: np.ndarray) -> np.ndarray:
         """(H, W) uint8 0/1 cleaned foreground of the subtractor's output ``raw``: foreground,
-        plus the shadow pixels that are not shadows by their texture (``flat_shadow``), then
+        plus the shadow pixels that are not shadows by their texture (``flat_shadows``), then
         opening and closing."""
         import cv2
 
         fg = (raw > SHADOW).astype(np.uint8)
         if self.cfg.shadows and self.cfg.shadow_texture > 0:
-            self._texture_test(image, raw, fg)
+            if self._bg_tex is None:
+                self._bg_tex = texture_stats(self.sub.getBackgroundImage(), self.cfg.shadow_texture)
+            flat_shadows(image, (raw == SHADOW).view(np.uint8), self._bg_tex, fg)
         if self.k_open is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
         if self.k_close is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
         return fg
-
-    def _texture_test(self, image: np.ndarray, raw: np.ndarray, fg: np.ndarray) -> None:
-        """Sets ``fg`` (H, W) uint8 at the shadow pixels of ``raw`` whose neighbourhood (5x5)
-        does not carry the background's texture: a shadow darkens the road and keeps its
-        texture (normalised cross-correlation of frame and background near 1); the flat grey
-        or dark body of a car that MOG2's brightness-and-colour test takes for a shadow does
-        not. Only where the background has texture (grey-level spread >= 2)."""
-        import cv2
-
-        # only where shadow pixels are dense (8x8 blocks mostly shadow: a shadow or a body,
-        # not the single noise pixels MOG2 calls shadow all over the image), box by box
-        sh = (raw == SHADOW).view(np.uint8)
-        H, W = raw.shape
-        coarse = cv2.resize(sh, (W // 8, H // 8), interpolation=cv2.INTER_AREA)
-        n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
-        for x, y, w, h, area in stats[1:]:
-            if area >= 2:
-                self._texture_box(image, sh, fg, max(8 * y - 8, 0), min(8 * (y + h) + 8, H),
-                                  max(8 * x - 8, 0), min(8 * (x + w) + 8, W))
-
-    def _texture_box(self, image: np.ndarray, sh: np.ndarray, fg: np.ndarray, y0: int, y1: int,
-                     x0: int, x1: int) -> None:
-        """``_texture_test`` in rows y0:y1, columns x0:x1 (sh: the shadow pixels, uint8)."""
-        import cv2
-
-        t = self.cfg.shadow_texture
-        k = (TEX_WIN, TEX_WIN)
-        if self._bg_tex is None:
-            gb = cv2.cvtColor(self.sub.getBackgroundImage(), cv2.COLOR_BGR2GRAY).astype(np.float32)
-            mb = cv2.boxFilter(gb, -1, k)
-            vb = cv2.sqrBoxFilter(gb, -1, k) - mb * mb
-            # t^2 * background variance where it has texture (grey-level spread >= 2), else -1
-            self._bg_tex = (gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32))
-        gb, mb, tvb = (a[y0:y1, x0:x1] for a in self._bg_tex)
-        gi = cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY).astype(np.float32)
-        ma = cv2.boxFilter(gi, -1, k)
-        va = np.maximum(cv2.sqrBoxFilter(gi, -1, k) - ma * ma, 1.0)  # floored: a flat body is flat
-        cab = cv2.boxFilter(gi * gb, -1, k) - ma * mb
-        # ncc = cab / sqrt(va * vb) < t, without the square root
-        flat = ((cab < 0) | (cab * cab < tvb * va)) & (tvb > 0) & sh[y0:y1, x0:x1].view(bool)
-        # a window across a shadow's own edge sees a step the background lacks: those thin
-        # bands are dropped, bodies (wider than a few pixels) kept
-        flat = cv2.morphologyEx(flat.view(np.uint8), cv2.MORPH_OPEN, self.k_flat)
-        fg[y0:y1, x0:x1] |= flat
 
     def scan(self, image: np.ndarray) -> None:
         """One step of a first pass (``clean_background``): what ``apply`` does on an update
@@ -385,69 +342,6 @@ class BackgroundMasks:
             self.sub.apply(frame, learningRate=1.0)
             self.ghost_seen = ghosts if self.ghost_seen is None else self.ghost_seen | ghosts
             self.n_ghosts += 1
-
-
-def _edges(img: np.ndarray) -> np.ndarray:
-    """(h, w) float32 gradient strength of a BGR crop: |Sobel| summed over x, y and the
-    channels, after a small blur so that the road's fine texture and noise count little."""
-    import cv2
-
-    b = cv2.GaussianBlur(img, (5, 5), 1.2).astype(np.float32)
-    g = np.abs(cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3))
-    return g.sum(axis=2) if g.ndim == 3 else g
-
-
-def _ncc(a: np.ndarray, b: np.ndarray, k: int = 7) -> np.ndarray:
-    """(h, w) float32 normalised cross-correlation of two grey or BGR uint8 crops over k x k
-    windows (about 0 where either is flat)."""
-    import cv2
-
-    if a.ndim == 3:
-        a, b = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY), cv2.cvtColor(b, cv2.COLOR_BGR2GRAY)
-    a, b = a.astype(np.float32), b.astype(np.float32)
-    ma, mb = cv2.boxFilter(a, -1, (k, k)), cv2.boxFilter(b, -1, (k, k))
-    va = cv2.boxFilter(a * a, -1, (k, k)) - ma * ma
-    vb = cv2.boxFilter(b * b, -1, (k, k)) - mb * mb
-    return (cv2.boxFilter(a * b, -1, (k, k)) - ma * mb) / np.sqrt(np.maximum(va, 1.0) * np.maximum(vb, 1.0))
-
-
-def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,
-               quiet: np.ndarray, min_area: int, ratio: float) -> np.ndarray:
-    """(H, W) bool: the components of ``static`` (H, W) bool (long-lasting foreground) that are
-    ghosts. A road user that stopped has its outline in the frame and not in the background
-    image; a ghost (the background image holds a road user that has left) the other way round.
-    A component of at least ``min_area`` pixels is a ghost when the mean edge strength
-    (``_edges``) along its outline (a 5 px band) is ``ratio`` times larger in ``background``
-    than in ``frame`` (both (H, W, 3) or (H, W) uint8), and at least half of a ring 2-6 px
-    around it is ``quiet`` ((H, W) bool: neither foreground nor shadow) with the background's
-    texture (``_ncc`` >= 0.5). A ghost lies in the empty road; a bright road marking covered
-    by a flat dark car body (which MOG2 may take for background or shadow) has the same
-    outline edges but lies inside the car.
-    """
-    import cv2
-
-    out = np.zeros(static.shape, bool)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(static.view(np.uint8), connectivity=8)
-    H, W = static.shape
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-    k_ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (13, 13))
-    for i in range(1, n):
-        x, y, w, h, area = stats[i]
-        if area < min_area:
-            continue
-        x0, y0, x1, y1 = max(x - 8, 0), max(y - 8, 0), min(x + w + 8, W), min(y + h + 8, H)
-        blob = (lab[y0:y1, x0:x1] == i).view(np.uint8)
-        near = cv2.dilate(blob, k)
-        ring = (cv2.dilate(blob, k_ring) - near).view(bool)
-        ok = quiet[y0:y1, x0:x1][ring] & (_ncc(frame[y0:y1, x0:x1], background[y0:y1, x0:x1])[ring] >= 0.5)
-        if not ok.mean() >= 0.5:
-            continue
-        band = (near - cv2.erode(blob, k)).view(bool)
-        e_frame = _edges(frame[y0:y1, x0:x1])[band].mean()
-        e_bg = _edges(background[y0:y1, x0:x1])[band].mean()
-        if e_bg > ratio * max(e_frame, 1e-6):
-            out[y0:y1, x0:x1] |= blob.view(bool)
-    return out
 
 
 def _ranges(frames: list[int]) -> list[tuple[int, int]]:
