@@ -1,6 +1,7 @@
 """Accuracy figures of the video path (issue 13) on synthetic ``--video`` scenes with truth.
 
     .venv/bin/python benches/video_figures.py VIDEO_SCENE TRUTH_SCENE [--camera c1] [--out DIR]
+        [--skip-bgsub | --skip-coco]
 
 VIDEO_SCENE: ``s2p synth -o OUT --video --seed S`` (its masks/ hold the generator's
 detector-like masks, with noise); TRUTH_SCENE: the same seed with ``--no-noise --match all``
@@ -153,6 +154,7 @@ def main() -> None:
     ap.add_argument("--config", default="mono-1")
     ap.add_argument("--out", type=Path, default=Path("/tmp/video_figures"))
     ap.add_argument("--skip-bgsub", action="store_true", help="only the COCO inputs")
+    ap.add_argument("--skip-coco", action="store_true", help="only the background subtraction")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
@@ -169,7 +171,7 @@ def main() -> None:
         print(f"masks-from-video: {time.perf_counter() - t:.0f} s")
         rows.append(report("bg-sub", bg, a.truth_scene, a.camera, a.config))
     # detector-style input from the generator's noisy masks, and from the clean truth masks
-    for name, src in (("coco-noisy", a.video_scene), ("coco-clean", a.truth_scene)):
+    for name, src in () if a.skip_coco else (("coco-noisy", a.video_scene), ("coco-clean", a.truth_scene)):
         det = a.out / f"{name}-{seed}"
         fresh_scene(a.video_scene, det)
         n = coco_from_masks(src / "masks" / f"{a.camera}.txt", a.out / f"{name}-{seed}.json", seed)

@@ -1,7 +1,9 @@
 """Instance masks from a static camera's video by background subtraction.
 
 Per frame: OpenCV MOG2 (or KNN) with shadow detection -> foreground without shadow pixels
-(OpenCV marks shadows 127, foreground 255) -> morphological opening (speckle) and closing
+(OpenCV marks shadows 127, foreground 255), except "shadows" that do not keep the background's
+texture (a flat dark car body passes OpenCV's brightness-and-colour test; ``shadow_texture``)
+-> morphological opening (speckle) and closing
 (joins a road user's fragments) -> connected components of at least ``min_area`` pixels ->
 one instance mask per component, as COCO RLE. Track ids (-1) and classes (0) are left for the
 tracker and the size classes (``seg2pose.track``, ``seg2pose.classify``).
@@ -15,6 +17,13 @@ frames, the frame with the foreground, shadows and a margin around them replaced
 model's own background image. Lighting that drifts is followed; a road user that stops (at a
 red light, a curb) stays foreground instead of being absorbed, as OpenCV's own update does
 within a few seconds; a frame that is mostly foreground (a light change) is learnt whole.
+Foreground that lasts ``ghost_after`` frames is tested for a *ghost* (the place a road user of
+the starting background has left: its outline is in the background image, not in the frame,
+and it lies in quiet, textured road) and a ghost's pixels are learnt at once (``ghost_mask``).
+Road users standing for most of the video are in the median; so by default a first pass over
+the video (every ``update_every``-th frame, which is all the selective model learns from) finds
+the ghosts, and the masks start from the median with the empty road put back where they were
+(``clean_background``, ``clean_start``): the video is read twice, never held.
 
 Frames are streamed (one image in memory, plus the initial samples); a truncated video keeps
 what was read and says where it stopped. When the foreground covers more than ``unsettled`` of
@@ -32,6 +41,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 from pycocotools import mask as mask_util
 
+from seg2pose.bg_checks import flat_shadows, ghost_mask, texture_stats
 from seg2pose.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
@@ -49,6 +59,9 @@ class BgConfig:
     history: int = 500            # frames the model remembers
     threshold: float = 16.0       # MOG2 varThreshold (squared Mahalanobis); KNN dist2Threshold
     shadows: bool = True          # detect shadows and drop their pixels
+    shadow_texture: float = 0.3   # a "shadow" pixel whose 7x7 neighbourhood correlates less
+    #                               than this with the background's texture is foreground (a
+    #                               dark car body, not a shadow); 0: OpenCV's shadow test only
     init: str = "median"          # median (background image from samples) | warmup | none
     init_frames: int = 0          # frames the median / warm-up looks at (0: the whole video)
     init_samples: int = 25        # images in the median
@@ -57,6 +70,14 @@ class BgConfig:
     #                               users that stop are not absorbed); all: every pixel (OpenCV's
     #                               own update); none: keep the starting background
     update_every: int = 10        # frames between two selective updates (each learns that many)
+    ghost_after: int = 30         # foreground this many frames without a break is tested for a
+    #                               ghost (a road user of the starting background that left);
+    #                               0: never
+    clean_start: bool = True      # median start: a first pass over the video (every
+    #                               update_every-th frame) learns the empty road where a road user
+    #                               of the median leaves; the masks start from that background
+    ghost_ratio: float = 2.0      # a ghost's outline has this many times the edge strength in the
+    #                               background image as in the frame
     open_px: int = 3              # opening kernel (pixels): removes noise specks
     close_px: int = 5             # closing kernel (pixels): joins fragments of one road user
     min_area: int = 150           # smallest instance, pixels
@@ -93,9 +114,13 @@ class BgConfig:
         for k in ("history", "init_samples", "update_every"):
             if getattr(self, k) < 1:
                 bad(k, "must be >= 1")
-        for k in ("open_px", "close_px", "min_area", "init_frames"):
+        for k in ("open_px", "close_px", "min_area", "init_frames", "ghost_after"):
             if getattr(self, k) < 0:
                 bad(k, "must be >= 0")
+        if not 0 <= self.shadow_texture <= 1:
+            bad("shadow_texture", "must be in [0, 1]")
+        if not self.ghost_ratio > 1:
+            bad("ghost_ratio", "must be > 1")
         if not self.threshold > 0:
             bad("threshold", "must be > 0")
         if not (self.learning_rate == -1 or 0 <= self.learning_rate <= 1):
@@ -161,6 +186,12 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
     return out
 
 
+def median_image(images: list[np.ndarray]) -> np.ndarray:
+    """The per-pixel (lower) median of images (N of (H, W, 3) uint8), in uint8: np.median
+    would make a float64 copy (0.5 GB at 720p)."""
+    return images[0] if len(images) == 1 else np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
+
+
 class BackgroundMasks:
     """Stateful per-frame segmenter: ``apply(image) -> (rles, foreground share)``."""
 
@@ -181,6 +212,11 @@ class BackgroundMasks:
         # pixels this close to the foreground are not learnt by a selective update (a road
         # user's blurred edge, the part of its shadow nearest to it)
         self.k_hold = cv2.getStructuringElement(ell, (15, 15))
+        self.k_ghost = cv2.getStructuringElement(ell, (7, 7))  # a ghost's blurred edge
+        self.fg_age: np.ndarray | None = None  # frames each pixel has been foreground (updates)
+        self._bg_tex: tuple | None = None       # background grey, box mean, box variance
+        self.n_ghosts = 0                       # ghosts learnt away
+        self.ghost_seen: np.ndarray | None = None  # (H, W) bool: pixels a ghost was learnt at
         self.k_open = cv2.getStructuringElement(ell, (cfg.open_px,) * 2) if cfg.open_px > 1 else None
         self.k_close = cv2.getStructuringElement(ell, (cfg.close_px,) * 2) if cfg.close_px > 1 else None
 
@@ -190,10 +226,10 @@ class BackgroundMasks:
             return
         self.primed = True
         if self.cfg.init == "median":
-            # the (lower) median in uint8: np.median would make a float64 copy (0.5 GB at 720p)
-            bg = np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
+            bg = median_image(images)
             # enough repetitions for a confident model; afterwards learn at the history's rate
             self.sub.apply(bg, learningRate=1.0)
+            self._bg_tex = None
             for _ in range(min(self.cfg.history, 50)):
                 self.sub.apply(bg)
             self.lr = self.cfg.learning_rate if self.cfg.learning_rate >= 0 else 1.0 / self.cfg.history
@@ -208,17 +244,15 @@ class BackgroundMasks:
         cfg = self.cfg
         learn = self.lr if cfg.update == "all" or not self.primed else 0.0
         raw = self.sub.apply(image, learningRate=learn)
+        if learn != 0:
+            self._bg_tex = None
         self.n_applied += 1
         share = float(np.count_nonzero(raw > SHADOW)) / raw.size
-        fg = (raw > SHADOW).astype(np.uint8)
-        if self.k_open is not None:
-            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
-        if self.k_close is not None:
-            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        fg = self._foreground(image, raw)
         if self.primed and cfg.update == "selective" and self.n_applied % cfg.update_every == 0:
             # a frame that is mostly foreground is a changed scene (light, a moved camera),
             # not road users: it is learnt whole, so that the model settles again
-            self._learn_background(image, fg, whole=share > cfg.unsettled)
+            self._learn_background(image, fg, whole=share > cfg.unsettled, raw=raw)
         # labels only, areas by bincount: OpenCV's WithStats variant is several times slower here
         n, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_32S)
         if n <= 1:
@@ -229,23 +263,85 @@ class BackgroundMasks:
         return labels_to_rles(labels, ids), share
 
 
-    def _learn_background(self, image: np.ndarray, fg: np.ndarray, whole: bool = False) -> None:
+    def _foreground(self, image: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 0/1 cleaned foreground of the subtractor's output ``raw``: foreground,
+        plus the shadow pixels that are not shadows by their texture (``flat_shadows``), then
+        opening and closing."""
+        import cv2
+
+        fg = (raw > SHADOW).astype(np.uint8)
+        if self.cfg.shadows and self.cfg.shadow_texture > 0:
+            if self._bg_tex is None:
+                self._bg_tex = texture_stats(self.sub.getBackgroundImage(), self.cfg.shadow_texture)
+            flat_shadows(image, (raw == SHADOW).view(np.uint8), self._bg_tex, fg)
+        if self.k_open is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
+        if self.k_close is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        return fg
+
+    def scan(self, image: np.ndarray) -> None:
+        """One step of a first pass (``clean_background``): what ``apply`` does on an update
+        frame, without the components. Between two updates the model does not change, so a
+        first pass only needs every ``update_every``-th frame."""
+        import cv2
+
+        raw = self.sub.apply(image, learningRate=0.0)
+        share = float(np.count_nonzero(raw > SHADOW)) / raw.size
+        fg = self._foreground(image, raw)
+        self._learn_background(image, fg, whole=share > self.cfg.unsettled, raw=raw)
+
+    def _learn_background(self, image: np.ndarray, fg: np.ndarray, whole: bool = False,
+                          raw: np.ndarray | None = None) -> None:
         """One selective update: the frame with every pixel near the cleaned foreground ``fg``
         (H, W) uint8 replaced by the model's background image, learnt at ``update_every``
         frames' worth of the learning rate. Lighting that drifts is followed; road users that
         stop are not. Specks the opening removed are learnt: held back, the pixels that a
-        drift turns foreground one by one would hold their neighbours back in turn."""
+        drift turns foreground one by one would hold their neighbours back in turn.
+
+        Foreground that has lasted ``ghost_after`` frames is tested for a ghost (the place a
+        road user of the starting background has left: ``ghost_mask``); a ghost's pixels are
+        learnt from the frame at once, so the empty road is background again."""
         import cv2
 
-        rate = self.lr if self.lr >= 0 else 1.0 / self.cfg.history
+        cfg = self.cfg
+        rate = self.lr if self.lr >= 0 else 1.0 / cfg.history
         if rate <= 0:
             return
         frame = image
-        if not whole:
+        ghosts = None
+        if whole:
+            self.fg_age = None
+        else:
+            bg = self.sub.getBackgroundImage()
+            if cfg.ghost_after > 0:
+                age = self.fg_age if self.fg_age is not None else np.zeros(fg.shape, np.int32)
+                age = np.where(fg.view(bool), age + cfg.update_every, 0).astype(np.int32)
+                static = age >= cfg.ghost_after
+                if static.any() and raw is not None:
+                    ghosts = ghost_mask(static, image, bg, raw == 0, max(cfg.min_area, 1),
+                                        cfg.ghost_ratio)
+                    if ghosts.any():
+                        ghosts = cv2.dilate(ghosts.view(np.uint8), self.k_ghost).view(bool)
+                        age[ghosts] = 0
+                    else:
+                        ghosts = None
+                self.fg_age = age
             hold = cv2.dilate(fg, self.k_hold).view(bool)
             frame = image.copy()
-            frame[hold] = self.sub.getBackgroundImage()[hold]
-        self.sub.apply(frame, learningRate=min(1.0, rate * self.cfg.update_every))
+            frame[hold] = bg[hold]
+        self.sub.apply(frame, learningRate=min(1.0, rate * cfg.update_every))
+        self._bg_tex = None
+        if ghosts is not None:
+            # restart the model from its background image with the ghost's pixels taken from
+            # the frame (OpenCV's rate 1). Learning them at a high rate instead would shrink the
+            # variances of every other pixel (they would see the noise-free background image
+            # several times) and turn sensor noise into foreground
+            frame = self.sub.getBackgroundImage()
+            frame[ghosts] = image[ghosts]
+            self.sub.apply(frame, learningRate=1.0)
+            self.ghost_seen = ghosts if self.ghost_seen is None else self.ghost_seen | ghosts
+            self.n_ghosts += 1
 
 
 def _ranges(frames: list[int]) -> list[tuple[int, int]]:
@@ -257,6 +353,25 @@ def _ranges(frames: list[int]) -> list[tuple[int, int]]:
         else:
             out.append((f, f))
     return out
+
+
+def clean_background(reader: FrameReader, cfg: BgConfig, background: np.ndarray,
+                     first: int | None, last: int | None) -> np.ndarray:
+    """The starting background ``background`` (H, W, 3) uint8 with the empty road put back
+    where a road user of it leaves: a first pass of the selective model over frames
+    first..last (every ``update_every``-th frame; ghosts are learnt away as they show), whose
+    background image is taken wherever a ghost was learnt. Elsewhere the start is unchanged
+    (the light at the start of the video, not at its end)."""
+    h, w = background.shape[:2]
+    seg = BackgroundMasks(cfg, h, w)
+    seg.prime([background])
+    for _, im in reader.frames(first, last, every=cfg.update_every):
+        if im.shape[:2] != (h, w):
+            break  # the second pass reports it
+        seg.scan(im)
+    if seg.ghost_seen is None:
+        return background
+    return np.where(seg.ghost_seen[..., None], seg.sub.getBackgroundImage(), background)
 
 
 def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResult,
@@ -278,7 +393,14 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
                                      cfg.init_samples if cfg.init == "median" else span)
                          .round().astype(np.int64))
-        if reader.is_folder or cfg.init == "median":
+        if cfg.init == "median":
+            ims = [im for _, im in reader.sample(want)]
+            if ims and cfg.clean_start and cfg.ghost_after > 0 and cfg.update == "selective":
+                bg = median_image(ims)
+                del ims
+                ims = [clean_background(reader, cfg, bg, span_lo, int(want[-1]))]
+            seg.prime(ims)
+        elif reader.is_folder:
             seg.prime([im for _, im in reader.sample(want)])
         else:
             seg.prime([im for _, im in reader.frames(first=span_lo, last=int(want[-1]))])

@@ -114,15 +114,21 @@ class FrameReader:
     def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
         return self.frames()
 
-    def frames(self, first: int | None = None, last: int | None = None
+    def frames(self, first: int | None = None, last: int | None = None, every: int = 1
                ) -> Iterator[tuple[int, np.ndarray]]:
-        """(frame, image) for scene frames first..last (inclusive; None = open end)."""
+        """(frame, image) for scene frames first..last (inclusive; None = open end); with
+        ``every`` > 1 only every ``every``-th frame read (the first one, then every ``every``-th
+        after it), the others skipped without converting them to images."""
         import cv2
 
         self.last_good, self.stopped, self.n_read = None, None, 0
         if self.is_folder:
+            i = -1
             for f, p in image_files(self.path):
                 if (first is not None and f < first) or (last is not None and f > last):
+                    continue
+                i += 1
+                if i % every:
                     continue
                 im = cv2.imread(str(p), cv2.IMREAD_COLOR)
                 if im is None:
@@ -148,6 +154,14 @@ class FrameReader:
                 f = self.first + k * self.step
                 if last is not None and f > last:
                     return
+                if (k - k0) % every:
+                    if not cap.grab():
+                        if n_header and k < n_header:
+                            self.stopped = (f"video ends after {k} of the {n_header} frames its "
+                                            "header announces (truncated or damaged)")
+                        return
+                    k += 1
+                    continue
                 ok, im = cap.read()
                 if not ok or im is None:
                     if n_header and k < n_header:
