@@ -1,5 +1,5 @@
 """Checks on background-subtraction output, pure functions on images: which "shadow" pixels
-are a flat body rather than a shadow (``flat_shadows``), and which long-lasting foreground is
+are a flat body rather than a shadow (``flat_pixels``), and which long-lasting foreground is
 a ghost (``ghost_mask``). Used by ``seg2pose.video_masks``.
 
 Images: (H, W, 3) BGR or (H, W) grey uint8; pixels x right, y down.
@@ -13,7 +13,7 @@ TEX_WIN = 5  # window (pixels) of the shadow texture test
 
 
 def texture_stats(background: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """What ``flat_shadows`` needs of a background image (H, W, 3) uint8, computed once per
+    """What ``flat_pixels`` needs of a background image (H, W, 3) uint8, computed once per
     background: grey (H, W) float32, its TEX_WIN box mean, and t^2 times its box variance
     where it has texture (grey-level spread >= 2; elsewhere -1: no test there)."""
     import cv2
@@ -25,21 +25,27 @@ def texture_stats(background: np.ndarray, t: float) -> tuple[np.ndarray, np.ndar
     return gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32)
 
 
-def flat_shadows(image: np.ndarray, sh: np.ndarray, stats: tuple, fg: np.ndarray) -> None:
-    """Sets ``fg`` (H, W) uint8 to 1 at the shadow pixels ``sh`` (H, W) uint8 0/1 of ``image``
-    (H, W, 3) uint8 whose TEX_WIN neighbourhood does not carry the background's texture: a
-    shadow darkens the road and keeps its texture (normalised cross-correlation of frame and
-    background near 1); the flat grey or dark body of a car that MOG2's brightness-and-colour
-    test takes for a shadow does not (correlation < t; ``stats``: ``texture_stats(bg, t)``).
-    Only where shadow pixels are dense (8x8 blocks mostly shadow: a shadow or a body, not
-    the single noise pixels MOG2 calls shadow all over the image), box by box."""
+def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray,
+                near_background: bool = False) -> None:
+    """Sets ``fg`` (H, W) uint8 to 1 where ``image`` (H, W, 3) uint8 does not carry the
+    background's texture although the subtractor's output ``raw`` (H, W) uint8 (0 background,
+    127 shadow, 255 foreground) calls the pixel shadow or, with ``near_background``, background
+    or shadow next to foreground or shadow. A shadow darkens the road and keeps its texture
+    (normalised cross-correlation of frame and background over TEX_WIN x TEX_WIN near 1), and
+    so does empty road; the flat grey or dark body of a car that passes MOG2's brightness-and-
+    colour tests does not (correlation < t; ``stats``: ``texture_stats(bg, t)``). Looked at box
+    by box where shadow (or foreground and shadow) is dense: 8x8 blocks mostly so (and, near
+    background, the blocks next to them), not the single noise pixels MOG2 calls shadow all
+    over the image."""
     import cv2
 
-    H, W = sh.shape
-    coarse = cv2.resize(sh, (W // 8, H // 8), interpolation=cv2.INTER_AREA)
+    H, W = raw.shape
+    sure = ((raw > 0) if near_background else (raw == 127)).view(np.uint8)
+    coarse = cv2.resize(sure, (W // 8, H // 8), interpolation=cv2.INTER_AREA)
+    if near_background:
+        coarse = cv2.dilate(coarse, np.ones((3, 3), np.uint8))
     _, _, boxes, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
     k = (TEX_WIN, TEX_WIN)
-    k_open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, k)
     for x, y, w, h, area in boxes[1:]:
         if area < 2:
             continue
@@ -50,11 +56,16 @@ def flat_shadows(image: np.ndarray, sh: np.ndarray, stats: tuple, fg: np.ndarray
         ma = cv2.boxFilter(gi, -1, k)
         va = np.maximum(cv2.sqrBoxFilter(gi, -1, k) - ma * ma, 1.0)  # floored: flat is flat
         cab = cv2.boxFilter(gi * gb, -1, k) - ma * mb
+        r = raw[y0:y1, x0:x1]
+        cand = (r != 255) if near_background else (r == 127)
         # ncc = cab / sqrt(va * vb) < t, without the square root
-        flat = ((cab < 0) | (cab * cab < tvb * va)) & (tvb > 0) & sh[y0:y1, x0:x1].view(bool)
-        # a window across a shadow's own edge sees a step the background lacks: those thin
-        # bands are dropped, bodies (wider than a few pixels) kept
-        fg[y0:y1, x0:x1] |= cv2.morphologyEx(flat.view(np.uint8), cv2.MORPH_OPEN, k_open)
+        flat = ((cab < 0) | (cab * cab < tvb * va)) & (tvb > 0) & cand
+        # the majority of a 7x7 window decides: single pixels of a textured road that
+        # correlate badly by chance, and the thin bands where a window straddles an edge (a
+        # shadow's own, a road user's: a step the background lacks) drop out; bodies, whose
+        # correlation is noise around 0 (low for most pixels, not all), fill in
+        major = cv2.boxFilter(flat.view(np.uint8), cv2.CV_32F, (7, 7)) > 0.5
+        fg[y0:y1, x0:x1] |= (major & cand).view(np.uint8)
 
 
 def edge_strength(img: np.ndarray) -> np.ndarray:

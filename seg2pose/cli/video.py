@@ -72,11 +72,12 @@ def register(app: typer.Typer) -> None:
         setting: List[str] = typer.Option([], "--set",
                                           help="a background-subtraction setting KEY=VALUE (repeatable), "
                                                "over scene.json extra.video_masks: method (mog2|knn), "
-                                               "history, threshold, shadows, shadow_texture, init "
-                                               "(median|warmup|none), init_frames, init_samples, "
-                                               "learning_rate, update (selective|all|none), "
-                                               "update_every, ghost_after, ghost_ratio, clean_start "
-                                               "(true|false), open_px, close_px, min_area, unsettled"),
+                                               "history, threshold, shadows, shadow_texture, "
+                                               "texture_near (true|false), init (median|warmup|none), "
+                                               "init_frames, init_samples, learning_rate, update "
+                                               "(selective|all|none), update_every, ghost_after, "
+                                               "ghost_ratio, clean_start (true|false), open_px, "
+                                               "close_px, min_area, unsettled"),
         track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
         classes: bool = typer.Option(True, "--classes/--no-classes",
                                      help="give each track a class from its world size"),
