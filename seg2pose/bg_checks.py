@@ -12,17 +12,17 @@ import numpy as np
 TEX_WIN = 5  # window (pixels) of the shadow texture test
 
 
-def texture_stats(background: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def texture_stats(background: np.ndarray, t: float) -> tuple:
     """What ``flat_pixels`` needs of a background image (H, W, 3) uint8, computed once per
-    background: grey (H, W) float32, its TEX_WIN box mean, and t^2 times its box variance
-    where it has texture (grey-level spread >= 2; elsewhere -1: no test there)."""
+    background: grey (H, W) float32, its TEX_WIN box mean, t^2 times its box variance where it
+    has texture (grey-level spread >= 2; elsewhere -1: no test there), and t^2."""
     import cv2
 
     k = (TEX_WIN, TEX_WIN)
     gb = cv2.cvtColor(background, cv2.COLOR_BGR2GRAY).astype(np.float32)
     mb = cv2.boxFilter(gb, -1, k)
     vb = cv2.sqrBoxFilter(gb, -1, k) - mb * mb
-    return gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32)
+    return gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32), t * t
 
 
 def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray,
@@ -33,7 +33,8 @@ def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray
     or shadow next to foreground or shadow. A shadow darkens the road and keeps its texture
     (normalised cross-correlation of frame and background over TEX_WIN x TEX_WIN near 1), and
     so does empty road; the flat grey or dark body of a car that passes MOG2's brightness-and-
-    colour tests does not (correlation < t; ``stats``: ``texture_stats(bg, t)``). Looked at box
+    colour tests does not (correlation < t, and less spread of grey levels than the background:
+    ``stats``: ``texture_stats(bg, t)``). Looked at box
     by box where shadow (or foreground and shadow) is dense: 8x8 blocks mostly so (and, near
     background, the blocks next to them), not the single noise pixels MOG2 calls shadow all
     over the image."""
@@ -46,12 +47,13 @@ def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray
         coarse = cv2.dilate(coarse, np.ones((3, 3), np.uint8))
     _, _, boxes, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
     k = (TEX_WIN, TEX_WIN)
+    t2 = stats[3]
     for x, y, w, h, area in boxes[1:]:
         if area < 2:
             continue
         y0, y1 = max(8 * y - 8, 0), min(8 * (y + h) + 8, H)
         x0, x1 = max(8 * x - 8, 0), min(8 * (x + w) + 8, W)
-        gb, mb, tvb = (a[y0:y1, x0:x1] for a in stats)
+        gb, mb, tvb = (a[y0:y1, x0:x1] for a in stats[:3])
         gi = cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY).astype(np.float32)
         ma = cv2.boxFilter(gi, -1, k)
         va = np.maximum(cv2.sqrBoxFilter(gi, -1, k) - ma * ma, 1.0)  # floored: flat is flat
@@ -59,7 +61,9 @@ def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray
         r = raw[y0:y1, x0:x1]
         cand = (r != 255) if near_background else (r == 127)
         # ncc = cab / sqrt(va * vb) < t, without the square root
-        flat = ((cab < 0) | (cab * cab < tvb * va)) & (tvb > 0) & cand
+        # ... and the frame has less texture than the background there (a body hides it; a
+        # window across a shadow's or a road user's edge sees a step, more spread than road)
+        flat = ((cab < 0) | (cab * cab < tvb * va)) & (t2 * va < tvb) & cand
         # the majority of a 7x7 window decides: single pixels of a textured road that
         # correlate badly by chance, and the thin bands where a window straddles an edge (a
         # shadow's own, a road user's: a step the background lacks) drop out; bodies, whose

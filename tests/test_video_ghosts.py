@@ -101,7 +101,7 @@ def test_a_stander_that_arrives_is_found_and_never_taken_for_a_ghost(tmp_path):
 def test_a_dark_body_is_foreground_and_a_shadow_is_not(tmp_path):
     """A flat grey box at 0.75 of the road's brightness (the road's colour: MOG2 takes it for a
     shadow) drives across, with its shadow beside it (the road at 0.55, texture kept). The
-    texture test makes the body foreground (IoU > 0.5, 0.7 on average; a window at its edge still
+    texture test makes the body foreground (IoU > 0.5, 0.6 on average; a window at its edge still
     sees road) and keeps the shadow out (< 10 % of it 5 px and more from the body in the masks);
     OpenCV's test alone loses the body."""
     def at(f):
@@ -115,7 +115,7 @@ def test_a_dark_body_is_foreground_and_a_shadow_is_not(tmp_path):
     frames = range(5, 50)
     tex = run(tmp_path, folder, "tex", init_samples=15)
     iou = np.array([best_iou(tex, f, at(f)[0]) for f in frames])
-    assert iou.min() > 0.5 and iou.mean() > 0.7, iou.round(2)
+    assert iou.min() > 0.5 and iou.mean() > 0.6, iou.round(2)
     covered = []
     for f in frames:
         sel = np.flatnonzero(tex.frame == f)
