@@ -165,3 +165,20 @@ def test_slow_lighting_drift_is_followed(tmp_path):
         got[update] = masks_from_video(folder, tmp_path / f"{update}.txt", cfg, log=lambda s: None)
     assert got["selective"].unsettled == [] and got["selective"].n_masks == 0
     assert got["none"].unsettled and got["none"].unsettled[-1][1] == 79
+
+
+@pytest.mark.parametrize("kind", ["video", "folder"])
+def test_every_nth_frame_is_read_as_a_full_read_gives_it(tmp_path, kind):
+    """FrameReader.frames(every=3) (the first pass over a video) yields scene frames
+    first, first+3, ... with the same images as reading every frame."""
+    if kind == "video":
+        src = write_video(tmp_path / "v.avi", 20, BOXES)
+    else:
+        src = write_folder(tmp_path / "c0", 20, BOXES)
+    r = FrameReader(src, first=5 if kind == "video" else 0)
+    full = dict(r.frames(first=None if kind == "folder" else 7))
+    some = list(r.frames(first=None if kind == "folder" else 7, every=3))
+    lo = min(full)
+    assert [f for f, _ in some] == list(range(lo, max(full) + 1, 3))
+    for f, im in some:
+        assert np.array_equal(im, full[f])
