@@ -201,7 +201,7 @@ def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
     """decode_box == the dense mask's box; shift_rles == the dense mask moved along the
     column-major pixel order by dx * H + dy (a move of dx columns and dy rows)."""
     from seg2pose.masks import decode
-    from seg2pose.track import decode_box, shift_rles
+    from seg2pose.rle_runs import decode_box, shift_rles
 
     rng = np.random.default_rng(seed)
     h, w = 13, 11
@@ -227,7 +227,7 @@ def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
 def test_box_of_runs_takes_an_empty_background_run():
     """Runs 2 bg, 1 fg, 0 bg, 2 fg, 10 bg (not canonical: a writer may make it) fill pixels
     2-4 of a 5 x 3 image, column-major: column 0 rows 2-4."""
-    from seg2pose.track import box_of_runs
+    from seg2pose.rle_runs import box_of_runs
 
     got = box_of_runs([np.array([2, 1, 0, 2, 10]), np.array([15])], 5, 0, 3, 1, 5)
     want = np.zeros((5, 3), bool)
