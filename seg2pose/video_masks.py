@@ -408,15 +408,14 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
                                      cfg.init_samples if cfg.init == "median" else span)
                          .round().astype(np.int64))
-        if cfg.init == "median":
+        if cfg.init == "median" or reader.is_folder:
             ims = [im for _, im in reader.sample(want)]
-            if ims and cfg.clean_start and cfg.ghost_after > 0 and cfg.update == "selective":
+            if (cfg.init == "median" and ims and cfg.clean_start and cfg.ghost_after > 0
+                    and cfg.update == "selective"):
                 bg = median_image(ims)
                 del ims
                 ims = [clean_background(reader, cfg, bg, span_lo, int(want[-1]))]
             seg.prime(ims)
-        elif reader.is_folder:
-            seg.prime([im for _, im in reader.sample(want)])
         else:
             seg.prime([im for _, im in reader.frames(first=span_lo, last=int(want[-1]))])
     bad: list[int] = []

@@ -154,22 +154,16 @@ class FrameReader:
                 f = self.first + k * self.step
                 if last is not None and f > last:
                     return
-                if (k - k0) % every:
-                    if not cap.grab():
-                        if n_header and k < n_header:
-                            self.stopped = (f"video ends after {k} of the {n_header} frames its "
-                                            "header announces (truncated or damaged)")
-                        return
-                    k += 1
-                    continue
-                ok, im = cap.read()
-                if not ok or im is None:
+                skip = (k - k0) % every != 0     # skipped frames are grabbed, not decoded
+                ok, im = (cap.grab(), None) if skip else cap.read()
+                if not ok or (im is None and not skip):
                     if n_header and k < n_header:
                         self.stopped = (f"video ends after {k} of the {n_header} frames its header "
                                         "announces (truncated or damaged)")
                     return
-                self.last_good, self.n_read = f, self.n_read + 1
-                yield f, im
+                if not skip:
+                    self.last_good, self.n_read = f, self.n_read + 1
+                    yield f, im
                 k += 1
         finally:
             cap.release()
