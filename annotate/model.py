@@ -24,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 SPAN_KINDS = ("occluded", "outside")
 FLAG_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")

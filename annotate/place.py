@@ -13,7 +13,7 @@ import numpy as np
 from annotate.edits import _row
 from annotate.estimates import MaskIndex
 from annotate.model import EditError
-from seg2pose.ground import miss_reasons
+from seg2pose.geometry.ground import miss_reasons
 
 
 def pixel_to_ground(camera, ground, uv, height: float = 0.0) -> tuple[float, float]:

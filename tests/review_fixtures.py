@@ -14,12 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
+from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
-from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import normal_positions
+from seg2pose.structures.masks import encode, mask_centers
+from seg2pose.geometry.normal import normal_positions
 
 W, H = 160, 120
 FPS = 10.0

@@ -1,4 +1,4 @@
-"""The accuracy benchmark's bookkeeping (seg2pose/accuracy.py): ratios from paper-table
+"""The accuracy benchmark's bookkeeping (seg2pose/eval/accuracy.py): ratios from paper-table
 results, mean and spread over seeds, resumption without re-running finished steps."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from seg2pose import accuracy
-from seg2pose.accuracy import SeedResult, class_ratios, ratios, read_table, summary
-from seg2pose.errors import S2PError
+from seg2pose.eval import accuracy
+from seg2pose.eval.accuracy import SeedResult, class_ratios, ratios, read_table, summary
+from seg2pose.core.errors import S2PError
 
 
 def write_table(path, errors: dict, s2pn: dict, per_class: dict | None = None):

@@ -252,7 +252,7 @@ def test_logger_sends_one_track_and_empties_frames_it_left(ctl):
 
 def test_run_of_another_scene_is_refused(scene_dir, tmp_path):
     from annotate.app.serve import check_scene
-    from seg2pose.errors import S2PError
+    from seg2pose.core.errors import S2PError
 
     run = tmp_path / "run"
     run.mkdir()

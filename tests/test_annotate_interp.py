@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from annotate.interpolate import METHODS, interpolate, wrap_angle
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 
 def test_linear_hand_computed_and_shortest_arc():

@@ -8,7 +8,7 @@ import pytest
 
 from annotate import Project
 from annotate.tanalyst_io import annotations_to_tanalyst, import_tanalyst
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.tanalyst import format_tanalyst, parse_tanalyst, read_tanalyst
 from review_fixtures import make_scene
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from annotate import Project
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from s2p_review.annotated_mcap import export_annotated_mcap, restore_annotation_files
 from s2p_review.mcap_import import read_mcap_records
 

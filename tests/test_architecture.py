@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-IO_MAY_USE = {"seg2pose.errors", "seg2pose.say", "seg2pose.camera", "seg2pose.ground",
-              "seg2pose.masks"}
+IO_MAY_USE = {"seg2pose.core.errors", "seg2pose.core.say", "seg2pose.geometry.camera", "seg2pose.geometry.ground",
+              "seg2pose.structures.masks"}
 
 
 def module_name(path: Path, root: Path = ROOT) -> str:
@@ -104,6 +104,6 @@ def test_the_checker_sees_violations(tmp_path):
                                 "    import rerun as rr\n    from seg2pose.io import atomic\n")
     got = violations("seg2pose", seg2pose_rule, tmp_path)
     assert [g.split(" (")[0] for g in got] == [
-        "seg2pose/io/bad.py:4: imports seg2pose.normal",
-        "seg2pose/io/bad.py:4: imports seg2pose.normal.normal_positions",
+        "seg2pose/io/bad.py:4: imports seg2pose.geometry.normal",
+        "seg2pose/io/bad.py:4: imports seg2pose.geometry.normal.normal_positions",
         "seg2pose/io/bad.py:5: imports rerun"]

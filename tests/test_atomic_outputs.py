@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from hostile_fixtures import write_s2p_mcap, write_scene, write_utocs
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import (clean_stale_partials, output_lock, replacing)
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
@@ -110,7 +110,7 @@ def test_replacing_swaps_file_and_folder_and_keeps_the_old_on_error(tmp_path):
 
 def test_second_concurrent_writer_is_refused(tmp_path):
     """Old main: two 's2p run' (or 's2p synth') into one folder at once both succeeded."""
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.synth.generate import generate_scene
 
     write_scene(tmp_path / "s")

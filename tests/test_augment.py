@@ -1,9 +1,9 @@
-"""Label-exact augmentation (seg2pose/augment.py): cuts and boundary changes, exact targets."""
+"""Label-exact augmentation (seg2pose/training/augment.py): cuts and boundary changes, exact targets."""
 
 import numpy as np
 
-from seg2pose.augment import AugmentConfig, augment_masks
-from seg2pose.masks import decode, encode, rle_stats
+from seg2pose.training.augment import AugmentConfig, augment_masks
+from seg2pose.structures.masks import decode, encode, rle_stats
 
 H, W = 120, 160
 
@@ -54,7 +54,7 @@ def test_augmented_examples_keep_the_truth():
     import tempfile
     from pathlib import Path
 
-    from seg2pose.examples import annotated_examples
+    from seg2pose.training.examples import annotated_examples
     from seg2pose.io.poses import read_poses
 
     with tempfile.TemporaryDirectory() as d:

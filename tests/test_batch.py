@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from seg2pose.batch import BatchOptions, Step, run_study
-from seg2pose.batch_steps import EVAL, RUN
+from seg2pose.batch.study import BatchOptions, Step, run_study
+from seg2pose.batch.steps import EVAL, RUN
 from seg2pose.synth.generate import generate_scene
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
@@ -234,8 +234,8 @@ def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
     from test_pipeline import make_tiny_scene
     from test_train import tiny_config
 
-    from seg2pose.train_fanout import ray_map
-    from seg2pose.train import train_scene
+    from seg2pose.training.train_fanout import ray_map
+    from seg2pose.training.train import train_scene
 
     scene = make_tiny_scene(tmp_path / "tiny", frames=30, n_users=6, seed=1)
     cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3, runs=2, share_classes=False)
@@ -261,7 +261,7 @@ def test_long_video_segments_as_ray_tasks(ray_local, tmp_path):
     from test_video_scene import calibration
     from video_fixtures import write_folder
 
-    from seg2pose.segments import scene_masks_segmented
+    from seg2pose.batch.segments import scene_masks_segmented
 
     calibration(tmp_path)
     write_folder(tmp_path / "frames", 200, [dict(id=1, x=-40, y=60, w=12, h=20, vx=2.5, vy=0),

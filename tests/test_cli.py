@@ -93,7 +93,7 @@ def test_library_field_becomes_the_flag():
     """A library error about a parameter names the command's option (the command layer
     translates); one about a file is left as it is."""
     from seg2pose.cli.common import speaks_flags
-    from seg2pose.errors import InputError
+    from seg2pose.core.errors import InputError
 
     def cmd(rig: str = typer_option("--rig"), out: str = typer_option("-o", "--out")) -> None:
         if rig == "file":

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from seg2pose.evaluate import (EvalResult, evaluate, format_table, match_poses, per_frame_errors,
+from seg2pose.eval.evaluate import (EvalResult, evaluate, format_table, match_poses, per_frame_errors,
                                plot_error_vs_distance)
 from seg2pose.io.poses import PoseTable
 
@@ -131,7 +131,7 @@ def _tracker_like():
 
 
 def test_nearest_pairs_tracker_ids_and_auto_chooses_it():
-    from seg2pose.evaluate import choose_match
+    from seg2pose.eval.evaluate import choose_match
 
     est, gt = _tracker_like()
     by_ids = evaluate(est, gt, (0.0, 0.0))

@@ -1,12 +1,12 @@
-"""Mask-geometry features (seg2pose/features.py): known answers on a flat ground."""
+"""Mask-geometry features (seg2pose/method/features.py): known answers on a flat ground."""
 
 import numpy as np
 
-from seg2pose.camera import Camera
-from seg2pose.features import GEO_NAMES, N_GEO, mask_geometry
-from seg2pose.ground import GroundSurface
-from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import normal_positions
+from seg2pose.geometry.camera import Camera
+from seg2pose.method.features import GEO_NAMES, N_GEO, mask_geometry
+from seg2pose.geometry.ground import GroundSurface
+from seg2pose.structures.masks import encode, mask_centers
+from seg2pose.geometry.normal import normal_positions
 
 W, H = 1280, 720
 FLAT = GroundSurface(np.array([(x, y, 0.0) for x in range(-40, 41, 10) for y in range(-10, 71, 10)], float))

@@ -15,13 +15,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hostile_fixtures import H, W, write_s2p_mcap, write_scene, write_utocs
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.coco import read_coco, write_coco
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.io.png import read_png_folder, write_png_folder
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import load_scene, read_ground_points, write_ground_points
-from seg2pose.masks import decode, encode
+from seg2pose.structures.masks import decode, encode
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hostile_fixtures import H, W, write_scene, write_utocs
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.coco import read_coco
 from seg2pose.io.mots import read_mots
 from seg2pose.io.poses import read_poses
@@ -166,7 +166,7 @@ def test_mots_untracked_detections_may_repeat(tmp_path):
 def test_masks_of_another_size_than_the_camera(tmp_path):
     """Swapped height and width: refused wherever masks meet a camera (on the old main, s2p
     run used them and reported errors of metres instead of centimetres)."""
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
 
     s = write_scene(tmp_path / "s")
     p = s.masks_path("c0")
@@ -176,7 +176,7 @@ def test_masks_of_another_size_than_the_camera(tmp_path):
                                          rf"from the camera's image size {H}x{W}"):
         run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
     assert not (tmp_path / "run").exists()
-    from seg2pose.heights import collect_height_views
+    from seg2pose.method.heights import collect_height_views
 
     with pytest.raises(InputError, match="differs from the camera's image size"):
         collect_height_views(load_scene(tmp_path / "s"), split=None)
@@ -248,7 +248,7 @@ def test_poses_csv_nan_sizes_and_heading_mean_unknown(tmp_path):
 
 @pytest.fixture
 def scene_and_run(tmp_path):
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
 
     write_scene(tmp_path / "s")
     run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
@@ -256,7 +256,7 @@ def scene_and_run(tmp_path):
 
 
 def test_eval_refuses_a_run_of_another_scene(tmp_path, scene_and_run):
-    from seg2pose.paper_table import evaluate_run
+    from seg2pose.eval.paper_table import evaluate_run
 
     scene, run = scene_and_run
     res = evaluate_run(load_scene(scene), run)
@@ -272,7 +272,7 @@ def test_eval_refuses_a_run_of_another_scene(tmp_path, scene_and_run):
 
 @pytest.mark.parametrize("missing", ["run.json", "poses.csv"])
 def test_eval_refuses_a_half_written_run(scene_and_run, missing):
-    from seg2pose.paper_table import evaluate_run
+    from seg2pose.eval.paper_table import evaluate_run
 
     scene, run = scene_and_run
     (run / missing).unlink()
@@ -282,8 +282,8 @@ def test_eval_refuses_a_half_written_run(scene_and_run, missing):
 
 def test_eval_and_heights_agree_on_classes(scene_and_run):
     """A truth file with a class the scene does not know: `heights` refused it, `eval` did not."""
-    from seg2pose.heights import collect_height_views
-    from seg2pose.paper_table import evaluate_run
+    from seg2pose.method.heights import collect_height_views
+    from seg2pose.eval.paper_table import evaluate_run
 
     scene, run = scene_and_run
     gt = scene / "gt" / "poses.csv"
@@ -362,9 +362,9 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     import torch
 
     from seg2pose.io.run import read_run_meta
-    from seg2pose.checkpoint import Checkpoint
-    from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.checkpoint import Checkpoint
+    from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.method.pipeline import run_scene
 
     s = write_scene(tmp_path / "s")
     torch.manual_seed(0)

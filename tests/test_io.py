@@ -7,15 +7,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from seg2pose.camera import Camera, Rig
-from seg2pose.errors import InputError, S2PError
+from seg2pose.geometry.camera import Camera, Rig
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text, check_writable
 from seg2pose.io.coco import read_coco, write_coco
 from seg2pose.io.mots import MaskTable, iter_mots, read_mots, write_mots
 from seg2pose.io.png import read_png_folder, write_png_folder
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import ClassSpec, Scene, load_scene, read_ground_points
-from seg2pose.masks import decode, encode
+from seg2pose.structures.masks import decode, encode
 
 H, W = 24, 32
 
@@ -452,7 +452,7 @@ def test_heights_bisection_writes_scene_json(tmp_path):
     moves the default heights so that about half the normal positions are closer."""
     import cv2
 
-    from seg2pose.heights import update_default_heights
+    from seg2pose.method.heights import update_default_heights
 
     cam = Camera.look_at("c0", [0, -15, 8], [0, 10, 0], 800.0, 960, 540)
     pts = np.array([[x, y, 0.0] for x in range(-20, 21, 4) for y in range(-10, 41, 4)], float)

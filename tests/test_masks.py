@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.errors import InputError
-from seg2pose.masks import (crop_masks, decode, decode_counts, encode, iou, mask_centers,
+from seg2pose.core.errors import InputError
+from seg2pose.structures.masks import (crop_masks, decode, decode_counts, encode, iou, mask_centers,
                             merge_bicyclists, rle_stats)
 
 
@@ -128,7 +128,7 @@ def test_iou_and_bicyclist_merge():
 
 
 def test_rle_stats_in_chunks_equals_one_block(monkeypatch):
-    import seg2pose.masks as M
+    import seg2pose.structures.masks as M
 
     rles = [encode(m) for m in random_masks(5, 11, 17, 23)]
     want = M.rle_stats(rles, 17, 23)

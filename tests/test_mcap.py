@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from s2p_review.mcap_export import ExportOptions, export_mcap
 from s2p_review.mcap_import import import_mcap, read_mcap_records
@@ -99,7 +99,7 @@ def test_mask_image_holds_track_ids(exported):
     from mcap.reader import make_reader
 
     from seg2pose.io.mots import read_mots
-    from seg2pose.masks import decode
+    from seg2pose.structures.masks import decode
 
     scene, _, out, _ = exported
     with open(out, "rb") as f:
@@ -251,7 +251,7 @@ def test_image_annotations_outline_masks(exported):
     from mcap.reader import make_reader
 
     from seg2pose.io.mots import read_mots
-    from seg2pose.masks import rle_stats
+    from seg2pose.structures.masks import rle_stats
 
     scene, _, out, _ = exported
     with open(out, "rb") as f:

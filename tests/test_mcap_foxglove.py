@@ -223,7 +223,7 @@ def _strings(obj):
 
 def test_run_json_has_no_absolute_paths(tmp_path):
     """``s2p run`` writes paths relative to the run folder; the export carries that file."""
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
 
     scene = make_scene(tmp_path / "scene", n_frames=4)
     run = run_scene(scene, tmp_path / "scene" / "out" / "base", config="stereo", baseline=True,

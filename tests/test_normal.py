@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from seg2pose.camera import Camera
-from seg2pose.ground import GroundSurface
-from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import (CENTER_METHODS, DEFAULT_CENTER_METHOD, closer_share, default_height_bisection,
+from seg2pose.geometry.camera import Camera
+from seg2pose.geometry.ground import GroundSurface
+from seg2pose.structures.masks import encode, mask_centers
+from seg2pose.geometry.normal import (CENTER_METHODS, DEFAULT_CENTER_METHOD, closer_share, default_height_bisection,
                              fuse_views, headings_from_tracks, normal_positions)
 
 W, H = 1280, 720

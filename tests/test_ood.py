@@ -1,4 +1,4 @@
-"""The check on residuals the network never learned (seg2pose.ood): limits from training
+"""The check on residuals the network never learned (seg2pose.method.ood): limits from training
 residuals, flags, and a run that warns, lists and (with fallback) keeps normal positions."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from seg2pose.ood import flag_far, flagged_poses, residual_limits
+from seg2pose.method.ood import flag_far, flagged_poses, residual_limits
 
 from test_train import fake_rough, tiny, tiny_config  # noqa: F401 - fixtures
 
@@ -37,11 +37,11 @@ def test_flags_only_residuals_beyond_their_class_limit():
 def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_rough):  # noqa: F811
     from typer.testing import CliRunner
 
-    from seg2pose.checkpoint import Checkpoint
+    from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.cli import app
     from seg2pose.io.run import read_run_poses, read_views
-    from seg2pose.pipeline import run_scene
-    from seg2pose.train import train_scene
+    from seg2pose.method.pipeline import run_scene
+    from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(share_classes=False, epochs=1,
                                                         batches_per_epoch=2),

@@ -10,14 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from seg2pose.camera import Camera
-from seg2pose.errors import InputError, S2PError
+from seg2pose.geometry.camera import Camera
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import ClassSpec, Scene, load_scene
-from seg2pose.camera import Rig
-from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import normal_positions
+from seg2pose.geometry.camera import Rig
+from seg2pose.structures.masks import encode, mask_centers
+from seg2pose.geometry.normal import normal_positions
 
 W, H = 320, 240
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]
@@ -106,7 +106,7 @@ def test_baseline_equals_mean_of_normal_positions(tiny, tmp_path):
     """Residual-free baseline on a 3-view configuration: each pose is the mean over the views
     of the views' normal positions (computed here independently, per camera)."""
     from seg2pose.io.run import read_views
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
 
     run = run_scene(tiny, tmp_path / "run", config="tri-I", baseline=True, progress=False)
     poses = read_poses(run / "poses.csv")
@@ -140,7 +140,7 @@ def test_baseline_equals_mean_of_normal_positions(tiny, tmp_path):
 def test_headings_follow_motion_on_truth(tiny):
     """Sanity of the heading stage on exact positions: the truth tracks are straight lines, so
     eq. (2) gives their heading exactly from the second frame on."""
-    from seg2pose.normal import headings_from_tracks
+    from seg2pose.geometry.normal import headings_from_tracks
 
     gt = read_poses(tiny.gt_path)
     h = headings_from_tracks(gt.track_id, gt.frame, gt.xyz[:, :2])
@@ -150,7 +150,7 @@ def test_headings_follow_motion_on_truth(tiny):
 
 
 def test_run_refuses_overwrite_and_missing_models(tiny, tmp_path):
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
 
     run = run_scene(tiny, tmp_path / "r", config="mono-1", baseline=True, progress=False)
     with pytest.raises(S2PError, match="--force"):
@@ -164,7 +164,7 @@ def test_run_refuses_overwrite_and_missing_models(tiny, tmp_path):
 
 
 def test_split_and_lockstep_streaming(tiny, tmp_path):
-    from seg2pose.pipeline import iter_frames, run_scene
+    from seg2pose.method.pipeline import iter_frames, run_scene
 
     frames = [f for f, _ in iter_frames(tiny, ["c0", "c1", "c2"], (5, 9))]
     assert frames == [5, 6, 7, 8, 9]
@@ -178,7 +178,7 @@ def test_split_and_lockstep_streaming(tiny, tmp_path):
 def test_eval_equals_hand_computation(tmp_path):
     """Toy case: two frames, two road users, errors 3-4-5 and 0.5 m; distances 2 and 7 m
     from the rig centre, so bins [0, 5) and [5, 10) hold one error each."""
-    from seg2pose.paper_table import evaluate_run
+    from seg2pose.eval.paper_table import evaluate_run
 
     scene = make_tiny_scene(tmp_path / "s", frames=4, n_users=1)
     origin = scene.rig.center[:2]
@@ -201,8 +201,8 @@ def test_eval_equals_hand_computation(tmp_path):
 
 
 def test_paper_table_baseline_only(tiny, tmp_path):
-    from seg2pose.paper_table import paper_table
-    from seg2pose.pipeline import run_scene
+    from seg2pose.eval.paper_table import paper_table
+    from seg2pose.method.pipeline import run_scene
 
     out, text = paper_table(tiny, out_dir=tmp_path / "pt", baseline_only=True, progress=False)
     d = json.loads((out / "results.json").read_text())

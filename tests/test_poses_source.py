@@ -4,7 +4,7 @@ files stay valid, unknown sources name the line."""
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable, format_poses, read_poses, write_poses
 
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from matplotlib.path import Path as MplPath
 from scipy.spatial import ConvexHull
 
-from seg2pose.masks import decode, encode
+from seg2pose.structures.masks import decode, encode
 from seg2pose.synth import junction as J
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.raster import rle_from_crop_t

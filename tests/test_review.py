@@ -13,9 +13,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.mots import read_mots
-from seg2pose.masks import decode, encode
+from seg2pose.structures.masks import decode, encode
 from s2p_review import columns as C
 from s2p_review import layout as L
 from seg2pose.cli.common import parse_frames

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import decode, mask_centers, rle_stats
+from seg2pose.structures.masks import decode, mask_centers, rle_stats
 from seg2pose.synth.generate import generate_scene
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.rough import render_rough_examples

@@ -2,9 +2,9 @@
 
 import pytest
 
-from seg2pose.heights import update_default_heights
+from seg2pose.method.heights import update_default_heights
 from seg2pose.io.scene import load_scene
-from seg2pose.rough_heights import rough_height_views
+from seg2pose.training.rough_heights import rough_height_views
 from seg2pose.synth.generate import generate_scene
 
 

@@ -1,4 +1,4 @@
-"""Rough models filmed over a video's background and background-subtracted (seg2pose.rough_video):
+"""Rough models filmed over a video's background and background-subtracted (seg2pose.training.rough_video):
 the background and noise measured from the video, examples that are the subtractor's masks of
 the filmed models, merged blobs from neighbours, and when training uses them."""
 
@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from seg2pose.masks import decode
-from seg2pose.rough_video import VideoLook, render_video_examples, video_look
+from seg2pose.structures.masks import decode
+from seg2pose.training.rough_video import VideoLook, render_video_examples, video_look
 from seg2pose.synth.raster import fill_parts, project_parts
 from seg2pose.synth.rough import place, rough_model
-from seg2pose.video_masks import BgConfig
+from seg2pose.video.video_masks import BgConfig
 
 from test_pipeline import make_tiny_scene
 from video_fixtures import single_threaded_opencv
@@ -99,7 +99,7 @@ def test_neighbours_make_merged_blobs_larger_than_the_target(tiny):
 
 
 def test_size_mismatch_is_refused(tiny):
-    from seg2pose.errors import InputError
+    from seg2pose.core.errors import InputError
 
     cam = tiny.cameras["c1"]
     look = VideoLook(np.zeros((10, 10, 3), np.uint8), 2.0, BgConfig())
@@ -111,9 +111,9 @@ def test_size_mismatch_is_refused(tiny):
                                                (True, False, False)])
 def test_training_films_rough_models_only_when_asked_and_there_is_video(tiny, monkeypatch, flag,
                                                                        video, expect):
-    import seg2pose.rough_video as rv
-    from seg2pose.train import TrainConfig
-    from seg2pose.training_data import rough_looks
+    import seg2pose.training.rough_video as rv
+    from seg2pose.training.train import TrainConfig
+    from seg2pose.training.training_data import rough_looks
 
     monkeypatch.setattr(rv, "video_look", lambda scene, cam: ("look", cam))
     monkeypatch.setattr(type(tiny), "video_path",

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import (ViewTable, format_views, read_run, read_views, relative_path,
                              run_lock, write_run_folder)

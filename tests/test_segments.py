@@ -1,4 +1,4 @@
-"""Long videos in segments (seg2pose/segments.py): a 240-frame synthetic video cut in two at
+"""Long videos in segments (seg2pose/batch/segments.py): a 240-frame synthetic video cut in two at
 frame 120 gives the tracks of the uncut run, apart from the seam; a warm-up too short for the
 tracker costs a known ID switch at the seam (a road user hidden across the border), which the
 stitch reports; a re-run skips finished segments; a failed segment leaves nothing partial."""
@@ -14,9 +14,9 @@ import pytest
 from typer.testing import CliRunner
 
 from seg2pose.io.mots import iter_mots, read_mots
-from seg2pose.mask_eval import score_masks
-from seg2pose.segments import plan_scene, plan_segments, scene_masks_segmented, segment_path
-from seg2pose.video_scene import new_scene, scene_masks_from_video
+from seg2pose.eval.mask_eval import score_masks
+from seg2pose.batch.segments import plan_scene, plan_segments, scene_masks_segmented, segment_path
+from seg2pose.video.video_scene import new_scene, scene_masks_from_video
 
 from test_video_scene import calibration
 from video_fixtures import single_threaded_opencv, write_folder
@@ -121,7 +121,7 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
     copy_scene(sc, st / "v")
     seg_dir = st / "v" / "batch" / "segments" / "c0"
     # the second segment fails half-way through writing its tracks
-    import seg2pose.track as track
+    import seg2pose.video.track as track
     from seg2pose.io.atomic import atomic_open
     from seg2pose.io.mots import format_mots_lines
 
@@ -170,7 +170,7 @@ def test_batch_segments_resume_and_a_failed_segment_leaves_nothing(video_scene, 
               p.parent / f"..{p.name}.partial-{dead}-x1.txt.partial-{dead}-y2.tmp"]
     for k in killed:
         k.write_text("half")
-    from seg2pose.segments import run_segment
+    from seg2pose.batch.segments import run_segment
     assert run_segment(st / "v", seg)["status"] == "done"
     assert not any(k.exists() for k in killed)
     assert run_segment(st / "v", seg)["status"] == "skipped"

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.smoothing import smooth_along_tracks
+from seg2pose.geometry.smoothing import smooth_along_tracks
 
 
 def brute(track, frame, values, h, degree):
@@ -82,7 +82,7 @@ def test_paper_table_smooth_equals_refused_views(tmp_path):
     from test_pipeline import make_tiny_scene
 
     from seg2pose.io.poses import read_poses
-    from seg2pose.paper_table import paper_table, refuse_table
+    from seg2pose.eval.paper_table import paper_table, refuse_table
 
     tiny = make_tiny_scene(tmp_path / "tiny")
     raw, _ = paper_table(tiny, out_dir=tmp_path / "raw", baseline_only=True, progress=False,
@@ -105,7 +105,7 @@ def test_paper_table_smooth_equals_refused_views(tmp_path):
 
 
 def test_bench_summary_has_the_smoothed_columns(tmp_path):
-    from seg2pose.accuracy import SeedResult, read_table, summary
+    from seg2pose.eval.accuracy import SeedResult, read_table, summary
 
     r = SeedResult(5)
     for name, (b, s), suffix in (("raw", (0.30, 0.15), ""), ("sm", (0.25, 0.10), "+smooth")):

@@ -1,4 +1,4 @@
-"""Exact sparse inference (seg2pose/sparse.py): the sparse forward equals the dense network to
+"""Exact sparse inference (seg2pose/method/sparse.py): the sparse forward equals the dense network to
 1e-5 in fp32 on random weights and real masks of every class (the synthetic renderer's road
 users and rough models), masks cut by the image border, larger than the crop, empty crops, and
 random boxes anywhere on crops of odd sizes; gradients equal too; the background follows the
@@ -15,13 +15,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose import sparse
-from seg2pose.checkpoint import Checkpoint
+from seg2pose.method import sparse
+from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
-from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet, make_net
-from seg2pose.sparse import SparseSeg2PoseNet, crop_boxes, sparse_of
+from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
+from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, make_net
+from seg2pose.method.sparse import SparseSeg2PoseNet, crop_boxes, sparse_of
 from seg2pose.synth.generate import generate_scene
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.rough import render_rough_examples

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.mots import read_mots
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import decode, rle_stats
+from seg2pose.structures.masks import decode, rle_stats
 from seg2pose.synth import junction as J
 from seg2pose.synth.generate import generate_scene, split_ranges
 from seg2pose.synth.noise import NoiseConfig
@@ -170,7 +170,7 @@ def test_validation_before_any_work(tmp_path):
     with pytest.raises(InputError, match="noise.miss_rate"):
         generate_scene(out, frames=2, noise=NoiseConfig(miss_rate=1.5), progress=False)
     # a rig looking at the sky sees no road
-    from seg2pose.camera import Camera
+    from seg2pose.geometry.camera import Camera
     sky = Camera.look_at("up", np.array([0.0, 0.0, 10.0]), np.array([0.0, 50.0, 40.0]), 900, 1280, 720)
     rig_file = tmp_path / "sky.json"
     rig_file.write_text(json.dumps({"cameras": [sky.to_dict()]}))
@@ -224,7 +224,7 @@ def test_cli_synth(tmp_path):
 
 def small_rig_file(tmp_path) -> Path:
     """One 320x180 camera where the device's middle lens is (cheap to render)."""
-    from seg2pose.camera import Camera
+    from seg2pose.geometry.camera import Camera
     small = Camera.look_at("v", np.array([-12.0, -12.0, 10.0]), np.array([1.0, 1.0, 0.0]), 225.0, 320, 180)
     rig_file = tmp_path / "rig.json"
     rig_file.write_text(json.dumps({"cameras": [small.to_dict()], "configs": {"mono-1": ["v"]}}))
@@ -370,8 +370,8 @@ def test_center_matching_keeps_only_masks_covering_the_centre(clean_scene, tmp_p
 def test_center_matching_holds_for_the_masks_as_written_with_noise(noisy_scene_40):
     """Paper 4.1 on the noisy, clipped masks: every kept detection has its road user's class
     and covers the projection of the true centre, which lies inside the image; and the
-    association of seg2pose.matching (used for training) recovers exactly these ids."""
-    from seg2pose.matching import match_masks_to_truth
+    association of seg2pose.method.matching (used for training) recovers exactly these ids."""
+    from seg2pose.method.matching import match_masks_to_truth
 
     s = load_scene(noisy_scene_40)
     gt = read_poses(s.gt_path)

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from seg2pose.camera import Camera, TsaiDistortion
-from seg2pose.errors import InputError
+from seg2pose.geometry.camera import Camera, TsaiDistortion
+from seg2pose.core.errors import InputError
 from seg2pose.io.tacal import (TACAL_FIELDS, Tacal, camera_to_tacal, format_tacal, parse_tacal,
                                read_tacal, tacal_to_camera, write_tacal)
 
@@ -169,7 +169,7 @@ def test_reader_errors_name_the_line(tmp_path, edit, line, message):
 
 
 def test_cameras_a_tacal_cannot_hold():
-    from seg2pose.camera import OpenCVDistortion
+    from seg2pose.geometry.camera import OpenCVDistortion
 
     cam = Camera.look_at("s", [0, -20, 8], [0, 10, 0], 900, 1280, 720,
                          distortion=OpenCVDistortion(k1=0.1))
@@ -181,7 +181,7 @@ def test_cameras_a_tacal_cannot_hold():
 
 
 def test_scene_json_stores_a_tsai_camera(tmp_path):
-    from seg2pose.camera import Rig
+    from seg2pose.geometry.camera import Rig
     from seg2pose.io.scene import Scene, load_scene
 
     cam = tacal_to_camera(HAND, "c0", 1280, 720)

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.tanalyst import (TAnalystTable, format_tanalyst, format_time, frames_to_times,
                                   parse_tanalyst, parse_time, read_tanalyst, times_to_frames,
                                   write_tanalyst)

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.scene import load_scene, parse_start_time
 from s2p_review.timebase import Timebase, scene_timebase
 

@@ -5,13 +5,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.camera import Camera
-from seg2pose.errors import InputError
-from seg2pose.ground import GroundSurface
+from seg2pose.geometry.camera import Camera
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
-from seg2pose.mask_eval import score_masks
-from seg2pose.masks import encode
-from seg2pose.track import TrackConfig, Tracker, track_mots, track_table, world_positions
+from seg2pose.eval.mask_eval import score_masks
+from seg2pose.structures.masks import encode
+from seg2pose.video.track import TrackConfig, Tracker, track_mots, track_table, world_positions
 
 H, W = 120, 160
 
@@ -125,7 +125,7 @@ def test_score_masks_counts_switches_and_recall():
 
 
 def test_merged_blob_is_split_between_its_tracks():
-    from seg2pose.masks import decode
+    from seg2pose.structures.masks import decode
 
     def boxes(f):  # two road users walking side by side, 2 px apart: one blob in frames 10-14
         return [(10 + 2 * f, 40, 16, 30), (28 + 2 * f, 40, 16, 30)]
@@ -162,7 +162,7 @@ def test_split_gives_the_overlap_to_the_road_user_in_front():
     nearer the camera) and the two come out of background subtraction as one blob in frames
     5-16. Split by the predicted masks, the pixels both could own go to the pedestrian: the
     pedestrian's part is its own box, the car's part its box less the pedestrian's."""
-    from seg2pose.masks import decode
+    from seg2pose.structures.masks import decode
 
     car = (60, 30, 60, 30)                                 # bottom row 59
 
@@ -200,8 +200,8 @@ def test_split_gives_the_overlap_to_the_road_user_in_front():
 def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
     """decode_box == the dense mask's box; shift_rles == the dense mask moved along the
     column-major pixel order by dx * H + dy (a move of dx columns and dy rows)."""
-    from seg2pose.masks import decode
-    from seg2pose.rle_runs import decode_box, shift_rles
+    from seg2pose.structures.masks import decode
+    from seg2pose.structures.rle_runs import decode_box, shift_rles
 
     rng = np.random.default_rng(seed)
     h, w = 13, 11
@@ -227,7 +227,7 @@ def test_rle_columns_and_shifts_equal_dense_arrays(seed, dx, dy):
 def test_box_of_runs_takes_an_empty_background_run():
     """Runs 2 bg, 1 fg, 0 bg, 2 fg, 10 bg (not canonical: a writer may make it) fill pixels
     2-4 of a 5 x 3 image, column-major: column 0 rows 2-4."""
-    from seg2pose.rle_runs import box_of_runs
+    from seg2pose.structures.rle_runs import box_of_runs
 
     got = box_of_runs([np.array([2, 1, 0, 2, 10]), np.array([15])], 5, 0, 3, 1, 5)
     want = np.zeros((5, 3), bool)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from seg2pose.errors import S2PError
-from seg2pose.masks import encode
+from seg2pose.core.errors import S2PError
+from seg2pose.structures.masks import encode
 
 from test_pipeline import SIZES, make_tiny_scene, render_box
 
@@ -46,7 +46,7 @@ def tiny(tmp_path_factory):
 
 
 def tiny_config(**kw):
-    from seg2pose.train import TrainConfig
+    from seg2pose.training.train import TrainConfig
 
     base = TrainConfig(arch="lite", runs=1, lr=2e-3, lr_schedule="cosine", batch_size=16,
                        batches_per_epoch=12, epochs=6, rough_per_class=24, rough_val_per_class=12,
@@ -56,10 +56,10 @@ def tiny_config(**kw):
 
 def _val_loss_untrained(scene, cam):
     """Validation loss of a freshly initialised net (seed 0), computed like train.py does."""
-    from seg2pose.examples import annotated_examples
+    from seg2pose.training.examples import annotated_examples
     from seg2pose.io.poses import read_poses
-    from seg2pose.net import NetConfig, Normalisation, Seg2PoseNet
-    from seg2pose.train import _Data, _evaluate
+    from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.training.train import _Data, _evaluate
 
     torch.manual_seed(0)
     net = Seg2PoseNet(NetConfig.lite(n_classes=3))
@@ -72,8 +72,8 @@ def _val_loss_untrained(scene, cam):
 
 
 def test_training_lowers_validation_loss_and_resumes(tiny, tmp_path, fake_rough):
-    from seg2pose.checkpoint import Checkpoint
-    from seg2pose.train import train_scene
+    from seg2pose.method.checkpoint import Checkpoint
+    from seg2pose.training.train import train_scene
 
     before, before_m = _val_loss_untrained(tiny, "c1")
     out = train_scene(tiny, tmp_path / "models", tiny_config(), cameras=["c1"], progress=False)
@@ -94,7 +94,7 @@ def test_training_lowers_validation_loss_and_resumes(tiny, tmp_path, fake_rough)
 
 def test_resume_after_interruption(tiny, tmp_path, fake_rough, monkeypatch):
     """Interrupt after epoch 3 of 6, train again: it resumes at epoch 4 and ends complete."""
-    import seg2pose.train as T
+    import seg2pose.training.train as T
 
     calls = {"n": 0}
     real = T._evaluate
@@ -121,7 +121,7 @@ def test_resume_after_interruption(tiny, tmp_path, fake_rough, monkeypatch):
 
 
 def test_nan_loss_stops_and_keeps_best(tiny, tmp_path, fake_rough, monkeypatch):
-    import seg2pose.train as T
+    import seg2pose.training.train as T
 
     real = T._evaluate
     calls = {"n": 0}
@@ -141,7 +141,7 @@ def test_nan_loss_stops_and_keeps_best(tiny, tmp_path, fake_rough, monkeypatch):
 
 def test_no_ground_truth_needs_zero_annotation(tmp_path, fake_rough):
     from seg2pose.io.scene import load_scene
-    from seg2pose.train import train_scene
+    from seg2pose.training.train import train_scene
 
     root = tmp_path / "s"
     make_tiny_scene(root, frames=8, n_users=3)
@@ -162,9 +162,9 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     """Per-class models (the paper's layout) for one camera run through `s2p run`; views.csv
     holds the residuals, and poses = normal position + residual (one view)."""
     from seg2pose.io.run import read_views
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.io.poses import read_poses
-    from seg2pose.train import train_scene
+    from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(share_classes=False, epochs=1,
                                                         batches_per_epoch=2),
@@ -188,14 +188,14 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     """--geometry: the net's vector gains the 14 mask-geometry features; the pipeline computes
     them for each detection exactly as the training examples had them (same mask -> same
     features), and a geometry model refuses to predict without them."""
-    from seg2pose.examples import annotated_examples
-    from seg2pose.features import N_GEO, scene_geometry
+    from seg2pose.training.examples import annotated_examples
+    from seg2pose.method.features import N_GEO, scene_geometry
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
-    from seg2pose.checkpoint import Checkpoint
+    from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.io.run import read_views
-    from seg2pose.pipeline import run_scene
-    from seg2pose.train import train_scene
+    from seg2pose.method.pipeline import run_scene
+    from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(geometry=True, epochs=2), cameras=["c1"],
                       progress=False)
@@ -230,8 +230,8 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
 def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_rough):
     """`s2p run --models A --models B`: each view's residual is the mean of A's and B's."""
     from seg2pose.io.run import read_views
-    from seg2pose.pipeline import run_scene
-    from seg2pose.train import train_scene
+    from seg2pose.method.pipeline import run_scene
+    from seg2pose.training.train import train_scene
 
     a = train_scene(tiny, tmp_path / "a", tiny_config(epochs=1, batches_per_epoch=3), cameras=["c1"],
                     progress=False)

@@ -4,7 +4,7 @@ skipped row never lends its mask to a neighbour)."""
 
 import numpy as np
 
-from seg2pose.examples import annotated_examples
+from seg2pose.training.examples import annotated_examples
 from seg2pose.io.poses import PoseTable, read_poses
 from review_fixtures import make_scene
 
@@ -31,8 +31,8 @@ def test_sources_select_the_examples(tmp_path):
 
 
 def test_config_names_the_rows():
-    from seg2pose.train import TrainConfig
-    from seg2pose.training_data import truth_sources
+    from seg2pose.training.train import TrainConfig
+    from seg2pose.training.training_data import truth_sources
 
     assert truth_sources(TrainConfig.quick()) == ("keyframe", "interpolated")
     assert truth_sources(TrainConfig.quick().replace(annotated_rows="keyframes")) == ("keyframe",)

@@ -12,7 +12,7 @@ from test_train import fake_rough, tiny, tiny_config  # noqa: F401  (fixtures)
 
 def _interrupted(tiny, models, monkeypatch, after: int):
     """Train with 6 epochs, interrupted during the validation of epoch ``after + 1``."""
-    import seg2pose.train as T
+    import seg2pose.training.train as T
 
     calls = {"n": 0}
     real = T._evaluate
@@ -33,7 +33,7 @@ def _interrupted(tiny, models, monkeypatch, after: int):
 @pytest.mark.parametrize("damage", ["truncate", "garbage"])
 def test_damaged_resume_state_restarts_from_the_last_good_checkpoint(tiny, tmp_path, fake_rough,
                                                                      monkeypatch, capsys, damage):
-    import seg2pose.train as T
+    import seg2pose.training.train as T
 
     models = tmp_path / "m"
     _interrupted(tiny, models, monkeypatch, after=3)
@@ -67,7 +67,7 @@ def test_damaged_resume_state_restarts_from_the_last_good_checkpoint(tiny, tmp_p
 
 def test_damaged_resume_state_without_a_checkpoint_starts_afresh(tiny, tmp_path, fake_rough,
                                                                  capsys):
-    from seg2pose.train import train_scene
+    from seg2pose.training.train import train_scene
 
     models = tmp_path / "m"
     models.mkdir()

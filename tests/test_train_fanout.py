@@ -1,4 +1,4 @@
-"""The training fan-out (seg2pose/train_fanout.py) without Ray, through the plain ``map``:
+"""The training fan-out (seg2pose/training/train_fanout.py) without Ray, through the plain ``map``:
 the best of 2 runs picked as the serial protocol picks it (same bytes), and an interrupted
 fan-out resumed without training its finished run again."""
 
@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import pytest
 
-from seg2pose.train_fanout import run_path
+from seg2pose.training.train_fanout import run_path
 
 
 def test_fan_out_resumes_and_matches_serial(tmp_path, monkeypatch):
     from test_pipeline import make_tiny_scene
     from test_train import tiny_config
 
-    import seg2pose.train as train
-    from seg2pose.train import train_scene
+    import seg2pose.training.train as train
+    from seg2pose.training.train import train_scene
 
     scene = make_tiny_scene(tmp_path / "tiny", frames=24, n_users=5, seed=2)
     cfg = tiny_config(rough_every=0, epochs=2, batches_per_epoch=3, runs=2, share_classes=False)

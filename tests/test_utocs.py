@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
 from seg2pose.io.utocs import carla_rotation, default_splits, import_utocs

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from seg2pose.io.mots import read_mots
-from seg2pose.masks import decode
-from seg2pose.bg_checks import ghost_mask
-from seg2pose.video_masks import BgConfig, masks_from_video
+from seg2pose.structures.masks import decode
+from seg2pose.video.bg_checks import ghost_mask
+from seg2pose.video.video_masks import BgConfig, masks_from_video
 
 from video_fixtures import single_threaded_opencv
 

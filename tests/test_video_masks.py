@@ -6,12 +6,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pycocotools import mask as mask_util
 
-from seg2pose.camera import Camera
-from seg2pose.errors import InputError
+from seg2pose.geometry.camera import Camera
+from seg2pose.core.errors import InputError
 from seg2pose.io.mots import read_mots
 from seg2pose.io.video import FrameReader
-from seg2pose.masks import decode
-from seg2pose.video_masks import BgConfig, labels_to_rles, masks_from_video
+from seg2pose.structures.masks import decode
+from seg2pose.video.video_masks import BgConfig, labels_to_rles, masks_from_video
 
 from video_fixtures import H, W, truth_mask, write_folder, write_video
 from video_fixtures import single_threaded_opencv

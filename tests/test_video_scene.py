@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_util
 
-from seg2pose.detections import DetectionConfig, import_detections
-from seg2pose.errors import InputError, S2PError
+from seg2pose.video.detections import DetectionConfig, import_detections
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import decode, encode
-from seg2pose.video_scene import new_scene, read_calibration, scene_import_detections, scene_masks_from_video
+from seg2pose.structures.masks import decode, encode
+from seg2pose.video.video_scene import new_scene, read_calibration, scene_import_detections, scene_masks_from_video
 
 from video_fixtures import H, W, write_folder
 from video_fixtures import single_threaded_opencv
@@ -70,7 +70,7 @@ def test_coco_bad_frames_and_sizes(tmp_path):
 
 
 def calibration(tmp_path, name="c0", with_size=False):
-    from seg2pose.camera import Camera
+    from seg2pose.geometry.camera import Camera
 
     cam = Camera.look_at(name, np.array([0.0, -10.0, 8.0]), np.array([0.0, 10.0, 0.0]), 150.0, W, H)
     d = {"name": name, "K": cam.K.tolist(), "R": cam.R.tolist(), "t": cam.t.tolist()}
@@ -143,7 +143,7 @@ def test_utocs_single_camera_finds_any_video(tmp_path):
     s = load_scene(tmp_path / "sc")
     assert s.video_path("cam3") == tmp_path / "sc" / "video" / "cam3.avi"
     assert s.extra["video_frames"] == {"cam3": {"first": 40, "step": 2}}
-    from seg2pose.video_scene import camera_reader
+    from seg2pose.video.video_scene import camera_reader
     assert [f for f, _ in camera_reader(s, "cam3").frames()] == [40, 42, 44]
     write_video(src / "other.mp4", 2, [], fourcc="mp4v")
     with pytest.raises(InputError, match=r"several videos \(other.mp4, vid.avi\) and one camera"):

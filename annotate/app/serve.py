@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 NOTEBOOK = Path(__file__).with_name("notebook.py")
 SESSION_TTL = 5  # seconds marimo keeps a page's session after its tab is gone

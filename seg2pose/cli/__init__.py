@@ -13,7 +13,7 @@ import sys
 
 import typer
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 app = typer.Typer(
     name="s2p",

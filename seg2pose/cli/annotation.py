@@ -20,7 +20,7 @@ import typer
 from typer.core import TyperGroup
 
 from seg2pose.cli.common import ANNOTATION, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 OPEN = "open"
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 
 from seg2pose.cli.common import REVIEW, parse_frames, speaks_flags
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 
 _FLAG = {"masks": "--mask-every 1", "video": "--video-every 1"}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 MASK_FORMATS = ("mots", "coco", "png")
 

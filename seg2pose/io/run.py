@@ -33,7 +33,7 @@ from typing import Iterable
 
 import numpy as np
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import (atomic_write_text, os_errors, output_lock, swap_in,
                                 temp_sibling_dir)
 from seg2pose.io.poses import PoseTable, format_poses, read_poses

@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
-from seg2pose.errors import InputError
+from seg2pose.geometry.camera import Camera, Rig
+from seg2pose.core.errors import InputError
 from seg2pose.io.text import read_text, load_json
-from seg2pose.ground import GroundSurface
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.validate import (FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number,
+from seg2pose.core.validate import (FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number,
                                   safe_name)
 
 SCENE_VERSION = 1

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Rig
-from seg2pose.errors import InputError, S2PError
+from seg2pose.geometry.camera import Rig
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
