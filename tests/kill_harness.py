@@ -1,6 +1,6 @@
 """Kill s2p commands at random moments and classify what they leave under the output's name:
 ``absent``, ``old`` (the complete previous output), ``new`` (the complete new one) or
-``mixed`` (anything else: a partial or merged output). Used by tests/test_kill.py (a few kills)
+``mixed`` (anything else: a partial or merged output). Used by tests/system/test_kill.py (a few kills)
 and benches/bench_faults.py (many)."""
 
 from __future__ import annotations

@@ -43,13 +43,14 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from seg2pose.video.classify import classify_mots, size_rules
+from seg2pose.core.digest import file_fingerprint, file_sha256
 from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable, pid_alive
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.video import image_files
 from seg2pose.structures.masks import iou
+from seg2pose.video.classify import classify_mots, size_rules
 from seg2pose.video.track import TrackConfig, track_mots
 from seg2pose.video.video_masks import BgConfig, masks_from_video
 from seg2pose.video.video_scene import camera_reader, scene_masks_from_video
@@ -129,31 +130,21 @@ def segment_path(scene_dir: Path, seg: Segment) -> Path:
     return Path(scene_dir) / SEGMENTS_DIR / seg.camera / f"{seg.name}.txt"
 
 
-def _sha256(p: Path) -> str:
-    h = hashlib.sha256()
-    with open(p, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _video_digest(path: Path) -> str:
-    from seg2pose.batch.study import _digest
-
     if path.is_dir():  # an image folder: its listing (names, sizes, times), not every image
         h = hashlib.sha256()
         for f, p in image_files(path):
             st = p.stat()
             h.update(f"{p.name} {st.st_size} {st.st_mtime_ns}\n".encode())
         return h.hexdigest()
-    return _digest(path)
+    return file_fingerprint(path)
 
 
 def _inputs(scene: Scene, seg: Segment, bg: BgConfig, tcfg: TrackConfig) -> dict:
     files = [scene.root / SCENE_FILE, scene.root / "ground_points.csv"]
     return {"segment": asdict(seg), "video_masks": bg.to_dict(), "tracker": tcfg.to_dict(),
             "video": _video_digest(camera_reader(scene, seg.camera).path),
-            **{p.name: _sha256(p) for p in files if p.exists()}}
+            **{p.name: file_sha256(p) for p in files if p.exists()}}
 
 
 def segment_done(scene_dir: str | Path, seg: Segment, inputs: dict | None = None) -> dict | None:
@@ -169,7 +160,7 @@ def segment_done(scene_dir: str | Path, seg: Segment, inputs: dict | None = None
     if inputs is None:
         scene = load_scene(scene_dir)
         inputs = _inputs(scene, seg, *settings(scene))
-    if d.get("inputs") != inputs or d.get("output") != _sha256(out):
+    if d.get("inputs") != inputs or d.get("output") != file_sha256(out):
         return None
     return d.get("info") or {}
 
@@ -213,7 +204,7 @@ def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] 
             "last_good": res.last_good, "stopped": res.stopped,
             "unsettled": [r for r in res.unsettled if r[1] >= seg.first]}
     atomic_write_text(out.with_suffix(".json"),
-                      json.dumps({"inputs": inputs, "output": _sha256(out), "info": info}, indent=1))
+                      json.dumps({"inputs": inputs, "output": file_sha256(out), "info": info}, indent=1))
     return {**info, "status": "done"}
 
 

@@ -1,6 +1,10 @@
 """The library's steps of ``s2p batch`` (seg2pose/batch/study.py): masks-from-video (long videos in
 segments, seg2pose/batch/segments.py), run and eval, each calling the function its single-scene
-command calls. Export and review come from the command layer (seg2pose/cli/batch.py)."""
+command calls. Export and review come from the command layer (seg2pose/cli/batch.py).
+
+The command layer imports this module when ``s2p`` starts, so the steps' libraries (scipy,
+pycocotools, torch through the scene, video, method and eval modules) are imported inside the
+step functions, on first use: ``s2p --help`` does not wait for them."""
 
 from __future__ import annotations
 
@@ -15,7 +19,8 @@ def run_dir(scene_dir: Path, opts: BatchOptions) -> Path:
     return scene_dir / BATCH_DIR / opts.run_name
 
 
-def _scene_inputs(scene_dir: Path) -> list[Path]:
+def scene_inputs(scene_dir: Path) -> list[Path]:
+    """The files of a scene that every step reads: scene.json, the ground points, the masks."""
     from seg2pose.io.scene import SCENE_FILE
 
     return [scene_dir / SCENE_FILE, scene_dir / "ground_points.csv", scene_dir / "masks"]
@@ -39,9 +44,9 @@ def _masks_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
 
 
 def _masks_parts(scene_dir: Path, opts: BatchOptions) -> list:
+    from seg2pose.batch.segments import plan_scene
     from seg2pose.io.atomic import check_writable
     from seg2pose.io.scene import load_scene
-    from seg2pose.batch.segments import plan_scene
 
     if opts.segment_frames <= 0:
         return []
@@ -60,7 +65,7 @@ def _masks_part(scene_dir: Path, part) -> dict:
 
 def _run_inputs(scene_dir: Path, opts: BatchOptions) -> list[Path]:
     models = [] if opts.baseline else [Path(m) for m in opts.models] or [scene_dir / "models"]
-    return _scene_inputs(scene_dir) + models
+    return scene_inputs(scene_dir) + models
 
 
 def _run_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
@@ -81,8 +86,8 @@ def eval_path(scene_dir: Path, opts: BatchOptions) -> Path:
 
 
 def _eval_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
-    from seg2pose.io.scene import load_scene
     from seg2pose.eval.paper_table import evaluate_run
+    from seg2pose.io.scene import load_scene
 
     scene = load_scene(scene_dir)
     if not scene.gt_path.exists():  # nothing to evaluate: not a failure

@@ -30,20 +30,19 @@ summary, and the scene's later steps are skipped, the other scenes go on.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
+from seg2pose.core.ray import MAX_RETRIES, import_ray
 from seg2pose.io.atomic import atomic_write_text
 
 SUMMARY = "summary.json"
 BATCH_DIR = "batch"
-BIG_FILE = 64 << 20  # bytes: files above this are fingerprinted by size and mtime, not hashed
-MAX_RETRIES = 3  # Ray retries of a task whose worker died
 
 
 @dataclass(frozen=True)
@@ -89,24 +88,13 @@ def _files(p: Path) -> list[Path]:
     return [p] if p.exists() else []
 
 
-def _digest(p: Path) -> str:
-    st = p.stat()
-    if st.st_size > BIG_FILE:  # a long video: hashing hours of it on every re-run costs minutes
-        return f"size={st.st_size},mtime={st.st_mtime_ns}"
-    h = hashlib.sha256()
-    with open(p, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def fingerprint(paths: list[Path], root: Path, extra: dict | None = None) -> dict[str, str]:
     """{relative path: sha256} of every file of ``paths`` (folders walked); ``extra`` entries
     (options) are added as they are."""
     out = {f"option:{k}": json.dumps(v, sort_keys=True) for k, v in (extra or {}).items()}
     for p in paths:
         for f in _files(Path(p)):
-            out[f.relative_to(root).as_posix()] = _digest(f)
+            out[f.relative_to(root).as_posix()] = file_fingerprint(f)
     return out
 
 
@@ -185,7 +173,7 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
 
 def find_scenes(study: str | Path) -> list[Path]:
     """The scene folders of a study: its direct sub-folders holding scene.json, by name."""
-    from seg2pose.io.scene import SCENE_FILE
+    from seg2pose.io.scene import SCENE_FILE  # lazy: io.scene loads scipy; `s2p` imports this module at start
 
     study = Path(study)
     if not study.is_dir():
@@ -210,18 +198,6 @@ class StudyResult:
     @property
     def n_failed(self) -> int:
         return sum(1 for r in self.rows if r["failures"])
-
-
-def _ray():
-    try:
-        import ray
-    except ImportError:
-        return None
-    return ray
-
-
-def ray_available() -> bool:
-    return _ray() is not None
 
 
 def _wave(ray, remote, fn, args: list[tuple], limit: int | None, on_done, log, what: str) -> None:
@@ -293,7 +269,7 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
     from tqdm import tqdm
 
     scenes = find_scenes(study)
-    ray = _ray() if use_ray else None
+    ray = import_ray() if use_ray else None
     if use_ray and ray is None and address is not None:
         raise S2PError("a Ray address was given but Ray is not installed: pip install 's2p[scale]'")
     out = StudyResult(backend="serial")

@@ -99,7 +99,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     if record:
         from s2p_review.mcap_export import ExportOptions, export_mcap
         from s2p_review.recording import LogStyle
-        from s2p_review.session import RecordOptions, Targets, record as record_rrd
+        from s2p_review.session import RecordOptions, Targets
+        from s2p_review.session import record as record_rrd
 
         logs_dir.mkdir(parents=True, exist_ok=True)
         rrd = logs_dir / "demo.rrd"

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seg2pose.io.atomic import atomic_path
 from seg2pose.io.poses import PoseTable
 
 BIN_SIZE = 5.0  # metres, as in Figures 6-7
@@ -261,7 +262,6 @@ def plot_error_vs_distance(results: dict[str, EvalResult], path: str | Path,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from seg2pose.io.atomic import atomic_path
 
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
     for name, r in results.items():

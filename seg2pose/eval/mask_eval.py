@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Iterable
 
-import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from seg2pose.io.mots import MaskTable

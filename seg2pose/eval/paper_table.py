@@ -8,20 +8,21 @@ import json
 from pathlib import Path
 
 from seg2pose.core.errors import InputError, S2PError
-from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.scene import Scene
+from seg2pose.eval.evaluate import evaluate, format_table, plot_error_vs_distance
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
-from seg2pose.method.pipeline import compute_views, write_run
+from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.poses import read_poses
+from seg2pose.io.run import read_run_meta, read_run_poses, read_views
+from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import load_models, model_dirs
+from seg2pose.method.pipeline import compute_views, fuse, write_run
+
 
 def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
                  match: str = "ids", gate: float = 3.0):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
     ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids)."""
-    from seg2pose.eval.evaluate import evaluate
-    from seg2pose.io.poses import read_poses
-    from seg2pose.io.run import read_run_poses
-
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     run_dir = Path(run_dir)
@@ -37,8 +38,6 @@ def check_run_of_scene(run_dir: Path, scene: Scene) -> dict:
     """run.json of a finished run of ``scene``: refuses a folder without run.json or
     poses.csv (an interrupted or foreign folder) and a run of another scene (by the scene
     fingerprint: calibration and ground points). Returns run.json's content."""
-    from seg2pose.io.run import read_run_meta
-
     meta_path = run_dir / "run.json"
     if not run_dir.is_dir():
         raise InputError("run folder not found", file=run_dir)
@@ -70,9 +69,6 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
 
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
-    from seg2pose.method.checkpoint import load_models, model_dirs
-    from seg2pose.eval.evaluate import format_table, plot_error_vs_distance
-
     out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
     if (out / "results.json").exists() and not force:
         raise S2PError(f"{out} holds a paper table already; pass --force to redo it")
@@ -120,11 +116,6 @@ def refuse_table(scene: Scene, table_dir: str | Path, smooth: int) -> dict:
     """The runs of a finished paper table fused again from their views.csv with ``smooth``
     (see ``pipeline.fuse``; no network run) and evaluated on the table's split:
     {"<config> baseline" | "<config> S2PN": EvalResult}, as ``paper_table`` names them."""
-    from seg2pose.eval.evaluate import evaluate
-    from seg2pose.io.poses import read_poses
-    from seg2pose.io.run import read_views
-    from seg2pose.method.pipeline import fuse
-
     table_dir = Path(table_dir)
     try:
         split = json.loads((table_dir / "results.json").read_text())["split"]

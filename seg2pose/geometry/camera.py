@@ -19,6 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import MAX_COORD, MAX_IMAGE_SIDE, MAX_PIXEL_COORD, integer, number, safe_name
 
 
 class Distortion(Protocol):
@@ -166,8 +167,6 @@ MAX_DISTORTION = 1e6  # |parameter|: real lenses stay far below (fisheye k1 ~ -0
 def distortion_from_dict(d: dict | None, *, file=None, where: str = "") -> Distortion | None:
     """A distortion model from its JSON object; ``where`` (e.g. ``cameras[c0].``) prefixes
     the field names of errors so that they name the camera."""
-    from seg2pose.core.validate import number
-
     if d is None:
         return None
     if not isinstance(d, dict):
@@ -231,7 +230,6 @@ class Camera:
         if not np.allclose(self.K[2], [0.0, 0.0, 1.0], rtol=0, atol=1e-9):
             raise InputError(f"the last row of K must be [0, 0, 1], got {self.K[2].tolist()}",
                              field="K")
-        from seg2pose.core.validate import MAX_COORD, MAX_PIXEL_COORD
 
         if np.abs(self.K).max() > MAX_PIXEL_COORD:
             raise InputError(f"K entries must be within +-{MAX_PIXEL_COORD:g} pixels, got "
@@ -344,7 +342,6 @@ class Camera:
                 raise InputError(f"missing field '{key}'", file=file, field=f"{where}.{key}")
             return d[key]
 
-        from seg2pose.core.validate import MAX_IMAGE_SIDE, integer, safe_name
 
         name = safe_name(get("name"), file=file, field=f"{where}.name", what="camera name")
         where = f"cameras[{name}]"

@@ -21,9 +21,9 @@ from typing import Iterable
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.io.text import read_text
-from seg2pose.io.atomic import atomic_write_text
 from seg2pose.core.validate import MAX_COORD
+from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.text import read_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]

@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.geometry.camera import Camera, TsaiDistortion
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.core.validate import safe_name
+from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig, TsaiDistortion
+from seg2pose.io.atomic import atomic_write_text, check_writable
+from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
 from seg2pose.io.text import read_text
 
 TACAL_FIELDS = ("dx", "dy", "Cx", "Cy", "Sx", "f", "k", "Tx", "Ty", "Tz",
@@ -166,8 +168,6 @@ def camera_to_tacal(cam: Camera) -> Tacal:
     f comes from the Tsai distortion when there is one, otherwise the sensor unit is the pixel
     height (dy = 1, f = fy); dx = dy and Sx = fx / fy. A camera read from a ``.tacal`` with
     dx = dy therefore gives its numbers back (up to rounding in the last digit)."""
-    from seg2pose.geometry.camera import OpenCVDistortion
-
     K = cam.K
     if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]) or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0:
         raise InputError(f"camera {cam.name!r} has a skewed K; Tsai's model has no skew",
@@ -193,11 +193,6 @@ def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: s
     stems), a ground points CSV and the video's frame rate. Configurations: one per camera
     (named as the camera) and ``all``. size: (width, height) pixels of every camera; default
     2 Cx x 2 Cy of each file. Returns the saved Scene."""
-    from seg2pose.geometry.camera import Rig
-    from seg2pose.io.atomic import check_writable
-    from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
-    from seg2pose.core.validate import safe_name
-
     out = Path(out)
     check_writable(out / SCENE_FILE, force)
     if not files:

@@ -22,10 +22,13 @@ import numpy as np
 import torch
 
 from seg2pose.core.errors import InputError, S2PError
-from seg2pose.io.scene import Scene
-from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops
-from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
 from seg2pose.core.say import say
+from seg2pose.io.atomic import atomic_path, atomic_write_text
+from seg2pose.io.scene import Scene
+from seg2pose.method import sparse as sparse_inference
+from seg2pose.method.features import scene_geometry
+from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
+from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops
 
 CHECKPOINT_VERSION = 1
 
@@ -57,7 +60,6 @@ class Checkpoint:
         """Write ``path`` (.safetensors) and its ``.json`` sidecar, both atomically."""
         from safetensors.torch import save_file
 
-        from seg2pose.io.atomic import atomic_path, atomic_write_text
 
         path = Path(path)
         meta = self.metadata()
@@ -119,8 +121,6 @@ class Checkpoint:
         class, metres along the camera-to-road-user direction, subtracted). ``geo`` (N, n_geo):
         the masks' geometry features (``seg2pose.method.features``), required when the net uses them.
         ``sparse``: exact sparse inference (``seg2pose.method.sparse``; default: on the CPU)."""
-        from seg2pose.method import sparse as sparse_inference
-
         device = device or next(self.net.parameters()).device
         vec = input_vector(self.net.cfg, self.norm, centers, normal_xy, class_names, self.classes,
                            geo)
@@ -249,7 +249,6 @@ def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int
     if isinstance(ck, Ensemble):
         return np.mean([predict_residuals(scene, cam, m, rles, height, width, uv, normal_xy, names,
                                           batch) for m in ck.members], axis=0)
-    from seg2pose.method.features import scene_geometry
 
     out = np.zeros((len(rles), 2))
     center = scene.cameras[cam].center[:2]

@@ -34,8 +34,8 @@ import numpy as np
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
-from seg2pose.structures.masks import rle_stats
 from seg2pose.geometry.normal import normal_positions
+from seg2pose.structures.masks import rle_stats
 
 GEO_VERSION = "geo1"
 GEO_NAMES = ("box_w", "box_h", "centroid_dx", "centroid_dy", "fill", "foot_dx", "foot_dy",

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.core.errors import S2PError
+from seg2pose.core.say import say
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, closer_share, default_height_bisection
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
-from seg2pose.structures.masks import mask_centers
 from seg2pose.method.matching import match_masks_to_truth
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, closer_share, default_height_bisection
-from seg2pose.core.say import say
+from seg2pose.structures.masks import mask_centers
 
 
 def collect_height_views(scene: Scene, split: str | None = "train", center: str | None = None,

@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.geometry.camera import Camera
+from seg2pose.geometry.normal import DEFAULT_HEIGHTS
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.structures.masks import rle_contains, rle_stats
-from seg2pose.geometry.normal import DEFAULT_HEIGHTS
 
 
 def truth_points(gt: PoseTable, default_heights: dict[str, float] | None = None) -> np.ndarray:

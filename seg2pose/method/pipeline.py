@@ -13,20 +13,24 @@ from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
+from seg2pose.core.clock import utc_now
+from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import InputError
+from seg2pose.core.say import warn_once
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
+from seg2pose.geometry.smoothing import smooth_along_tracks
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
-from seg2pose.io.run import ViewTable, check_run_writable, file_sha256, now_utc, relative_path, write_run_folder
+from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import load_models, predict_residuals
+from seg2pose.method.ood import POLICIES, flag_far, flagged_poses, format_flagged
 from seg2pose.structures.masks import CROP_SIZE, mask_centers, rle_stats
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
-from seg2pose.core.say import warn_once
 
 if TYPE_CHECKING:  # torch is imported only when a run uses models
     from seg2pose.method.checkpoint import ModelSet
@@ -100,7 +104,6 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
             groups.setdefault(id(ck), (ck, []))[1].append(c)
     for ck, cls_of_model in groups.values():
         sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
-        from seg2pose.method.checkpoint import predict_residuals
 
         residual[sel] = predict_residuals(scene, cam, ck, [table.rles[i] for i in sel],
                                           table.height, table.width, uv[sel], normal[sel, :2],
@@ -120,16 +123,12 @@ class FarResiduals:
     rows: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        from seg2pose.method.ood import POLICIES
-
         if self.policy not in POLICIES:
             raise InputError(f"unknown policy {self.policy!r} for far residuals; use one of "
                              f"{', '.join(POLICIES)}", field="far_residuals")
 
     def check(self, table: MaskTable, cam: str, sel: np.ndarray, residual: np.ndarray,
               names: np.ndarray, limits: dict | None) -> None:
-        from seg2pose.method.ood import flag_far
-
         if self.policy == "off" or not len(sel):
             return
         flag, lim = flag_far(residual[sel], names[sel], limits)
@@ -143,8 +142,6 @@ class FarResiduals:
 
     def summary(self) -> tuple[dict, str | None]:
         """(run.json entry, flagged.csv text or None)."""
-        from seg2pose.method.ood import flagged_poses, format_flagged
-
         if self.policy == "off":
             return {"policy": "off"}, None
         cols = [np.concatenate(c) for c in zip(*self.rows)] if self.rows else [np.zeros(0)] * 6
@@ -186,8 +183,6 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
     xy = fuse_views(stack)
     out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
     if smooth > 0:
-        from seg2pose.geometry.smoothing import smooth_along_tracks
-
         xy = smooth_along_tracks(out_tid, ukeys[:, 0], xy, smooth, degree=1)
     z = scene.ground.height(xy)
     heading = np.full(len(ukeys), np.nan)
@@ -265,7 +260,7 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
         "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
         "center_method": center_method, **({"smooth_frames": int(smooth)} if smooth else {}),
         "models": entries,
-        "split": split, "frame_range": None if fr is None else list(fr), "created": now_utc(),
+        "split": split, "frame_range": None if fr is None else list(fr), "created": utc_now(),
     }
 
 
@@ -308,8 +303,6 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     frame_range = scene.split_range(split)
     models = None
     if not baseline:
-        from seg2pose.method.checkpoint import load_models
-
         models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
     far = None if models is None else FarResiduals(far_residuals)
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,

@@ -16,7 +16,6 @@ from seg2pose.synth.noise import Det, NoiseConfig, apply_noise
 from seg2pose.synth.raster import bbox_of, fill_parts, project_parts, rle_from_crop_t
 from seg2pose.synth.world import World
 
-
 MATCH_RULES = ("all", "center")
 
 

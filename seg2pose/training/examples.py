@@ -23,13 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.core.errors import S2PError
+from seg2pose.core.say import say
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.method.features import N_GEO, scene_geometry
-from seg2pose.structures.masks import block_counts, crop_runs, mask_centers
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
-from seg2pose.core.say import say
+from seg2pose.method.matching import match_masks_to_truth
+from seg2pose.structures.masks import block_counts, crop_runs, decode, encode, mask_centers, rle_stats
+from seg2pose.training.rough_video import render_video_examples
 
 
 @dataclass
@@ -87,8 +89,6 @@ def make_examples(rles: list[bytes], height: int, width: int, centers: np.ndarra
     m = crop // factor
     out = np.zeros((n, m, m), np.uint8)
     if n:
-        from seg2pose.structures.masks import rle_stats
-
         _, _, box = rle_stats(rles, height, width)
         big = int((np.nanmax(box[:, 2:] - box[:, :2], axis=1) > crop).sum())
         if big:
@@ -122,8 +122,6 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
     read_poses returns it). ``max_per_class`` keeps a random subset per class (CPU budgets);
     residuals longer than ``max_residual`` metres (beyond the network's 2.5 tanh range, e.g.
     a wrong match) are dropped."""
-    from seg2pose.method.matching import match_masks_to_truth
-
     cam = scene.cameras[camera]
     by_id = scene.class_by_id()
     names = scene.class_names_by_id()
@@ -177,7 +175,7 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
     cls, truth = cls[idx], truth[idx]
     h, w = size
     if augment:
-        from seg2pose.training.augment import augment_masks
+        from seg2pose.training.augment import augment_masks  # lazy: loads OpenCV
 
         rng = rng or np.random.default_rng(0)
         extra_rles, extra_cls, extra_truth = [], [], []
@@ -228,7 +226,6 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
     (OpenCV does the pixels)."""
     import cv2
 
-    from seg2pose.structures.masks import decode, encode, rle_stats
 
     _, _, box = rle_stats(rles, height, width)
     out = []
@@ -260,13 +257,11 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
     ``look`` (a ``seg2pose.training.rough_video.VideoLook``): film them over the video's background and
     segment them as the video path does (``rough_video.render_video_examples``) instead."""
     try:
-        from seg2pose.synth.rough import render_rough_examples
+        from seg2pose.synth.rough import render_rough_examples  # lazy: loads OpenCV
     except ImportError as e:
         raise S2PError(f"rough 3D models are not available ({e})") from None
     cam = scene.cameras[camera]
     if look is not None:
-        from seg2pose.training.rough_video import render_video_examples
-
         rles, xyz, _, _ = render_video_examples(cam, scene.ground, cls, n, rng, look,
                                              occlusion=max(occlusion, 0.2))
     else:

@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from seg2pose.core.errors import S2PError
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
 from seg2pose.io.scene import Scene
 from seg2pose.structures.masks import mask_centers
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
+from seg2pose.training.rough_video import render_video_examples, video_look
 
 ROUGH_CLASSES = ("pedestrian", "bicyclist", "car")
 
@@ -31,7 +32,7 @@ def rough_height_views(scene: Scene, n_per_class: int = 2000, seed: int = 0,
     closing move mask centres (measured on synthetic video: the heights move by at most 1.2 cm,
     docs/RESULTS.md, so it is off by default)."""
     try:
-        from seg2pose.synth.rough import render_rough_examples
+        from seg2pose.synth.rough import render_rough_examples  # lazy: loads OpenCV
     except ImportError as e:  # pragma: no cover - the synth package ships with s2p
         raise S2PError(f"rough 3D models are not available ({e})") from None
     center = center or DEFAULT_CENTER_METHOD
@@ -39,7 +40,6 @@ def rough_height_views(scene: Scene, n_per_class: int = 2000, seed: int = 0,
     rng = np.random.default_rng(seed)
     views: dict[str, list] = {}
     per_cam = max(n_per_class // max(len(names), 1), 1)
-    from seg2pose.training.rough_video import render_video_examples, video_look
 
     looks = {n: video_look(scene, n) for n in names if video and scene.video_path(n)}
     for c in scene.classes:

@@ -29,10 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 from pycocotools import mask as mask_util
 
-from seg2pose.geometry.camera import Camera
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.scene import Scene
+from seg2pose.io.video import camera_reader
+from seg2pose.synth.shapes import FACES
 from seg2pose.video.video_masks import BackgroundMasks, BgConfig
 
 NEIGHBOUR_CLASSES = (("car", 0.45), ("pedestrian", 0.4), ("bicyclist", 0.15))
@@ -54,8 +56,6 @@ def video_look(scene: Scene, camera: str, samples: int | None = None) -> VideoLo
     """The camera's ``VideoLook``: the median of ``samples`` frames spread over its video
     (the subtractor's own start, ``BgConfig.init_samples`` by default) and the noise measured
     as the robust spread (1.4826 MAD) of frame minus background."""
-    from seg2pose.io.video import camera_reader
-
     cfg = BgConfig.from_dict(scene.extra.get("video_masks"), file=scene.root / "scene.json")
     reader = camera_reader(scene, camera)
     _, _, n = reader.header()
@@ -103,7 +103,7 @@ def _sun(rng: np.random.Generator) -> np.ndarray:
 def _group(camera: Camera, ground: GroundSurface, cls: str, xyz: np.ndarray, hd: float, sc: float,
            rng: np.random.Generator, neighbours: float, occlusion: float) -> list[np.ndarray]:
     """World parts (P, 8, 3) of one target (first) and its optional neighbour and occluder."""
-    from seg2pose.synth.rough import occluder_parts, place, rough_model
+    from seg2pose.synth.rough import occluder_parts, place, rough_model  # lazy: loads OpenCV
 
     objs = [place(rough_model(cls) * sc, hd, xyz)]
     if rng.random() < neighbours:
@@ -129,7 +129,7 @@ def _fill(buf: np.ndarray, uv: np.ndarray, value) -> None:
     """Fill the convex hull of uv (M, 2) pixels into buf (H, W[, 3]) with value."""
     import cv2
 
-    from seg2pose.synth.raster import SHIFT
+    from seg2pose.synth.raster import SHIFT  # lazy: loads OpenCV
 
     pts = np.clip(np.round((uv - 0.5) * (1 << SHIFT)), -2**28, 2**28).astype(np.int32)
     cv2.fillConvexPoly(buf, cv2.convexHull(pts), value, cv2.LINE_8, SHIFT)
@@ -140,8 +140,7 @@ def _film(camera: Camera, groups: list[list[np.ndarray]], ground_z: list[float],
     """One frame of the groups over the background: (image (H, W, 3) uint8, object label
     image (H, W) int32: 1 + index of the visible object in ``[o for g in groups for o in g]``,
     0 for background and shadow)."""
-    from seg2pose.synth.raster import project_parts
-    from seg2pose.synth.shapes import FACES
+    from seg2pose.synth.raster import project_parts  # lazy: loads OpenCV
 
     img = look.background.copy()
     H, W = img.shape[:2]
@@ -192,8 +191,8 @@ def render_video_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
     headings (n,) radians and counts: frames filmed, targets placed, targets that gave no mask,
     examples from a blob holding another road user too (merged). Sizes vary by
     ``scale_jitter`` (relative), as in ``rough.render_rough_examples``."""
-    from seg2pose.synth.raster import project_parts
-    from seg2pose.synth.rough import MAX_DISTANCE, visible_region
+    from seg2pose.synth.raster import project_parts  # lazy: loads OpenCV
+    from seg2pose.synth.rough import MAX_DISTANCE, visible_region  # lazy: loads OpenCV
 
     if n <= 0:
         return [], np.zeros((0, 3)), np.zeros(0), {"frames": 0, "targets": 0, "missed": 0,

@@ -31,100 +31,27 @@ from __future__ import annotations
 import copy
 import math
 import sys
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Literal, get_args
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
-from seg2pose.method.checkpoint import Checkpoint
-from seg2pose.core.errors import InputError, S2PError
-from seg2pose.training.examples import ExampleSet
-from seg2pose.method.features import GEO_VERSION, N_GEO
-from seg2pose.io.scene import Scene
-from seg2pose.geometry.normal import CENTER_METHODS, DEFAULT_CENTER_METHOD
-from seg2pose.method.net import ARCHS, NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
+from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
-
-LrSchedule = Literal["constant", "cosine"]
-Loss = Literal["mse", "euclid"]
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    arch: str = "paper"
-    runs: int = 4                    # best of N
-    seed: int = 0                    # run r uses seed + r (the same for every camera)
-    lr: float = 5e-5
-    lr_schedule: LrSchedule = "constant"  # or "cosine" (decay to 5% over each run)
-    batch_size: int = 16
-    batches_per_epoch: int = 64
-    epochs: int = 50
-    rough_every: int = 4             # every 4th example rough (0: none)
-    rough_per_class: int = 2048      # size of the pre-rendered rough pool per camera and class
-    rough_val_per_class: int = 256   # zero-annotation validation pool
-    zero_annotation: bool = False
-    radial_calibration: bool = True  # zero-annotation only: see calibrate_radial
-    rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
-    rough_occlusion: float = 0.0     # share of rough examples partly hidden by a rough occluder
-    # rough models filmed over the video's background and background-subtracted like its masks
-    # (seg2pose.training.rough_video); off: measured worse than clean silhouettes (docs/RESULTS.md)
-    rough_video: bool = False
-    share_classes: bool = False      # one model per camera with a class one-hot input
-    share_cameras: bool = False      # one model for all cameras (lenses of one device)
-    geometry: bool = False           # append the mask-geometry features (seg2pose.method.features)
-    augment: int = 0                 # changed copies per annotated training mask (seg2pose.training.augment)
-    # annotated truth (gt/poses.csv with a source column): "interpolated" trains on keyframes and
-    # the frames interpolated between them, "keyframes" on keyframes alone; occluded rows never
-    annotated_rows: str = "interpolated"
-    max_train_per_class: int | None = None
-    max_val_per_class: int | None = 2000
-    loss: Loss = "mse"               # "mse" (squared error / 2) or "euclid" (distance, = the metric)
-    center_method: str = DEFAULT_CENTER_METHOD
-    residual_scale: float = 1.0
-    device: str | None = None
-    threads: int = 2
-    force: bool = False
-
-    def __post_init__(self) -> None:
-        for name, allowed in (("arch", ARCHS + ("lite_hr",)), ("lr_schedule", get_args(LrSchedule)),
-                              ("loss", get_args(Loss)), ("center_method", CENTER_METHODS)):
-            if getattr(self, name) not in allowed:
-                raise InputError(f"unknown {name} {getattr(self, name)!r}; use one of "
-                                 f"{', '.join(a for a in allowed if a != 'lite_hr')}", field=name)
-        for name in ("runs", "epochs", "batch_size", "batches_per_epoch"):
-            if int(getattr(self, name)) < 1:
-                raise InputError(f"{name} must be at least 1, got {getattr(self, name)}", field=name)
-
-    def replace(self, **kw) -> "TrainConfig":
-        return replace(self, **kw)
-
-    @classmethod
-    def paper(cls, arch: str = "paper") -> "TrainConfig":
-        return cls(arch=arch)
-
-    @classmethod
-    def quick(cls) -> "TrainConfig":
-        """The CPU protocol of docs/RESULTS.md: one ``lite-hr`` model with the mask-geometry
-        features per class (the paper's layout) shared by all lenses of the device, one run of
-        30 epochs, half of every batch rough-model examples from a pool of 1,500 per lens and
-        class (they regularise: the annotated split is small); about 8 minutes on 2 cores for
-        the three classes; the best of the CPU variants measured there."""
-        return cls(arch="lite-hr", geometry=True, runs=1, lr=1e-3, lr_schedule="cosine", batch_size=32,
-                   batches_per_epoch=64, epochs=30, rough_every=2, rough_per_class=1500,
-                   rough_val_per_class=40,
-                   share_classes=False, share_cameras=True, max_val_per_class=100)
-
-    @classmethod
-    def demo(cls) -> "TrainConfig":
-        """The demo's protocol: lite, one model for all five lenses and three classes, in
-        about 2 minutes of training on a 2-core CPU (docs/RESULTS.md)."""
-        return cls(arch="lite", runs=1, lr=1.5e-3, lr_schedule="cosine", batch_size=32,
-                   batches_per_epoch=64, epochs=18, rough_per_class=100, rough_val_per_class=20,
-                   share_classes=True, share_cameras=True, max_train_per_class=1000,
-                   max_val_per_class=40)
-
+from seg2pose.io.atomic import atomic_path
+from seg2pose.io.poses import read_poses
+from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import Checkpoint
+from seg2pose.method.features import GEO_VERSION, N_GEO
+from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
+from seg2pose.method.ood import residual_limits
+from seg2pose.training.config import TrainConfig
+from seg2pose.training.examples import ExampleSet
+from seg2pose.training.train_fanout import fan_out
+from seg2pose.training.training_data import camera_groups, films_rough, model_jobs
+from seg2pose.training.zero_annotation import calibrate_radial
 
 # ----------------------------------------------------------------------------------------------
 # one model
@@ -199,7 +126,7 @@ def _lr_factor(schedule: str, steps: int):
 _RESUME_KEYS = {"run", "epoch", "best", "best_state", "net", "scene_fingerprint", "config"}
 
 
-def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainConfig",
+def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainConfig,
                path: Path | None) -> dict | None:
     """Move a damaged resume state out of the way (``.state.pt.damaged-<time>``) and return a
     resume state rebuilt from the last good checkpoint (weights and best so far; the
@@ -237,7 +164,7 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: "TrainCo
             "best_state": weights, "net": weights}
 
 
-def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: "TrainConfig", path: Path) -> dict | None:
+def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Path) -> dict | None:
     """The resume state of an interrupted training of the same scene and protocol, or None; a
     damaged one is set aside and rebuilt from the last good checkpoint (``_set_aside``; it has
     no optimiser state then)."""
@@ -266,10 +193,6 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     validation loss improves and keeps a resume state beside it. Returns the best info.
     ``runs``: only these runs (0-based; default all), e.g. one run per task when the runs are
     fanned out (seg2pose/training/train_fanout.py): runs are independent, each seeded by its number."""
-    from tqdm import tqdm
-
-    from seg2pose.io.atomic import atomic_path
-
     device = pick_device(cfg.device)
     if device.type == "cpu":
         torch.set_num_threads(max(1, cfg.threads))
@@ -371,18 +294,13 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 map_groups=None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
 
-    ``map_groups(fn, items)``: given (e.g. ``seg2pose.training.train_fanout.ray_map``), the camera
+    ``map_groups(fn, items)``: given (e.g. ``seg2pose.core.ray.ray_map``), the camera
     groups' examples and then every camera x class x run are tasks of it
     (seg2pose/training/train_fanout.py), with the same checkpoints as the default, one model after
     another.
 
     Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
     resume. Without ground truth only ``zero_annotation`` training is possible."""
-    from seg2pose.io.poses import read_poses
-    from seg2pose.method.ood import residual_limits
-    from seg2pose.training.training_data import camera_groups, films_rough, model_jobs
-    from seg2pose.training.zero_annotation import calibrate_radial
-
     cfg = config or TrainConfig()
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if not cfg.zero_annotation and not scene.gt_path.exists():
@@ -449,7 +367,5 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
             for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
                 train_job(job)
     else:  # camera x class x run as tasks, the best run picked as above (same models)
-        from seg2pose.training.train_fanout import fan_out
-
         fan_out(map_groups, groups, group_jobs, train_job, finish_job, cfg, scene.fingerprint())
     return out

@@ -1,5 +1,5 @@
 """The training protocol's independent runs as tasks (``s2p train --parallel/--address``):
-camera x class x run, on Ray or any ``map``, with the checkpoints of the serial protocol.
+camera x class x run, on Ray (``seg2pose.core.ray.ray_map``) or any ``map``, with the checkpoints of the serial protocol.
 
 Why the result is the same: a camera group's examples come from its own random stream
 (``training_data.model_jobs``), so the groups' examples are built as one task per group, in
@@ -19,13 +19,11 @@ from __future__ import annotations
 import os
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
-from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.core.say import say
-
-if TYPE_CHECKING:
-    from seg2pose.training.train import TrainConfig
+from seg2pose.method.checkpoint import Checkpoint
+from seg2pose.training.config import TrainConfig
 
 
 def run_path(path: Path, run: int) -> Path:
@@ -33,7 +31,7 @@ def run_path(path: Path, run: int) -> Path:
     return path.with_name(f"{path.stem}.run{run + 1}{path.suffix}")
 
 
-def _finished_run(p: Path, cfg: "TrainConfig", scene_fp: str) -> dict | None:
+def _finished_run(p: Path, cfg: TrainConfig, scene_fp: str) -> dict | None:
     """The best info of a finished run file of this configuration and scene, else None."""
     if cfg.force or not p.exists() or p.with_name(p.name + ".state.pt").exists():
         return None
@@ -53,7 +51,7 @@ def _move(src: Path, dst: Path) -> None:
 
 
 def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Callable,
-            finish_job: Callable, cfg: "TrainConfig", scene_fp: str) -> None:
+            finish_job: Callable, cfg: TrainConfig, scene_fp: str) -> None:
     """Train every model of ``groups`` with ``mapper(fn, items)`` (e.g. ``ray_map``):
     ``group_jobs(group) -> [ModelJob]`` (examples), ``train_job(job, runs, path) -> best
     info`` (one run into ``path``), ``finish_job(job)`` (after the best run is in place)."""
@@ -80,22 +78,3 @@ def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Cal
                 f"(val loss {losses[r]:.4f})")
         finish_job(job)
 
-
-def ray_map(address: str | None = None, num_cpus: int | None = None):
-    """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
-    and returns the results in order: for ``train_scene(map_groups=...)`` (``s2p train --parallel/--address``). Starts a local Ray
-    (``num_cpus``) or joins ``address`` unless Ray is running already."""
-    from seg2pose.batch.study import MAX_RETRIES, _ray
-    from seg2pose.core.errors import S2PError
-
-    ray = _ray()
-    if ray is None:
-        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
-
-    def mapper(fn, items):
-        if not ray.is_initialized():
-            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
-        remote = ray.remote(max_retries=MAX_RETRIES)(fn)
-        return ray.get([remote.remote(x) for x in items])
-
-    return mapper

@@ -10,20 +10,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator
 
 import numpy as np
 
-from seg2pose.method.checkpoint import Checkpoint, model_filename
 from seg2pose.core.errors import S2PError
-from seg2pose.training.examples import ExampleSet, annotated_examples, rough_examples
+from seg2pose.core.say import say
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import Checkpoint, model_filename
 from seg2pose.method.net import NetConfig, Normalisation
-from seg2pose.core.say import say
-
-if TYPE_CHECKING:
-    from seg2pose.training.train import TrainConfig
+from seg2pose.training.config import TrainConfig
+from seg2pose.training.examples import ExampleSet, annotated_examples, rough_examples
+from seg2pose.training.rough_video import video_look
 
 
 @dataclass
@@ -60,7 +59,7 @@ def camera_groups(scene: Scene, cams: list[str], share_cameras: bool) -> list[tu
     return [("*", cams)]
 
 
-def _pending(out: Path, gkey: str, keys: list[str], cfg: "TrainConfig", fp: str) -> list[tuple[str, Path]]:
+def _pending(out: Path, gkey: str, keys: list[str], cfg: TrainConfig, fp: str) -> list[tuple[str, Path]]:
     """The (class key, checkpoint path) of the group's models not finished yet."""
     todo = []
     for k in keys:
@@ -76,14 +75,14 @@ def _pending(out: Path, gkey: str, keys: list[str], cfg: "TrainConfig", fp: str)
     return todo
 
 
-def truth_sources(cfg: "TrainConfig") -> tuple[str, ...]:
+def truth_sources(cfg: TrainConfig) -> tuple[str, ...]:
     """The ``source`` values of annotated truth that training uses (never ``occluded``)."""
     if cfg.annotated_rows not in ("interpolated", "keyframes"):
         raise ValueError(f"annotated_rows must be 'interpolated' or 'keyframes', got {cfg.annotated_rows!r}")
     return ("keyframe",) if cfg.annotated_rows == "keyframes" else ("keyframe", "interpolated")
 
 
-def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "TrainConfig",
+def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: TrainConfig,
                crop: int, factor: int, rng: np.random.Generator) -> tuple[ExampleSet, ExampleSet]:
     """Annotated (training, validation) examples of the cameras ``gcams``: the train and val
     splits, or 15 % of the training examples held out when the scene has no val split."""
@@ -109,17 +108,15 @@ def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: "Train
     return ExampleSet.concat(tr_parts), ExampleSet.concat(va_parts)
 
 
-def films_rough(scene: Scene, cam: str, cfg: "TrainConfig") -> bool:
+def films_rough(scene: Scene, cam: str, cfg: TrainConfig) -> bool:
     """Whether the camera's rough models are filmed and background-subtracted
     (``cfg.rough_video``, for cameras with a video)."""
     return bool(cfg.rough_video) and scene.video_path(cam) is not None
 
 
-def rough_looks(scene: Scene, cams: list[str], cfg: "TrainConfig") -> dict:
+def rough_looks(scene: Scene, cams: list[str], cfg: TrainConfig) -> dict:
     """Camera -> ``rough_video.VideoLook`` for the cameras whose rough models are filmed
     (``films_rough``)."""
-    from seg2pose.training.rough_video import video_look
-
     out = {}
     for cam in cams:
         if films_rough(scene, cam, cfg):
@@ -129,7 +126,7 @@ def rough_looks(scene: Scene, cams: list[str], cfg: "TrainConfig") -> dict:
     return out
 
 
-def model_jobs(scene: Scene, out: Path, cfg: "TrainConfig", net_cfg: NetConfig, group: tuple[str, list[str]],
+def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, group: tuple[str, list[str]],
                classes: list[str], gt: PoseTable | None) -> Iterator[ModelJob]:
     """The models of one camera group (``camera_groups``) x ``classes`` still to train, with
     their examples (built lazily, one model at a time, so memory holds one model's rough pool).

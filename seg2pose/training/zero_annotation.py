@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.method.checkpoint import Checkpoint, predict_residuals
-from seg2pose.io.scene import Scene
-from seg2pose.structures.masks import mask_centers
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
+from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import Checkpoint, predict_residuals
+from seg2pose.structures.masks import mask_centers
 
 
 def calibrate_radial(scene: Scene, path: Path, split: str | None = "train",

@@ -39,8 +39,8 @@ import numpy as np
 from pycocotools import mask as mask_util
 from scipy.special import log_ndtr
 
-from seg2pose.geometry.camera import Camera
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 

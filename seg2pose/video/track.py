@@ -30,13 +30,13 @@ import numpy as np
 from pycocotools import mask as mask_util
 from scipy.optimize import linear_sum_assignment
 
-from seg2pose.geometry.camera import Camera
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
-from seg2pose.video.video_masks import labels_to_rles
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.structures.masks import decode_counts
 from seg2pose.structures.rle_runs import box_of_runs, shift_counts, shift_rles
+from seg2pose.video.video_masks import labels_to_rles
 
 _BLOCK = 256          # frames whose normal positions are computed together
 _INVALID = 1e6        # cost of a forbidden pair

@@ -36,15 +36,15 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 from pycocotools import mask as mask_util
 
-from seg2pose.video.bg_checks import flat_pixels, ghost_mask, texture_stats
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
+from seg2pose.video.bg_checks import flat_pixels, ghost_mask, texture_stats
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
 
@@ -299,8 +299,6 @@ class BackgroundMasks:
         """One step of a first pass (``clean_background``): what ``apply`` does on an update
         frame, without the components. Between two updates the model does not change, so a
         first pass only needs every ``update_every``-th frame."""
-        import cv2
-
         raw = self.sub.apply(image, learningRate=0.0)
         share = float(np.count_nonzero(raw > SHADOW)) / raw.size
         fg = self._foreground(image, raw)
