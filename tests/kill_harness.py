@@ -118,7 +118,8 @@ class Case:
     def live_leftovers(self) -> list[str]:
         """Leftovers that the next writer would not remove: partial outputs of processes
         that still run, or anything not named like a partial output or a lock."""
-        from seg2pose.io.atomic import _PARTIAL, pid_alive
+        from seg2pose.core.locks import pid_alive
+        from seg2pose.io.atomic import _PARTIAL
 
         out = []
         for n in self.leftovers():

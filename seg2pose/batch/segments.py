@@ -45,7 +45,8 @@ from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.digest import file_fingerprint, file_sha256
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable, pid_alive
+from seg2pose.core.locks import pid_alive
+from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.video import image_files
