@@ -173,14 +173,15 @@ def bench_models(root: Path) -> None:
     from seg2pose.io.scene import load_scene
     from seg2pose.method.pipeline import run_scene
     from seg2pose.synth.generate import generate_scene
-    from seg2pose.training.train import TrainConfig, train_scene
+    from seg2pose.training.config import TrainConfig, TrainSettings
+    from seg2pose.training.train import train_scene
 
     torch.set_num_threads(1)
     sd = generate_scene(root / "train", frames=150, seed=5, progress=False, workers=1)
     scene = load_scene(sd)
-    cfg = TrainConfig.quick().replace(epochs=1, rough_every=0, threads=1)
+    cfg = TrainConfig.quick().replace(epochs=1, rough_every=0)
     t0 = time.process_time()
-    models = train_scene(scene, root / "models", cfg, progress=False)
+    models = train_scene(scene, root / "models", cfg, progress=False, settings=TrainSettings(threads=1))
     t_train = time.process_time() - t0
     n_models = len(list(models.glob("*.safetensors")))
     print(f"\ntrain, --protocol quick, 1 epoch ({cfg.batches_per_epoch} batches of {cfg.batch_size}, "

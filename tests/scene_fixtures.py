@@ -19,6 +19,7 @@ from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import ClassSpec, Scene, load_scene
 from seg2pose.structures.masks import encode
+from seg2pose.training.config import TrainConfig
 
 W, H = 320, 240
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]
@@ -119,11 +120,10 @@ def tiny_train_scene(tmp_path_factory) -> Scene:
 
 
 def tiny_config(**kw):
-    from seg2pose.training.train import TrainConfig
-
+    """A training protocol for the tiny scene: a lite net, one run of 6 short epochs."""
     base = TrainConfig(arch="lite", runs=1, lr=2e-3, lr_schedule="cosine", batch_size=16,
                        batches_per_epoch=12, epochs=6, rough_per_class=24, rough_val_per_class=12,
-                       share_classes=True, threads=1)
+                       share_classes=True)
     return base.replace(**kw)
 
 

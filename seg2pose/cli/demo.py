@@ -42,7 +42,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     from seg2pose.io.scene import load_scene
     from seg2pose.method.pipeline import run_scene
     from seg2pose.synth import generate_scene
-    from seg2pose.training.train import TrainConfig, train_scene
+    from seg2pose.training.config import TrainConfig
+    from seg2pose.training.train import train_scene
 
     t0 = time.perf_counter()
     summary: dict = {"scene": str(scene_dir)}

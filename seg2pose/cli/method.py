@@ -106,19 +106,21 @@ def train_cmd(
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
     from seg2pose.io.scene import load_scene
-    from seg2pose.training.train import TrainConfig, train_scene
+    from seg2pose.training.config import TrainConfig, TrainSettings
+    from seg2pose.training.train import train_scene
 
     cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
                 rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
                 share_classes=share_classes, share_cameras=share_cameras,
                 rough_detector_noise=rough_noise, rough_video=rough_video, geometry=geometry, augment=augment,
-                device=device, threads=threads, seed=seed)
-    cfg = cfg.replace(zero_annotation=zero_annotation, force=force,
+                seed=seed)
+    cfg = cfg.replace(zero_annotation=zero_annotation,
                       annotated_rows="keyframes" if keyframes_only else "interpolated",
                       **{k: v for k, v in over.items() if v is not None})
+    settings = TrainSettings(device=device, threads=threads or TrainSettings.threads, force=force)
     out_dir = train_scene(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
-                          progress=True,
+                          progress=True, settings=settings,
                           map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
 

@@ -1,4 +1,8 @@
-"""The training configuration (``TrainConfig``): the protocol of paper 4.1 and its CPU presets.
+"""The training configuration, in two parts: the protocol (``TrainConfig``: paper 4.1 and its
+CPU presets; what the models depend on) and the run-time settings (``TrainSettings``: device,
+threads, force; how this machine trains them). Resuming an interrupted training and skipping
+finished models compare the protocol only (``same_protocol``), so a training resumed with
+another ``--threads`` or ``--device`` continues.
 
 The presets' reasons and measurements are in ``seg2pose.training.train``'s docstring and
 docs/RESULTS.md.
@@ -6,7 +10,7 @@ docs/RESULTS.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Literal, get_args
 
 from seg2pose.core.errors import InputError
@@ -18,7 +22,18 @@ Loss = Literal["mse", "euclid"]
 
 
 @dataclass(frozen=True)
+class TrainSettings:
+    """How this machine trains (not part of the protocol: the models do not depend on it)."""
+
+    device: str | None = None  # torch device (default: cuda if present)
+    threads: int = 2           # CPU threads for torch
+    force: bool = False        # retrain finished models; ignore resume states
+
+
+@dataclass(frozen=True)
 class TrainConfig:
+    """The training protocol: everything the trained models depend on."""
+
     arch: str = "paper"
     runs: int = 4                    # best of N
     seed: int = 0                    # run r uses seed + r (the same for every camera)
@@ -49,9 +64,6 @@ class TrainConfig:
     loss: Loss = "mse"               # "mse" (squared error / 2) or "euclid" (distance, = the metric)
     center_method: str = DEFAULT_CENTER_METHOD
     residual_scale: float = 1.0
-    device: str | None = None
-    threads: int = 2
-    force: bool = False
 
     def __post_init__(self) -> None:
         for name, allowed in (("arch", ARCHS + ("lite_hr",)), ("lr_schedule", get_args(LrSchedule)),
@@ -90,3 +102,18 @@ class TrainConfig:
                    batches_per_epoch=64, epochs=18, rough_per_class=100, rough_val_per_class=20,
                    share_classes=True, share_cameras=True, max_train_per_class=1000,
                    max_val_per_class=40)
+
+
+RUN_TIME = tuple(f.name for f in fields(TrainSettings))
+
+
+def training_record(cfg: TrainConfig, settings: TrainSettings) -> dict:
+    """The protocol and the settings as one record (checkpoints' ``train_config``, resume
+    states' ``config``): the protocol's fields, then the settings'."""
+    return {**asdict(cfg), **asdict(settings)}
+
+
+def same_protocol(record: dict | None, cfg: TrainConfig) -> bool:
+    """Whether a stored ``training_record`` (or an older whole-config record) is of protocol
+    ``cfg``; the run-time settings in it are not compared."""
+    return isinstance(record, dict) and {k: v for k, v in record.items() if k not in RUN_TIME} == asdict(cfg)

@@ -49,7 +49,7 @@ from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.method.features import GEO_VERSION, N_GEO
 from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, autocast, input_vector, pick_device
 from seg2pose.method.ood import residual_limits
-from seg2pose.training.config import TrainConfig
+from seg2pose.training.config import TrainConfig, TrainSettings, same_protocol, training_record
 from seg2pose.training.examples import ExampleSet
 from seg2pose.training.train_fanout import fan_out
 from seg2pose.training.training_data import camera_groups, films_rough, model_jobs
@@ -147,7 +147,7 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainCon
     usable = (last is not None and info.get("complete") is False
               and last.scene_fingerprint == ckpt.scene_fingerprint
               and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
-              and info.get("train_config", asdict(cfg)) == asdict(cfg))
+              and same_protocol(info.get("train_config", asdict(cfg)), cfg))
     if not usable:
         say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
             "no checkpoint of this training to continue from, so it starts afresh", "warning")
@@ -163,11 +163,12 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainCon
             "best_state": weights, "net": weights}
 
 
-def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Path) -> dict | None:
+def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Path,
+                 force: bool = False) -> dict | None:
     """The resume state of an interrupted training of the same scene and protocol, or None; a
     damaged one is set aside and rebuilt from the last good checkpoint (``_set_aside``; it has
     no optimiser state then)."""
-    if not state_path.exists() or cfg.force:
+    if not state_path.exists() or force:
         return None
     try:
         resume = torch.load(state_path, map_location="cpu", weights_only=False)
@@ -177,7 +178,7 @@ def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Pat
         return _set_aside(state_path, e, ckpt, cfg, path)
     if "opt" not in resume:
         return resume
-    if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or resume.get("config") != asdict(cfg):
+    if resume.get("scene_fingerprint") != ckpt.scene_fingerprint or not same_protocol(resume.get("config"), cfg):
         say(f"{state_path} is from another scene or protocol; starting afresh", "warning")
         return None
     say(f"resuming {state_path.name[:-len('.state.pt')]} at run {resume['run'] + 1}, "
@@ -187,14 +188,14 @@ def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Pat
 
 def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
                 cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True,
-                runs: list[int] | None = None) -> dict:
+                runs: list[int] | None = None, settings: TrainSettings = TrainSettings()) -> dict:
     """Best-of-``cfg.runs`` training of one model; writes ``path`` (+ .json) whenever the
     validation loss improves and keeps a resume state beside it. Returns the best info.
     ``runs``: only these runs (0-based; default all), e.g. one run per task when the runs are
     fanned out (seg2pose/training/train_fanout.py): runs are independent, each seeded by its number."""
-    device = pick_device(cfg.device)
+    device = pick_device(settings.device)
     if device.type == "cpu":
-        torch.set_num_threads(max(1, cfg.threads))
+        torch.set_num_threads(max(1, settings.threads))
     state_path = path.with_name(path.name + ".state.pt")
     # batch composition: n_real annotated + n_rough rough-model examples
     n_rough = 0
@@ -204,7 +205,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
     n_real = cfg.batch_size - n_rough
     if n_real and (train is None or not len(train.ex)):
         raise S2PError(f"{path.stem}: no training examples")
-    resume = _load_resume(state_path, ckpt, cfg, path)
+    resume = _load_resume(state_path, ckpt, cfg, path, settings.force)
     start_run, start_epoch, best = (resume["run"], resume["epoch"], resume["best"]) if resume else (
         0, 0, {"val_loss": math.inf})
     best_state = resume["best_state"] if resume else None
@@ -266,7 +267,8 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
                             "best": best, "best_state": best_state, "net": net.state_dict(),
                             "opt": opt.state_dict(), "sched": sched.state_dict(),
                             "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
-                            "scene_fingerprint": ckpt.scene_fingerprint, "config": asdict(cfg)},
+                            "scene_fingerprint": ckpt.scene_fingerprint,
+                            "config": training_record(cfg, settings)},
                            tmp)
             if epoch + 1 == cfg.epochs:
                 resume = None  # the next run starts fresh
@@ -290,7 +292,7 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
                 classes: list[str] | None = None, progress: bool = True,
-                map_groups=None) -> Path:
+                map_groups=None, settings: TrainSettings | None = None) -> Path:
     """Train Seg2PoseNet models for a scene's cameras and classes; returns the model folder.
 
     ``map_groups(fn, items)``: given (e.g. ``seg2pose.core.ray.ray_map``), the camera
@@ -298,9 +300,11 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     (seg2pose/training/train_fanout.py), with the same checkpoints as the default, one model after
     another.
 
-    Finished models (metadata "complete") are kept unless ``config.force``; interrupted ones
-    resume. Without ground truth only ``zero_annotation`` training is possible."""
+    ``settings``: device, threads, force (``TrainSettings()`` by default). Finished models
+    (metadata "complete") are kept unless ``settings.force``; interrupted ones resume, also
+    with other settings (only the protocol, ``config``, must be the same). Without ground truth only ``zero_annotation`` training is possible."""
     cfg = config or TrainConfig()
+    settings = settings or TrainSettings()
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if not cfg.zero_annotation and not scene.gt_path.exists():
         raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it, or train "
@@ -330,7 +334,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                         scene_fingerprint=scene.fingerprint(),
                         classes=all_classes if job.key == "*" else [],
                         info={"zero_annotation": cfg.zero_annotation, "cameras": job.cameras,
-                              "train_config": asdict(cfg), "n_train": len(job.train),
+                              "train_config": training_record(cfg, settings), "n_train": len(job.train),
                               "geometry": GEO_VERSION if cfg.geometry else None,
                               "n_rough": n_rough, "n_val": len(job.val),
                               "residual_limit": residual_limits(seen.target, seen.cls)})
@@ -340,7 +344,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
 
         best = train_model(None if cfg.zero_annotation else data(job.train),
                            None if job.rough is None else data(job.rough), data(job.val), net_cfg,
-                           cfg, ck, path or job.path, progress, runs)
+                           cfg, ck, path or job.path, progress, runs, settings)
         if runs is None:
             finish_job(job)
         return best
@@ -358,13 +362,14 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     def group_jobs(group: tuple[str, list[str]]) -> list:
         # one camera group's models: independent of the other groups (own example random
         # stream, torch seeded per run), so groups may run in any order or in parallel
-        return list(model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt))
+        return list(model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt, settings.force))
 
     groups = camera_groups(scene, cams, cfg.share_cameras)
     if map_groups is None:
         for group in groups:
-            for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt):
+            for job in model_jobs(scene, out, cfg, net_cfg, group, cls_list, gt, settings.force):
                 train_job(job)
     else:  # camera x class x run as tasks, the best run picked as above (same models)
-        fan_out(map_groups, groups, group_jobs, train_job, finish_job, cfg, scene.fingerprint())
+        fan_out(map_groups, groups, group_jobs, train_job, finish_job, cfg, scene.fingerprint(),
+                settings.force)
     return out

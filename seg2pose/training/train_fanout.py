@@ -11,19 +11,19 @@ and that run's checkpoint carries the same weights and metadata (seed, run, epoc
 the serial one: it is renamed to the model's name and the other runs are removed.
 
 Resuming: a run interrupted mid-way continues from its own resume state; a finished run file
-of the same configuration and scene is not trained again.
+of the same protocol and scene is not trained again (run-time settings such as the threads
+may differ).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
 from seg2pose.core.say import say
 from seg2pose.method.checkpoint import Checkpoint
-from seg2pose.training.config import TrainConfig
+from seg2pose.training.config import TrainConfig, same_protocol
 
 
 def run_path(path: Path, run: int) -> Path:
@@ -31,16 +31,16 @@ def run_path(path: Path, run: int) -> Path:
     return path.with_name(f"{path.stem}.run{run + 1}{path.suffix}")
 
 
-def _finished_run(p: Path, cfg: TrainConfig, scene_fp: str) -> dict | None:
-    """The best info of a finished run file of this configuration and scene, else None."""
-    if cfg.force or not p.exists() or p.with_name(p.name + ".state.pt").exists():
+def _finished_run(p: Path, cfg: TrainConfig, scene_fp: str, force: bool) -> dict | None:
+    """The best info of a finished run file of this protocol and scene, else None."""
+    if force or not p.exists() or p.with_name(p.name + ".state.pt").exists():
         return None
     try:
         ck = Checkpoint.load(p)
     except Exception:  # noqa: BLE001 - a damaged run file is trained again
         return None
     info = ck.info
-    if info.get("complete") and info.get("train_config") == asdict(cfg) and ck.scene_fingerprint == scene_fp:
+    if info.get("complete") and same_protocol(info.get("train_config"), cfg) and ck.scene_fingerprint == scene_fp:
         return info
     return None
 
@@ -51,7 +51,7 @@ def _move(src: Path, dst: Path) -> None:
 
 
 def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Callable,
-            finish_job: Callable, cfg: TrainConfig, scene_fp: str) -> None:
+            finish_job: Callable, cfg: TrainConfig, scene_fp: str, force: bool = False) -> None:
     """Train every model of ``groups`` with ``mapper(fn, items)`` (e.g. ``ray_map``):
     ``group_jobs(group) -> [ModelJob]`` (examples), ``train_job(job, runs, path) -> best
     info`` (one run into ``path``), ``finish_job(job)`` (after the best run is in place)."""
@@ -61,7 +61,7 @@ def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Cal
     def one_run(unit) -> dict:
         job, r = unit
         p = run_path(job.path, r) if cfg.runs > 1 else job.path
-        done = _finished_run(p, cfg, scene_fp) if cfg.runs > 1 else None
+        done = _finished_run(p, cfg, scene_fp, force) if cfg.runs > 1 else None
         return done if done is not None else train_job(job, [r], p)
 
     bests = list(mapper(one_run, units))

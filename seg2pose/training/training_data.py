@@ -59,12 +59,13 @@ def camera_groups(scene: Scene, cams: list[str], share_cameras: bool) -> list[tu
     return [("*", cams)]
 
 
-def _pending(out: Path, gkey: str, keys: list[str], cfg: TrainConfig, fp: str) -> list[tuple[str, Path]]:
-    """The (class key, checkpoint path) of the group's models not finished yet."""
+def _pending(out: Path, gkey: str, keys: list[str], fp: str, force: bool) -> list[tuple[str, Path]]:
+    """The (class key, checkpoint path) of the group's models not finished yet (all of them
+    with ``force``)."""
     todo = []
     for k in keys:
         path = out / model_filename(gkey, k)
-        if path.exists() and not cfg.force and not path.with_name(path.name + ".state.pt").exists():
+        if path.exists() and not force and not path.with_name(path.name + ".state.pt").exists():
             meta = Checkpoint.load(path)
             if meta.info.get("complete"):
                 if meta.scene_fingerprint != fp:
@@ -127,8 +128,9 @@ def rough_looks(scene: Scene, cams: list[str], cfg: TrainConfig) -> dict:
 
 
 def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, group: tuple[str, list[str]],
-               classes: list[str], gt: PoseTable | None) -> Iterator[ModelJob]:
-    """The models of one camera group (``camera_groups``) x ``classes`` still to train, with
+               classes: list[str], gt: PoseTable | None, force: bool = False) -> Iterator[ModelJob]:
+    """The models of one camera group (``camera_groups``) x ``classes`` still to train (all
+    of them with ``force``), with
     their examples (built lazily, one model at a time, so memory holds one model's rough pool).
     A group's examples depend on no other group (own random stream), so groups may be trained
     in any order or in parallel."""
@@ -138,7 +140,7 @@ def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, gr
     camera = scene.cameras[gcams[0]]
     norm = Normalisation.for_scene(scene.ground_points, camera.width, camera.height,
                                    cfg.residual_scale)
-    todo = _pending(out, gkey, ["*"] if cfg.share_classes else classes, cfg, fp)
+    todo = _pending(out, gkey, ["*"] if cfg.share_classes else classes, fp, force)
     if not todo:
         return
     rng = np.random.default_rng([cfg.seed, sum(map(ord, gkey))])

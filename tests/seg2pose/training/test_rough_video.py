@@ -112,7 +112,7 @@ def test_size_mismatch_is_refused(tiny):
 def test_training_films_rough_models_only_when_asked_and_there_is_video(tiny, monkeypatch, flag,
                                                                        video, expect):
     import seg2pose.training.rough_video as rv
-    from seg2pose.training.train import TrainConfig
+    from seg2pose.training.config import TrainConfig
     from seg2pose.training.training_data import rough_looks
 
     monkeypatch.setattr(rv, "video_look", lambda scene, cam: ("look", cam))

@@ -12,7 +12,7 @@ import torch
 
 from seg2pose.core.errors import S2PError
 
-from scene_fixtures import make_tiny_scene, tiny_config, tiny_train_scene
+from scene_fixtures import make_tiny_scene, s2p, tiny_config, tiny_train_scene
 
 tiny = pytest.fixture(scope="module")(tiny_train_scene)
 
@@ -216,3 +216,33 @@ def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_r
     assert entry["path"] == ["../a/c1__all.safetensors", "../b/c1__all.safetensors"]
     assert entry["file"] == ["c1__all.safetensors"] * 2
     assert entry["sha256"] == [file_sha256(a / "c1__all.safetensors"), file_sha256(b / "c1__all.safetensors")]
+
+
+def test_cli_train_resumes_with_other_run_time_settings(tiny, tmp_path, fake_rough, monkeypatch, capsys):
+    """An interrupted ``s2p train`` run again with another ``--threads`` continues where it
+    stopped (the run-time settings are not part of the protocol) instead of starting afresh."""
+    import seg2pose.training.train as T
+
+    calls = {"n": 0}
+    real = T._evaluate
+
+    def counted(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 3 and not calls.get("resumed"):
+            raise KeyboardInterrupt  # in epoch 3 of 4: the resume state holds epochs 1-2
+        return real(*a, **k)
+
+    monkeypatch.setattr(T, "_evaluate", counted)
+    argv = ["train", tiny.root, "-o", tmp_path / "m", "--protocol", "demo", "--epochs", "4",
+            "--batches", "2", "--camera", "c0", "--rough", "24"]
+    code, _, err = s2p(monkeypatch, capsys, *argv, "--threads", "2")
+    assert code == 130 and "interrupted" in err
+    state = torch.load(next((tmp_path / "m").glob("*.state.pt")), weights_only=False)
+    assert state["epoch"] == 2 and state["config"]["threads"] == 2
+    calls.update(n=0, resumed=True)
+    code, _, err = s2p(monkeypatch, capsys, *argv, "--threads", "1")
+    assert code == 0, err
+    assert "resuming" in err and "at run 1, epoch 3" in err and "afresh" not in err
+    assert calls["n"] == 2  # epochs 3 and 4 only
+    meta = json.loads(next((tmp_path / "m").glob("*.json")).read_text())
+    assert meta["complete"] is True and meta["train_config"]["threads"] == 1

@@ -31,7 +31,7 @@ def test_sources_select_the_examples(tmp_path):
 
 
 def test_config_names_the_rows():
-    from seg2pose.training.train import TrainConfig
+    from seg2pose.training.config import TrainConfig
     from seg2pose.training.training_data import truth_sources
 
     assert truth_sources(TrainConfig.quick()) == ("keyframe", "interpolated")
