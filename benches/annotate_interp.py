@@ -37,10 +37,10 @@ SMOOTH_ACC = 4.0  # m/s^2
 def scene_for(seed: int, work: Path) -> Path:
     out = work / f"interp-seed{seed}"
     if not (out / "gt" / "poses.csv").exists():
-        from seg2pose.synth.generate import generate_scene
+        from seg2pose.synth.generate import SynthOptions, generate_scene
         from seg2pose.synth.noise import NoiseConfig
-        generate_scene(out, seed=seed, ids="visit", noise=NoiseConfig.off(), progress=False,
-                       workers=1, force=True)
+        generate_scene(out, SynthOptions(seed=seed, ids="visit", noise=NoiseConfig.off(), progress=False,
+                       workers=1, force=True))
     return out
 
 

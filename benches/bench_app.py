@@ -35,11 +35,11 @@ def main() -> None:
     from annotate.app.session import track_columns
     from annotate.place import pixel_to_ground
     from s2p_review.annotation_log import AnnotationLogger, new_recording
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_app_"))
-    scene = generate_scene(tmp / "scene", preset="small", frames=3, seed=1, video=False,
-                           progress=False, workers=1)
+    scene = generate_scene(tmp / "scene", SynthOptions(preset="small", frames=3, seed=1, video=False,
+                           progress=False, workers=1))
     n = args.frames
     for ncam in args.cameras:
         import shutil

@@ -171,13 +171,13 @@ def bench_models(root: Path) -> None:
 
     from seg2pose.io.run import read_run_meta
     from seg2pose.io.scene import load_scene
-    from seg2pose.method.pipeline import run_scene
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
     from seg2pose.training.config import TrainConfig, TrainSettings
     from seg2pose.training.train import train_scene
 
     torch.set_num_threads(1)
-    sd = generate_scene(root / "train", frames=150, seed=5, progress=False, workers=1)
+    sd = generate_scene(root / "train", SynthOptions(frames=150, seed=5, progress=False, workers=1))
     scene = load_scene(sd)
     cfg = TrainConfig.quick().replace(epochs=1, rough_every=0)
     t0 = time.process_time()
@@ -189,7 +189,7 @@ def bench_models(root: Path) -> None:
           f"{t_train / n_models:.1f} CPU-s per model-epoch; load {os.getloadavg()[0]:.1f}")
     for name, kw in (("baseline", dict(baseline=True)), ("Seg2PoseNet sparse", dict(models_dir=models))):
         t0 = time.process_time()
-        d = run_scene(scene, root / f"run-{len(name)}", progress=False, **kw)
+        d = run_scene(scene, root / f"run-{len(name)}", RunOptions(progress=False, **kw))
         sec = time.process_time() - t0
         meta = read_run_meta(d)
         print(f"run, {name}: {meta['n_frames'] / sec:.1f} five-camera frames per CPU-second, "
@@ -221,14 +221,14 @@ def main() -> None:
 
     from seg2pose.batch.study import BATCH_DIR, BatchOptions, Step, run_study
     from seg2pose.cli.batch import STEPS
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
 
     steps = [STEPS["run"], STEPS["eval"], STEPS["export"]]
     opts = BatchOptions()
     root = Path(tempfile.mkdtemp(prefix="bench_batch_"))
     try:
         for i in range(args.scenes):
-            generate_scene(root / f"s{i:02d}", frames=args.frames, seed=i, progress=False, workers=1)
+            generate_scene(root / f"s{i:02d}", SynthOptions(frames=args.frames, seed=i, progress=False, workers=1))
 
         def clear():
             for s in root.iterdir():

@@ -63,7 +63,7 @@ def fused_errors(scene, center: str, heights: dict[str, float], configs: list[st
                  workdir: Path) -> dict[str, float]:
     """Mean error of the fused baseline (``s2p run --baseline``) per configuration, test split."""
     from seg2pose.eval.evaluate import evaluate
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     for c in scene.classes:
         c.default_height = heights[c.name]
@@ -71,8 +71,8 @@ def fused_errors(scene, center: str, heights: dict[str, float], configs: list[st
     out = {}
     for cfg in configs:
         run = workdir / f"run-{scene.root.name}-{center}-{cfg}"
-        run_scene(scene, run, config=cfg, baseline=True, split="test", force=True,
-                  center_method=center, progress=False)
+        run_scene(scene, run, RunOptions(config=cfg, baseline=True, split="test", force=True,
+                  center_method=center, progress=False))
         est = read_poses(run / "poses.csv")
         out[cfg] = evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range("test")).mean_error
     return out
@@ -87,7 +87,7 @@ def main() -> None:
                     help="configurations for the fused baseline (s2p run --baseline)")
     ap.add_argument("--kinds", nargs="+", default=["noise", "exact"])
     args = ap.parse_args()
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
     from seg2pose.synth.noise import NoiseConfig
 
     summary = {m: {"noise": [], "exact": []} for m in CENTER_METHODS}
@@ -96,8 +96,8 @@ def main() -> None:
             path = args.workdir / f"{kind}-{seed}-{args.frames}"
             if not (path / "scene.json").exists():
                 t0 = time.perf_counter()
-                generate_scene(path, preset="small", frames=args.frames, seed=seed, force=True,
-                               noise=None if kind == "noise" else NoiseConfig.off(), progress=False)
+                generate_scene(path, SynthOptions(preset="small", frames=args.frames, seed=seed, force=True,
+                               noise=None if kind == "noise" else NoiseConfig.off(), progress=False))
                 print(f"generated {path} in {time.perf_counter() - t0:.0f} s")
             scene = load_scene(path)
             print(f"\n{path.name}: {len(scene.cameras)} cameras, test frames {scene.split_range('test')}")

@@ -108,9 +108,9 @@ def scene_crops(scene_dir: str | None, per_class: int, seed: int = 0):
     from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
 
     if scene_dir is None:
-        from seg2pose.synth.generate import generate_scene
+        from seg2pose.synth.generate import SynthOptions, generate_scene
         scene_dir = str(Path(tempfile.mkdtemp(prefix="s2p_bench_net_")) / "scene")
-        generate_scene(Path(scene_dir), frames=120, seed=seed, progress=False)
+        generate_scene(Path(scene_dir), SynthOptions(frames=120, seed=seed, progress=False))
     scene = load_scene(scene_dir)
     by_id = {c.id: c.name for c in scene.classes}
     rles, names, hw = [], [], []

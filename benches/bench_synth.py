@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.synth import junction as J
-from seg2pose.synth.generate import DT, PRESETS, generate_scene, split_ranges
+from seg2pose.synth.generate import DT, PRESETS, SynthOptions, generate_scene, split_ranges
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.render import FrameRenderer
 from seg2pose.synth.rig import make_device
@@ -114,7 +114,7 @@ def main() -> None:
     if args.full:
         out = Path(tempfile.mkdtemp()) / "paper"
         t = time.perf_counter()
-        generate_scene(out, preset="paper", seed=0, progress=True)
+        generate_scene(out, SynthOptions(preset="paper", seed=0, progress=True))
         print(f"paper preset generated in {(time.perf_counter() - t) / 60:.1f} min (measured), "
               f"{sum(f.stat().st_size for f in out.rglob('*') if f.is_file()) / 1e6:.0f} MB")
         shutil.rmtree(out.parent)

@@ -139,8 +139,8 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     from seg2pose.io.mask_formats import save_masks
     from seg2pose.io.mots import read_mots
     from seg2pose.io.utocs import import_utocs
-    from seg2pose.method.pipeline import run_scene
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
     from s2p_review.mcap_export import export_mcap
     from seg2pose.io.scene import load_scene
 
@@ -149,9 +149,9 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     other = write_scene(root / "other", frames=5, users=2)
     old = root / "old"
     old.mkdir()
-    run_scene(other, old / "run", baseline=True, progress=False)
-    run_scene(scene, root / "run", baseline=True, progress=False)
-    generate_scene(old / "synth", frames=3, seed=1, workers=1, progress=False)
+    run_scene(other, old / "run", RunOptions(baseline=True, progress=False))
+    run_scene(scene, root / "run", RunOptions(baseline=True, progress=False))
+    generate_scene(old / "synth", SynthOptions(frames=3, seed=1, workers=1, progress=False))
     save_masks(old / "png", read_mots(other.masks_path("c0")), "png")
     import_utocs(write_utocs(root / "utocs-a", frames=2), old / "utocs", log=lambda *a: None)
     write_utocs(root / "utocs-b", frames=frames, images=True)

@@ -71,10 +71,10 @@ def _run_inputs(scene_dir: Path, opts: BatchOptions) -> list[Path]:
 def _run_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
     from seg2pose.io.run import read_run_meta, read_run_poses
     from seg2pose.io.scene import load_scene
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
-    d = run_scene(load_scene(scene_dir), run_dir(scene_dir, opts), baseline=opts.baseline,
-                  models_dir=list(opts.models) or None, force=force, progress=False)
+    d = run_scene(load_scene(scene_dir), run_dir(scene_dir, opts), RunOptions(baseline=opts.baseline,
+                  models_dir=list(opts.models) or None, force=force, progress=False))
     meta = read_run_meta(d)
     poses = read_run_poses(d)
     return {"frames": int(meta["n_frames"]), "detections": int(meta["n_views"]),

@@ -40,8 +40,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
     from seg2pose.io.scene import load_scene
-    from seg2pose.method.pipeline import run_scene
-    from seg2pose.synth import generate_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.synth import SynthOptions, generate_scene
     from seg2pose.training.config import TrainConfig
     from seg2pose.training.train import train_scene
 
@@ -53,7 +53,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         _step(f"reusing the synthetic scene in {scene_dir} (delete it to regenerate)")
     else:
         _step(f"generating a small synthetic junction with video in {scene_dir}")
-        generate_scene(scene_dir, preset="small", seed=seed, video=True, force=True)
+        generate_scene(scene_dir, SynthOptions(preset="small", seed=seed, video=True, force=True))
     scene = load_scene(scene_dir)
     if scene.start_time is None:  # a clock, so that the sample files show real times
         import dataclasses
@@ -85,8 +85,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
             name = f"{cfg} {'baseline' if baseline else 'Seg2PoseNet'}"
             run_dir = scene_dir / "out" / f"run-{cfg}-{'baseline' if baseline else 's2pn'}"
             _step(f"running {name} on the test split -> {run_dir}")
-            run_scene(scene, run_dir, config=cfg, baseline=baseline,
-                      models_dir=None if baseline else models, split="test", force=True)
+            run_scene(scene, run_dir, RunOptions(config=cfg, baseline=baseline,
+                      models_dir=None if baseline else models, split="test", force=True))
             est = read_run_poses(run_dir)
             results[name] = evaluate(est, seen, scene.rig.center[:2], frame_range=test)
             runs.append(run_dir)

@@ -54,13 +54,13 @@ def run_cmd(
     (fused poses) and views.csv (one row per camera view)."""
     from seg2pose.io.run import read_run_meta
     from seg2pose.io.scene import load_scene
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.method.sparse import set_enabled
 
     set_enabled(sparse)
-    d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
+    d = run_scene(load_scene(scene), out, RunOptions(config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
-                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals)
+                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals))
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")

@@ -90,7 +90,7 @@ def synth(
     poses and optionally video, in the splits train, val and test."""
     import time
 
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
     from seg2pose.synth.noise import NoiseConfig
 
     cfg = NoiseConfig() if detector_noise else NoiseConfig.off()
@@ -105,9 +105,9 @@ def synth(
         if len(dist) == 1:
             dist = (dist[0], 0.0)
     t = time.perf_counter()
-    path = generate_scene(out, preset=preset, frames=frames, seed=seed, rig=rig, video=video,
+    path = generate_scene(out, SynthOptions(preset=preset, frames=frames, seed=seed, rig=rig, video=video,
                           force=force, noise=cfg, progress=progress, workers=workers,
-                          ids=ids, distortion=dist, match=match)
+                          ids=ids, distortion=dist, match=match))
     typer.echo(f"wrote scene {path} in {time.perf_counter() - t:.1f} s")
 
 

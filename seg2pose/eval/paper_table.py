@@ -9,13 +9,12 @@ from pathlib import Path
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.eval.evaluate import evaluate, format_table, plot_error_vs_distance
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_run_poses, read_views
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import load_models, model_dirs
-from seg2pose.method.pipeline import compute_views, fuse, write_run
+from seg2pose.method.pipeline import RunOptions, compute_views, fuse, write_run
 
 
 def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
@@ -90,8 +89,8 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
             name = f"{cfg} {'baseline' if baseline else 'S2PN'}"
             rd = out / "runs" / f"{cfg}-{'baseline' if baseline else 's2pn'}"
             cams = scene.rig.configs[cfg]
-            write_run(scene, rd, views.of_cameras(cams), cams, cfg, models, split, DEFAULT_CENTER_METHOD,
-                      nframes, force=True, smooth=smooth)
+            write_run(scene, rd, views.of_cameras(cams), cams, models, nframes,
+                      RunOptions(config=cfg, split=split, force=True, smooth=smooth))
             results[name] = evaluate_run(scene, rd, split=split)
     text = format_table(results)
     s2pn = [r.mean_error for k, r in results.items() if k.endswith("S2PN")]

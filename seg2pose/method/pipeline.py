@@ -264,48 +264,55 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
     }
 
 
-def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
-              config: str | None, models: ModelSet | None, split: str | None,
-              center_method: str, n_frames: int, force: bool = False, smooth: int = 0,
-              far: FarResiduals | None = None) -> Path:
-    """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
-    views.csv, run.json, and flagged.csv when the residuals were checked)."""
+def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], models: ModelSet | None,
+              n_frames: int, opts: RunOptions, far: FarResiduals | None = None) -> Path:
+    """Fuse per-view estimates (``opts.smooth``: see ``fuse``) and write the run folder
+    (poses.csv, views.csv, run.json, and flagged.csv when the residuals were checked)."""
     run_dir = Path(run_dir)
-    poses = fuse(views, scene, smooth)
-    meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
+    poses = fuse(views, scene, opts.smooth)
+    meta = {**run_meta(scene, run_dir, cams, opts.config, models, opts.split, opts.center_method,
+                       opts.smooth),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
     extra = {}
     if far is not None and models is not None:
         meta["far_residuals"], text = far.summary()
         if text is not None:
             extra["flagged.csv"] = text
-    return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
+    return write_run_folder(run_dir, poses, views, meta, force=opts.force, extra_files=extra)
 
 
-def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
-              baseline: bool = False, models_dir: str | Path | None = None,
-              split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
-              arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
-              progress: bool = True, allow_incomplete: bool = False, smooth: int = 0,
-              far_residuals: str = "warn") -> Path:
-    """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
+@dataclass(frozen=True)
+class RunOptions:
+    """How ``run_scene`` runs the pipeline (the options of ``s2p run``)."""
 
-    config: a configuration of the rig (None = all cameras); baseline: normal positions only;
-    models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
-    averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
-    checkpoints whose training did not finish (refused otherwise); smooth: fused positions
-    smoothed along each track over this many frames either side (0: not; see ``fuse``);
-    far_residuals: what to do with residuals longer than the model was trained on
-    (``FarResiduals``: warn, fallback, off)."""
+    config: str | None = None     # a configuration of the rig (None: all cameras)
+    baseline: bool = False        # normal positions only (no network)
+    # checkpoints (default SCENE/models), or a list of folders whose models are averaged (Ensemble)
+    models_dir: str | Path | list | None = None
+    split: str | None = None      # a named frame range of the scene (None: all frames)
+    force: bool = False           # replace an existing run folder
+    center_method: str = DEFAULT_CENTER_METHOD
+    arch: str | None = None       # when given, the checkpoints' architecture must match
+    chunk_frames: int = 32        # frames per network batch group
+    device: str | None = None     # torch device (default: cuda if present)
+    progress: bool = True
+    allow_incomplete: bool = False  # use checkpoints whose training did not finish
+    smooth: int = 0               # fused positions smoothed along each track over this many
+                                  # frames either side (0: not; see ``fuse``)
+    far_residuals: str = "warn"   # residuals longer than the model was trained on
+                                  # (``FarResiduals``: warn, fallback, off)
+
+
+def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:
+    """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring)."""
     run_dir = Path(run_dir)
-    check_run_writable(run_dir, force)  # before the work, not only after it
-    cams = [c.name for c in scene.rig.select(config)]
-    frame_range = scene.split_range(split)
+    check_run_writable(run_dir, opts.force)  # before the work, not only after it
+    cams = [c.name for c in scene.rig.select(opts.config)]
+    frame_range = scene.split_range(opts.split)
     models = None
-    if not baseline:
-        models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
-    far = None if models is None else FarResiduals(far_residuals)
-    views, nframes = compute_views(scene, cams, frame_range, models, center_method,
-                                   chunk_frames, progress, far=far)
-    return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=force, smooth=smooth, far=far)
+    if not opts.baseline:
+        models = load_models(scene, cams, opts.models_dir, opts.arch, opts.device, opts.allow_incomplete)
+    far = None if models is None else FarResiduals(opts.far_residuals)
+    views, nframes = compute_views(scene, cams, frame_range, models, opts.center_method,
+                                   opts.chunk_frames, opts.progress, far=far)
+    return write_run(scene, run_dir, views, cams, models, nframes, opts, far)

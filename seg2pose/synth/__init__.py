@@ -1,6 +1,6 @@
 """Synthetic traffic scenes (the CARLA stand-in) and rough 3D models (paper 3.5).
 
-``generate_scene`` (a whole scene folder), ``NoiseConfig`` (the detector-noise knobs) and
+``generate_scene`` (a whole scene folder, ``SynthOptions``), ``NoiseConfig`` (the detector-noise knobs) and
 ``render_rough_examples`` are imported lazily, so that ``s2p --help`` stays fast.
 """
 
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 _LAZY = {
     "generate_scene": "seg2pose.synth.generate",
+    "SynthOptions": "seg2pose.synth.generate",
     "PRESETS": "seg2pose.synth.generate",
     "NoiseConfig": "seg2pose.synth.noise",
     "render_rough_examples": "seg2pose.synth.rough",

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -145,13 +146,9 @@ def _cleared_state():
         _STATE.clear()
 
 
-def generate_scene(out: Path, *, preset: str = "small", frames: int | None = None, seed: int = 0,
-                   rig=None, video: bool = False, force: bool = False,
-                   noise: NoiseConfig | None = None, progress: bool = True,
-                   workers: int | None = None, population: dict | None = None,
-                   ids: str = "road_user", distortion: tuple[float, float] | None = None,
-                   match: str = "center") -> Path:
-    """Generate a synthetic scene folder at ``out`` and return its path.
+@dataclass(frozen=True)
+class SynthOptions:
+    """What ``generate_scene`` makes (the options of ``s2p synth``).
 
     preset: "small" (3 x 240 frames, seconds) or "paper" (3 x 7,000 frames 0.075 s apart, 150
     dropped between splits, paper 4.1); frames: frames per split (overrides the preset);
@@ -165,6 +162,27 @@ def generate_scene(out: Path, *, preset: str = "small", frames: int | None = Non
     projection of the road user's true 3D centre falls inside its mask; truncated or hidden
     road users whose centre is not covered drop out) or "all" (every visible mask).
     """
+
+    preset: str = "small"
+    frames: int | None = None
+    seed: int = 0
+    rig: object = None
+    video: bool = False
+    force: bool = False
+    noise: NoiseConfig | None = None
+    progress: bool = True
+    workers: int | None = None
+    population: dict | None = None
+    ids: str = "road_user"
+    distortion: tuple[float, float] | None = None
+    match: str = "center"
+
+
+def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
+    """Generate a synthetic scene folder at ``out`` (``SynthOptions``) and return its path."""
+    preset, frames, seed, rig, video, force = opts.preset, opts.frames, opts.seed, opts.rig, opts.video, opts.force
+    noise, progress, workers, population = opts.noise, opts.progress, opts.workers, opts.population
+    ids, distortion, match = opts.ids, opts.distortion, opts.match
     out = Path(out)
     # --- validate everything before any work ---------------------------------------------------
     if preset not in PRESETS:

@@ -31,10 +31,10 @@ if not Path(CHROMIUM).exists():
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
 
     root = tmp_path_factory.mktemp("annot") / "scene"
-    generate_scene(root, preset="small", frames=3, seed=1, video=False, progress=False, workers=1)
+    generate_scene(root, SynthOptions(preset="small", frames=3, seed=1, video=False, progress=False, workers=1))
     return root
 
 

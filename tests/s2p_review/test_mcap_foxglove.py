@@ -222,11 +222,11 @@ def _strings(obj):
 
 def test_run_json_has_no_absolute_paths(tmp_path):
     """``s2p run`` writes paths relative to the run folder; the export carries that file."""
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     scene = make_scene(tmp_path / "scene", n_frames=4)
-    run = run_scene(scene, tmp_path / "scene" / "out" / "base", config="stereo", baseline=True,
-                    progress=False)
+    run = run_scene(scene, tmp_path / "scene" / "out" / "base", RunOptions(config="stereo", baseline=True,
+                    progress=False))
     meta = json.loads((run / "run.json").read_text())
     assert not [s for s in _strings(meta) if os.path.isabs(s) or str(tmp_path) in s]
     assert (run / meta["scene"]).resolve() == scene.root.resolve()

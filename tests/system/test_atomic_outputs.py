@@ -109,16 +109,16 @@ def test_replacing_swaps_file_and_folder_and_keeps_the_old_on_error(tmp_path):
 
 def test_second_concurrent_writer_is_refused(tmp_path):
     """Old main: two 's2p run' (or 's2p synth') into one folder at once both succeeded."""
-    from seg2pose.method.pipeline import run_scene
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
 
     write_scene(tmp_path / "s")
     with held_lock(tmp_path / "run") as pid:
         with pytest.raises(S2PError, match=rf"run is being written by process {pid}"):
-            run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
+            run_scene(load_scene(tmp_path / "s"), tmp_path / "run", RunOptions(baseline=True, progress=False))
     with held_lock(tmp_path / "syn") as pid:
         with pytest.raises(S2PError, match=rf"syn is being written by process {pid}"):
-            generate_scene(tmp_path / "syn", frames=4, workers=1, progress=False)
+            generate_scene(tmp_path / "syn", SynthOptions(frames=4, workers=1, progress=False))
     # only the killed holders' (stale) locks remain, which the next writer takes over
     assert sorted(p.name for p in tmp_path.iterdir()) == [".run.lock", ".syn.lock", "s"]
 
@@ -127,7 +127,7 @@ def test_stale_partials_of_dead_processes_are_cleaned(tmp_path, capsys):
     """A killed synth left .OUT.partial-PID behind for good; now the next writer of OUT
     removes the partials (and the lock) of processes that no longer run, and keeps those of
     live ones."""
-    from seg2pose.synth.generate import generate_scene
+    from seg2pose.synth.generate import SynthOptions, generate_scene
 
     out = tmp_path / "syn"
     pid = dead_pid()
@@ -139,7 +139,7 @@ def test_stale_partials_of_dead_processes_are_cleaned(tmp_path, capsys):
     live.mkdir()
     other = tmp_path / f".other.partial-{pid}"
     other.mkdir()
-    generate_scene(out, frames=4, workers=1, progress=False)
+    generate_scene(out, SynthOptions(frames=4, workers=1, progress=False))
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".other.partial-%d" % pid, live.name, "syn"])
     assert "taking over the lock" in capsys.readouterr().err
     assert clean_stale_partials(tmp_path / "other") == [other]

@@ -166,7 +166,7 @@ def test_mots_untracked_detections_may_repeat(tmp_path):
 def test_masks_of_another_size_than_the_camera(tmp_path):
     """Swapped height and width: refused wherever masks meet a camera (on the old main, s2p
     run used them and reported errors of metres instead of centimetres)."""
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     s = write_scene(tmp_path / "s")
     p = s.masks_path("c0")
@@ -174,7 +174,7 @@ def test_masks_of_another_size_than_the_camera(tmp_path):
     assert read_mots(p).height == W  # a valid MOTS file on its own
     with pytest.raises(InputError, match=rf"c0\.txt:1: mask size {W}x{H} \(height x width\) differs "
                                          rf"from the camera's image size {H}x{W}"):
-        run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
+        run_scene(load_scene(tmp_path / "s"), tmp_path / "run", RunOptions(baseline=True, progress=False))
     assert not (tmp_path / "run").exists()
     from seg2pose.method.heights import collect_height_views
 
@@ -248,10 +248,10 @@ def test_poses_csv_nan_sizes_and_heading_mean_unknown(tmp_path):
 
 @pytest.fixture
 def scene_and_run(tmp_path):
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     write_scene(tmp_path / "s")
-    run_scene(load_scene(tmp_path / "s"), tmp_path / "run", baseline=True, progress=False)
+    run_scene(load_scene(tmp_path / "s"), tmp_path / "run", RunOptions(baseline=True, progress=False))
     return tmp_path / "s", tmp_path / "run"
 
 
@@ -364,7 +364,7 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     from seg2pose.io.run import read_run_meta
     from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     s = write_scene(tmp_path / "s")
     torch.manual_seed(0)
@@ -375,9 +375,9 @@ def test_incomplete_checkpoint_refused_unless_allowed(tmp_path, complete):
     if not complete:
         with pytest.raises(InputError, match=r"all__all\.json: field 'complete': its training did "
                                              r"not finish \(epoch 1, val loss 0\.5\).*allow incomplete models"):
-            run_scene(s, tmp_path / "run", progress=False)
+            run_scene(s, tmp_path / "run", RunOptions(progress=False))
         assert not (tmp_path / "run").exists()
-    run_scene(s, tmp_path / "run", progress=False, allow_incomplete=not complete)
+    run_scene(s, tmp_path / "run", RunOptions(progress=False, allow_incomplete=not complete))
     used = read_run_meta(tmp_path / "run")["models"]
     assert used and all(len(m["sha256"]) == 64 for m in used.values())
 

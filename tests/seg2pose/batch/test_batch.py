@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from seg2pose.batch.study import BatchOptions, Step, run_study
 from seg2pose.batch.steps import EVAL, RUN
-from seg2pose.synth.generate import generate_scene
+from seg2pose.synth.generate import SynthOptions, generate_scene
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
 
@@ -38,7 +38,7 @@ def scenes(tmp_path_factory):
     """Four scenes a..d (seeds 0..3) made once; studies are copies of them."""
     root = tmp_path_factory.mktemp("scenes")
     for seed, name in enumerate("abcd"):
-        generate_scene(root / name, frames=FRAMES, seed=seed, progress=False, workers=1)
+        generate_scene(root / name, SynthOptions(frames=FRAMES, seed=seed, progress=False, workers=1))
     return root
 
 

@@ -42,7 +42,7 @@ def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_
     from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.cli import app
     from seg2pose.io.run import read_run_poses, read_views
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(share_classes=False, epochs=1,
@@ -52,7 +52,7 @@ def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_
     ck_path = out / "c1__pedestrian.safetensors"
     lim = Checkpoint.load(ck_path).info["residual_limit"]
     assert set(lim) == {"pedestrian"} and 0 < lim["pedestrian"] <= 2.5
-    warn = run_scene(tiny, tmp_path / "warn", config="mono-1", models_dir=out, progress=False)
+    warn = run_scene(tiny, tmp_path / "warn", RunOptions(config="mono-1", models_dir=out, progress=False))
     meta = json.loads((warn / "run.json").read_text())["far_residuals"]
     v = read_views(warn / "views.csv")
     ped = v.cls == "pedestrian"
@@ -62,8 +62,8 @@ def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_
     ck = Checkpoint.load(ck_path)
     ck.info["residual_limit"] = {"pedestrian": 0.001}
     ck.save(ck_path)
-    warn = run_scene(tiny, tmp_path / "warn2", config="mono-1", models_dir=out, progress=False,
-                     force=True)
+    warn = run_scene(tiny, tmp_path / "warn2", RunOptions(config="mono-1", models_dir=out, progress=False,
+                     force=True))
     v = read_views(warn / "views.csv")
     ped = v.cls == "pedestrian"
     far = ped & (np.linalg.norm(v.residual, axis=1) > 0.001)
@@ -77,13 +77,13 @@ def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_
     listed = {(int(r.split(",")[0]), int(r.split(",")[1])) for r in rows[1:]}
     assert listed == set(zip(v.frame[far].tolist(), v.track_id[far].tolist()))
     # fallback: those poses stay at their normal positions, the others keep their residuals
-    fb = run_scene(tiny, tmp_path / "fb", config="mono-1", models_dir=out, progress=False,
-                   far_residuals="fallback")
+    fb = run_scene(tiny, tmp_path / "fb", RunOptions(config="mono-1", models_dir=out, progress=False,
+                   far_residuals="fallback"))
     vf = read_views(fb / "views.csv")
     np.testing.assert_array_equal(vf.residual[far], 0.0)
     np.testing.assert_allclose(vf.residual[~far], v.residual[~far])
-    base = read_run_poses(run_scene(tiny, tmp_path / "base", config="mono-1", baseline=True,
-                                    progress=False))
+    base = read_run_poses(run_scene(tiny, tmp_path / "base", RunOptions(config="mono-1", baseline=True,
+                                    progress=False)))
     p = read_run_poses(fb)
     key = {(f, t): i for i, (f, t) in enumerate(zip(base.frame.tolist(), base.track_id.tolist()))}
     for f, t in listed:

@@ -26,9 +26,9 @@ def test_baseline_equals_mean_of_normal_positions(tiny, tmp_path):
     """Residual-free baseline on a 3-view configuration: each pose is the mean over the views
     of the views' normal positions (computed here independently, per camera)."""
     from seg2pose.io.run import read_views
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
-    run = run_scene(tiny, tmp_path / "run", config="tri-I", baseline=True, progress=False)
+    run = run_scene(tiny, tmp_path / "run", RunOptions(config="tri-I", baseline=True, progress=False))
     poses = read_poses(run / "poses.csv")
     meta = json.loads((run / "run.json").read_text())
     assert meta["method"] == "baseline" and meta["cameras"] == ["c0", "c1", "c2"]
@@ -70,26 +70,26 @@ def test_headings_follow_motion_on_truth(tiny):
 
 
 def test_run_refuses_overwrite_and_missing_models(tiny, tmp_path):
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
-    run = run_scene(tiny, tmp_path / "r", config="mono-1", baseline=True, progress=False)
+    run = run_scene(tiny, tmp_path / "r", RunOptions(config="mono-1", baseline=True, progress=False))
     with pytest.raises(S2PError, match="--force"):
-        run_scene(tiny, run, config="mono-1", baseline=True, progress=False)
-    run_scene(tiny, run, config="mono-1", baseline=True, force=True, progress=False)
+        run_scene(tiny, run, RunOptions(config="mono-1", baseline=True, progress=False))
+    run_scene(tiny, run, RunOptions(config="mono-1", baseline=True, force=True, progress=False))
     with pytest.raises(S2PError, match="no Seg2PoseNet model"):
-        run_scene(tiny, tmp_path / "r2", config="mono-1", models_dir=tmp_path / "none",
-                  progress=False)
+        run_scene(tiny, tmp_path / "r2", RunOptions(config="mono-1", models_dir=tmp_path / "none",
+                  progress=False))
     with pytest.raises(InputError, match="unknown configuration"):
-        run_scene(tiny, tmp_path / "r3", config="nope", baseline=True, progress=False)
+        run_scene(tiny, tmp_path / "r3", RunOptions(config="nope", baseline=True, progress=False))
 
 
 def test_split_and_lockstep_streaming(tiny, tmp_path):
-    from seg2pose.method.pipeline import iter_frames, run_scene
+    from seg2pose.method.pipeline import RunOptions, iter_frames, run_scene
 
     frames = [f for f, _ in iter_frames(tiny, ["c0", "c1", "c2"], (5, 9))]
     assert frames == [5, 6, 7, 8, 9]
-    run = run_scene(tiny, tmp_path / "r", config="stereo-20", baseline=True, split="test",
-                    progress=False)
+    run = run_scene(tiny, tmp_path / "r", RunOptions(config="stereo-20", baseline=True, split="test",
+                    progress=False))
     poses = read_poses(run / "poses.csv")
     a, b = tiny.splits["test"]
     assert poses.frame.min() >= a and poses.frame.max() <= b
@@ -122,7 +122,7 @@ def test_eval_equals_hand_computation(tmp_path):
 
 def test_paper_table_baseline_only(tiny, tmp_path):
     from seg2pose.eval.paper_table import paper_table
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     out, text = paper_table(tiny, out_dir=tmp_path / "pt", baseline_only=True, progress=False)
     d = json.loads((out / "results.json").read_text())
@@ -130,8 +130,8 @@ def test_paper_table_baseline_only(tiny, tmp_path):
     assert (out / "error_vs_distance.png").stat().st_size > 1000
     assert "tri-I baseline" in text
     # views computed once and fused per configuration = a direct run of that configuration
-    direct = run_scene(tiny, tmp_path / "direct", config="stereo-20", baseline=True,
-                       split="test", progress=False)
+    direct = run_scene(tiny, tmp_path / "direct", RunOptions(config="stereo-20", baseline=True,
+                       split="test", progress=False))
     a = read_poses(direct / "poses.csv")
     b = read_poses(out / "runs" / "stereo-20-baseline" / "poses.csv")
     np.testing.assert_array_equal(a.xyz, b.xyz)

@@ -22,7 +22,7 @@ from seg2pose.io.scene import load_scene
 from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
 from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, make_net
 from seg2pose.method.sparse import SparseSeg2PoseNet, crop_boxes, sparse_of
-from seg2pose.synth.generate import generate_scene
+from seg2pose.synth.generate import SynthOptions, generate_scene
 from seg2pose.synth.rough import render_rough_examples
 
 TOL = 1e-5
@@ -51,8 +51,8 @@ def crops() -> tuple[np.ndarray, list[str]]:
     from pathlib import Path
 
     root = Path(tempfile.mkdtemp(prefix="s2p_sparse_"))
-    scene = load_scene(generate_scene(root / "s", frames=3, seed=3, progress=False, workers=1,
-                                      match="all"))
+    scene = load_scene(generate_scene(root / "s", SynthOptions(frames=3, seed=3, progress=False, workers=1,
+                                      match="all")))
     cam = scene.cameras["c2"]
     h, w = cam.height, cam.width
     table = read_mots(scene.masks_path("c2"))

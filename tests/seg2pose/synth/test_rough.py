@@ -10,7 +10,7 @@ import pytest
 from seg2pose.core.errors import InputError
 from seg2pose.io.scene import load_scene
 from seg2pose.structures.masks import decode, mask_centers, rle_stats
-from seg2pose.synth.generate import generate_scene
+from seg2pose.synth.generate import SynthOptions, generate_scene
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.rough import render_rough_examples
 
@@ -19,8 +19,8 @@ from seg2pose.synth.rough import render_rough_examples
 def clean_scene(tmp_path_factory) -> Path:
     """A scene for its cameras and ground points (two frames suffice)."""
     out = tmp_path_factory.mktemp("rough") / "clean"
-    generate_scene(out, frames=2, seed=3, noise=NoiseConfig.off(), progress=False, workers=1,
-                   match="all")
+    generate_scene(out, SynthOptions(frames=2, seed=3, noise=NoiseConfig.off(), progress=False, workers=1,
+                   match="all"))
     return out
 
 

@@ -16,14 +16,14 @@ from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
 from seg2pose.structures.masks import decode, rle_stats
 from seg2pose.synth import junction as J
-from seg2pose.synth.generate import generate_scene, split_ranges
+from seg2pose.synth.generate import SynthOptions, generate_scene, split_ranges
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.rig import CONFIGS, make_device
 
 
 def _scene(tmp_path_factory, name: str, frames: int = 6, seed: int = 3, **kw) -> Path:
     out = tmp_path_factory.mktemp("synth") / name
-    generate_scene(out, frames=frames, seed=seed, progress=False, workers=1, **kw)
+    generate_scene(out, SynthOptions(frames=frames, seed=seed, progress=False, workers=1, **kw))
     return out
 
 
@@ -111,9 +111,9 @@ def test_ground_truth_projects_inside_its_mask(clean_scene):
 
 def test_same_seed_same_bytes(tmp_path):
     a, b, c = tmp_path / "a" / "s", tmp_path / "b" / "s", tmp_path / "c" / "s"  # name is in scene.json
-    generate_scene(a, frames=4, seed=9, progress=False, workers=1)
-    generate_scene(b, frames=4, seed=9, progress=False, workers=2)  # process count must not matter
-    generate_scene(c, frames=4, seed=10, progress=False, workers=1)
+    generate_scene(a, SynthOptions(frames=4, seed=9, progress=False, workers=1))
+    generate_scene(b, SynthOptions(frames=4, seed=9, progress=False, workers=2))  # process count must not matter
+    generate_scene(c, SynthOptions(frames=4, seed=10, progress=False, workers=1))
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     assert {str(f) for f in files} >= {"scene.json", "ground_points.csv", "gt/poses.csv",
                                        "masks/c0.txt", "masks/c4.txt"}
@@ -160,30 +160,30 @@ def test_noise_changes_masks_but_keeps_ids(clean_scene, noisy_scene):
 def test_validation_before_any_work(tmp_path):
     out = tmp_path / "s"
     with pytest.raises(InputError, match="field 'frames'"):
-        generate_scene(out, frames=0, progress=False)
+        generate_scene(out, SynthOptions(frames=0, progress=False))
     with pytest.raises(InputError, match="field 'rig'"):
-        generate_scene(out, rig="nope", frames=2, progress=False)
+        generate_scene(out, SynthOptions(rig="nope", frames=2, progress=False))
     with pytest.raises(InputError, match="field 'preset'"):
-        generate_scene(out, preset="huge", progress=False)
+        generate_scene(out, SynthOptions(preset="huge", progress=False))
     with pytest.raises(InputError, match="population"):
-        generate_scene(out, frames=2, population={"car": -1}, progress=False)
+        generate_scene(out, SynthOptions(frames=2, population={"car": -1}, progress=False))
     with pytest.raises(InputError, match="noise.miss_rate"):
-        generate_scene(out, frames=2, noise=NoiseConfig(miss_rate=1.5), progress=False)
+        generate_scene(out, SynthOptions(frames=2, noise=NoiseConfig(miss_rate=1.5), progress=False))
     # a rig looking at the sky sees no road
     from seg2pose.geometry.camera import Camera
     sky = Camera.look_at("up", np.array([0.0, 0.0, 10.0]), np.array([0.0, 50.0, 40.0]), 900, 1280, 720)
     rig_file = tmp_path / "sky.json"
     rig_file.write_text(json.dumps({"cameras": [sky.to_dict()]}))
     with pytest.raises(InputError, match="sees the road"):
-        generate_scene(out, rig=rig_file, frames=2, progress=False)
+        generate_scene(out, SynthOptions(rig=rig_file, frames=2, progress=False))
     # a camera with a negative image size is refused, naming the field
     d = sky.to_dict()
     d["width"] = -1280
     rig_file.write_text(json.dumps({"cameras": [d]}))
     with pytest.raises(InputError, match="width"):
-        generate_scene(out, rig=rig_file, frames=2, progress=False)
+        generate_scene(out, SynthOptions(rig=rig_file, frames=2, progress=False))
     with pytest.raises(InputError, match="field 'frames'"):
-        generate_scene(out, frames=-5, progress=False)
+        generate_scene(out, SynthOptions(frames=-5, progress=False))
     assert not out.exists()
 
 
@@ -192,7 +192,7 @@ def test_never_overwrites_without_force_and_interruptions_leave_nothing(tmp_path
     out.mkdir()
     (out / "keep.txt").write_text("mine")
     with pytest.raises(S2PError, match="--force"):
-        generate_scene(out, frames=2, progress=False)
+        generate_scene(out, SynthOptions(frames=2, progress=False))
     assert (out / "keep.txt").read_text() == "mine"
 
     import seg2pose.synth.generate as G
@@ -202,11 +202,11 @@ def test_never_overwrites_without_force_and_interruptions_leave_nothing(tmp_path
 
     monkeypatch.setattr(G, "_mask_task", boom)
     with pytest.raises(KeyboardInterrupt):
-        generate_scene(out, frames=2, progress=False, force=True, workers=1)
+        generate_scene(out, SynthOptions(frames=2, progress=False, force=True, workers=1))
     assert (out / "keep.txt").read_text() == "mine"  # the old scene is untouched
     assert [p.name for p in tmp_path.iterdir()] == ["s"]  # no partial folder left behind
     monkeypatch.undo()
-    generate_scene(out, frames=2, progress=False, force=True, workers=1)
+    generate_scene(out, SynthOptions(frames=2, progress=False, force=True, workers=1))
     assert not (out / "keep.txt").exists() and (out / "scene.json").exists()
 
 
@@ -234,8 +234,8 @@ def small_rig_file(tmp_path) -> Path:
 def test_road_users_keep_their_id_and_size(tmp_path):
     out = tmp_path / "s"
     pop = {"pedestrian": 3, "bicyclist": 1, "car": 4}
-    generate_scene(out, frames=600, seed=1, population=pop, progress=False, workers=1,
-                   noise=NoiseConfig.off(), rig=small_rig_file(tmp_path))
+    generate_scene(out, SynthOptions(frames=600, seed=1, population=pop, progress=False, workers=1,
+                   noise=NoiseConfig.off(), rig=small_rig_file(tmp_path)))
     gt = read_poses(out / "gt" / "poses.csv")
     ids = np.unique(gt.track_id)
     assert len(ids) <= sum(pop.values())  # the population, not one id per pass
@@ -274,7 +274,7 @@ def test_video_frames(tmp_path):
     rig_file = small_rig_file(tmp_path)
     small = load_rig(rig_file).cameras["v"]
     out = tmp_path / "s"
-    generate_scene(out, frames=3, seed=2, rig=rig_file, video=True, progress=False, workers=1)
+    generate_scene(out, SynthOptions(frames=3, seed=2, rig=rig_file, video=True, progress=False, workers=1))
     cap = cv2.VideoCapture(str(out / "video" / "v.mp4"))
     frames = []
     while True:
@@ -325,8 +325,8 @@ def test_cli_noise_knobs_and_distortion(tmp_path):
 
 def test_truth_inside_masks_with_lens_distortion(tmp_path):
     out = tmp_path / "d"
-    generate_scene(out, frames=2, seed=4, noise=NoiseConfig.off(), progress=False, workers=1,
-                   distortion=(-0.08, 0.0))
+    generate_scene(out, SynthOptions(frames=2, seed=4, noise=NoiseConfig.off(), progress=False, workers=1,
+                   distortion=(-0.08, 0.0)))
     s = load_scene(out)
     gt = read_poses(s.gt_path)
     key = {(f, t): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
@@ -347,7 +347,7 @@ def test_truth_inside_masks_with_lens_distortion(tmp_path):
 
 def test_center_matching_keeps_only_masks_covering_the_centre(clean_scene, tmp_path):
     out = tmp_path / "m"
-    generate_scene(out, frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1)
+    generate_scene(out, SynthOptions(frames=6, seed=3, noise=NoiseConfig.off(), progress=False, workers=1))
     s = load_scene(out)
     assert s.extra["generator"]["match"] == "center"
     gt = read_poses(s.gt_path)

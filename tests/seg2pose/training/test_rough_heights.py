@@ -5,11 +5,11 @@ import pytest
 from seg2pose.method.heights import update_default_heights
 from seg2pose.io.scene import load_scene
 from seg2pose.training.rough_heights import rough_height_views
-from seg2pose.synth.generate import generate_scene
+from seg2pose.synth.generate import SynthOptions, generate_scene
 
 
 def test_rough_heights_are_close_to_the_annotated_ones(tmp_path):
-    generate_scene(tmp_path / "s", frames=60, seed=5, progress=False, workers=1)
+    generate_scene(tmp_path / "s", SynthOptions(frames=60, seed=5, progress=False, workers=1))
     scene = load_scene(tmp_path / "s")
     truth = update_default_heights(scene, "train", write=False, log=lambda s: None)
     scene = load_scene(tmp_path / "s")

@@ -125,7 +125,7 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     """Per-class models (the paper's layout) for one camera run through `s2p run`; views.csv
     holds the residuals, and poses = normal position + residual (one view)."""
     from seg2pose.io.run import read_views
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.io.poses import read_poses
     from seg2pose.training.train import train_scene
 
@@ -134,8 +134,8 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
                       cameras=["c1"], progress=False)
     assert sorted(p.name for p in out.glob("*.safetensors")) == [
         "c1__bicyclist.safetensors", "c1__car.safetensors", "c1__pedestrian.safetensors"]
-    run = run_scene(tiny, tmp_path / "run", config="mono-1", models_dir=out, split="test",
-                    progress=False)
+    run = run_scene(tiny, tmp_path / "run", RunOptions(config="mono-1", models_dir=out, split="test",
+                    progress=False))
     v = read_views(run / "views.csv")
     assert np.abs(v.residual).max() > 0 and np.abs(v.residual).max() <= 2.5
     p = read_poses(run / "poses.csv")
@@ -143,8 +143,8 @@ def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     order = np.lexsort((v.track_id, v.frame))
     np.testing.assert_allclose(p.xyz[:, :2], est[order], atol=1e-6)
     with pytest.raises(S2PError, match="arch"):
-        run_scene(tiny, tmp_path / "run2", config="mono-1", models_dir=out, arch="paper",
-                  progress=False)
+        run_scene(tiny, tmp_path / "run2", RunOptions(config="mono-1", models_dir=out, arch="paper",
+                  progress=False))
 
 
 def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, fake_rough):
@@ -157,7 +157,7 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     from seg2pose.io.poses import read_poses
     from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.io.run import read_views
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(geometry=True, epochs=2), cameras=["c1"],
@@ -166,8 +166,8 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     assert ck.net.cfg.n_geo == N_GEO and ck.info["geometry"] == "geo1"
     ex = annotated_examples(tiny, "c1", read_poses(tiny.gt_path), "test", 420, 3)
     assert np.abs(ex.geo).sum() > 0
-    run = run_scene(tiny, tmp_path / "run", config="mono-1", models_dir=out, split="test",
-                    progress=False)
+    run = run_scene(tiny, tmp_path / "run", RunOptions(config="mono-1", models_dir=out, split="test",
+                    progress=False))
     v = read_views(run / "views.csv")
     # the pipeline's normal positions and centres for the matched masks equal the examples'
     m = read_mots(tiny.masks_path("c1"))
@@ -193,15 +193,15 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
 def test_ensemble_of_model_folders_averages_the_residuals(tiny, tmp_path, fake_rough):
     """`s2p run --models A --models B`: each view's residual is the mean of A's and B's."""
     from seg2pose.io.run import read_views
-    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.training.train import train_scene
 
     a = train_scene(tiny, tmp_path / "a", tiny_config(epochs=1, batches_per_epoch=3), cameras=["c1"],
                     progress=False)
     b = train_scene(tiny, tmp_path / "b", tiny_config(epochs=1, batches_per_epoch=3, seed=7,
                                                       geometry=True), cameras=["c1"], progress=False)
-    runs = {k: read_views(run_scene(tiny, tmp_path / f"run_{k}", config="mono-1", models_dir=m,
-                                    split="test", progress=False) / "views.csv")
+    runs = {k: read_views(run_scene(tiny, tmp_path / f"run_{k}", RunOptions(config="mono-1", models_dir=m,
+                                    split="test", progress=False)) / "views.csv")
             for k, m in (("a", a), ("b", b), ("ab", [a, b]))}
     ra, rb, rab = (runs[k].residual for k in ("a", "b", "ab"))
     assert np.abs(ra - rb).max() > 1e-3
