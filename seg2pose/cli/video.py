@@ -34,115 +34,116 @@ def _pairs(items: list[str], what: str) -> dict:
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("new-scene", rich_help_panel=SCENE)
-    @speaks_flags
-    def new_scene_cmd(
-        out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
-        video: List[str] = typer.Option(..., "--video",
-                                        help="a camera's video file or image folder, as NAME=PATH "
-                                             "(repeat per camera); a single PATH names the camera c0"),
-        calibration: Path = typer.Option(..., "--calibration",
-                                         help="calibration: JSON {\"cameras\": [{name, P or K/R/t, "
-                                              "[width, height], [distortion]}]} or a text file of "
-                                              "12 numbers (one camera's 3x4 P, row by row)"),
-        ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
-        fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
-        force: bool = typer.Option(False, "--force", help="replace an existing scene.json in OUT"),
-    ) -> None:
-        """Make a scene folder from video, calibration and ground points.
+    app.command("new-scene", rich_help_panel=SCENE)(speaks_flags(new_scene_cmd))
+    app.command("masks-from-video", rich_help_panel=SCENE)(speaks_flags(masks_from_video_cmd))
+    app.command("track", rich_help_panel=SCENE)(speaks_flags(track_cmd))
+    app.command("import-detections", rich_help_panel=SCENE)(speaks_flags(import_detections_cmd))
 
-        No masks yet: they come next from s2p masks-from-video or s2p import-detections."""
-        from seg2pose.video.video_scene import new_scene
 
-        videos = {}
-        for v in video:
-            name, sep, path = v.partition("=")
-            if not sep:
-                name, path = "c0", v
-            if name in videos:
-                raise InputError(f"camera {name!r} given twice", field="--video")
-            videos[name] = Path(path)
-        new_scene(out, videos, calibration, ground, fps=fps, force=force, log=typer.echo)
+def new_scene_cmd(
+    out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
+    video: List[str] = typer.Option(..., "--video",
+                                    help="a camera's video file or image folder, as NAME=PATH "
+                                         "(repeat per camera); a single PATH names the camera c0"),
+    calibration: Path = typer.Option(..., "--calibration",
+                                     help="calibration: JSON {\"cameras\": [{name, P or K/R/t, "
+                                          "[width, height], [distortion]}]} or a text file of "
+                                          "12 numbers (one camera's 3x4 P, row by row)"),
+    ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
+    fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene.json in OUT"),
+) -> None:
+    """Make a scene folder from video, calibration and ground points.
 
-    @app.command("masks-from-video", rich_help_panel=SCENE)
-    @speaks_flags
-    def masks_from_video_cmd(
-        scene: Path = typer.Argument(..., help="scene folder with video/<camera>.mp4 (or image folders)"),
-        camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
-        setting: List[str] = typer.Option([], "--set",
-                                          help="a background-subtraction setting KEY=VALUE (repeatable), "
-                                               "over scene.json extra.video_masks: method (mog2|knn), "
-                                               "history, threshold, shadows, shadow_texture, "
-                                               "texture_near (true|false), init (median|warmup|none), "
-                                               "init_frames, init_samples, learning_rate, update "
-                                               "(selective|all|none), update_every, ghost_after, "
-                                               "ghost_ratio, clean_start (true|false), open_px, "
-                                               "close_px, min_area, unsettled"),
-        track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
-        classes: bool = typer.Option(True, "--classes/--no-classes",
-                                     help="give each track a class from its world size"),
-        frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
-        force: bool = typer.Option(False, "--force", help="replace existing masks/<camera>.txt"),
-        progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
-    ) -> None:
-        """Instance masks from a static camera's video by background subtraction.
+    No masks yet: they come next from s2p masks-from-video or s2p import-detections."""
+    from seg2pose.video.video_scene import new_scene
 
-        OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks and
-        size classes, written to masks/<camera>.txt (MOTS). A truncated video keeps what was
-        read; a background that never settles is reported with its frames."""
-        from seg2pose.video.video_scene import scene_masks_from_video
+    videos = {}
+    for v in video:
+        name, sep, path = v.partition("=")
+        if not sep:
+            name, path = "c0", v
+        if name in videos:
+            raise InputError(f"camera {name!r} given twice", field="--video")
+        videos[name] = Path(path)
+    new_scene(out, videos, calibration, ground, fps=fps, force=force, log=typer.echo)
 
-        scene_masks_from_video(scene, camera, bg=_pairs(setting, "--set"), track=track,
-                               classify=classes, force=force, frames=parse_frames(frames),
-                               progress=progress, log=typer.echo)
 
-    @app.command("track", rich_help_panel=SCENE)
-    @speaks_flags
-    def track_cmd(
-        scene: Path = typer.Argument(..., help="scene folder whose masks/<camera>.txt lack track ids"),
-        camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
-        setting: List[str] = typer.Option([], "--set",
-                                          help="a tracker setting KEY=VALUE (repeatable), over scene.json "
-                                               "extra.tracker: iou_min, gate_m, gate_growth, max_gap, "
-                                               "min_length, gap_penalty, split_min (default 0.5: split "
-                                               "a mask holding half of two tracks' predicted masks; "
-                                               "0: never)"),
-        classes: bool = typer.Option(False, "--classes/--no-classes",
-                                     help="also give masks without a class one from their track's world size"),
-        progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
-    ) -> None:
-        """Give track ids to masks that have none.
+def masks_from_video_cmd(
+    scene: Path = typer.Argument(..., help="scene folder with video/<camera>.mp4 (or image folders)"),
+    camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
+    setting: List[str] = typer.Option([], "--set",
+                                      help="a background-subtraction setting KEY=VALUE (repeatable), "
+                                           "over scene.json extra.video_masks: method (mog2|knn), "
+                                           "history, threshold, shadows, shadow_texture, "
+                                           "texture_near (true|false), init (median|warmup|none), "
+                                           "init_frames, init_samples, learning_rate, update "
+                                           "(selective|all|none), update_every, ghost_after, "
+                                           "ghost_ratio, clean_start (true|false), open_px, "
+                                           "close_px, min_area, unsettled"),
+    track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
+    classes: bool = typer.Option(True, "--classes/--no-classes",
+                                 help="give each track a class from its world size"),
+    frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
+    force: bool = typer.Option(False, "--force", help="replace existing masks/<camera>.txt"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
+) -> None:
+    """Instance masks from a static camera's video by background subtraction.
 
-        Mask IoU + world distance of normal positions, Hungarian assignment, re-identification
-        after short gaps; the masks file is rewritten in place (atomically), masks of tracks
-        shorter than min_length dropped."""
-        from seg2pose.video.video_scene import scene_track
+    OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks and
+    size classes, written to masks/<camera>.txt (MOTS). A truncated video keeps what was
+    read; a background that never settles is reported with its frames."""
+    from seg2pose.video.video_scene import scene_masks_from_video
 
-        scene_track(scene, camera, tracker=_pairs(setting, "--set"), classify=classes,
-                    progress=progress, log=typer.echo)
+    scene_masks_from_video(scene, camera, bg=_pairs(setting, "--set"), track=track,
+                           classify=classes, force=force, frames=parse_frames(frames),
+                           progress=progress, log=typer.echo)
 
-    @app.command("import-detections", rich_help_panel=SCENE)
-    @speaks_flags
-    def import_detections_cmd(
-        scene: Path = typer.Argument(..., help="scene folder"),
-        coco: Path = typer.Argument(..., help="a detector's COCO JSON (results list or dataset) for one camera"),
-        camera: str = typer.Option(..., "--camera", help="the camera the detections belong to"),
-        score: float = typer.Option(0.5, "--score", help="drop detections scored below this"),
-        nms: float = typer.Option(0.5, "--nms", help="drop a mask overlapping a better one of its class by more IoU"),
-        lone_bicycles: bool = typer.Option(False, "--lone-bicycles/--no-lone-bicycles",
-                                           help="keep a bicycle without a rider as a bicyclist"),
-        frame_offset: int = typer.Option(0, "--frame-offset",
-                                         help="added to every frame number (e.g. -1 when image ids start at 1)"),
-        force: bool = typer.Option(False, "--force", help="replace an existing masks/<camera>.txt"),
-    ) -> None:
-        """Masks from a detector's COCO output (Mask R-CNN, Detectron2, YOLO-seg...).
 
-        Score threshold, mask NMS, COCO classes mapped to the scene's, person + bicycle ->
-        bicyclist (the paper's Figure 2), then the tracker when the file has no track ids."""
-        from seg2pose.video.detections import DetectionConfig
-        from seg2pose.video.video_scene import scene_import_detections
+def track_cmd(
+    scene: Path = typer.Argument(..., help="scene folder whose masks/<camera>.txt lack track ids"),
+    camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
+    setting: List[str] = typer.Option([], "--set",
+                                      help="a tracker setting KEY=VALUE (repeatable), over scene.json "
+                                           "extra.tracker: iou_min, gate_m, gate_growth, max_gap, "
+                                           "min_length, gap_penalty, split_min (default 0.5: split "
+                                           "a mask holding half of two tracks' predicted masks; "
+                                           "0: never)"),
+    classes: bool = typer.Option(False, "--classes/--no-classes",
+                                 help="also give masks without a class one from their track's world size"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
+) -> None:
+    """Give track ids to masks that have none.
 
-        cfg = DetectionConfig(score_min=score, nms_iou=nms, lone_bicycles=lone_bicycles)
-        n = scene_import_detections(scene, camera, coco, cfg=cfg, frame_offset=frame_offset,
-                                    force=force, log=typer.echo)
-        typer.echo(f"wrote {n} masks to {Path(scene) / 'masks' / f'{camera}.txt'}")
+    Mask IoU + world distance of normal positions, Hungarian assignment, re-identification
+    after short gaps; the masks file is rewritten in place (atomically), masks of tracks
+    shorter than min_length dropped."""
+    from seg2pose.video.video_scene import scene_track
+
+    scene_track(scene, camera, tracker=_pairs(setting, "--set"), classify=classes,
+                progress=progress, log=typer.echo)
+
+
+def import_detections_cmd(
+    scene: Path = typer.Argument(..., help="scene folder"),
+    coco: Path = typer.Argument(..., help="a detector's COCO JSON (results list or dataset) for one camera"),
+    camera: str = typer.Option(..., "--camera", help="the camera the detections belong to"),
+    score: float = typer.Option(0.5, "--score", help="drop detections scored below this"),
+    nms: float = typer.Option(0.5, "--nms", help="drop a mask overlapping a better one of its class by more IoU"),
+    lone_bicycles: bool = typer.Option(False, "--lone-bicycles/--no-lone-bicycles",
+                                       help="keep a bicycle without a rider as a bicyclist"),
+    frame_offset: int = typer.Option(0, "--frame-offset",
+                                     help="added to every frame number (e.g. -1 when image ids start at 1)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing masks/<camera>.txt"),
+) -> None:
+    """Masks from a detector's COCO output (Mask R-CNN, Detectron2, YOLO-seg...).
+
+    Score threshold, mask NMS, COCO classes mapped to the scene's, person + bicycle ->
+    bicyclist (the paper's Figure 2), then the tracker when the file has no track ids."""
+    from seg2pose.video.detections import DetectionConfig
+    from seg2pose.video.video_scene import scene_import_detections
+
+    cfg = DetectionConfig(score_min=score, nms_iou=nms, lone_bicycles=lone_bicycles)
+    n = scene_import_detections(scene, camera, coco, cfg=cfg, frame_offset=frame_offset,
+                                force=force, log=typer.echo)
+    typer.echo(f"wrote {n} masks to {Path(scene) / 'masks' / f'{camera}.txt'}")

@@ -22,7 +22,7 @@ the second runs the same (deterministic) tracker again and writes the masks with
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -76,6 +76,42 @@ class TrackConfig:
         return asdict(self)
 
 
+@dataclass
+class LiveTracks:
+    """The tracks alive now, one row per track, as a column table: every column has one entry
+    per row; ``take`` and ``append`` keep them together."""
+
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # provisional ids
+    last: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # frame last seen
+    # last world position (x, y) metres, NaN unknown; velocity, metres per frame
+    pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    vel: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    # last mask's box centre, pixels; its motion, pixels per frame (NaN: seen once)
+    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    pxvel: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    rles: list[bytes] = field(default_factory=list)  # last mask
+    # last whole mask (not a part cut from a merged blob), carried along by the track's motion
+    # while it is merged: what the road user looks like when nothing hides it; its box
+    # (x, y, w, h) and area, pixels
+    shape: list[bytes] = field(default_factory=list)
+    shape_box: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    shape_area: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def take(self, rows: np.ndarray) -> "LiveTracks":
+        """The rows ``rows`` (indices), in that order."""
+        return LiveTracks(**{f.name: [col[i] for i in rows] if isinstance(col, list) else col[rows]
+                             for f in fields(self) for col in [getattr(self, f.name)]})
+
+    def append(self, more: "LiveTracks") -> "LiveTracks":
+        """These rows, then ``more``'s."""
+        return LiveTracks(**{f.name: a + b if isinstance(a, list) else np.concatenate([a, b])
+                             for f in fields(self)
+                             for a, b in [(getattr(self, f.name), getattr(more, f.name))]})
+
+
 class Tracker:
     """Frame-by-frame association. ``update`` returns a provisional id per mask; ``final_ids``
     turns all ids handed out into the final ones (short tracks -> -1, ids renumbered 1.. in
@@ -84,31 +120,25 @@ class Tracker:
     def __init__(self, height: int, width: int, cfg: TrackConfig | None = None):
         self.cfg = cfg or TrackConfig()
         self.size = [int(height), int(width)]
-        self.ids = np.zeros(0, np.int64)       # live tracks
-        self.last = np.zeros(0, np.int64)      # frame each was last seen
-        self.pos = np.zeros((0, 2))            # last world position (x, y) metres, NaN unknown
-        self.vel = np.zeros((0, 2))            # metres per frame
-        self.box = np.zeros((0, 2))            # last mask's box centre, pixels
-        self.pxvel = np.zeros((0, 2))          # its motion, pixels per frame (NaN: seen once)
-        self.rles: list[bytes] = []            # last mask of each live track
-        # last whole mask (not a part cut from a merged blob), carried along by the track's
-        # motion while it is merged: what the road user looks like when nothing hides it
-        self.shape: list[bytes] = []
-        self.shape_box = np.zeros((0, 4))      # its box (x, y, w, h) pixels and area, pixels
-        self.shape_area = np.zeros(0)
+        self.live = LiveTracks()               # the tracks alive now, one row each
         self._pred: dict[int, bytes] = {}      # this frame's predicted masks, by track row
         self._lazy: dict[int, int] = {}        # rows with a predicted mask: their shift
         self.length: list[int] = []            # masks per id (index = provisional id)
+        # the last frame's masks after splitting merged ones, the input mask each came from,
+        # and whether it is a part of a split mask (``update`` returns their ids)
+        self.out_rles: list[bytes] = []
+        self.out_source = np.zeros(0, np.int64)
+        self.out_split = np.zeros(0, bool)
         # world positions (D, 2) of masks made by splitting; None: unknown (IoU only)
         self.positions: Callable[[list[bytes]], np.ndarray] | None = None
 
     def _cost(self, frame: int, rles: list[bytes], xy: np.ndarray) -> np.ndarray:
         c = self.cfg
-        gap = (frame - self.last).astype(np.float64)                     # (T,)
-        iou = np.asarray(mask_util.iou([{"size": self.size, "counts": r} for r in self.rles],
+        gap = (frame - self.live.last).astype(np.float64)                     # (T,)
+        iou = np.asarray(mask_util.iou([{"size": self.size, "counts": r} for r in self.live.rles],
                                        [{"size": self.size, "counts": r} for r in rles],
-                                       [0] * len(rles)), float).reshape(len(self.rles), len(rles))
-        pred = self.pos + self.vel * gap[:, None]
+                                       [0] * len(rles)), float).reshape(len(self.live.rles), len(rles))
+        pred = self.live.pos + self.live.vel * gap[:, None]
         dist = np.linalg.norm(pred[:, None, :] - xy[None, :, :], axis=2)  # (T, D), NaN unknown
         gate = c.gate_m + c.gate_growth * (gap - 1)
         with np.errstate(invalid="ignore"):
@@ -125,17 +155,17 @@ class Tracker:
         by ``positions`` when set) and, per output mask, the index of the input mask it came
         from."""
         src = np.arange(len(rles))
-        recent = np.flatnonzero((frame - self.last == 1)
-                                & (np.asarray(self.length, np.int64)[self.ids] >= SPLIT_MIN_AGE)
-                                if len(self.ids) else np.zeros(0, bool))
+        recent = np.flatnonzero((frame - self.live.last == 1)
+                                & (np.asarray(self.length, np.int64)[self.live.ids] >= SPLIT_MIN_AGE)
+                                if len(self.live.ids) else np.zeros(0, bool))
         if self.cfg.split_min <= 0 or len(recent) < 2 or not rles:
             return rles, xy, src
         # each track's shape moved on by its pixel motion: where the road user is expected
         h = self.size[0]
-        shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
+        shift = np.round(np.nan_to_num(self.live.pxvel[recent])).astype(np.int64)
         # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
         # two or more of them can take part
-        bt = self.shape_box[recent]
+        bt = self.live.shape_box[recent]
         bt[:, :2] += shift
         meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
                 & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
@@ -146,7 +176,7 @@ class Tracker:
         # exact upper bounds before any decoding: a track's share inside a mask is at most
         # the overlap of their boxes over the track's predicted area (exact where the shape
         # moves without leaving the image: no pixel wraps into the next column or falls off)
-        at0 = self.shape_area[recent]
+        at0 = self.live.shape_area[recent]
         ow = np.minimum(bt[:, None, 0] + bt[:, None, 2], bd[None, :, 0] + bd[None, :, 2]) \
             - np.maximum(bt[:, None, 0], bd[None, :, 0])
         oh = np.minimum(bt[:, None, 1] + bt[:, None, 3], bd[None, :, 1] + bd[None, :, 3]) \
@@ -166,7 +196,7 @@ class Tracker:
         # out changes no share's row maximum that matters
         cols = np.flatnonzero(may[need].any(axis=0))
         # the runs of their shapes and of those masks, decoded at once (reused by _split)
-        vals, off = decode_counts([self.shape[i] for i in sel] + [rles[k] for k in cols])
+        vals, off = decode_counts([self.live.shape[i] for i in sel] + [rles[k] for k in cols])
         runs = [vals[off[j]:off[j + 1]] for j in range(len(off) - 1)]
         blob_runs = dict(zip(cols.tolist(), runs[len(sel):]))
         moved, pred_runs = [], {}
@@ -174,7 +204,7 @@ class Tracker:
             k = lazy[i]
             pred_runs[i] = shift_counts(runs[j], k, h * self.size[1]) if k else runs[j]
             moved.append(mask_util.frPyObjects({"size": self.size, "counts": pred_runs[i].tolist()},
-                                               *self.size)["counts"] if k else self.shape[i])
+                                               *self.size)["counts"] if k else self.live.shape[i])
         pred = dict(zip(sel.tolist(), moved))
         objs_t = [{"size": self.size, "counts": r} for r in moved]
         objs_d = [{"size": self.size, "counts": rles[k]} for k in cols]
@@ -216,7 +246,7 @@ class Tracker:
     def _predicted(self, r: int) -> bytes:
         """Track row ``r``'s predicted mask this frame (its shape moved on), made on demand."""
         if r not in self._pred:
-            self._pred[r] = shift_rles([self.shape[r]], [self._lazy[r]], self.size)[0]
+            self._pred[r] = shift_rles([self.live.shape[r]], [self._lazy[r]], self.size)[0]
         return self._pred[r]
 
     def _split(self, blob: bytes, predicted: list[bytes], runs: list[np.ndarray],
@@ -267,15 +297,9 @@ class Tracker:
         c = self.cfg
         d = len(rles)
         xy = np.full((d, 2), np.nan) if xy is None else np.asarray(xy, float).reshape(d, 2)
-        alive = frame - self.last <= c.max_gap
+        alive = frame - self.live.last <= c.max_gap
         if not alive.all():
-            keep = np.flatnonzero(alive)
-            self.ids, self.last = self.ids[keep], self.last[keep]
-            self.pos, self.vel = self.pos[keep], self.vel[keep]
-            self.box, self.pxvel = self.box[keep], self.pxvel[keep]
-            self.rles = [self.rles[i] for i in keep]
-            self.shape = [self.shape[i] for i in keep]
-            self.shape_box, self.shape_area = self.shape_box[keep], self.shape_area[keep]
+            self.live = self.live.take(np.flatnonzero(alive))
         self._pred, self._lazy = {}, {}
         given = list(rles)
         bb, area = self._boxes(given)
@@ -292,36 +316,36 @@ class Tracker:
         if d == 0:
             return out
         rows = cols = np.zeros(0, np.int64)
-        if len(self.ids):
+        if len(self.live.ids):
             cost = self._cost(frame, rles, xy)
             rows, cols = linear_sum_assignment(cost)
             good = cost[rows, cols] < _INVALID
             rows, cols = rows[good], cols[good]
         # matched tracks: position, velocity (smoothed, per frame), last mask
         if len(rows):
-            gap = (frame - self.last[rows]).astype(np.float64)[:, None]
-            step = (xy[cols] - self.pos[rows]) / gap
+            gap = (frame - self.live.last[rows]).astype(np.float64)[:, None]
+            step = (xy[cols] - self.live.pos[rows]) / gap
             fresh = np.isfinite(step).all(axis=1)
-            self.vel[rows] = np.where(fresh[:, None] & np.isfinite(self.vel[rows]),
-                                      0.6 * self.vel[rows] + 0.4 * step,
-                                      np.where(fresh[:, None], step, self.vel[rows]))
+            self.live.vel[rows] = np.where(fresh[:, None] & np.isfinite(self.live.vel[rows]),
+                                      0.6 * self.live.vel[rows] + 0.4 * step,
+                                      np.where(fresh[:, None], step, self.live.vel[rows]))
             has = np.isfinite(xy[cols]).all(axis=1)
-            self.pos[rows] = np.where(has[:, None], xy[cols], self.pos[rows])
-            px = (box[cols] - self.box[rows]) / gap
-            old = self.pxvel[rows]
-            self.pxvel[rows] = np.where(np.isnan(old), px, 0.6 * old + 0.4 * px)
-            self.box[rows] = box[cols]
-            self.last[rows] = frame
+            self.live.pos[rows] = np.where(has[:, None], xy[cols], self.live.pos[rows])
+            px = (box[cols] - self.live.box[rows]) / gap
+            old = self.live.pxvel[rows]
+            self.live.pxvel[rows] = np.where(np.isnan(old), px, 0.6 * old + 0.4 * px)
+            self.live.box[rows] = box[cols]
+            self.live.last[rows] = frame
             for r, cc in zip(rows, cols):
-                self.rles[r] = rles[cc]
+                self.live.rles[r] = rles[cc]
                 whole_mask = not self.out_split[cc] or int(r) not in self._lazy
                 if whole_mask:
-                    self.shape[r], self.shape_box[r], self.shape_area[r] = rles[cc], bb[cc], area[cc]
+                    self.live.shape[r], self.live.shape_box[r], self.live.shape_area[r] = rles[cc], bb[cc], area[cc]
                 else:
-                    self.shape[r] = self._predicted(int(r))
-                    b, a = self._boxes([self.shape[r]])
-                    self.shape_box[r], self.shape_area[r] = b[0], a[0]
-            out[cols] = self.ids[rows]
+                    self.live.shape[r] = self._predicted(int(r))
+                    b, a = self._boxes([self.live.shape[r]])
+                    self.live.shape_box[r], self.live.shape_area[r] = b[0], a[0]
+            out[cols] = self.live.ids[rows]
         # births
         taken = np.zeros(d, bool)
         taken[cols] = True
@@ -329,16 +353,11 @@ class Tracker:
         if len(new):
             nid = np.arange(len(self.length), len(self.length) + len(new))
             self.length.extend([0] * len(new))
-            self.ids = np.r_[self.ids, nid]
-            self.last = np.r_[self.last, np.full(len(new), frame)]
-            self.pos = np.vstack([self.pos, xy[new]])
-            self.vel = np.vstack([self.vel, np.zeros((len(new), 2))])
-            self.box = np.vstack([self.box, box[new]])
-            self.pxvel = np.vstack([self.pxvel, np.full((len(new), 2), np.nan)])  # unknown yet
-            self.rles.extend(rles[i] for i in new)
-            self.shape.extend(rles[i] for i in new)
-            self.shape_box = np.vstack([self.shape_box, bb[new]])
-            self.shape_area = np.r_[self.shape_area, area[new]]
+            self.live = self.live.append(LiveTracks(
+                ids=nid, last=np.full(len(new), frame), pos=xy[new], vel=np.zeros((len(new), 2)),
+                box=box[new], pxvel=np.full((len(new), 2), np.nan),  # pixel motion unknown yet
+                rles=[rles[i] for i in new], shape=[rles[i] for i in new], shape_box=bb[new],
+                shape_area=area[new]))
             out[new] = nid
         for i in out:
             self.length[i] += 1
