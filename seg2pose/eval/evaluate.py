@@ -279,7 +279,6 @@ def plot_error_vs_distance(results: dict[str, EvalResult], path: str | Path,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
     for name, r in results.items():
         if not r.bins:

@@ -342,7 +342,6 @@ class Camera:
                 raise InputError(f"missing field '{key}'", file=file, field=f"{where}.{key}")
             return d[key]
 
-
         name = safe_name(get("name"), file=file, field=f"{where}.name", what="camera name")
         where = f"cameras[{name}]"
         width, height = (integer(get(k), file=file, field=f"{where}.{k}", lo=1, hi=MAX_IMAGE_SIDE)

@@ -60,7 +60,6 @@ class Checkpoint:
         """Write ``path`` (.safetensors) and its ``.json`` sidecar, both atomically."""
         from safetensors.torch import save_file
 
-
         path = Path(path)
         meta = self.metadata()
         state = {k: v.detach().float().cpu().contiguous() for k, v in self.net.state_dict().items()}

@@ -226,7 +226,6 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
     (OpenCV does the pixels)."""
     import cv2
 
-
     _, _, box = rle_stats(rles, height, width)
     out = []
     kernel = np.ones((3, 3), np.uint8)

@@ -273,7 +273,6 @@ class BackgroundMasks:
         ids = ids[ids > 0]
         return labels_to_rles(labels, ids), share
 
-
     def _foreground(self, image: np.ndarray, raw: np.ndarray) -> np.ndarray:
         """(H, W) uint8 0/1 cleaned foreground of the subtractor's output ``raw``: foreground,
         plus the shadow pixels that are not shadows by their texture (``flat_pixels``), then
