@@ -4,7 +4,7 @@
 One module per family of commands, each with ``register(app)``; they are imported and
 registered here by name, so a reader (and any tool) sees what depends on what. ``s2p --help``
 groups the commands in panels (``seg2pose.cli.common``): scene, method, review, annotation,
-batch.
+batch, safety.
 
 A command imports the libraries it runs inside its function: ``s2p`` imports every command
 module at start, and ``s2p --help`` should not wait for torch, scipy, OpenCV or Rerun
@@ -36,7 +36,7 @@ def _root() -> None:
     """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
 
 
-from seg2pose.cli import annotation, batch, demo, method, review, scene, video  # noqa: E402  (after app exists)
+from seg2pose.cli import annotation, batch, demo, method, review, safety, scene, video  # noqa: E402  (after app exists)
 
 scene.register(app)
 video.register(app)
@@ -45,6 +45,7 @@ review.register(app)
 demo.register(app)
 annotation.register(app)
 batch.register(app)
+safety.register(app)
 
 INTERRUPTED = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 

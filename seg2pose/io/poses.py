@@ -130,12 +130,14 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
     text = read_text(path, "pose file")
     reader = csv.reader(io.StringIO(text))
     try:
-        return _parse_poses(reader, path, kc)
+        return parse_poses(reader, path, kc)
     except csv.Error as e:
         raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
 
 
-def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+    """The pose table of a CSV ``reader`` (rows of ``path``, for messages); ``kc``: the known
+    classes (None: any)."""
     header = next(reader, None)
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)
