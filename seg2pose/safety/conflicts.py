@@ -29,13 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seg2pose.safety.encounters import near_pairs
+from seg2pose.safety.encounters import near_pairs, pair_codes
+from seg2pose.safety.footprints import reach
 from seg2pose.safety.kinematics import Motion, MotionOptions, motion
 from seg2pose.safety.pet import PetOptions, PetResult, pet
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
 
 VULNERABLE = ("pedestrian", "bicyclist")
+TTC_BLOCK = 1 << 20  # pair-frames per block of the TTC computation
 
 
 @dataclass(frozen=True)
@@ -82,8 +84,21 @@ def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     a, b, d = a[keep], b[keep], d[keep]
     order = np.lexsort((tracks.frame[a], tracks.track_id[b], tracks.track_id[a]))
     a, b, d = a[order], b[order], d[order]
-    x = ttc(tracks.xy[a], mot.heading[a], tracks.size[a], mot.vel[a],
-            tracks.xy[b], mot.heading[b], tracks.size[b], mot.vel[b], opts.horizon_s)
+    # exact shortcut: apart (farther than their reaches) and not closing in, or too far to
+    # meet within the horizon: no collision course (the centre distance of two bodies at
+    # constant velocity is convex in time)
+    rel = tracks.xy[b] - tracks.xy[a]
+    vrel = mot.vel[b] - mot.vel[a]
+    gap = d - reach(tracks.size[a]) - reach(tracks.size[b])
+    speed = np.hypot(vrel[:, 0], vrel[:, 1])
+    maybe = ~((gap > 0) & ((rel[:, 0] * vrel[:, 0] + rel[:, 1] * vrel[:, 1] >= 0) | (gap > speed * opts.horizon_s)))
+    x = np.full(len(a), np.nan)
+    idx = np.flatnonzero(maybe)
+    for i in range(0, len(idx), TTC_BLOCK):  # in blocks: the temporaries stay small
+        sl = idx[i:i + TTC_BLOCK]
+        j, k = a[sl], b[sl]
+        x[sl] = ttc(tracks.xy[j], mot.heading[j], tracks.size[j], mot.vel[j],
+                    tracks.xy[k], mot.heading[k], tracks.size[k], mot.vel[k], opts.horizon_s)
     return PairFrames(a, b, x, d)
 
 
@@ -158,7 +173,10 @@ def _table(tracks: Tracks, mot: Motion, pf: PairFrames, pr: PetResult, opts: Con
     tid, frame, speed = tracks.track_id, tracks.frame, mot.speed
     # the encounters: pairs from the near frames and from PET, one row each
     keys = np.r_[_pair_key(tid[pf.a], tid[pf.b]), _pair_key(pr.track_a, pr.track_b)]
-    enc, inv = np.unique(keys, axis=0, return_inverse=True)
+    ids = np.unique(keys)
+    codes, first, inv = np.unique(pair_codes(keys[:, 0], keys[:, 1], ids), return_index=True,
+                                  return_inverse=True)
+    enc = keys[first]
     inv = inv.reshape(-1)
     K = len(enc)
     g_pf, g_pr = inv[:len(pf.a)], inv[len(pf.a):]
