@@ -28,7 +28,7 @@ POPULATION = {"car": (0.6, (8.0, 14.0), 120.0), "pedestrian": (0.3, (1.1, 1.7), 
 def junction_traffic(hours: float, fps: float, in_view: float, seed: int) -> Tracks:
     """Road users arriving as a Poisson process on the junction's approaches (cars and
     bicyclists on 8 lanes through the centre, pedestrians on 4 crossings), moving at a constant
-    speed; 30 % of the cars wait 0-10 s at the stop line."""
+    speed; 10 % of the cars wait 0-4 s at the stop line. Cut at ``hours``."""
     rng = np.random.default_rng(seed)
     shares = np.array([v[0] for v in POPULATION.values()])
     life = np.array([v[2] / np.mean(v[1]) for v in POPULATION.values()])
@@ -38,7 +38,7 @@ def junction_traffic(hours: float, fps: float, in_view: float, seed: int) -> Tra
     start = np.sort(rng.uniform(0, T, n))
     kind = rng.choice(len(POPULATION), n, p=shares)
     approach = rng.integers(0, 4, n)  # direction of travel: +x, +y, -x, -y
-    waits = (kind == 0) & (rng.random(n) < 0.3)  # cars stopping at the stop line, own lane
+    waits = (kind == 0) & (rng.random(n) < 0.1)  # cars stopping at the stop line, own lane
     names = np.array(list(POPULATION), object)
     lo = np.array([v[1][0] for v in POPULATION.values()])[kind]
     hi = np.array([v[1][1] for v in POPULATION.values()])[kind]
@@ -49,11 +49,11 @@ def junction_traffic(hours: float, fps: float, in_view: float, seed: int) -> Tra
     # centre line); pedestrians on crossings 12 m either side of the centre, keeping right
     lane = np.select([kind == 1, kind == 2, waits], [rng.choice([-12.0, 12.0], n) - 0.5, -4.0 + 0 * speed,
                                                       -5.25 + 0 * speed], -1.75)
-    wait = np.where(waits, rng.uniform(0, 10, n), 0.0)
-    # one lane, one speed (no overtaking in this model), a gap of 2 s (12 s behind a car that
+    wait = np.where(waits, rng.uniform(0, 4, n), 0.0)
+    # one lane, one speed (no overtaking in this model), a gap of 1.5 s (6 s behind a car that
     # stops) after the one before
     for q in range(4):
-        for group, gap in (((kind == 0) & ~waits, 2.0), ((kind == 0) & waits, 12.0),
+        for group, gap in (((kind == 0) & ~waits, 1.5), ((kind == 0) & waits, 6.0),
                            (kind == 2, 2.0), (kind == 1, 1.0)):
             i = np.flatnonzero((approach == q) & group)
             if len(i):
@@ -78,7 +78,9 @@ def junction_traffic(hours: float, fps: float, in_view: float, seed: int) -> Tra
     xy += rng.normal(0, 0.05, xy.shape)  # estimated tracks are not exact
     cls = names[kind][owner]
     size = np.array([CLASS_SIZES[c] for c in names])[kind][owner]
-    return Tracks(f0[owner] + k, owner + 1, cls, xy, heading[owner], size, fps)
+    keep = f0[owner] + k < T * fps
+    return Tracks((f0[owner] + k)[keep], (owner + 1)[keep], cls[keep], xy[keep],
+                  heading[owner][keep], size[keep], fps)
 
 
 def main() -> None:

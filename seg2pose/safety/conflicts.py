@@ -45,7 +45,8 @@ class ConflictOptions:
     """ttc_s, pet_s: the conflict thresholds (SSAM's defaults); near_m: road users farther
     apart than this (centre to centre) are not compared for TTC; horizon_s: TTC beyond this is
     "none"; brake_mps2, swerve_mps2: evasive action thresholds; all_pairs: keep every encounter,
-    not only conflicts."""
+    not only conflicts; pedestrian_pairs: also pairs of two pedestrians (walking past each
+    other in a crowd is no traffic conflict; left out by default)."""
 
     ttc_s: float = 1.5
     pet_s: float = 5.0
@@ -54,6 +55,7 @@ class ConflictOptions:
     brake_mps2: float = 3.0
     swerve_mps2: float = 3.0
     all_pairs: bool = False
+    pedestrian_pairs: bool = False
     motion: MotionOptions = field(default_factory=MotionOptions)
 
     def pet_options(self) -> PetOptions:
@@ -166,7 +168,12 @@ def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Moti
     pr = pet(tracks, mot, opts.pet_options(), touching=np.c_[pf.a[touch], pf.b[touch]])
     say("table")
     table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr)
-    return table if opts.all_pairs else table.take(table.columns["conflict"].astype(bool))
+    c = table.columns
+    keep = np.ones(len(table), bool) if opts.all_pairs else c["conflict"].astype(bool)
+    if not opts.pedestrian_pairs:
+        keep &= ~((np.char.lower(c["class_a"].astype(str)) == "pedestrian")
+                  & (np.char.lower(c["class_b"].astype(str)) == "pedestrian"))
+    return table.take(keep)
 
 
 def _table(tracks: Tracks, mot: Motion, pf: PairFrames, pr: PetResult, opts: ConflictOptions) -> dict:
