@@ -272,12 +272,14 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
               config: str | None, models: ModelSet | None, split: str | None,
               center_method: str, n_frames: int, force: bool = False, smooth: int = 0,
-              far: FarResiduals | None = None) -> Path:
+              far: FarResiduals | None = None, track_ids: dict | None = None) -> Path:
     """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
-    views.csv, run.json, and flagged.csv when the residuals were checked)."""
+    views.csv, run.json, and flagged.csv when the residuals were checked). ``track_ids``: how
+    the ids were made (``check_track_ids``), recorded in run.json."""
     run_dir = Path(run_dir)
     poses = fuse(views, scene, smooth)
     meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
+            **({"track_ids": track_ids} if track_ids else {}),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
     extra = {}
     if far is not None and models is not None:
@@ -287,12 +289,31 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
     return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
 
 
+def check_track_ids(scene: Scene, cams: list[str], fuse_unassociated: bool = False) -> dict:
+    """How the track ids of ``cams`` were made (``seg2pose.io.track_ids``), for run.json.
+    Refuses to fuse several cameras whose ids are each camera's own tracker's: late fusion
+    would average different road users that happen to share a number."""
+    from seg2pose.io.track_ids import ids_status
+
+    masks_dir = scene.masks_path(cams[0]).parent
+    source = scene.extra.get("source") if isinstance(scene.extra.get("source"), dict) else {}
+    kind, why = ids_status(masks_dir, cams, from_video=source.get("format") == "video")
+    if kind == "unassociated" and len(cams) > 1:
+        if not fuse_unassociated:
+            raise InputError(f"the track ids of cameras {', '.join(cams)} are not associated across "
+                             f"cameras ({why}); fusing them would average different road users "
+                             f"that share a number. Run `s2p associate {scene.root}` first (or "
+                             "pass --fuse-unassociated to fuse them anyway)", file=masks_dir)
+        return {"ids": "unassociated", "fused_anyway": True, "why": why}
+    return {"ids": kind, "why": why}
+
+
 def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
               progress: bool = True, allow_incomplete: bool = False, smooth: int = 0,
-              far_residuals: str = "warn") -> Path:
+              far_residuals: str = "warn", fuse_unassociated: bool = False) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
@@ -301,10 +322,12 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     checkpoints whose training did not finish (refused otherwise); smooth: fused positions
     smoothed along each track over this many frames either side (0: not; see ``fuse``);
     far_residuals: what to do with residuals longer than the model was trained on
-    (``FarResiduals``: warn, fallback, off)."""
+    (``FarResiduals``: warn, fallback, off); fuse_unassociated: fuse cameras whose ids were
+    never associated (``check_track_ids`` refuses otherwise)."""
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
+    track_ids = check_track_ids(scene, cams, fuse_unassociated)
     frame_range = scene.split_range(split)
     models = None
     if not baseline:
@@ -315,4 +338,4 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress, far=far)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=force, smooth=smooth, far=far)
+                     nframes, force=force, smooth=smooth, far=far, track_ids=track_ids)
