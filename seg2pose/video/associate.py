@@ -38,6 +38,7 @@ from scipy.optimize import linear_sum_assignment
 from seg2pose.errors import InputError
 
 _FAR = 2.0  # gate-normalised distances are clipped here for the track-level mean
+_KEY = 1e6  # frame * _KEY + x (metres): one sort key for "same frame, near in x"
 
 
 @dataclass
@@ -140,68 +141,106 @@ class Association:
 # 1. per frame, per camera pair
 
 
-def _same_frame_pairs(fa: np.ndarray, fb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All (i, j) with fa[i] == fb[j]: indices into fa and fb. fb must be sorted."""
-    lo = np.searchsorted(fb, fa, "left")
-    hi = np.searchsorted(fb, fa, "right")
-    n = hi - lo
-    i = np.repeat(np.arange(len(fa)), n)
-    start = np.repeat(np.cumsum(n) - n, n)
-    j = np.repeat(lo, n) + (np.arange(len(i)) - start)
-    return i, j
+def _best_of(group: np.ndarray, cost: np.ndarray, n: int) -> np.ndarray:
+    """(P,) whether each candidate is the least-cost one of its group (ties: the first)."""
+    o = np.lexsort((np.arange(len(cost)), cost, group))
+    first = np.r_[True, group[o][1:] != group[o][:-1]]
+    best = np.zeros(len(cost), bool)
+    best[o[first]] = True
+    return best
 
 
 def _one_to_one(frame: np.ndarray, i: np.ndarray, j: np.ndarray, cost: np.ndarray
                 ) -> np.ndarray:
     """Per frame, a one-to-one choice among candidate pairs (i, j) of least total cost.
-    Returns a mask (P,) of the chosen pairs. A pair whose two masks have no other candidate is
-    taken without solving anything; only frames with competing pairs are solved (Hungarian)."""
+    Returns a mask (P,) of the chosen pairs.
+
+    Pairs that are each other's best (mutual least cost) are taken at once, all frames
+    together; where that leaves a mask with candidates whose best partner went elsewhere, the
+    frame is solved exactly (Hungarian, ``linear_sum_assignment``) over what is left. Most
+    frames need no solver: a road user's views are far closer to each other than to anyone
+    else's, or the track-level term of the cost tells them apart."""
     keep = np.zeros(len(i), bool)
     if not len(i):
         return keep
-    ci = np.bincount(i)[i]
-    cj = np.bincount(j)[j]
-    alone = (ci == 1) & (cj == 1)
-    keep[alone] = True
-    rest = np.flatnonzero(~alone)
+    ni, nj = int(i.max()) + 1, int(j.max()) + 1
+    mutual = _best_of(i, cost, ni) & _best_of(j, cost, nj)
+    keep[mutual] = True
+    taken_i = np.zeros(ni, bool)
+    taken_j = np.zeros(nj, bool)
+    taken_i[i[mutual]] = True
+    taken_j[j[mutual]] = True
+    rest = np.flatnonzero(~taken_i[i] & ~taken_j[j])
     if not len(rest):
         return keep
     rest = rest[np.argsort(frame[rest], kind="stable")]
-    fr = frame[rest]
-    cuts = np.flatnonzero(np.diff(fr)) + 1
+    cuts = np.flatnonzero(np.diff(frame[rest])) + 1
     for chunk in np.split(rest, cuts):
+        if len(chunk) == 1:
+            keep[chunk] = True
+            continue
         ui, ii = np.unique(i[chunk], return_inverse=True)
         uj, jj = np.unique(j[chunk], return_inverse=True)
         m = np.full((len(ui), len(uj)), 1e9)
         m[ii, jj] = cost[chunk]
         r, c = linear_sum_assignment(m)
-        ok = m[r, c] < 1e9
-        pos = {(a, b): k for k, a, b in zip(chunk, ii, jj)}
-        keep[[pos[(a, b)] for a, b in zip(r[ok], c[ok])]] = True
+        at = np.full((len(ui), len(uj)), -1)
+        at[ii, jj] = chunk
+        k = at[r, c]
+        keep[k[k >= 0]] = True
     return keep
 
 
-def _pair_cameras(a: CameraViews, b: CameraViews, ta: np.ndarray, tb: np.ndarray, n_tb: int,
+def _near_pairs(a: CameraViews, b: CameraViews, reach: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j): masks of a and b in the same frame whose x differ by at most ``reach[i]``
+    metres (a window along x, found by searchsorted on frame * 1e6 + x: the full product of
+    every frame's masks is not formed)."""
+    ok_a = np.flatnonzero(np.isfinite(a.xy[:, 0]))
+    ok_b = np.flatnonzero(np.isfinite(b.xy[:, 0]))
+    if not len(ok_a) or not len(ok_b):
+        z = np.zeros(0, np.int64)
+        return z, z
+    x0 = float(np.median(b.xy[ok_b, 0]))
+    kb = b.frame[ok_b] * _KEY + np.clip(b.xy[ok_b, 0] - x0, -_KEY / 4, _KEY / 4)
+    o = np.argsort(kb, kind="stable")
+    kb, ob = kb[o], ok_b[o]
+    ka = a.frame[ok_a] * _KEY + np.clip(a.xy[ok_a, 0] - x0, -_KEY / 4, _KEY / 4)
+    lo = np.searchsorted(kb, ka - reach[ok_a], "left")
+    hi = np.searchsorted(kb, ka + reach[ok_a], "right")
+    n = hi - lo
+    i = np.repeat(ok_a, n)
+    start = np.repeat(np.cumsum(n) - n, n)
+    j = ob[np.repeat(lo, n) + (np.arange(len(i)) - start)]
+    return i, j
+
+
+def _pair_cameras(a: CameraViews, b: CameraViews, ta: np.ndarray, tb: np.ndarray,
+                  span_a: tuple[np.ndarray, np.ndarray], span_b: tuple[np.ndarray, np.ndarray],
                   cfg: AssociateConfig) -> tuple[np.ndarray, np.ndarray]:
     """Masks of cameras a and b paired per frame (rows of a, rows of b). ta, tb: each mask's
-    track index within its camera (0..); n_tb: tracks of b."""
-    ob = np.argsort(b.frame, kind="stable")
-    i, jj = _same_frame_pairs(a.frame, b.frame[ob])
-    j = ob[jj]
+    track index within its camera (0..); span_a, span_b: first and last frame per track."""
+    far_b = float(np.nanmax(b.spread, initial=0.0)) if len(b) else 0.0
+    reach = cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread, far_b)
+    i, j = _near_pairs(a, b, np.nan_to_num(reach, nan=0.0))
     d = np.linalg.norm(a.xy[i] - b.xy[j], axis=1)
-    gate = cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread[i], b.spread[j])
-    r = d / gate
-    r = np.where(np.isfinite(r), r, np.inf)
-    # the tracks' mean gate-normalised distance over all the frames they share
-    key = ta[i] * n_tb + tb[j]
-    n_ta = int(ta.max(initial=-1)) + 1
-    clipped = np.minimum(r, _FAR)
-    total = np.bincount(key, weights=clipped, minlength=n_ta * n_tb)
-    count = np.bincount(key, minlength=n_ta * n_tb)
+    r = d / (cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread[i], b.spread[j]))
+    # the tracks' mean gate-normalised distance (clipped at _FAR) over the frames they share;
+    # frames where the two are not within reach count as _FAR
+    key = ta[i] * (int(tb.max(initial=0)) + 1) + tb[j]
+    uk, inv = np.unique(key, return_inverse=True)
+    near_sum = np.bincount(inv, weights=np.minimum(r, _FAR))
+    near_n = np.bincount(inv)
+    first_pair = np.zeros(len(uk), np.int64)
+    first_pair[inv] = np.arange(len(inv))
+    pa, pb = ta[i][first_pair], tb[j][first_pair]
+    shared = np.minimum(span_a[1][pa], span_b[1][pb]) - np.maximum(span_a[0][pa], span_b[0][pb]) + 1
+    shared = np.maximum(shared, near_n)
+    mean = (near_sum + _FAR * (shared - near_n)) / shared
     near = r <= 1.0
-    i, j, r, key = i[near], j[near], r[near], key[near]
+    i, j, r, inv = i[near], j[near], r[near], inv[near]
     w = cfg.track_weight
-    cost = (1 - w) * r + w * total[key] / np.maximum(count[key], 1)
+    cost = (1 - w) * r + w * mean[inv]
     differ = (a.cls[i] > 0) & (b.cls[j] > 0) & (a.cls[i] != b.cls[j])
     cost = cost + cfg.class_cost * differ
     keep = _one_to_one(a.frame[i], i, j, cost)
@@ -327,7 +366,8 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
     pairs: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for ka, a in enumerate(names):
         for b in names[ka + 1:]:
-            pairs[(a, b)] = _pair_cameras(views[a], views[b], t_idx[a], t_idx[b], n_t[b], cfg)
+            pairs[(a, b)] = _pair_cameras(views[a], views[b], t_idx[a], t_idx[b], spans[a],
+                                          spans[b], cfg)
 
     # 2. cuts, from every camera's point of view
     runs = {c: [] for c in names}
