@@ -70,8 +70,8 @@ class PlacementMixin:
     def place_from_pixel(self, track_id: int, frame: int, camera: str, uv, height: float = 0.0,
                          heading: float | None = None):
         """Put the track's keyframe at ``frame`` where pixel ``uv`` (u, v) of ``camera`` meets
-        the ground raised by ``height`` metres (see the module docstring). Keeps the heading
-        the track has there unless ``heading`` is given."""
+        the ground raised by ``height`` metres (see the module docstring). Heading: ``heading``
+        if given, else a heading set there before, else along the motion (headings.py)."""
         t, f = self.track(track_id), self._frame(frame)
         x, y = pixel_to_ground(self._camera(camera), self.scene.ground, uv, height)
         return self._place(t, f, x, y, heading, (), "place_from_pixel")
@@ -94,8 +94,7 @@ class PlacementMixin:
 
     def _place(self, t, f: int, x: float, y: float, heading, flags, name: str):
         self._free(t, f)
-        if heading is None:
-            heading = self.default_heading(t.id, f, x, y)
+        heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
         return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
 

@@ -72,7 +72,7 @@ def test_bad_input_is_refused_with_names(project, scene):
         project.set_keyframe(1, 0, 500.0, 0.0)
     # off the support but within reach: kept, flagged and noted
     project.set_keyframe(1, 0, 40.0, 0.0)
-    assert project.track(1).keyframes[0].flags == ("off_support",)
+    assert project.track(1).keyframes[0].flags == ("auto_heading", "off_support")
     assert "off_support" in project.notes[-1]
     assert project.seq == 2  # the refused edits wrote nothing
 
@@ -125,7 +125,7 @@ def test_place_from_mask_normal_position_or_run_estimate(scene, tmp_path):
         assert k.flags == ("estimate",)
         p.place_from_mask(1, 6, "c0", 12, use_run=False)
         k = p.track(1).keyframes[6]
-        assert k.flags == ("normal",)
+        assert k.flags == ("auto_heading", "normal")
         truth = gt.xyz[(gt.frame == 6) & (gt.track_id == 12)][0]
         assert np.hypot(k.x - truth[0], k.y - truth[1]) < 3.0  # a normal position: near, not exact
         # a manual move marks it checked
