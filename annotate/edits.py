@@ -169,6 +169,13 @@ class EditsMixin:
         return self._commit("set_size", [{"op": "set_fields", "id": t.id,
                                           "fields": {"size": list(self._size(size, t.cls))}}])
 
+    def set_meta(self, track_id: int, **fields):
+        """Set free-form track fields (JSON-able), e.g. run_track=12 links the track to that
+        road user of the run (accept_estimate, suggestions)."""
+        t = self.track(track_id)
+        return self._commit("set_meta", [{"op": "set_fields", "id": t.id,
+                                          "fields": {"meta": {**t.meta, **fields}}}])
+
     def set_interpolation(self, track_id: int, method: str | None):
         """Choose a track's interpolation (linear, hermite, pchip; None = the class default)."""
         self.check_methods(method)

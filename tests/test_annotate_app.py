@@ -214,6 +214,43 @@ def test_mask_mode_uses_the_mask_under_the_click(ctl):
     k = ctl.project.track(tid).keyframes[0]
     assert (k.x, k.y) == pytest.approx((x, y)) and "normal" in k.flags
     assert "no mask under" in ctl.click("c1", (1.0, 1.0))
+    # another road user's mask while this track is selected: refused, naming both, no keyframe
+    others = [j for j in np.flatnonzero(t.frame == 0) if t.track_id[j] != t.track_id[i]]
+    j = others[0]
+    m2 = rle.decode({"size": [t.height, t.width], "counts": t.rles[j]})
+    r2, c2 = np.nonzero(m2 & ~m)
+    msg = ctl.click("c1", (c2[len(c2) // 2] + 0.5, r2[len(r2) // 2] + 0.5))
+    assert msg.startswith("refused") and f"mask {t.track_id[j]}" in msg and f"track {tid}" in msg
+    assert list(ctl.project.tracks) == [tid] and len(ctl.project.track(tid).keyframes) == 1
+    # Esc: no track; the same click makes that road user's own track
+    ctl.do("deselect")
+    assert ctl.selected is None
+    ctl.click("c1", (c2[len(c2) // 2] + 0.5, r2[len(r2) // 2] + 0.5))
+    assert ctl.selected != tid and ctl.project.track(ctl.selected).meta["run_track"] == t.track_id[j]
+
+
+def test_class_keys_delete_with_confirmation_and_headings_shown(ctl):
+    classes = [c.name for c in ctl.project.scene.classes]
+    ctl.do("class_key:2")
+    assert ctl.new_class == classes[1]
+    ctl.do("new_track")
+    tid = ctl.selected
+    assert ctl.project.track(tid).cls == classes[1]
+    ctl.do("class_key:1")  # with a track selected: that track changes class (and size)
+    t = ctl.project.track(tid)
+    assert t.cls == classes[0] and t.size == tuple(ctl.project.scene.class_sizes()[classes[0]])
+    assert "classes" in ctl.do(f"class_key:{len(classes) + 1}")
+    ctl.click_mode = "ground"
+    ctl.click("c1", _pixel(ctl, (0.0, 0.0), 0.0))
+    assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["auto"]
+    ctl.do("rotate:5")
+    assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["set"]
+    ctl.do("goto:2")
+    assert ctl.frame == 2 and "not a frame number" in ctl.do("goto:")
+    assert "Shift+Delete again" in ctl.do("delete_track")
+    assert tid in ctl.project.tracks
+    assert "deleted" in ctl.do("delete_track")
+    assert tid not in ctl.project.tracks and ctl.selected is None
 
 
 def test_logger_sends_one_track_and_empties_frames_it_left(ctl):
@@ -338,8 +375,16 @@ def test_session_wiring_without_a_browser(scene_dir):
         k = s.ctl.project.track(tid).keyframes[2]
         assert np.hypot(k.x - xy[0], k.y - xy[1]) < 1e-6
         assert sent, "the new keyframe's track was not sent to the viewer"
+        # a click on the 3D view's ground places the keyframe at that world point; one above
+        # the ground (a box) is ignored with the reason
+        g = float(scene.ground.height(np.array([[1.0, 2.0]]))[0])
         s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
-            entity_path="/world/ground/mesh", view_name="world", position=[1.0, 2.0, 0.0])], **ev))
-        assert "click ignored" in s.ctl.message and "world is not a camera view" in s.ctl.message
+            entity_path="/world/ground/mesh", view_name="world", position=[1.0, 2.0, g])], **ev))
+        k = s.ctl.project.track(tid).keyframes[2]
+        assert (k.x, k.y) == (1.0, 2.0), s.ctl.message
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/annotation/t1", view_name="world", position=[1.0, 2.0, g + 1])], **ev))
+        assert "click ignored" in s.ctl.message and "from the ground" in s.ctl.message
+        assert s.panel.clear_selection == 3  # every click clears the viewer's selection
     finally:
         s.ctl.close()

@@ -20,11 +20,13 @@ from typing import Callable
 import numpy as np
 
 from annotate import LockedError, Project
+from annotate.headings import AUTO
 from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, CLICK_MODES, Actions
 from seg2pose.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
+GROUND_TOLERANCE = 0.25         # metres: a 3D click this close to the ground surface is on it
 HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
 @dataclass
 class _Holder:
@@ -228,14 +230,58 @@ class Controller(Actions):
         if hit is None:
             return f"no mask under pixel ({u:.0f}, {v:.0f}) of camera {camera} in frame {self.frame}"
         mask_track, cls = hit
-        if self.selected is None:
-            ch = self._edit(self.project.create_track, cls, meta={"run_track": int(mask_track)})
+        p = self.project
+        if self.selected is None:  # no track: the click makes the track of that road user
+            ch = self._edit(p.create_track, cls, meta={"run_track": int(mask_track)})
             self._select(ch.track)
+        else:  # never join another road user to the selected track silently
+            t = p.track(self.selected)
+            linked = t.meta.get("run_track")
+            if linked is None and t.keyframes:
+                return (f"refused: track {t.id} is linked to no road user and has keyframes; mask "
+                        f"{mask_track} is road user {mask_track}. Esc (no track), then click the "
+                        "mask to make its own track")
+            if linked is not None and int(linked) != int(mask_track):
+                return (f"refused: mask {mask_track} is road user {mask_track}, track {t.id} "
+                        f"follows road user {linked}. Esc (no track), then click the mask to "
+                        "make its own track")
+            if linked is None:
+                self._edit(p.set_meta, t.id, run_track=int(mask_track))
         tid = self.selected
-        self._edit(self.project.place_from_mask, tid, self.frame, camera, mask_track)
-        k = self.project.track(tid).keyframes[self.frame]
+        self._edit(p.place_from_mask, tid, self.frame, camera, mask_track)
+        k = p.track(tid).keyframes[self.frame]
         return (f"track {tid}: keyframe {self.frame} from mask {mask_track} "
                 f"({', '.join(k.flags) or 'placed'}) at ({k.x:.2f}, {k.y:.2f}) m")
+
+    def click_world(self, xyz, entity: str = "") -> str:
+        """A click in the 3D view at world point ``xyz`` (metres; None: the event carried no
+        point): on the ground it places the selected track's keyframe there."""
+        with self.lock:
+            self.touch()
+            self.clicks += 1
+            ok = xyz is not None and len(xyz) >= 3 and all(
+                v is not None and math.isfinite(float(v)) for v in list(xyz)[:3])
+            self.last_click = {"camera": None, "n": self.clicks,
+                               "xyz": [round(float(v), 3) for v in list(xyz)[:3]] if ok else None,
+                               "uv": None}
+            try:
+                self.message = self._click_world(xyz if ok else None, entity)
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def _click_world(self, xyz, entity: str) -> str:
+        if xyz is None:
+            return ("click ignored: the 3D view did not say which point was clicked; click the "
+                    "ground (grey mesh) or a camera view's image")
+        x, y, z = (float(v) for v in list(xyz)[:3])
+        g = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
+        if abs(z - g) > GROUND_TOLERANCE:
+            return (f"click ignored: that point ({entity or 'an object'}) is {z - g:+.2f} m from "
+                    "the ground; click the ground itself to place a keyframe")
+        tid = self._need_track()
+        self._edit(self.project.set_keyframe, tid, self.frame, x, y)
+        return f"track {tid}: keyframe {self.frame} at ({x:.2f}, {y:.2f}) m (3D view)"
 
     def mask_at(self, camera: str, u: float, v: float) -> tuple[int, str] | None:
         """(mask track id, class name) of the topmost mask of ``camera`` covering pixel (u, v)
@@ -297,7 +343,8 @@ class Controller(Actions):
             return []
         t = self.project.track(self.selected)
         return [{"frame": f, "x": k.x, "y": k.y, "heading_deg": math.degrees(k.heading),
-                 "flags": list(k.flags), "current": f == self.frame}
+                 "heading_mode": "auto" if AUTO in k.flags else "set",
+                 "flags": [fl for fl in k.flags if fl != AUTO], "current": f == self.frame}
                 for f, k in sorted(t.keyframes.items())]
 
     def panel(self) -> dict:

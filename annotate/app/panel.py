@@ -19,6 +19,21 @@ function keyName(e) {
   return (e.ctrlKey || e.metaKey ? 'Ctrl+' : '') + (e.altKey ? 'Alt+' : '') +
          (e.shiftKey ? 'Shift+' : '') + (e.code && e.code.startsWith('Key') ? e.code.slice(3).toLowerCase() : k);
 }
+let synthetic = false;  // an Escape this page sends to the viewer is no shortcut
+function deepActive() {
+  let a = document.activeElement;
+  while (a && a.shadowRoot && a.shadowRoot.activeElement) a = a.shadowRoot.activeElement;
+  return a;
+}
+function viewerCanvases() {
+  const out = [];
+  const walk = (root) => {
+    root.querySelectorAll('canvas').forEach((c) => out.push(c));
+    root.querySelectorAll('*').forEach((n) => { if (n.shadowRoot) walk(n.shadowRoot); });
+  };
+  walk(document);
+  return out;
+}
 function render({ model, el }) {
   const box = document.createElement('div');
   box.className = 's2p-panel';
@@ -33,8 +48,22 @@ function render({ model, el }) {
   box.addEventListener('change', (e) => {
     const t = e.target;
     if (t.dataset.prefix) { model.send({action: t.dataset.prefix + t.value}); }
+    if (t.dataset.testid === 'goto') { t.blur(); }
+  });
+  // the server handled a click in the viewer: clear the viewer's selection (Escape), so that
+  // the next click on the same point is a new selection, hence a new click event
+  model.on('change:clear_selection', () => {
+    const targets = new Set([deepActive(), ...viewerCanvases()].filter(Boolean));
+    synthetic = true;
+    try {
+      for (const t of targets) for (const type of ['keydown', 'keyup']) {
+        t.dispatchEvent(new KeyboardEvent(type, {key: 'Escape', code: 'Escape', keyCode: 27,
+                                                 bubbles: true, composed: true, cancelable: true}));
+      }
+    } finally { synthetic = false; }
   });
   const onkey = (e) => {
+    if (synthetic) return;
     const t = (e.composedPath && e.composedPath()[0]) || e.target;
     // typing into a visible form field of the panel is not a shortcut (the viewer's own
     // hidden text field, which has the focus after a click on the canvas, is)
@@ -44,6 +73,11 @@ function render({ model, el }) {
     const name = model.get('shortcuts')[keyName(e)];
     if (!name) return;
     e.preventDefault(); e.stopImmediatePropagation();
+    if (name === 'goto_frame') {  // the page's own action: type the frame, Enter goes there
+      const f = box.querySelector('[data-testid=goto]');
+      if (f) { f.focus(); f.select(); }
+      return;
+    }
     model.send({action: name});
   };
   window.addEventListener('keydown', onkey, true);
@@ -63,7 +97,11 @@ _CSS = """
 .s2p-panel button { margin: 1px; padding: 1px 6px; font-size: 12px; }
 .s2p-panel kbd { font-size: 11px; color: #555; border: 1px solid #bbb; border-radius: 3px;
                  padding: 0 3px; margin-left: 3px; }
-.s2p-panel .msg { padding: 3px 6px; background: #eef; border-radius: 4px; }
+.s2p-panel .msg { padding: 3px 6px; background: #eef; border-radius: 4px; height: 2.7em;
+                 overflow: hidden; }
+.s2p-panel td.warn { max-width: 16em; }
+.s2p-panel td.warn summary { white-space: nowrap; overflow: hidden; text-overflow: ellipsis;
+                             cursor: pointer; }
 .s2p-panel .ro { padding: 3px 6px; background: #fdd; border-radius: 4px; font-weight: bold; }
 .s2p-panel .warn { color: #b00; }
 """
@@ -76,6 +114,7 @@ class Panel(anywidget.AnyWidget):
     _css = _CSS
     html = traitlets.Unicode("").tag(sync=True)
     shortcuts = traitlets.Dict({}).tag(sync=True)
+    clear_selection = traitlets.Int(0).tag(sync=True)  # bumped: the page clears the viewer's
 
 
 def _e(x) -> str:
@@ -85,6 +124,17 @@ def _e(x) -> str:
 def _button(a: dict, disabled: bool = False) -> str:
     return (f'<button data-action="{_e(a["name"])}" title="{_e(a["key"])}"'
             f'{" disabled" if disabled else ""}>{_e(a["label"])}<kbd>{_e(a["key"])}</kbd></button>')
+
+
+def _warnings(w: list[str]) -> str:
+    """A track's warnings on one line (how many, the first), the rest on demand."""
+    if not w:
+        return ""
+    head = f"{len(w)}: {w[0]}" if len(w) > 1 else w[0]
+    if len(w) == 1:
+        return f'<span title="{_e(head)}">{_e(head)}</span>'
+    return (f'<details><summary title="{_e("; ".join(w))}">{_e(head)}</summary>'
+            + "".join(f"<div>{_e(x)}</div>" for x in w[1:]) + "</details>")
 
 
 def render(p: dict) -> str:
@@ -98,7 +148,8 @@ def render(p: dict) -> str:
                f'<b data-testid="frame-number">{p["frame"]}</b> of {p["frame_range"][0]}..'
                f'{p["frame_range"][1]}{_e(here)}</div>')
     out.append(f'<div>viewer: <span data-testid="viewer-state">{_e(p["viewer"])}</span></div>')
-    out.append(f'<div class="msg" data-testid="message">{_e(p["message"])}</div>')
+    out.append(f'<div class="msg" data-testid="message" title="{_e(p["message"])}">'
+               f'{_e(p["message"])}</div>')
     lc = p["last_click"]
     if lc:
         out.append(f'<div data-testid="last-click" data-n="{lc["n"]}" data-camera="{_e(lc["camera"])}"'
@@ -108,6 +159,9 @@ def render(p: dict) -> str:
                f'{_e(p["click_help"])}</div>')
     opts = "".join(f'<option{" selected" if c == p["new_class"] else ""}>{_e(c)}</option>'
                    for c in p["classes"])
+    out.append(f'<div>go to frame <input type="number" data-testid="goto" data-prefix="goto:" '
+               f'min="{p["frame_range"][0]}" max="{p["frame_range"][1]}" style="width:5em">'
+               '<kbd>f</kbd></div>')
     out.append(f'<div>new tracks: <select data-prefix="class:">{opts}</select> · accept every '
                f'<input type="number" min="1" value="{p["every"]}" data-prefix="every:" '
                f'style="width:4em"> frames</div>')
@@ -119,14 +173,16 @@ def render(p: dict) -> str:
         rows.append(f'<tr data-action="select:{t["id"]}" data-track="{t["id"]}"'
                     f'{" class=sel" if t["selected"] else ""}><td>{t["id"]}</td><td>{_e(t["cls"])}'
                     f'</td><td>{t["keyframes"]}</td><td>{span}</td><td>{_e(t["interp"])}</td>'
-                    f'<td class="warn">{_e("; ".join(t["warnings"]))}</td></tr>')
+                    f'<td class="warn">{_warnings(t["warnings"])}</td></tr>')
     out.append(f'<h4>tracks</h4><table data-testid="tracks">{"".join(rows)}</table>')
     if sel is not None:
-        rows = ["<tr><th>frame</th><th>x (m)</th><th>y (m)</th><th>heading (°)</th><th>flags</th></tr>"]
+        rows = ["<tr><th>frame</th><th>x (m)</th><th>y (m)</th><th>heading (°)</th><th></th>"
+                "<th>flags</th></tr>"]
         for k in p["keyframes"]:
             rows.append(f'<tr data-action="goto:{k["frame"]}" data-frame="{k["frame"]}"'
                         f'{" class=sel" if k["current"] else ""}><td>{k["frame"]}</td>'
                         f'<td>{k["x"]:.2f}</td><td>{k["y"]:.2f}</td><td>{k["heading_deg"]:.1f}</td>'
+                        f'<td data-testid="heading-mode">{k["heading_mode"]}</td>'
                         f'<td>{_e(", ".join(k["flags"]))}</td></tr>')
         out.append(f'<h4>keyframes of track {sel}</h4><table data-testid="keyframes">'
                    f'{"".join(rows)}</table>')

@@ -139,13 +139,18 @@ class Session:
         elif kind == "selection_change":
             items = [it for it in e.items if getattr(it, "type", "") == "entity"]
             if not items:
-                return  # a click on empty space, or the selection cleared
+                return  # a click on empty space, or the selection cleared (by us: see below)
             it = items[0]
             cam = camera_of_view(it.view_name, it.entity_path, self.ctl.cameras)
-            where = "" if cam else (f"{it.view_name} is not a camera view" if it.view_name
-                                    else "not in a view")
-            pos = it.position if cam else None
-            self.ctl.click(cam, pos, where)
+            if cam is not None:
+                self.ctl.click(cam, it.position)
+            elif it.view_name and (it.entity_path or "").strip("/").startswith("world"):
+                self.ctl.click_world(it.position, it.entity_path)  # the 3D view
+            else:
+                self.ctl.click(None, None, "not in a view")
+            # every click is an edit, repeated or not: the viewer reports selection *changes*,
+            # so clear its selection now and a second click on the same point is a new one
+            self.panel.clear_selection += 1
             self.refresh_panel()
 
 
