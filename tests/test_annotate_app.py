@@ -301,42 +301,6 @@ def test_run_of_another_scene_is_refused(scene_dir, tmp_path):
         check_scene(scene_dir, None, ["nope"])
 
 
-def test_s2p_annotate_serves_the_page_and_stops_its_server(scene_dir):
-    """`s2p annotate SCENE --no-browser` prints the URL, serves it, and SIGTERM stops the
-    server it started (its own process group) too."""
-    pytest.importorskip("marimo", reason="marimo is not installed (pip install -e '.[app]')")
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-    import urllib.request
-
-    from annotate.app.serve import _port_open, free_port
-
-    port = free_port()
-    root = str(Path(__file__).resolve().parents[1])
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.Popen([sys.executable, "-c", "from seg2pose.cli import main; main()", "annotate", str(scene_dir),
-                             "--no-browser", "--port", str(port)], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
-    try:
-        line = proc.stdout.readline()
-        assert f"http://127.0.0.1:{port}" in line, line
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30) as r:
-            assert r.status == 200
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(30)
-        t0 = time.monotonic()
-        while _port_open(port) and time.monotonic() - t0 < 15:
-            time.sleep(0.2)
-        assert not _port_open(port), "the server outlived s2p annotate"
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-
-
 def test_session_wiring_without_a_browser(scene_dir):
     """The page's wiring: viewer events and panel messages reach the controller, edits reach
     the viewer's data stream, the panel's HTML follows."""

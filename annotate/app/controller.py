@@ -39,6 +39,14 @@ _HOLDERS: dict[str, _Holder] = {}
 _HOLDERS_LOCK = threading.RLock()  # open() closes a silent holder while holding it
 
 
+def close_all() -> None:
+    """Close every project a page of this process holds (the server is stopping): their edit
+    locks are released."""
+    with _HOLDERS_LOCK:
+        for h in list(_HOLDERS.values()):
+            h.controller.close()
+
+
 @dataclass
 class Controller(Actions):
     """The state of one page of the app (see the module docstring). Build with ``open``."""
