@@ -352,3 +352,24 @@ def test_session_wiring_without_a_browser(scene_dir):
         assert s.panel.clear_selection == 3  # every click clears the viewer's selection
     finally:
         s.ctl.close()
+
+
+def test_a_reloaded_tab_keeps_the_edit_lock_another_tab_does_not(scene_dir):
+    import shutil
+
+    shutil.rmtree(scene_dir / "annotations", ignore_errors=True)
+    first = Controller.open(scene_dir, cameras=["c1"])
+    first.hello("tab-A")
+    other = Controller.open(scene_dir, cameras=["c1"])   # a second tab: read-only
+    other.hello("tab-B")
+    assert other.read_only and not first.read_only
+    reloaded = Controller.open(scene_dir, cameras=["c1"])  # tab A reloaded: opens read-only...
+    assert reloaded.read_only
+    reloaded.hello("tab-A")                                # ...and takes its lock back at once
+    try:
+        assert not reloaded.read_only and reloaded.read_only_reason is None
+        reloaded.do("new_track")
+        assert reloaded.selected in reloaded.project.tracks
+    finally:
+        for c in (reloaded, other, first):
+            c.close()

@@ -65,6 +65,8 @@ ACTIONS: list[Action] = [
     Action("delete_track", "delete track (press twice)", "Shift+Delete", "track"),
     Action("goto_frame", "go to frame…", "f", "time"),
     Action("click_mode", "click mode", "c", "track"),
+    Action("large_camera", "next camera large", "k", "view"),
+    Action("best_camera", "the selected track's best camera large", "Shift+k", "view"),
     Action("accept_estimate", "accept estimate", "y", "track"),
     Action("accept_every", "accept estimates every N", "Shift+y", "track"),
     Action("preannotate", "pre-annotate every road user of the run", "Shift+p", "track"),
@@ -243,6 +245,19 @@ class Actions:
     def _a_delete_keyframe(self):
         self._edit(self.project.delete_keyframe, self._need_track(), self.frame)
         return f"keyframe {self.frame} deleted"
+
+    def _a_large_camera(self):
+        cams = self.cameras
+        i = cams.index(self.large_camera) + 1 if self.large_camera in cams else 0
+        self._show_large(cams[i % len(cams)])
+        return f"camera {self.large_camera} large (k: the next one)"
+
+    def _a_best_camera(self):
+        cam = self.best_camera(self._need_track())
+        if cam is None:
+            return f"track {self.selected} is in no camera's view at frame {self.frame}"
+        self._show_large(cam)
+        return f"camera {cam} large: it sees track {self.selected} best here"
 
     def _a_click_mode(self):
         self.click_mode = CLICK_MODES[(CLICK_MODES.index(self.click_mode) + 1) % len(CLICK_MODES)]

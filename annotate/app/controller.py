@@ -33,6 +33,7 @@ class _Holder:
     controller: "Controller"
     since: str
     seen: float
+    tab: str | None = None  # the browser tab's id (kept by the tab across reloads)
 
 
 _HOLDERS: dict[str, _Holder] = {}
@@ -64,9 +65,12 @@ class Controller(Actions):
     message: str = ""
     last_click: dict | None = None
     clicks: int = 0
+    video_frames: dict = field(default_factory=dict)  # camera -> frames with video (the viewer's)
     viewer_state: str = "loading"  # loading -> open (recording arrived) -> ready (time cursor seen)
     on_tracks: list[Callable[[set[int], int | None], None]] = field(default_factory=list)
     on_frame: list[Callable[[int], None]] = field(default_factory=list)
+    on_layout: list[Callable[[str], None]] = field(default_factory=list)
+    large_camera: str | None = None   # the camera shown large (remembered)
     lock: threading.RLock = field(default_factory=threading.RLock)
 
     # --- opening, closing, holding -------------------------------------------------------------
@@ -101,12 +105,38 @@ class Controller(Actions):
             c = cls(project, cams, (int(fr[0]), int(fr[1])), read_only_reason=reason)
             c.new_class = scene.classes[0].name if scene.classes else ""
             c.frame = c.frame_range[0]
+            c.large_camera = cams[0] if cams else None
             c._restore()
             if reason is None:
                 _HOLDERS[key] = _Holder(c, time.strftime("%H:%M:%S"), time.monotonic())
             c._key = key
+            c._run = run
             c.message = reason or "ready"
         return c
+
+    def hello(self, tab: str) -> None:
+        """The page names its browser tab (an id the tab keeps across reloads). The tab that
+        held the project for editing and was reloaded gets it back at once; any other tab
+        stays read-only."""
+        with _HOLDERS_LOCK:
+            h = _HOLDERS.get(getattr(self, "_key", ""))
+            if h is not None and h.controller is self:
+                h.tab = h.tab or str(tab)
+                return
+            if not self.read_only or h is None or h.tab != str(tab):
+                return
+            h.controller.close()  # this tab's page before the reload
+            try:
+                project = Project.open(self.project.scene, run=self._run)
+            except LockedError as e:
+                self.read_only_reason = f"read-only: {e}"
+                return
+            self.project.close()
+            self.project = project
+            self.read_only_reason = None
+            _HOLDERS[self._key] = _Holder(self, time.strftime("%H:%M:%S"), time.monotonic(),
+                                          str(tab))
+            self.message = "ready (this tab edits again after the reload)"
 
     def touch(self) -> None:
         """The page is alive (any message from it, or its heartbeat)."""
@@ -149,12 +179,14 @@ class Controller(Actions):
             self.every = d["every"]
         if d.get("new_class") in [c.name for c in self.project.scene.classes]:
             self.new_class = d["new_class"]
+        if d.get("large_camera") in self.cameras:
+            self.large_camera = d["large_camera"]
 
     def _save(self) -> None:
         if self.read_only:
             return
         d = {"frame": self.frame, "selected": self.selected, "click_mode": self.click_mode,
-             "every": self.every, "new_class": self.new_class}
+             "every": self.every, "new_class": self.new_class, "large_camera": self.large_camera}
         try:
             atomic_write_text(self.state_path, json.dumps(d))
         except OSError:
@@ -173,6 +205,37 @@ class Controller(Actions):
             self.previous = old
         self._save()
         self._tracks_changed({t for t in (old, tid) if t is not None})
+
+    def _show_large(self, cam: str) -> None:
+        self.large_camera = cam
+        self._save()
+        for cb in list(self.on_layout):
+            cb(cam)
+
+    def best_camera(self, tid: int) -> str | None:
+        """The camera that sees track ``tid`` best at the current frame: its box projected
+        largest, wholly in front of the camera; None when none sees it."""
+        from s2p_review.columns import box_corners
+
+        try:
+            x, y, h = self.project.pose_at(tid, self.frame)
+        except S2PError:
+            return None
+        t = self.project.track(tid)
+        z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
+        corners = box_corners(np.array([[x, y, z]]), np.array([h]), np.array([t.size]))[0]
+        best, area = None, 0.0
+        for cam in self.cameras:
+            c = self.project.scene.cameras[cam]
+            uv, _, front = c.project_points(corners)
+            if not front.all():
+                continue
+            lo = np.clip(uv.min(axis=0), 0, [c.width, c.height])
+            hi = np.clip(uv.max(axis=0), 0, [c.width, c.height])
+            a = float(np.prod(np.maximum(hi - lo, 0)))
+            if a > area:
+                best, area = cam, a
+        return best
 
     def goto(self, frame: int, from_viewer: bool = False) -> None:
         """Move to ``frame`` (clamped to the scene); unless the viewer told us, move its cursor."""
@@ -367,7 +430,8 @@ class Controller(Actions):
                     hit = np.flatnonzero(tab.frame == self.frame)
                     src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
                 here = src
-            return {"scene": self.project.scene.name, "frame": self.frame,
+            no_video = [c for c, fr in sorted(self.video_frames.items()) if self.frame not in fr]
+            return {"scene": self.project.scene.name, "frame": self.frame, "no_video": no_video,
                     "frame_range": list(self.frame_range), "selected": self.selected,
                     "here": here, "click_mode": self.click_mode,
                     "click_help": CLICK_MODE_HELP[self.click_mode], "new_class": self.new_class,

@@ -81,6 +81,13 @@ function render({ model, el }) {
     model.send({action: name});
   };
   window.addEventListener('keydown', onkey, true);
+  // the tab's id survives reloads (sessionStorage is per tab): a reloaded tab keeps the edit lock
+  let tab = sessionStorage.getItem('s2p-annotate-tab');
+  if (!tab) {
+    tab = (crypto.randomUUID ? crypto.randomUUID() : String(Math.random()).slice(2));
+    sessionStorage.setItem('s2p-annotate-tab', tab);
+  }
+  model.send({hello: tab});
   const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
   return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat); };
 }
@@ -148,6 +155,9 @@ def render(p: dict) -> str:
                f'<b data-testid="frame-number">{p["frame"]}</b> of {p["frame_range"][0]}..'
                f'{p["frame_range"][1]}{_e(here)}</div>')
     out.append(f'<div>viewer: <span data-testid="viewer-state">{_e(p["viewer"])}</span></div>')
+    if p.get("no_video"):
+        out.append(f'<div class="warn" data-testid="no-video">no video for frame {p["frame"]} in '
+                   f'{_e(", ".join(p["no_video"]))}: the camera view shows no picture</div>')
     out.append(f'<div class="msg" data-testid="message" title="{_e(p["message"])}">'
                f'{_e(p["message"])}</div>')
     lc = p["last_click"]
@@ -188,7 +198,13 @@ def render(p: dict) -> str:
                    f'{"".join(rows)}</table>')
     groups: dict[str, list[str]] = {}
     ro = bool(p["read_only"])
+    classes = p["classes"]
     for a in p["actions"]:
+        if a["name"].startswith("class_key:"):  # one button per class of the scene, named
+            i = int(a["name"].split(":")[1])
+            if i > len(classes):
+                continue
+            a = {**a, "label": classes[i - 1]}
         edit = a["group"] not in ("time",) and a["name"] not in ("next_track", "prev_track",
                                                                  "click_mode")
         groups.setdefault(a["group"], []).append(_button(a, disabled=ro and edit))

@@ -21,8 +21,10 @@ os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the w
 from annotate.app.actions import SHORTCUTS  # noqa: E402
 from annotate.app.controller import Controller  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
+from s2p_review import layout as L  # noqa: E402
 from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
-                                       camera_of_view, log_scene, new_recording)
+                                       app_blueprint, camera_of_view, log_scene, new_recording,
+                                       send_timeline)
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 760
@@ -59,10 +61,13 @@ class Session:
             target = Tee(self.rec, other)
         self.target = target
         p = self.ctl.project
-        bp, cams, _, self.notes = log_scene(target, p.scene, run, self.ctl.cameras,
-                                            frames=self.ctl.frame_range)
-        for r in ([self.rec] if target is self.rec else target.recs):
-            r.send_blueprint(bp, make_active=True, make_default=True)
+        bp, cams, _, self.notes, video = log_scene(target, p.scene, run, self.ctl.cameras,
+                                                   frames=self.ctl.frame_range)
+        self.ctl.video_frames = {c: set(map(int, f)) for c, f in video.items()}
+        self._eye = L.default_eye(p.scene)
+        self._send_layout(self.ctl.large_camera)
+        self._timeline_span = None
+        self._ref = None
         self.logger = AnnotationLogger(target, p.scene, cams)
         self.last_send_ms = 0.0
         for tid in p.tracks:
@@ -74,6 +79,8 @@ class Session:
             self.ctl.message = "; ".join(self.notes)
         self.ctl.on_tracks.append(self._resend)
         self.ctl.on_frame.append(self._move_cursor)
+        self.ctl.on_layout.append(self._send_layout)
+        self._send_timeline()
         self.viewer.on_event(self._on_viewer_event)
         self.panel.on_msg(self._on_panel_msg)
         self.viewer.set_time_ctrl(sequence=self.ctl.frame, timeline="frame")
@@ -84,8 +91,33 @@ class Session:
         t0 = time.perf_counter()
         for tid in sorted(ids):
             self.logger.send_track(track_columns(self.ctl.project, tid), selected=tid == selected)
+        if selected in ids or selected is None:
+            self._send_timeline()
         self.target.flush()
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
+
+    def _send_layout(self, large: str | None) -> None:
+        bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps)
+        for r in ([self.rec] if self.target is self.rec else self.target.recs):
+            r.send_blueprint(bp, make_active=True, make_default=True)
+
+    def _send_timeline(self) -> None:
+        """The selected track's keyframes and its distance to the run's estimates (or the
+        masks' normal positions) per frame, in the timeline view under the large camera."""
+        import numpy as np
+
+        from annotate.review import distance_series, reference
+
+        p, tid = self.ctl.project, self.ctl.selected
+        frames = dist = kfs = np.zeros(0, np.int64)
+        if tid is not None and tid in p.tracks:
+            source = "estimate" if getattr(p, "_run", None) is not None else "normal"
+            if self._ref is None:
+                self._ref = reference(p, source)
+            frames, dist = distance_series(p, tid, source, ref=self._ref)
+            kfs = np.asarray(p.track(tid).frames, np.int64)
+        self._timeline_span = send_timeline(self.target, p.scene, frames, np.asarray(dist, float),
+                                            kfs, previous=self._timeline_span)
 
     def _move_cursor(self, frame: int) -> None:
         # until the viewer shows this frame, its reports of earlier cursor positions are stale
@@ -102,6 +134,11 @@ class Session:
         if "action" in content:
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
+        elif "hello" in content:
+            was = self.ctl.read_only
+            self.ctl.hello(str(content["hello"]))
+            if was != self.ctl.read_only:
+                self.refresh_panel()
         else:
             self.ctl.touch()
 
