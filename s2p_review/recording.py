@@ -166,27 +166,64 @@ def log_masks(ctx: LogContext, cam: str, every: int) -> int:
 
 def log_mask_outlines(ctx: LogContext, cam: str) -> int:
     """Every frame's masks as class-coloured outlines (LineStrips2D, imagery.outlines) under
-    the camera: a few bytes per mask, so every frame fits. Returns frames sent."""
+    the camera: a few bytes per mask, so every frame fits. Computed once per masks file and
+    range, then cached (``outline_table``). Returns frames sent."""
     rr = _rr()
-    scene = ctx.scene
     ent = L.cam_path(cam) + "/masks/outlines"
-    path = scene.masks_path(cam)
-    by_id = scene.class_by_id()
     ctx.static(ent, rr.LineStrips2D.from_fields(draw_order=4.0, radii=1.0))
+    frames, per_frame, lengths, points, colors = outline_table(ctx.scene, cam, ctx.first, ctx.last)
+    strips = np.split(points, np.cumsum(lengths)[:-1]) if len(lengths) else []
+    for a in range(0, len(frames), IMAGE_BATCH):
+        fr = frames[a:a + IMAGE_BATCH]
+        s0, s1 = int(per_frame[:a].sum()), int(per_frame[:a + len(fr)].sum())
+        ctx.send(ent, fr, rr.LineStrips2D.columns(strips=strips[s0:s1], colors=colors[s0:s1])
+                 .partition(per_frame[a:a + len(fr)]))
+    return len(frames)
 
-    def send(batch):
-        strips, colors, lengths = [], [], []
-        for _, t in batch:
-            polys, owner = imagery.outlines(t, path)
-            strips += polys
-            names = np.array([by_id[int(c)].name if int(c) in by_id else "" for c in t.class_id])
-            colors.append(L.class_colors(names, scene.classes)[owner] if len(owner)
-                          else np.zeros((0, 3), np.uint8))
-            lengths.append(len(polys))
-        ctx.send(ent, [f for f, _ in batch], rr.LineStrips2D.columns(
-            strips=strips, colors=np.concatenate(colors)).partition(lengths))
 
-    return _batched(imagery.mask_frames(scene, cam, ctx.first, ctx.last, 1), send)
+def outline_table(scene: Scene, cam: str, first: int, last: int):
+    """(frames (F,), strips per frame (F,), points per strip (S,), points (P, 2) float32,
+    colours (S, 3) uint8) of the mask outlines of frames first..last, from the cache
+    (video_asset.cache_dir) or computed and cached."""
+    import hashlib
+    import json
+
+    from s2p_review.video_asset import cache_dir
+
+    path = scene.masks_path(cam)
+    st = path.stat()
+    key = hashlib.sha256(json.dumps([str(path.resolve()), st.st_size, st.st_mtime_ns, first,
+                                     last, imagery.OUTLINE_TOLERANCE, 1]).encode()).hexdigest()[:20]
+    cached = cache_dir() / f"outlines-{cam}-{key}.npz"
+    try:
+        with np.load(cached) as z:
+            return z["frames"], z["per_frame"], z["lengths"], z["points"], z["colors"]
+    except (OSError, ValueError, KeyError):
+        pass
+    by_id = scene.class_by_id()
+    frames, per_frame, lengths, points, colors = [], [], [], [], []
+    for f, t in imagery.mask_frames(scene, cam, first, last, 1):
+        polys, owner = imagery.outlines(t, path)
+        names = np.array([by_id[int(c)].name if int(c) in by_id else "" for c in t.class_id])
+        frames.append(f)
+        per_frame.append(len(polys))
+        lengths += [len(q) for q in polys]
+        points += polys
+        if len(owner):
+            colors.append(L.class_colors(names, scene.classes)[owner])
+    out = (np.asarray(frames, np.int64), np.asarray(per_frame, np.int64),
+           np.asarray(lengths, np.int64),
+           np.concatenate(points).astype(np.float32) if points else np.zeros((0, 2), np.float32),
+           np.concatenate(colors).astype(np.uint8) if colors else np.zeros((0, 3), np.uint8))
+    try:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cached.with_name(cached.name + ".tmp.npz")
+        np.savez(tmp, frames=out[0], per_frame=out[1], lengths=out[2], points=out[3],
+                 colors=out[4])
+        tmp.replace(cached)
+    except OSError:
+        pass  # a cache we cannot write only costs time
+    return out
 
 
 def log_video(ctx: LogContext, cam: str, every: int) -> np.ndarray:

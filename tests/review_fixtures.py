@@ -152,38 +152,3 @@ def make_run(scene: Scene, run_dir: Path, *, method: str = "baseline", residual:
     write_run_folder(run_dir, est, ViewTable.concat(views), meta, force=True)
     return run_dir
 
-
-CODE_BITS = 8
-
-
-def code_image(frame: int, width: int, height: int) -> np.ndarray:
-    """A BGR image (height, width, 3) that shows its frame number as CODE_BITS big blocks
-    across the top half (white = 1, most significant first) over a grey bottom half: readable
-    after video compression and scaling (``read_code``)."""
-    img = np.full((height, width, 3), 90, np.uint8)
-    bw = width // CODE_BITS
-    for b in range(CODE_BITS):
-        on = (frame >> (CODE_BITS - 1 - b)) & 1
-        img[: height // 2, b * bw:(b + 1) * bw] = 255 if on else 0
-    return img
-
-
-def read_code(sample) -> int:
-    """The frame number of a ``code_image``: ``sample(u, v)`` gives the grey level at image
-    pixel (u, v) (of the image at its own size)."""
-    return sum(int(sample(u, v) > 128) << (CODE_BITS - 1 - b) for b, (u, v) in enumerate(
-        code_centres()))
-
-
-def code_centres(width: int = 1, height: int = 1) -> list[tuple[float, float]]:
-    """Image positions of the code blocks' centres (fractions of the image if width = height = 1)."""
-    return [((b + 0.5) / CODE_BITS * width, 0.25 * height) for b in range(CODE_BITS)]
-
-
-def write_code_video(path: Path, width: int, height: int, frames: int, fps: float = FPS) -> None:
-    """An MP4 whose frame f is ``code_image(f)``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    for f in range(frames):
-        vw.write(code_image(f, width, height))
-    vw.release()

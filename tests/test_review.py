@@ -303,7 +303,7 @@ def test_video_asset_shows_every_frame_as_that_frame(tiny, tmp_path):
     import av
     import rerun.chunk as rc
 
-    from review_fixtures import read_code, write_code_video
+    from s2p_review.frame_code import read_code, write_code_video
     from seg2pose.io.scene import load_scene
 
     scene, base, _, _ = tiny
