@@ -12,10 +12,11 @@ at which the click's ray may meet the world:
 - ``default``: the class's default height (``scene.json``), what the normal position of a
   mask uses (paper 3.2) and what the app's centre mode used before.
 
-Clicks land on pixel centres (the annotator's pixel: u, v rounded to k + 0.5). Seeds 201 and
-202 are not used by any test.
+Clicks land on pixel centres (the annotator's pixel: u, v rounded to k + 0.5), or with
+``--zoom Z`` on a grid Z times finer (the annotator zoomed the camera view in Z times). Seeds
+201 and 202 are not used by any test.
 
-    python benches/annotate_accuracy.py [--seeds 201 202] [--every 25] [--frames 150]
+    python benches/annotate_accuracy.py [--seeds 201 202] [--every 25] [--frames 150] [--zoom 1 4]
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def best_camera(scene, xyz_centre: np.ndarray, size: np.ndarray):
     return best[0], best[1]
 
 
-def annotate_seed(seed: int, frames: int, every: int, work: Path) -> dict:
+def annotate_seed(seed: int, frames: int, every: int, work: Path, zooms=(1,)) -> dict:
     """Per (height mode, class): lists of keyframe errors and span mean errors (metres)."""
     from annotate import Project
     from seg2pose.io.poses import read_poses
@@ -61,7 +62,8 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path) -> dict:
     sizes = scene.class_sizes()
     defaults = scene.default_heights()
     out = {}
-    for mode in ("half", "default"):
+    for mode in [(h, z) for z in zooms for h in ("half", "default")]:
+        mode, zoom = f"{mode[0]} x{mode[1]}", mode[1]
         import shutil
 
         shutil.rmtree(root / "annotations", ignore_errors=True)
@@ -78,7 +80,7 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path) -> dict:
                     continue
                 cls = str(gt.cls[rows[0]])
                 size = np.asarray(sizes[cls], float)
-                height = size[2] / 2 if mode == "half" else float(defaults[cls])
+                height = size[2] / 2 if mode.startswith("half") else float(defaults[cls])
                 t = p.create_track(cls).track
                 picks = list(range(0, len(fr), every))
                 if picks[-1] != len(fr) - 1:
@@ -91,7 +93,7 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path) -> dict:
                     cam, uv = best_camera(scene, centre, size)
                     if cam is None:
                         continue
-                    pix = np.floor(uv) + 0.5  # the annotator's pixel
+                    pix = (np.floor(uv * zoom) + 0.5) / zoom  # the annotator's (zoomed) pixel
                     p.place_from_pixel(t, int(fr[i]), cam, pix, height=height)
                     k = p.track(t).keyframes[int(fr[i])]
                     placed.append(float(np.hypot(k.x - x, k.y - y)))
@@ -113,9 +115,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[201, 202])
     ap.add_argument("--every", type=int, default=25)
     ap.add_argument("--frames", type=int, default=150, help="frames per split of the scene")
+    ap.add_argument("--zoom", type=int, nargs="+", default=[1, 4])
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="annot_acc_"))
-    res = {s: annotate_seed(s, args.frames, args.every, work) for s in args.seeds}
+    res = {s: annotate_seed(s, args.frames, args.every, work, args.zoom) for s in args.seeds}
     print(f"scripted annotator, centre mode, keyframes every {args.every} frames; per seed "
           f"(road users): keyframe error mean / max, span mean error (mean over road users, max)")
     keys = sorted({k for r in res.values() for k in r})
@@ -129,7 +132,7 @@ def main() -> None:
             kf, sp = np.array(d["kf"]), np.array(d["span"])
             parts.append(f"seed {s} ({len(sp)}): kf {kf.mean():.3f} / {kf.max():.3f} m, "
                          f"span {sp.mean():.3f} m (max {sp.max():.3f})")
-        print(f"  {mode:7s} {cls:10s} " + "; ".join(parts))
+        print(f"  {mode:10s} {cls:10s} " + "; ".join(parts))
 
 
 if __name__ == "__main__":

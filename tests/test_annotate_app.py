@@ -349,7 +349,21 @@ def test_session_wiring_without_a_browser(scene_dir):
         s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
             entity_path="/world/annotation/t1", view_name="world", position=[1.0, 2.0, g + 1])], **ev))
         assert "click ignored" in s.ctl.message and "from the ground" in s.ctl.message
-        assert s.panel.clear_selection == 3  # every click clears the viewer's selection
+        # a repeated click: the viewer reports no selection change, the page reports the canvas
+        # click at the same page point as the last one that selected: it is that click again
+        s.ctl.click_mode = "ground"
+        s._on_panel_msg(None, {"canvas_click": [400, 300]}, [])     # (after the world click)
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/cameras/c1/masks", view_name="camera c1",
+            position=[640.0, 420.0, None])], **ev))
+        s._on_panel_msg(None, {"canvas_click": [500, 320]}, [])     # it selected: remembered
+        s.ctl.do("nudge:0.5:0")
+        moved = s.ctl.project.track(tid).keyframes[2].x
+        s._on_panel_msg(None, {"canvas_click": [501, 320]}, [])     # same point, no selection
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved - 0.5)
+        s.ctl.do("nudge:0.5:0")
+        s._on_panel_msg(None, {"canvas_click": [900, 700]}, [])     # elsewhere (time panel): nothing
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved)
     finally:
         s.ctl.close()
 

@@ -19,21 +19,6 @@ function keyName(e) {
   return (e.ctrlKey || e.metaKey ? 'Ctrl+' : '') + (e.altKey ? 'Alt+' : '') +
          (e.shiftKey ? 'Shift+' : '') + (e.code && e.code.startsWith('Key') ? e.code.slice(3).toLowerCase() : k);
 }
-let synthetic = false;  // an Escape this page sends to the viewer is no shortcut
-function deepActive() {
-  let a = document.activeElement;
-  while (a && a.shadowRoot && a.shadowRoot.activeElement) a = a.shadowRoot.activeElement;
-  return a;
-}
-function viewerCanvases() {
-  const out = [];
-  const walk = (root) => {
-    root.querySelectorAll('canvas').forEach((c) => out.push(c));
-    root.querySelectorAll('*').forEach((n) => { if (n.shadowRoot) walk(n.shadowRoot); });
-  };
-  walk(document);
-  return out;
-}
 function render({ model, el }) {
   const box = document.createElement('div');
   box.className = 's2p-panel';
@@ -50,20 +35,24 @@ function render({ model, el }) {
     if (t.dataset.prefix) { model.send({action: t.dataset.prefix + t.value}); }
     if (t.dataset.testid === 'goto') { t.blur(); }
   });
-  // the server handled a click in the viewer: clear the viewer's selection (Escape), so that
-  // the next click on the same point is a new selection, hence a new click event
-  model.on('change:clear_selection', () => {
-    const targets = new Set([deepActive(), ...viewerCanvases()].filter(Boolean));
-    synthetic = true;
-    try {
-      for (const t of targets) for (const type of ['keydown', 'keyup']) {
-        t.dispatchEvent(new KeyboardEvent(type, {key: 'Escape', code: 'Escape', keyCode: 27,
-                                                 bubbles: true, composed: true, cancelable: true}));
-      }
-    } finally { synthetic = false; }
-  });
+  // clicks on the viewer's canvas (not drags): the viewer reports a click only as a change of
+  // its selection, so a second click on the same point says nothing; the server repeats the
+  // last click when a canvas click at the same place brings no selection change (session.py).
+  // Sent after two frames, when the viewer has reported the selection a click made.
+  let down = null;
+  const ondown = (e) => {
+    const t = (e.composedPath && e.composedPath()[0]) || e.target;
+    down = (t.tagName === 'CANVAS') ? [e.clientX, e.clientY] : null;
+  };
+  const onup = (e) => {
+    if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 4) { down = null; return; }
+    const at = down; down = null;
+    requestAnimationFrame(() => requestAnimationFrame(() => setTimeout(
+      () => model.send({canvas_click: at}), 150)));
+  };
+  window.addEventListener('pointerdown', ondown, true);
+  window.addEventListener('pointerup', onup, true);
   const onkey = (e) => {
-    if (synthetic) return;
     const t = (e.composedPath && e.composedPath()[0]) || e.target;
     // typing into a visible form field of the panel is not a shortcut (the viewer's own
     // hidden text field, which has the focus after a click on the canvas, is)
@@ -89,7 +78,9 @@ function render({ model, el }) {
   }
   model.send({hello: tab});
   const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
-  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat); };
+  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat);
+                 window.removeEventListener('pointerdown', ondown, true);
+                 window.removeEventListener('pointerup', onup, true); };
 }
 export default { render };
 """
@@ -121,7 +112,6 @@ class Panel(anywidget.AnyWidget):
     _css = _CSS
     html = traitlets.Unicode("").tag(sync=True)
     shortcuts = traitlets.Dict({}).tag(sync=True)
-    clear_selection = traitlets.Int(0).tag(sync=True)  # bumped: the page clears the viewer's
 
 
 def _e(x) -> str:

@@ -28,7 +28,8 @@ from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # n
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 760
-PENDING_SECONDS = 3.0  # how long the viewer may take to show a frame the page moved it to
+PENDING_SECONDS = 3.0
+REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat  # how long the viewer may take to show a frame the page moved it to
 
 
 def track_columns(project, tid: int) -> TrackColumns:
@@ -134,6 +135,8 @@ class Session:
         if "action" in content:
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
+        elif "canvas_click" in content:
+            self._on_canvas_click(content["canvas_click"])
         elif "hello" in content:
             was = self.ctl.read_only
             self.ctl.hello(str(content["hello"]))
@@ -176,19 +179,41 @@ class Session:
         elif kind == "selection_change":
             items = [it for it in e.items if getattr(it, "type", "") == "entity"]
             if not items:
-                return  # a click on empty space, or the selection cleared (by us: see below)
+                return  # a click on empty space, or the selection cleared
             it = items[0]
-            cam = camera_of_view(it.view_name, it.entity_path, self.ctl.cameras)
-            if cam is not None:
-                self.ctl.click(cam, it.position)
-            elif it.view_name and (it.entity_path or "").strip("/").startswith("world"):
-                self.ctl.click_world(it.position, it.entity_path)  # the 3D view
-            else:
-                self.ctl.click(None, None, "not in a view")
-            # every click is an edit, repeated or not: the viewer reports selection *changes*,
-            # so clear its selection now and a second click on the same point is a new one
-            self.panel.clear_selection += 1
-            self.refresh_panel()
+            self._last_click = (it.view_name, it.entity_path, it.position)
+            self._selected_since_click = True
+            self._apply_click(*self._last_click)
+
+    def _apply_click(self, view_name, entity_path, position) -> None:
+        cam = camera_of_view(view_name, entity_path, self.ctl.cameras)
+        if cam is not None:
+            self.ctl.click(cam, position)
+        elif view_name and (entity_path or "").strip("/").startswith("world"):
+            self.ctl.click_world(position, entity_path)  # the 3D view
+        else:
+            self.ctl.click(None, None, "not in a view")
+        self.refresh_panel()
+
+    def _on_canvas_click(self, at) -> None:
+        """A click on the viewer's canvas at page point ``at`` (reported by the panel after the
+        viewer had time to report a selection). Every click is an edit, repeated or not: the
+        viewer reports a click only as a selection *change*, so a click that brought none, at
+        the page point of the last click that did, is that click again (same camera, same
+        pixel, now at the current frame). Clicks elsewhere without a selection (the time
+        panel, empty space) do nothing."""
+        try:
+            x, y = float(at[0]), float(at[1])
+        except (TypeError, ValueError, IndexError):
+            return
+        if getattr(self, "_selected_since_click", False):
+            self._selected_since_click = False
+            self._last_click_at = (x, y)
+            return
+        last = getattr(self, "_last_click_at", None)
+        if last is not None and getattr(self, "_last_click", None) is not None and \
+                abs(x - last[0]) <= REPEAT_PX and abs(y - last[1]) <= REPEAT_PX:
+            self._apply_click(*self._last_click)
 
 
 def session_from_env() -> Session:
