@@ -243,6 +243,11 @@ def test_class_keys_delete_with_confirmation_and_headings_shown(ctl):
     ctl.click_mode = "ground"
     ctl.click("c1", _pixel(ctl, (0.0, 0.0), 0.0))
     assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["auto"]
+    layouts = []
+    ctl.on_layout.append(layouts.append)
+    assert "camera c1 large" in ctl.do("best_camera") and layouts == ["c1"]
+    ctl.do("large_camera")
+    assert ctl.large_camera == "c1" and layouts == ["c1", "c1"]
     ctl.do("rotate:5")
     assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["set"]
     ctl.do("goto:2")

@@ -215,7 +215,7 @@ class Controller(Actions):
     def best_camera(self, tid: int) -> str | None:
         """The camera that sees track ``tid`` best at the current frame: its box projected
         largest, wholly in front of the camera; None when none sees it."""
-        from s2p_review.columns import box_corners
+        from seg2pose.safety.footprints import corners as footprint
 
         try:
             x, y, h = self.project.pose_at(tid, self.frame)
@@ -223,7 +223,8 @@ class Controller(Actions):
             return None
         t = self.project.track(tid)
         z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
-        corners = box_corners(np.array([[x, y, z]]), np.array([h]), np.array([t.size]))[0]
+        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([t.size]))[0]  # (4, 2)
+        corners = np.vstack([np.c_[foot, np.full(4, z)], np.c_[foot, np.full(4, z + t.size[2])]])
         best, area = None, 0.0
         for cam in self.cameras:
             c = self.project.scene.cameras[cam]
