@@ -66,8 +66,8 @@ def test_click_places_keyframe_at_the_clicked_point(ctl):
 
     s = ctl.project.scene
     xy = pixel_to_ground(s.cameras["c1"], s.ground, (640.0, 420.0))  # a point in view
-    h = s.default_heights()["car"]
-    for mode, height in (("centre", h), ("ground", 0.0)):
+    ctl.project.set_size(tid, (4.0, 1.8, 1.6))  # centre mode: half the track's box height
+    for mode, height in (("centre", 0.8), ("ground", 0.0)):
         ctl.click_mode = mode
         msg = ctl.click("c1", _pixel(ctl, xy, height))
         assert "keyframe 0" in msg

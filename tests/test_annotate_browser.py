@@ -101,10 +101,10 @@ def _clicks(page) -> int:
     return int(el.get_attribute("data-n")) if el else 0
 
 
-def _click(page, x: float, y: float, patience: float = 45) -> dict:
+def _click(page, x: float, y: float, patience: float = 120) -> dict:
     """Click the viewer at page point (x, y) and wait for the app to report it (the viewer
-    takes a while to lay itself out after the data arrives: retried for ``patience`` s).
-    Returns the reported click."""
+    takes a while to lay itself out after the data arrives: retried, slowly, for
+    ``patience`` s), then until no late report follows. Returns the reported click."""
     t0 = time.monotonic()
     while True:
         n = _clicks(page)
@@ -113,13 +113,18 @@ def _click(page, x: float, y: float, patience: float = 45) -> dict:
         page.mouse.down()
         page.mouse.up()
         try:
-            _wait(lambda: _clicks(page) > n, 8, "the click to reach the app")
+            _wait(lambda: _clicks(page) > n, 30, "the click to reach the app")
             break
         except AssertionError:
             if time.monotonic() - t0 > patience:
                 page.screenshot(path="/tmp/s2p-annotate-failed-click.png")
                 raise AssertionError(f"no click event from the viewer within {patience:.0f} s at "
                                      f"({x:.0f}, {y:.0f}); screenshot /tmp/s2p-annotate-failed-click.png")
+    while True:  # a retried click may be reported twice: wait until the reports settle
+        m = _clicks(page)
+        time.sleep(1.5)
+        if _clicks(page) == m:
+            break
     el = page.query_selector("[data-testid=last-click]")
     return {"camera": el.get_attribute("data-camera"), "uv": json.loads(el.get_attribute("data-uv"))}
 
@@ -150,7 +155,7 @@ def _image_map(page, scene_obj) -> tuple[np.ndarray, np.ndarray]:
     got = []
     for i, uv in enumerate(probes):
         pt = o0 + s0 * uv
-        c = _click(page, *pt, patience=120 if i == 0 else 45)  # the first waits for the layout
+        c = _click(page, *pt, patience=300 if i == 0 else 120)  # the first waits for the layout
         assert c["camera"] == CAM, c
         got.append((pt, np.array(c["uv"], float)))
     (p1, u1), (p2, u2) = got

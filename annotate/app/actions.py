@@ -12,7 +12,7 @@ from annotate.edits import NUDGE_STEPS, ROTATE_STEPS
 
 CLICK_MODES = ("centre", "ground", "mask")
 CLICK_MODE_HELP = {
-    "centre": "click the middle of the road user (ray meets the ground raised by the class's default height)",
+    "centre": "click the middle of the road user (the ray meets the world at half its box's height)",
     "ground": "click where the road user touches the ground",
     "mask": "click a mask: its Seg2Pose estimate (with --run) or its normal position",
 }

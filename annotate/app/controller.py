@@ -292,7 +292,10 @@ class Controller(Actions):
         t = self.project.track(tid)
         height = 0.0
         if self.click_mode == "centre":
-            height = float(self.project.scene.default_heights().get(t.cls, 0.0))
+            # a click on the middle of the road user is a click on its box's centre: half the
+            # box's height above the ground (benches/annotate_accuracy.py compares this with
+            # the class's default height of the normal position)
+            height = float(t.size[2]) / 2
         self._edit(self.project.place_from_pixel, tid, self.frame, camera, (u, v), height=height)
         k = self.project.track(tid).keyframes[self.frame]
         return f"track {tid}: keyframe {self.frame} at ({k.x:.2f}, {k.y:.2f}) m"
