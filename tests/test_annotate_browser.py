@@ -101,7 +101,7 @@ def _clicks(page) -> int:
     return int(el.get_attribute("data-n")) if el else 0
 
 
-def _click(page, x: float, y: float, patience: float = 120) -> dict:
+def _click(page, x: float, y: float, patience: float = 300) -> dict:
     """Click the viewer at page point (x, y) and wait for the app to report it (the viewer
     takes a while to lay itself out after the data arrives: retried, slowly, for
     ``patience`` s), then until no late report follows. Returns the reported click."""
@@ -113,7 +113,7 @@ def _click(page, x: float, y: float, patience: float = 120) -> dict:
         page.mouse.down()
         page.mouse.up()
         try:
-            _wait(lambda: _clicks(page) > n, 30, "the click to reach the app")
+            _wait(lambda: _clicks(page) > n, 60, "the click to reach the app")
             break
         except AssertionError:
             if time.monotonic() - t0 > patience:
@@ -155,7 +155,7 @@ def _image_map(page, scene_obj) -> tuple[np.ndarray, np.ndarray]:
     got = []
     for i, uv in enumerate(probes):
         pt = o0 + s0 * uv
-        c = _click(page, *pt, patience=300 if i == 0 else 120)  # the first waits for the layout
+        c = _click(page, *pt)
         assert c["camera"] == CAM, c
         got.append((pt, np.array(c["uv"], float)))
     (p1, u1), (p2, u2) = got
@@ -262,9 +262,10 @@ def test_annotate_a_car_over_five_keyframes(page, server, scene, tmp_path):
         t0 = time.monotonic()
         _goto(page, f)
         shown[f] = _wait(lambda: _code_on_screen(page, o, k, s) == f and time.monotonic() - t0,
-                         60, f"the camera view to show frame {f}")
+                         120, f"the camera view to show frame {f}")
+        assert _panel(page, "frame-number") == str(f)
         _click(page, *(o + k * uv_true[i]))
-        _wait(lambda: f"keyframe {f} at" in _panel(page, "message"), 10, f"keyframe {f}")
+        _wait(lambda: f"keyframe {f} at" in _panel(page, "message"), 30, f"keyframe {f}")
     print("frame step -> correct image (s):", {f: round(v, 2) for f, v in shown.items()})
     (tid, kfs), = _journal(scene).items()
     assert sorted(kfs) == list(KEYFRAMES)
@@ -306,7 +307,7 @@ def test_annotate_a_car_over_five_keyframes(page, server, scene, tmp_path):
         t0 = time.monotonic()
         _goto(page, int(f))
         shown[int(f)] = _wait(lambda: _code_on_screen(page, o, k, s) == f and time.monotonic() - t0,
-                              60, f"the camera view to show frame {f}")
+                              120, f"the camera view to show frame {f}")
     shot = tmp_path / "app.png"
     page.screenshot(path=str(shot))
     if os.environ.get("S2P_APP_SCREENSHOT"):  # README's picture: S2P_APP_SCREENSHOT=docs/annotate_app.png

@@ -28,7 +28,7 @@ from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # n
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 760
-PENDING_SECONDS = 3.0
+PENDING_SECONDS = 30.0  # how long the viewer may take to show a frame the page moved it to (a loaded machine lags 20 s)
 REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat  # how long the viewer may take to show a frame the page moved it to
 
 
