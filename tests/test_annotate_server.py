@@ -163,7 +163,9 @@ def test_s2p_annotate_refuses_strangers_and_stops_on_a_signal(scene_dir, sig):
             while _port_open(port) and time.monotonic() - t0 < 10:
                 time.sleep(0.1)
             took = time.monotonic() - t0
-        assert not _port_open(port) and took < 5.0, f"stopped after {took:.1f} s"
+        # the server gets SIGTERM, then SIGKILL after serve.STOP_SECONDS (4 s): 5 s on an idle
+        # machine; a margin for a loaded one
+        assert not _port_open(port) and took < 8.0, f"stopped after {took:.1f} s"
         assert lock.read_text().strip() == "", "the edit lock was not released"
     finally:
         if proc.poll() is None:
