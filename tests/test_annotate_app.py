@@ -369,6 +369,9 @@ def test_session_wiring_without_a_browser(scene_dir):
         s.ctl.do("nudge:0.5:0")
         s._on_panel_msg(None, {"canvas_click": [900, 700]}, [])     # elsewhere (time panel): nothing
         assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved)
+        s._on_panel_msg(None, {"canvas_click": [501, 320], "frame": 7}, [])  # made at another frame
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved)
+        assert "made at frame 7" in s.ctl.message
     finally:
         s.ctl.close()
 

@@ -101,10 +101,11 @@ def _clicks(page) -> int:
     return int(el.get_attribute("data-n")) if el else 0
 
 
-def _click(page, x: float, y: float, patience: float = 300) -> dict:
-    """Click the viewer at page point (x, y) and wait for the app to report it (the viewer
-    takes a while to lay itself out after the data arrives: retried, slowly, for
-    ``patience`` s), then until no late report follows. Returns the reported click."""
+def _click(page, x: float, y: float, retry: bool = False, patience: float = 300) -> dict:
+    """Click the viewer at page point (x, y) and wait for the app to report it (a loaded
+    machine's viewer may take a minute). ``retry``: click again every 60 s (the viewer drops
+    clicks while it lays itself out after the data arrives), then wait until no late report
+    follows. Returns the reported click."""
     t0 = time.monotonic()
     while True:
         n = _clicks(page)
@@ -113,16 +114,16 @@ def _click(page, x: float, y: float, patience: float = 300) -> dict:
         page.mouse.down()
         page.mouse.up()
         try:
-            _wait(lambda: _clicks(page) > n, 60, "the click to reach the app")
+            _wait(lambda: _clicks(page) > n, 60 if retry else patience, "the click to reach the app")
             break
         except AssertionError:
-            if time.monotonic() - t0 > patience:
+            if not retry or time.monotonic() - t0 > patience:
                 page.screenshot(path="/tmp/s2p-annotate-failed-click.png")
                 raise AssertionError(f"no click event from the viewer within {patience:.0f} s at "
                                      f"({x:.0f}, {y:.0f}); screenshot /tmp/s2p-annotate-failed-click.png")
-    while True:  # a retried click may be reported twice: wait until the reports settle
+    while retry:  # a retried click may be reported twice: wait until the reports settle
         m = _clicks(page)
-        time.sleep(1.5)
+        time.sleep(2.0)
         if _clicks(page) == m:
             break
     el = page.query_selector("[data-testid=last-click]")
@@ -155,7 +156,7 @@ def _image_map(page, scene_obj) -> tuple[np.ndarray, np.ndarray]:
     got = []
     for i, uv in enumerate(probes):
         pt = o0 + s0 * uv
-        c = _click(page, *pt)
+        c = _click(page, *pt, retry=True)
         assert c["camera"] == CAM, c
         got.append((pt, np.array(c["uv"], float)))
     (p1, u1), (p2, u2) = got

@@ -47,8 +47,10 @@ function render({ model, el }) {
   const onup = (e) => {
     if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 4) { down = null; return; }
     const at = down; down = null;
+    const fr = box.querySelector('[data-testid=frame-number]');  // the frame clicked at
+    const frame = fr ? parseInt(fr.textContent, 10) : null;
     requestAnimationFrame(() => requestAnimationFrame(() => setTimeout(
-      () => model.send({canvas_click: at}), 150)));
+      () => model.send({canvas_click: at, frame: frame}), 150)));
   };
   window.addEventListener('pointerdown', ondown, true);
   window.addEventListener('pointerup', onup, true);

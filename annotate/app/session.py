@@ -136,7 +136,7 @@ class Session:
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
         elif "canvas_click" in content:
-            self._on_canvas_click(content["canvas_click"])
+            self._on_canvas_click(content["canvas_click"], content.get("frame"))
         elif "hello" in content:
             was = self.ctl.read_only
             self.ctl.hello(str(content["hello"]))
@@ -195,13 +195,14 @@ class Session:
             self.ctl.click(None, None, "not in a view")
         self.refresh_panel()
 
-    def _on_canvas_click(self, at) -> None:
+    def _on_canvas_click(self, at, frame=None) -> None:
         """A click on the viewer's canvas at page point ``at`` (reported by the panel after the
         viewer had time to report a selection). Every click is an edit, repeated or not: the
         viewer reports a click only as a selection *change*, so a click that brought none, at
         the page point of the last click that did, is that click again (same camera, same
-        pixel, now at the current frame). Clicks elsewhere without a selection (the time
-        panel, empty space) do nothing."""
+        pixel, at the frame it was made at). Clicks elsewhere without a selection (the time
+        panel, empty space) do nothing; a repeat that arrives after the frame changed is not
+        applied to the new frame."""
         try:
             x, y = float(at[0]), float(at[1])
         except (TypeError, ValueError, IndexError):
@@ -213,6 +214,11 @@ class Session:
         last = getattr(self, "_last_click_at", None)
         if last is not None and getattr(self, "_last_click", None) is not None and \
                 abs(x - last[0]) <= REPEAT_PX and abs(y - last[1]) <= REPEAT_PX:
+            if frame is not None and int(frame) != self.ctl.frame:
+                self.ctl.message = (f"click ignored: it was made at frame {frame}, the page is at "
+                                    f"frame {self.ctl.frame} now; click again")
+                self.refresh_panel()
+                return
             self._apply_click(*self._last_click)
 
 
