@@ -51,7 +51,7 @@ def register(app: typer.Typer) -> None:
         ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
         pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
         near_m: float = typer.Option(25.0, "--near", min=0.1, help="road users farther apart than this (metres, centre to centre) are not compared for TTC"),
-        window_s: float = typer.Option(0.5, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
+        window_s: float = typer.Option(1.0, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
         centred: bool = typer.Option(False, "--centred/--trailing", help="fit the velocity over a window around each frame instead of the one before it"),
         brake: float = typer.Option(3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)"),
         swerve: float = typer.Option(3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2"),
@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
         pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
         draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
         r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres, 90 %%); say where the figures come from"),
-        corr_s: float = typer.Option(1.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
+        corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
         seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
     ) -> None:
