@@ -232,3 +232,13 @@ def test_safety_imports_only_core_and_io():
             bad += [f"{p.name}: {n}" for n in names if n.startswith("seg2pose")
                     and not any(n == o or n.startswith(o + ".") for o in ok)]
     assert bad == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(road_user(), road_user())
+def test_static_overlap_agrees_with_the_interval(a, b):
+    """``overlaps`` (the static test) says what ``overlap_interval`` says at time 0."""
+    from seg2pose.safety.footprints import overlap_interval
+
+    enter, leave = overlap_interval(*a[:3], *b[:3], np.zeros((1, 2)))
+    assert overlaps(*a[:3], *b[:3])[0] == bool(enter[0] <= leave[0])
