@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
         all_pairs: bool = typer.Option(False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts"),
         pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
         draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
-        r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres, 90 %%); say where the figures come from"),
+        r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 percent of the positions lie; say where the figures come from)"),
         corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
         seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
         review: Path | None = typer.Option(None, "--review", help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder of a scene)"),
