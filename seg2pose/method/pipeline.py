@@ -12,7 +12,7 @@ per model: models are per camera and class, or per camera with a class input).
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
@@ -155,10 +155,16 @@ class FarResiduals:
 # fusion and the run folder
 
 
-def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
+def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
+         config_cameras: list[str] | None = None) -> PoseTable:
     """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
     z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
     sizes from the class. Detections without a track id (-1) are not fused with anything.
+
+    ``confirm`` > 0 (several cameras ``config_cameras`` with associated ids): a pose is kept only when
+    at least this share of the cameras whose image holds its place reported it
+    (``seen_share``): a blob one lens reports where the others see nothing is a false
+    detection more often than not (docs/RESULTS.md, "Multi-camera association").
 
     ``smooth`` > 0: each tracked road user's fused (x, y) replaced by a line fitted to its
     positions within ``smooth`` frames either side (``seg2pose.geometry.smoothing``; centred, so no lag
@@ -181,6 +187,11 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
     stack = np.full((len(cams), len(ukeys), 2), np.nan)
     stack[cam_idx, inv] = est       # one detection per (camera, road user, frame)
     xy = fuse_views(stack)
+    out_cls = cls[first]
+    if confirm > 0 and config_cameras and len(config_cameras) > 1:
+        n_views = np.bincount(inv, minlength=len(ukeys))
+        ok = n_views >= confirm * seen_by(scene, config_cameras, xy, out_cls)
+        ukeys, xy, out_cls = ukeys[ok], xy[ok], out_cls[ok]
     out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
     if smooth > 0:
         xy = smooth_along_tracks(out_tid, ukeys[:, 0], xy, smooth, degree=1)
@@ -188,11 +199,28 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0) -> PoseTable:
     heading = np.full(len(ukeys), np.nan)
     tracked = out_tid >= 0
     heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
-    out_cls = cls[first]
     sizes = scene.class_sizes()
     size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
     table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size)
     return table.sorted()
+
+
+def seen_by(scene: Scene, cams: list[str], xy: np.ndarray, cls: np.ndarray,
+            margin: float = 0.02) -> np.ndarray:
+    """(N,) how many of ``cams`` have the place xy (N, 2) metres of a road user of class
+    ``cls`` (N,) in their image: its centre (the class's default height above the ground)
+    in front of the camera and at least ``margin`` of the image size inside the border."""
+    h = scene.default_heights()
+    X = np.column_stack([xy, scene.ground.height(xy) + np.array([h.get(str(c), 0.8) for c in cls])])
+    n = np.zeros(len(xy), np.int64)
+    for c in cams:
+        cam = scene.cameras[c]
+        uv, _, front = cam.project_points(X)
+        mx, my = margin * cam.width, margin * cam.height
+        with np.errstate(invalid="ignore"):
+            n += front & (uv[:, 0] >= mx) & (uv[:, 0] < cam.width - mx) & (uv[:, 1] >= my) \
+                & (uv[:, 1] < cam.height - my)
+    return n
 
 
 def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
@@ -265,13 +293,19 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 
 
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], models: ModelSet | None,
-              n_frames: int, opts: RunOptions, far: FarResiduals | None = None) -> Path:
-    """Fuse per-view estimates (``opts.smooth``: see ``fuse``) and write the run folder
-    (poses.csv, views.csv, run.json, and flagged.csv when the residuals were checked)."""
+              n_frames: int, opts: RunOptions, far: FarResiduals | None = None,
+              track_ids: dict | None = None) -> Path:
+    """Fuse per-view estimates (``opts.smooth``, ``opts.confirm``: see ``fuse``; a confirm of
+    None counts as 0) and write the run folder (poses.csv, views.csv, run.json, and flagged.csv
+    when the residuals were checked). ``track_ids``: how the ids were made
+    (``check_track_ids``), recorded in run.json."""
     run_dir = Path(run_dir)
-    poses = fuse(views, scene, opts.smooth)
+    confirm = opts.confirm or 0.0
+    poses = fuse(views, scene, opts.smooth, confirm, cams)
     meta = {**run_meta(scene, run_dir, cams, opts.config, models, opts.split, opts.center_method,
                        opts.smooth),
+            **({"track_ids": track_ids} if track_ids else {}),
+            **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
     extra = {}
     if far is not None and models is not None:
@@ -279,6 +313,30 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
         if text is not None:
             extra["flagged.csv"] = text
     return write_run_folder(run_dir, poses, views, meta, force=opts.force, extra_files=extra)
+
+
+# share of the cameras seeing a road user's place that must report it (runs of associated ids);
+# chosen on seeds 101-102 (docs/RESULTS.md, "Multi-camera association")
+CONFIRM_SHARE = 0.5
+
+
+def check_track_ids(scene: Scene, cams: list[str], fuse_unassociated: bool = False) -> dict:
+    """How the track ids of ``cams`` were made (``seg2pose.io.track_ids``), for run.json.
+    Refuses to fuse several cameras whose ids are each camera's own tracker's: late fusion
+    would average different road users that happen to share a number."""
+    from seg2pose.io.track_ids import ids_status
+
+    masks_dir = scene.masks_path(cams[0]).parent
+    source = scene.extra.get("source") if isinstance(scene.extra.get("source"), dict) else {}
+    kind, why = ids_status(masks_dir, cams, from_video=source.get("format") == "video")
+    if kind == "unassociated" and len(cams) > 1:
+        if not fuse_unassociated:
+            raise InputError(f"the track ids of cameras {', '.join(cams)} are not associated across "
+                             f"cameras ({why}); fusing them would average different road users "
+                             f"that share a number. Run `s2p associate {scene.root}` first (or "
+                             "pass --fuse-unassociated to fuse them anyway)", file=masks_dir)
+        return {"ids": "unassociated", "fused_anyway": True, "why": why}
+    return {"ids": kind, "why": why}
 
 
 @dataclass(frozen=True)
@@ -301,6 +359,10 @@ class RunOptions:
                                   # frames either side (0: not; see ``fuse``)
     far_residuals: str = "warn"   # residuals longer than the model was trained on
                                   # (``FarResiduals``: warn, fallback, off)
+    # fuse cameras whose ids were never associated (``check_track_ids`` refuses otherwise)
+    fuse_unassociated: bool = False
+    # see ``fuse``; None: ``CONFIRM_SHARE`` for cameras whose ids were associated, else 0 (off)
+    confirm: float | None = None
 
 
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:
@@ -308,6 +370,9 @@ def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()
     run_dir = Path(run_dir)
     check_run_writable(run_dir, opts.force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(opts.config)]
+    track_ids = check_track_ids(scene, cams, opts.fuse_unassociated)
+    if opts.confirm is None:
+        opts = replace(opts, confirm=CONFIRM_SHARE if track_ids["ids"] == "associated" else 0.0)
     frame_range = scene.split_range(opts.split)
     models = None
     if not opts.baseline:
@@ -315,4 +380,4 @@ def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()
     far = None if models is None else FarResiduals(opts.far_residuals)
     views, nframes = compute_views(scene, cams, frame_range, models, opts.center_method,
                                    opts.chunk_frames, opts.progress, far=far)
-    return write_run(scene, run_dir, views, cams, models, nframes, opts, far)
+    return write_run(scene, run_dir, views, cams, models, nframes, opts, far, track_ids)

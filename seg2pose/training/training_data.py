@@ -22,7 +22,7 @@ from seg2pose.method.checkpoint import Checkpoint, model_filename
 from seg2pose.method.net import NetConfig, Normalisation
 from seg2pose.training.config import TrainConfig
 from seg2pose.training.examples import ExampleSet, annotated_examples, rough_examples
-from seg2pose.training.rough_video import video_look
+from seg2pose.training import rough_video
 
 
 @dataclass
@@ -123,7 +123,7 @@ def rough_looks(scene: Scene, cams: list[str], cfg: TrainConfig) -> dict:
         if films_rough(scene, cam, cfg):
             say(f"camera {cam}: rough models filmed over the video's background and "
                 "background-subtracted like its masks")
-            out[cam] = video_look(scene, cam)
+            out[cam] = rough_video.video_look(scene, cam)
     return out
 
 

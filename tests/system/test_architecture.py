@@ -36,8 +36,8 @@ MAY_IMPORT = {
     "seg2pose.cli": {"seg2pose", "seg2pose.core", "seg2pose.structures", "seg2pose.geometry",
                      "seg2pose.io", "seg2pose.video", "seg2pose.method", "seg2pose.synth", "seg2pose.safety",
                      "seg2pose.training", "seg2pose.eval", "seg2pose.batch", "s2p_review", "annotate"},
-    "s2p_review": _BASE | {"seg2pose.eval"},
-    "annotate": _BASE | {"seg2pose.eval"},
+    "s2p_review": _BASE | {"seg2pose.eval", "seg2pose.safety"},  # conflicts shown in a review
+    "annotate": _BASE | {"seg2pose.eval", "seg2pose.safety"},  # the app: road users' footprints
 }
 # the annotation app's page shows the scene through s2p_review's logging, as `s2p review`
 # does; the annotation engine and the app's controller stay free of it

@@ -215,3 +215,33 @@ def _grazing(a, b) -> bool:
           for e in (np.array([[1e-6, 0]]), np.array([[0, 1e-6]]), np.array([[-1e-6, 0]]),
                     np.array([[0, -1e-6]]))]
     return len({bool(np.isnan(v)) for v in xs}) > 1 or any(np.isfinite(v) and v > 29.99 for v in xs)
+
+
+def test_safety_imports_only_core_and_io():
+    """seg2pose.safety runs on tracks: within seg2pose it may use errors, say, io and itself."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3] / "seg2pose" / "safety"
+    assert sorted(root.glob("*.py")), root
+    # core.validate was io.validate (the file checks every reader uses)
+    ok = ("seg2pose.core.errors", "seg2pose.core.say", "seg2pose.core.validate", "seg2pose.io",
+          "seg2pose.safety")
+    bad = []
+    for p in sorted(root.glob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{p.name}: {n}" for n in names if n.startswith("seg2pose")
+                    and not any(n == o or n.startswith(o + ".") for o in ok)]
+    assert bad == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(road_user(), road_user())
+def test_static_overlap_agrees_with_the_interval(a, b):
+    """``overlaps`` (the static test) says what ``overlap_interval`` says at time 0."""
+    from seg2pose.safety.footprints import overlap_interval
+
+    enter, leave = overlap_interval(*a[:3], *b[:3], np.zeros((1, 2)))
+    assert overlaps(*a[:3], *b[:3])[0] == bool(enter[0] <= leave[0])
