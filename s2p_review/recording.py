@@ -15,6 +15,7 @@ from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 from s2p_review import imagery
 from s2p_review import layout as L
+from s2p_review.association import log_association
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
@@ -311,6 +312,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(rec, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, scene, tb, first, last, look=look)
         log_views(rec, run, scene, tb, run_cams, first, last)
+        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, style.masks)
         if gt is not None:
             metrics |= log_errors(rec, run, gt, scene, tb, first, last)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes))
