@@ -15,6 +15,7 @@ from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 from s2p_review import imagery
 from s2p_review import layout as L
+from s2p_review.association import log_association
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
@@ -361,8 +362,8 @@ def log_views(ctx: LogContext, run: Run, cameras: list[str]) -> None:
 def error_series(run: Run, gt: PoseTable, scene: Scene, first: int, last: int
                  ) -> dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int, int]]]:
     """name -> (frames (F,), error (F,) metres, colour) of the per-frame mean error ("mean")
-    and of each class (seg2pose.evaluate.per_frame_errors); frames without a value left out."""
-    from seg2pose.evaluate import per_frame_errors
+    and of each class (seg2pose.eval.evaluate.per_frame_errors); frames without a value left out."""
+    from seg2pose.eval.evaluate import per_frame_errors
 
     frames, mean, per_class = per_frame_errors(run.poses.in_frames((first, last)),
                                                gt.in_frames((first, last)))
@@ -433,6 +434,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, look=look)
         log_views(ctx, run, run_cams)
+        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, style.masks)
         if gt is not None:
             metrics |= log_errors(ctx, run, gt)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes), video_frames)
