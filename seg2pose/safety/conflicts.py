@@ -46,6 +46,7 @@ from seg2pose.safety.kinematics import Motion, MotionOptions, motion
 from seg2pose.safety.pet import PetOptions, PetResult, pet
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
+from seg2pose.safety.workers import map_chunks
 
 VULNERABLE = ("pedestrian", "bicyclist")
 TTC_BLOCK = 1 << 20  # pair-frames per block of the TTC computation
@@ -68,6 +69,7 @@ class ConflictOptions:
     all_pairs: bool = False
     pedestrian_pairs: bool = False
     chunk_s: float = 60.0
+    workers: int = 2
     motion: MotionOptions = field(default_factory=MotionOptions)
 
     def pet_options(self) -> PetOptions:
@@ -215,12 +217,15 @@ def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions) -> 
     k = np.floor((t - t.min()) / chunk).astype(np.int64) if np.isfinite(chunk) else np.zeros(len(t), np.int64)
     order = np.argsort(k, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(k[order])) + 1, len(k)]
-    parts, compared = [], 0
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
-        pf = pair_frames(tracks, mot, opts, np.sort(order[lo:hi]))
-        compared += len(pf.a)
+
+    def chunk(i: int) -> tuple[PairFrames, int]:
+        pf = pair_frames(tracks, mot, opts, np.sort(order[bounds[i]:bounds[i + 1]]))
         keep = _deciding(tracks, mot, pf, opts)
-        parts.append(PairFrames(pf.a[keep], pf.b[keep], pf.ttc[keep], pf.distance[keep]))
+        return PairFrames(pf.a[keep], pf.b[keep], pf.ttc[keep], pf.distance[keep]), len(pf.a)
+
+    res = map_chunks(chunk, range(len(bounds) - 1), opts.workers)
+    parts = [r[0] for r in res]
+    compared = sum(r[1] for r in res)
     a = np.concatenate([p.a for p in parts])
     b = np.concatenate([p.b for p in parts])
     o = np.lexsort((tracks.frame[a], tracks.track_id[b], tracks.track_id[a]))
@@ -240,7 +245,7 @@ def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Moti
     pf, compared = streamed_pair_frames(tracks, mot, opts)
     say("PET")
     touch = pf.ttc == 0  # footprints overlapping at a frame: PET 0 there
-    pr = pet(tracks, mot, opts.pet_options(), touching=np.c_[pf.a[touch], pf.b[touch]])
+    pr = pet(tracks, mot, opts.pet_options(), workers=opts.workers, touching=np.c_[pf.a[touch], pf.b[touch]])
     say("table")
     table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr, compared)
     c = table.columns

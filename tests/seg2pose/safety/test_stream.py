@@ -1,5 +1,6 @@
-"""Streaming over time chunks (seg2pose.safety.conflicts): the table made chunk by chunk is
-the same, bit for bit, as the whole recording's, for encounters that straddle chunk borders."""
+"""Streaming over time chunks (seg2pose.safety.conflicts): the table made chunk by chunk (in
+one process or two) is the same, bit for bit, as the whole recording's, for encounters that
+straddle chunk borders."""
 
 from __future__ import annotations
 
@@ -45,10 +46,10 @@ def traffic(seed: int, n: int = 14, seconds: float = 12.0) -> Tracks:
 
 
 def assert_same(tracks: Tracks, **kw) -> None:
-    whole = analyse(tracks, ConflictOptions(chunk_s=WHOLE, **kw))
+    whole = analyse(tracks, ConflictOptions(chunk_s=WHOLE, workers=1, **kw))
     assert len(whole) > 0
-    for chunk_s in (0.5, 1.0, 2.7):
-        part = analyse(tracks, ConflictOptions(chunk_s=chunk_s, **kw))
+    for chunk_s, workers in ((0.5, 1), (1.0, 2), (2.7, 1)):
+        part = analyse(tracks, ConflictOptions(chunk_s=chunk_s, workers=workers, **kw))
         assert part.columns.keys() == whole.columns.keys()
         for k, v in whole.columns.items():
             np.testing.assert_array_equal(part.columns[k], v, err_msg=f"{k}, chunks of {chunk_s} s")
@@ -69,7 +70,7 @@ def test_crossing_across_chunks():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_random_traffic_across_chunks(seed):
     tr = traffic(seed)
-    whole = analyse(tr, ConflictOptions(chunk_s=WHOLE, all_pairs=True, pedestrian_pairs=True))
+    whole = analyse(tr, ConflictOptions(chunk_s=WHOLE, workers=1, all_pairs=True, pedestrian_pairs=True))
     c = whole.columns
     # the case exercises what chunking could break: encounters straddling borders, Time-to-
     # Accident, PET, touching footprints (TTC 0)
@@ -78,3 +79,18 @@ def test_random_traffic_across_chunks(seed):
     assert (c["min_ttc_s"] == 0).any()
     assert_same(tr, all_pairs=True, pedestrian_pairs=True)
     assert_same(tr)
+
+
+def test_pet_search_in_two_processes_is_the_same():
+    """PET's own chunks (60 s) searched in two processes: the same overlapping rows."""
+    from seg2pose.safety.kinematics import motion
+    from seg2pose.safety.pet import PetOptions, overlapping_rows
+
+    tr = traffic(3, n=20, seconds=30.0)
+    mot = motion(tr)
+    one_ = overlapping_rows(tr, mot, PetOptions(), chunk_s=4.0, workers=1)
+    two = overlapping_rows(tr, mot, PetOptions(), chunk_s=4.0, workers=2)
+    whole = overlapping_rows(tr, mot, PetOptions(), chunk_s=np.inf, workers=1)
+    assert len(whole) > 3
+    np.testing.assert_array_equal(one_, two)
+    np.testing.assert_array_equal(one_, whole)
