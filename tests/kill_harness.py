@@ -66,6 +66,7 @@ _ZYGOTE = r"""
 import json, os, sys, traceback
 sys.argv = ["s2p"]
 import numpy, cv2                      # what every command imports, loaded once
+cv2.setNumThreads(1)  # tiny frames: a thread pool per forked command costs more than it saves
 import seg2pose.cli, seg2pose.video_scene, seg2pose.pipeline, seg2pose.batch_steps
 import seg2pose.io.tacal, annotate, annotate.tanalyst_io, s2p_review.mcap_export
 import seg2pose.segments, seg2pose.evaluate, annotate.export, s2p_review.annotated_mcap
@@ -473,3 +474,65 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
              state=_state_of(study / "s1" / "masks" / "c0.txt", study / "s1" / "batch" / "baseline"),
              resume=True),
     ]
+
+
+class RayCluster:
+    """A local Ray cluster for the killed ``s2p batch`` drivers to connect to (``ray start
+    --head --block``, stopped through that process: other users' Ray is never touched)."""
+
+    def __init__(self, cpus: int = 2):
+        import socket
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        ray = Path(sys.executable).with_name("ray")
+        self.address = f"127.0.0.1:{port}"
+        self.p = subprocess.Popen([str(ray), "start", "--head", "--block", f"--port={port}",
+                                   f"--num-cpus={cpus}", "--include-dashboard=false",
+                                   "--disable-usage-stats"], env=ENV, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.perf_counter() + 120
+        while time.perf_counter() < deadline:  # up when a driver can connect
+            r = subprocess.run([str(ray), "status", f"--address={self.address}"], env=ENV,
+                               capture_output=True)
+            if r.returncode == 0:
+                return
+            time.sleep(1)
+        self.stop()
+        raise RuntimeError("the local Ray cluster did not start")
+
+    def stop(self) -> None:
+        if self.p.poll() is None:
+            os.killpg(self.p.pid, signal.SIGTERM)
+            try:
+                self.p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.p.pid, signal.SIGKILL)
+                self.p.wait()
+
+
+def build_ray_case(root: Path, address: str, frames: int = 16) -> Case:
+    """``s2p batch`` on Ray (a cluster at ``address``): two scenes, masks-from-video then run,
+    the driver killed and the study re-run."""
+    from seg2pose.io.scene import load_scene
+    from seg2pose.video_scene import new_scene
+    from test_video_scene import calibration
+    from video_fixtures import write_folder
+
+    root.mkdir(parents=True, exist_ok=True)
+    calibration(root)
+    write_folder(root / "frames", frames, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
+    study = root / "study"
+    for name in ("s1", "s2"):
+        new_scene(study / name, {"c0": root / "frames"}, root / "calib.json", root / "ground.csv",
+                  fps=10, log=lambda *a: None)
+        s = load_scene(study / name)
+        s.extra["video_masks"] = {"min_area": 40, "init_samples": 8}
+        s.save()
+    outs = [study / n / p for n in ("s1", "s2") for p in ("masks/c0.txt", "batch")]
+    state = [study / n / p for n in ("s1", "s2") for p in ("masks/c0.txt", "batch/baseline")]
+    return Case("batch-ray", ["batch", study, "masks-from-video", "run", "--baseline", "--address",
+                              address, "--no-progress"],
+                outs + [study / "summary.json"], [None] * (len(outs) + 1),
+                state=_state_of(*state), resume=True)
