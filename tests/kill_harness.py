@@ -19,6 +19,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,6 +71,7 @@ cv2.setNumThreads(1)  # tiny frames: a thread pool per forked command costs more
 import seg2pose.cli, seg2pose.video_scene, seg2pose.pipeline, seg2pose.batch_steps
 import seg2pose.io.tacal, annotate, annotate.tanalyst_io, s2p_review.mcap_export
 import seg2pose.segments, seg2pose.evaluate, annotate.export, s2p_review.annotated_mcap
+import torch, seg2pose.net, seg2pose.sparse  # `run` imports torch (no thread starts on import)
 import typer, typer._adapters, typer._coercion, typer.core, typer.main, pydantic, tqdm
 import zoneinfo, fractions, email.utils, multiprocessing.synchronize, mcap_protobuf.writer
 for m in ("Color", "CameraCalibration", "FrameTransform", "SceneUpdate", "PosesInFrame",
@@ -488,10 +490,14 @@ class RayCluster:
             port = s.getsockname()[1]
         ray = Path(sys.executable).with_name("ray")
         self.address = f"127.0.0.1:{port}"
+        # its own temporary folder: `ray start` writes the address file that a plain
+        # ray.init() elsewhere on this machine would connect to there, not in /tmp/ray
+        self.temp = Path(tempfile.mkdtemp(prefix="s2pray-", dir="/tmp"))
         self.p = subprocess.Popen([str(ray), "start", "--head", "--block", f"--port={port}",
                                    f"--num-cpus={cpus}", "--include-dashboard=false",
-                                   "--disable-usage-stats"], env=ENV, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL, start_new_session=True)
+                                   "--disable-usage-stats", f"--temp-dir={self.temp}"],
+                                  env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  start_new_session=True)
         deadline = time.perf_counter() + 120
         while time.perf_counter() < deadline:  # up when a driver can connect
             r = subprocess.run([str(ray), "status", f"--address={self.address}"], env=ENV,
@@ -510,6 +516,7 @@ class RayCluster:
             except subprocess.TimeoutExpired:
                 os.killpg(self.p.pid, signal.SIGKILL)
                 self.p.wait()
+        shutil.rmtree(self.temp, ignore_errors=True)
 
 
 def build_ray_case(root: Path, address: str, frames: int = 16) -> Case:

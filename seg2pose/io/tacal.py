@@ -146,6 +146,9 @@ def tacal_to_camera(cal: Tacal, name: str, width: int | None = None, height: int
     rotation when it is off by less than R_TOLERANCE (files round r1…r9; the change moves
     pixels by ~f·1e-6); further off is an error. width/height default to 2 Cx x 2 Cy."""
     R = cal.R
+    if np.abs(R).max() > 2:  # not a rotation, and R Rᵀ would overflow for absurd entries
+        raise InputError(f"r1…r9 are not a rotation matrix (an entry is {np.abs(R).max():g})",
+                         file=file, field="r1")
     err = float(np.abs(R @ R.T - np.eye(3)).max())
     if err > R_TOLERANCE or np.linalg.det(R) <= 0:
         raise InputError(f"r1…r9 are not a rotation matrix (R Rᵀ is off the identity by {err:.2g}"
