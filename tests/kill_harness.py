@@ -78,6 +78,7 @@ for m in ("Color", "CameraCalibration", "FrameTransform", "SceneUpdate", "PosesI
           "ImageAnnotations", "Point2", "PointsAnnotation", "RawImage"):
     __import__(f"foxglove_schemas_protobuf.{m}_pb2")
 out = os.fdopen(1, "w", buffering=1)
+out.write("ready\n")
 for line in sys.stdin:
     argv, err = json.loads(line)
     pid = os.fork()
@@ -119,6 +120,8 @@ class Zygote:
                                   stdout=subprocess.PIPE, env=ENV, text=False)
         self.buf = b""
         self.err = Path(os.environ.get("TMPDIR", "/tmp")) / f"s2p-kill-{os.getpid()}-{id(self)}.err"
+        if self._line(600) != "ready":  # imports done: a command's time is its own from here
+            raise RuntimeError("the kill harness's Python did not start")
 
     def _line(self, timeout: float | None) -> str | None:
         end = None if timeout is None else time.perf_counter() + timeout
@@ -519,9 +522,9 @@ class RayCluster:
         shutil.rmtree(self.temp, ignore_errors=True)
 
 
-def build_ray_case(root: Path, address: str, frames: int = 16) -> Case:
-    """``s2p batch`` on Ray (a cluster at ``address``): two scenes, masks-from-video then run,
-    the driver killed and the study re-run."""
+def build_ray_case(root: Path, address: str, frames: int = 16, scenes: int = 2) -> Case:
+    """``s2p batch`` on Ray (a cluster at ``address``): ``scenes`` scenes, masks-from-video
+    then run, the driver killed and the study re-run."""
     from seg2pose.io.scene import load_scene
     from seg2pose.video_scene import new_scene
     from test_video_scene import calibration
@@ -531,14 +534,15 @@ def build_ray_case(root: Path, address: str, frames: int = 16) -> Case:
     calibration(root)
     write_folder(root / "frames", frames, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
     study = root / "study"
-    for name in ("s1", "s2"):
+    names = [f"s{k + 1}" for k in range(scenes)]
+    for name in names:
         new_scene(study / name, {"c0": root / "frames"}, root / "calib.json", root / "ground.csv",
                   fps=10, log=lambda *a: None)
         s = load_scene(study / name)
         s.extra["video_masks"] = {"min_area": 40, "init_samples": 8}
         s.save()
-    outs = [study / n / p for n in ("s1", "s2") for p in ("masks/c0.txt", "batch")]
-    state = [study / n / p for n in ("s1", "s2") for p in ("masks/c0.txt", "batch/baseline")]
+    outs = [study / n / p for n in names for p in ("masks/c0.txt", "batch")]
+    state = [study / n / p for n in names for p in ("masks/c0.txt", "batch/baseline")]
     return Case("batch-ray", ["batch", study, "masks-from-video", "run", "--baseline", "--address",
                               address, "--no-progress"],
                 outs + [study / "summary.json"], [None] * (len(outs) + 1),
