@@ -69,8 +69,10 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
                 votes = classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules,
                                       fps=scene.fps, log=log)
                 names_by_id = {k.id: k.name for k in scene.classes}
-                counts = np.unique(list(votes.values()), return_counts=True) if votes else ([], [])
-                msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
+                if votes:  # untracked masks have no track votes to count
+                    counts = np.unique(list(votes.values()), return_counts=True)
+                    msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}"
+                                            for k, n in zip(*counts)) + ")"
             files.commit(dst)
             log(msg)
             out[c] = res
