@@ -51,7 +51,7 @@ from seg2pose.io.video import image_files
 from seg2pose.masks import iou
 from seg2pose.track import TrackConfig, track_mots
 from seg2pose.video_masks import BgConfig, masks_from_video
-from seg2pose.video_scene import camera_reader, scene_masks_from_video
+from seg2pose.video_scene import associate_step, camera_reader, scene_masks_from_video
 
 SEGMENTS_DIR = "batch/segments"
 LINK_IOU = 0.5  # masks of the two segments in an overlap frame are the same road user above this
@@ -351,11 +351,10 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
     for c in plans:  # every camera refused up front, before any work
         check_writable(scene.masks_path(c), force)
     if whole:
-        res = scene_masks_from_video(scene.root, whole, force=force, progress=progress, log=log)
+        res = scene_masks_from_video(scene.root, whole, force=force, progress=progress,
+                                     associate=False, log=log)
         for c, r in res.items():
             out[c] = {"frames": r.n_frames, "masks": r.n_masks, "segments": 1, "seams": []}
-    if not cut:
-        return out
     with outputs([scene.masks_path(c) for c in cut], force) as files:
         for c in cut:
             segs = plans[c]
@@ -372,4 +371,6 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
                 f"{sum(x['id_changes'] for x in info['seams'])} id changes, "
                 f"{sum(x['unlinked'] for x in info['seams'])} tracks not continued")
             out[c] = info
+    associate_step(scene, cut, False, log)
+    associate_step(scene, [], True, log)
     return out

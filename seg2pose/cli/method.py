@@ -45,6 +45,8 @@ def run_cmd(
     allow_incomplete: bool = typer.Option(False, "--allow-incomplete/--no-allow-incomplete", help="use models whose training was interrupted (refused otherwise)"),
     far_residuals: Literal["warn", "fallback", "off"] = typer.Option("warn", "--far-residuals", help="when the network moves a position further than it ever did in training (99th percentile of its training residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for them) or off"),
     force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
+    confirm: Optional[float] = typer.Option(None, "--confirm", min=0.0, max=1.0, help="keep a fused pose only when at least this share of the configuration's cameras that see its place report it (default 0.5 for associated ids, else 0: off)"),
+    fuse_unassociated: bool = typer.Option(False, "--fuse-unassociated", help="fuse cameras whose track ids are each camera's own tracker's (refused otherwise: run s2p associate first)"),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
 
@@ -59,7 +61,8 @@ def run_cmd(
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
-                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals)
+                  allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals,
+                  fuse_unassociated=fuse_unassociated, confirm=confirm)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")

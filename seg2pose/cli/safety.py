@@ -56,6 +56,7 @@ def register(app: typer.Typer) -> None:
         brake: float = typer.Option(3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)"),
         swerve: float = typer.Option(3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2"),
         all_pairs: bool = typer.Option(False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts"),
+        pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
         draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
         r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres, 90 %%); say where the figures come from"),
         corr_s: float = typer.Option(1.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
@@ -96,6 +97,7 @@ def register(app: typer.Typer) -> None:
             f"{(tr.frame.max() - tr.frame.min() + 1) / tr.fps if len(tr) else 0:.0f} s at {tr.fps:g} fps")
         opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, near_m=near_m, brake_mps2=brake,
                                swerve_mps2=swerve, all_pairs=all_pairs,
+                               pedestrian_pairs=pedestrian_pairs,
                                motion=MotionOptions(window_s=window_s, centred=centred))
         table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
         n_conf = int(table.columns["conflict"].sum())

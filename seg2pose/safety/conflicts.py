@@ -29,13 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seg2pose.safety.encounters import near_pairs
+from seg2pose.safety.encounters import near_pairs, pair_codes
+from seg2pose.safety.footprints import reach
 from seg2pose.safety.kinematics import Motion, MotionOptions, motion
 from seg2pose.safety.pet import PetOptions, PetResult, pet
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
 
 VULNERABLE = ("pedestrian", "bicyclist")
+TTC_BLOCK = 1 << 20  # pair-frames per block of the TTC computation
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,8 @@ class ConflictOptions:
     """ttc_s, pet_s: the conflict thresholds (SSAM's defaults); near_m: road users farther
     apart than this (centre to centre) are not compared for TTC; horizon_s: TTC beyond this is
     "none"; brake_mps2, swerve_mps2: evasive action thresholds; all_pairs: keep every encounter,
-    not only conflicts."""
+    not only conflicts; pedestrian_pairs: also pairs of two pedestrians (walking past each
+    other in a crowd is no traffic conflict; left out by default)."""
 
     ttc_s: float = 1.5
     pet_s: float = 5.0
@@ -52,6 +55,7 @@ class ConflictOptions:
     brake_mps2: float = 3.0
     swerve_mps2: float = 3.0
     all_pairs: bool = False
+    pedestrian_pairs: bool = False
     motion: MotionOptions = field(default_factory=MotionOptions)
 
     def pet_options(self) -> PetOptions:
@@ -82,8 +86,21 @@ def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     a, b, d = a[keep], b[keep], d[keep]
     order = np.lexsort((tracks.frame[a], tracks.track_id[b], tracks.track_id[a]))
     a, b, d = a[order], b[order], d[order]
-    x = ttc(tracks.xy[a], mot.heading[a], tracks.size[a], mot.vel[a],
-            tracks.xy[b], mot.heading[b], tracks.size[b], mot.vel[b], opts.horizon_s)
+    # exact shortcut: apart (farther than their reaches) and not closing in, or too far to
+    # meet within the horizon: no collision course (the centre distance of two bodies at
+    # constant velocity is convex in time)
+    rel = tracks.xy[b] - tracks.xy[a]
+    vrel = mot.vel[b] - mot.vel[a]
+    gap = d - reach(tracks.size[a]) - reach(tracks.size[b])
+    speed = np.hypot(vrel[:, 0], vrel[:, 1])
+    maybe = ~((gap > 0) & ((rel[:, 0] * vrel[:, 0] + rel[:, 1] * vrel[:, 1] >= 0) | (gap > speed * opts.horizon_s)))
+    x = np.full(len(a), np.nan)
+    idx = np.flatnonzero(maybe)
+    for i in range(0, len(idx), TTC_BLOCK):  # in blocks: the temporaries stay small
+        sl = idx[i:i + TTC_BLOCK]
+        j, k = a[sl], b[sl]
+        x[sl] = ttc(tracks.xy[j], mot.heading[j], tracks.size[j], mot.vel[j],
+                    tracks.xy[k], mot.heading[k], tracks.size[k], mot.vel[k], opts.horizon_s)
     return PairFrames(a, b, x, d)
 
 
@@ -151,14 +168,22 @@ def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Moti
     pr = pet(tracks, mot, opts.pet_options(), touching=np.c_[pf.a[touch], pf.b[touch]])
     say("table")
     table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr)
-    return table if opts.all_pairs else table.take(table.columns["conflict"].astype(bool))
+    c = table.columns
+    keep = np.ones(len(table), bool) if opts.all_pairs else c["conflict"].astype(bool)
+    if not opts.pedestrian_pairs:
+        keep &= ~((np.char.lower(c["class_a"].astype(str)) == "pedestrian")
+                  & (np.char.lower(c["class_b"].astype(str)) == "pedestrian"))
+    return table.take(keep)
 
 
 def _table(tracks: Tracks, mot: Motion, pf: PairFrames, pr: PetResult, opts: ConflictOptions) -> dict:
     tid, frame, speed = tracks.track_id, tracks.frame, mot.speed
     # the encounters: pairs from the near frames and from PET, one row each
     keys = np.r_[_pair_key(tid[pf.a], tid[pf.b]), _pair_key(pr.track_a, pr.track_b)]
-    enc, inv = np.unique(keys, axis=0, return_inverse=True)
+    ids = np.unique(keys)
+    codes, first, inv = np.unique(pair_codes(keys[:, 0], keys[:, 1], ids), return_index=True,
+                                  return_inverse=True)
+    enc = keys[first]
     inv = inv.reshape(-1)
     K = len(enc)
     g_pf, g_pr = inv[:len(pf.a)], inv[len(pf.a):]

@@ -71,3 +71,10 @@ def near_pairs(tracks: Tracks, rows: np.ndarray, r: float, dt: float = 0.0,
     swap = tid[pairs[:, 0]] > tid[pairs[:, 1]]
     pairs[swap] = pairs[swap][:, ::-1]
     return pairs
+
+
+def pair_codes(track_a: np.ndarray, track_b: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """(M,) int64 codes of pairs of track ids (one code per pair, ordered as (a, b));
+    ``ids``: the sorted unique track ids (faster than ``np.unique(axis=0)`` on pairs)."""
+    n = np.int64(len(ids))
+    return np.searchsorted(ids, track_a) * n + np.searchsorted(ids, track_b)

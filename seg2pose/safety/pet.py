@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seg2pose.safety.encounters import near_pairs
+from seg2pose.safety.encounters import near_pairs, pair_codes
 from seg2pose.safety.footprints import overlap_interval, overlaps, reach
 from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
@@ -65,62 +65,128 @@ def _pair_in(a: np.ndarray, b: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 
 def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
-                     exclude: np.ndarray | None = None) -> np.ndarray:
-    """(P, 2) rows of two road users, at most ``window_s`` apart, whose footprints overlap.
-    ``exclude``: (K, 2) pairs of track ids not to search (their PET is known: 0)."""
+                     exclude: np.ndarray | None = None, chunk_s: float = 60.0) -> np.ndarray:
+    """(K, 2) for each pair of road users whose footprints overlapped at two frames at most
+    ``window_s`` apart: the pair of rows closest in time (first column the lower track id).
+    ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0).
+
+    Coarse to fine: rows every ``sample_s`` (moving ones only) are paired by the k-d tree with
+    footprints grown by the travel to the frames in between; then, per pair of road users,
+    only the coarse pairs closest in time are looked at frame by frame (a band of a few
+    samples, widened until the closest overlap is certain): two cars following each other
+    overlap at hundreds of pairs of frames, of which one is wanted."""
     fps = tracks.fps
     s = max(1, int(round(opts.sample_s * fps)))
+    h = s // 2  # every frame is within h of a sample (s = 1: the samples are all frames)
     moving = mot.speed >= opts.moving_mps
     sampled = np.flatnonzero(moving & (tracks.frame % s == 0))
+    travel = mot.speed * h / fps
+    span = reach(tracks.size) + travel
+    t = tracks.t
+    best = []
     if len(sampled) < 2:
         return np.zeros((0, 2), np.int64)
-    # a frame is at most s / 2 frames from a sample; so its footprint is within that travel
-    travel = mot.speed * (s // 2) / fps
-    rch = reach(tracks.size)
-    # the search box must hold the largest reach of the pair: search road users by size group
+    ts = t[sampled]
+    t0 = float(ts.min())
+    k = np.floor((ts - t0) / chunk_s).astype(np.int64)
+    for c in np.unique(k):
+        # this chunk, and the next one's first window_s seconds (pairs reaching across)
+        mine = k == c
+        rows = sampled[mine | ((k == c + 1) & (ts - t0 - (c + 1) * chunk_s <= opts.window_s + s / fps))]
+        cand = _candidates(tracks, mot, rows, span, travel, opts.window_s + 2 * h / fps, exclude)
+        in_chunk = np.isin(cand, sampled[mine]).any(axis=1)
+        best.append(_closest_overlaps(tracks, mot, cand[in_chunk], s, h, opts.window_s))
+    return closest_in_time(tracks, np.concatenate(best))
+
+
+def _candidates(tracks, mot, rows, span, travel, dt, exclude) -> np.ndarray:
+    """(C, 2) pairs of ``rows`` of two road users within ``dt`` seconds whose footprints,
+    grown by their travel, overlap."""
+    # the search box must hold the pair's largest reach: search road users by size group
     # (pedestrians with pedestrians need a box of 1 m, not a bus's 7 m)
-    span = rch + travel
-    groups = np.digitize(span[sampled], SIZE_GROUPS)
-    cand = []
+    groups = np.digitize(span[rows], SIZE_GROUPS)
+    cand = [np.zeros((0, 2), np.int64)]
     for g1 in np.unique(groups):
         for g2 in np.unique(groups):
             if g2 < g1:
                 continue
-            r1, r2 = sampled[groups == g1], sampled[groups == g2]
+            r1, r2 = rows[groups == g1], rows[groups == g2]
             r = float(span[r1].max() + span[r2].max())
-            cand.append(near_pairs(tracks, r1, r, opts.window_s + s / fps,
+            cand.append(near_pairs(tracks, r1, r, dt, chunk_s=np.inf,
                                    other=None if g1 == g2 else r2))
     cand = np.concatenate(cand)
     a, b = cand[:, 0], cand[:, 1]
     if exclude is not None and len(exclude):
-        tid = tracks.track_id
-        keep = ~_pair_in(tid[a], tid[b], exclude)
+        keep = ~_pair_in(tracks.track_id[a], tracks.track_id[b], exclude)
         a, b = a[keep], b[keep]
     grow_a = np.c_[2 * travel[a], 2 * travel[a]]
     grow_b = np.c_[2 * travel[b], 2 * travel[b]]
     hit = overlaps(tracks.xy[a], mot.heading[a], tracks.size[a] + grow_a,
                    tracks.xy[b], mot.heading[b], tracks.size[b] + grow_b)
-    a, b = a[hit], b[hit]
-    # every frame around the two samples
-    h = s // 2  # every frame is within s // 2 of a sample (s = 1: the samples are all frames)
-    offs = np.arange(-h, h + 1)
+    return np.c_[a[hit], b[hit]]
+
+
+def _closest_overlaps(tracks, mot, cand, s: int, h: int, window_s: float) -> np.ndarray:
+    """(K, 2) per pair of road users in ``cand`` (coarse pairs of sample rows), the pair of
+    frames closest in time whose footprints overlap. A coarse pair's gap is within 2h frames
+    of the gaps of the frames around it, so candidates are expanded in bands of gap: first
+    those within a few samples of the pair's smallest gap, then on until the best overlap
+    found leaves no candidate that could beat it."""
+    if len(cand) == 0:
+        return np.zeros((0, 2), np.int64)
+    fps = tracks.fps
+    tid, frame = tracks.track_id, tracks.frame
+    ids = np.unique(tid[cand.ravel()])
+    _, key = np.unique(pair_codes(tid[cand[:, 0]], tid[cand[:, 1]], ids), return_inverse=True)
+    key = key.reshape(-1)
+    gap = np.abs(frame[cand[:, 0]] - frame[cand[:, 1]])
+    order = np.lexsort((gap, key))
+    cand, key, gap = cand[order], key[order], gap[order]
+    npair = int(key.max()) + 1
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    band = 3 * s
+    limit = np.full(npair, 0, np.int64)
+    limit[key[first]] = gap[first] + band
+    best_gap = np.full(npair, np.iinfo(np.int64).max)
+    best = np.full((npair, 2), -1, np.int64)
+    done = np.zeros(len(cand), bool)
     starts, ends = tracks.starts(), tracks.ends()
-    ra = (a[:, None] + offs[None, :])
-    rb = (b[:, None] + offs[None, :])
-    ra = np.where((ra >= starts[a][:, None]) & (ra <= ends[a][:, None]), ra, -1)
-    rb = np.where((rb >= starts[b][:, None]) & (rb <= ends[b][:, None]), rb, -1)
-    fa = np.repeat(ra, len(offs), axis=1).ravel()
-    fb = np.tile(rb, (1, len(offs))).ravel()
-    ok = (fa >= 0) & (fb >= 0)
-    fa, fb = fa[ok], fb[ok]
-    key = np.unique(fa * np.int64(len(tracks)) + fb)
-    fa, fb = key // len(tracks), key % len(tracks)
-    t = tracks.t
-    ok = np.abs(t[fa] - t[fb]) <= opts.window_s
-    fa, fb = fa[ok], fb[ok]
-    hit = overlaps(tracks.xy[fa], mot.heading[fa], tracks.size[fa],
-                   tracks.xy[fb], mot.heading[fb], tracks.size[fb])
-    return np.c_[fa[hit], fb[hit]]
+    offs = np.arange(-h, h + 1)
+    max_gap = int(np.floor(window_s * fps + 1e-9))
+    while True:
+        todo = ~done & (gap <= limit[key])
+        if not todo.any():
+            break
+        done |= todo
+        a, b, kk = cand[todo, 0], cand[todo, 1], key[todo]
+        ra = a[:, None] + offs[None, :]
+        rb = b[:, None] + offs[None, :]
+        ra = np.where((ra >= starts[a][:, None]) & (ra <= ends[a][:, None]), ra, -1)
+        rb = np.where((rb >= starts[b][:, None]) & (rb <= ends[b][:, None]), rb, -1)
+        n = len(offs)
+        fa = np.repeat(ra, n, axis=1).ravel()
+        fb = np.tile(rb, (1, n)).ravel()
+        kf = np.repeat(kk, n * n)
+        ok = (fa >= 0) & (fb >= 0)
+        fa, fb, kf = fa[ok], fb[ok], kf[ok]
+        g = np.abs(frame[fa] - frame[fb])
+        ok = (g <= max_gap) & (g < best_gap[kf])
+        fa, fb, kf, g = fa[ok], fb[ok], kf[ok], g[ok]
+        hit = overlaps(tracks.xy[fa], mot.heading[fa], tracks.size[fa],
+                       tracks.xy[fb], mot.heading[fb], tracks.size[fb])
+        fa, fb, kf, g = fa[hit], fb[hit], kf[hit], g[hit]
+        o = np.lexsort((np.minimum(frame[fa], frame[fb]), g, kf))
+        fa, fb, kf, g = fa[o], fb[o], kf[o], g[o]
+        new = np.r_[True, kf[1:] != kf[:-1]] if len(kf) else np.zeros(0, bool)
+        fa, fb, kf, g = fa[new], fb[new], kf[new], g[new]
+        better = g < best_gap[kf]
+        best_gap[kf[better]] = g[better]
+        best[kf[better]] = np.c_[fa[better], fb[better]]
+        # a candidate can beat the best only if its gap is below best + 2h; with none found
+        # yet, widen the band
+        found = best_gap < np.iinfo(np.int64).max
+        limit = np.where(found, best_gap + 2 * h, limit + band)
+    return best[best[:, 0] >= 0]
 
 
 def closest_in_time(tracks: Tracks, rows: np.ndarray) -> np.ndarray:
