@@ -34,8 +34,8 @@ S2P = [sys.executable, "-c", "from seg2pose.cli import main; main()"]
 
 def snapshot(path: Path) -> dict | None:
     """The content of an output: None when absent; {relative path: bytes} of its files
-    (a file output: {'': bytes}). run.json's creation time is left out (it differs between
-    two runs of the same command). Hidden siblings are not part of it."""
+    (a file output: {'': bytes}). run.json's creation time and ids.json's times are left out
+    (they differ between two runs of the same command). Hidden siblings are not part of it."""
     if not path.exists():
         return None
     if path.is_file():
@@ -47,6 +47,11 @@ def snapshot(path: Path) -> dict | None:
             if p.name == "run.json":
                 d = json.loads(data)
                 d.pop("created", None)
+                data = json.dumps(d, sort_keys=True).encode()
+            elif p.name == "ids.json":  # masks/ids.json: when each camera's ids were made
+                d = json.loads(data)
+                for e in d.get("cameras", {}).values():
+                    e.pop("made", None)
                 data = json.dumps(d, sort_keys=True).encode()
             out[str(p.relative_to(path))] = data
     return out
@@ -368,7 +373,8 @@ def _project_state(scene_root: Path) -> Callable:
 def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     """The writing commands of issue 24 on tiny inputs under ``root``: masks-from-video,
     import-detections, track, new-scene, import-tacal, annotate export (gt + MCAP + layout +
-    CSV as one set), annotate import-tanalyst and batch --serial (killed, then re-run)."""
+    CSV as one set), annotate import-tanalyst, associate (masks/ as a unit) and batch --serial
+    (killed, then re-run)."""
     import contextlib as _cl
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -443,6 +449,9 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
         "1;Car;3;-8;-1,5;12:00:00.000", "2;Car;3;-5;-1,5;12:00:00.500",
         "3;Car;3;-2;-1,5;12:00:01.000", "4;Pedestrian;7;1;2;12:00:00.200",
         "5;Pedestrian;7;1;4;12:00:00.600"]) + "\n")
+    # associate: two cameras' tracker ids -> one id per road user (masks/ replaced as a unit)
+    aso = make_scene(root / "aso", n_frames=12).root
+    shutil.copytree(aso / "masks", old / "aso-masks")
     # batch --serial: a study of one video scene, masks-from-video then run
     study = root / "study"
     study.mkdir()
@@ -472,6 +481,7 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
         Case("import-tanalyst", ["annotate", "import-tanalyst", tan, root / "t.csv", "--start",
                                  "12:00:00.000"], [tan / "annotations"],
              [old / "tan-annotations"], state=_project_state(tan)),
+        Case("associate", ["associate", aso, "--force"], [aso / "masks"], [old / "aso-masks"]),
         Case("batch-serial", ["batch", study, "masks-from-video", "run", "--baseline", "--serial",
                               "--no-progress"],
              [study / "s1" / "masks" / "c0.txt", study / "s1" / "batch", study / "summary.json"],

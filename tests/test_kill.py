@@ -15,7 +15,7 @@ from kill_harness import RayCluster, build_cases, build_ray_case, build_writer_c
 KILLS_PER_COMMAND = 10
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
 WRITERS = ["masks-from-video", "import-detections", "track", "new-scene", "import-tacal",
-           "annotate-export", "import-tanalyst", "batch-serial"]
+           "annotate-export", "import-tanalyst", "associate", "batch-serial"]
 
 
 @pytest.fixture(scope="module")
