@@ -3,8 +3,8 @@
 Every writing command on small inputs (tests/kill_harness.py): ``s2p run``, ``synth``,
 ``convert-masks``, ``import-utocs``, ``export`` (issue 10) and ``masks-from-video``,
 ``import-detections``, ``track``, ``new-scene``, ``import-tacal``, ``annotate export`` (gt +
-MCAP + layout + CSV as one set), ``annotate import-tanalyst``, ``batch --serial`` and
-``batch`` on a local Ray cluster (issue 24).
+MCAP + layout + CSV as one set), ``annotate import-tanalyst``, ``associate`` and
+``batch --serial`` (issues 23 and 24).
 Put complete old outputs in place, start the command (with --force where it replaces them),
 SIGKILL it after a random share (0.15-1.05) of its usual duration, and classify the outputs:
 absent, the complete old ones, the complete new ones, or mixed (anything else, also a set of
@@ -28,7 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in the killed commands
-from kill_harness import RayCluster, build_cases, build_ray_case, build_writer_cases  # noqa: E402
+from kill_harness import build_cases, build_writer_cases  # noqa: E402
 
 
 def main() -> None:
@@ -43,37 +43,29 @@ def main() -> None:
         cases = []
         if only is None or set(only) & set(first):
             cases += build_cases(Path(d) / "first", frames=20)
-        if only is None or set(only) - set(first) - {"batch-ray"}:
+        if only is None or set(only) - set(first):
             cases += build_writer_cases(Path(d) / "writers")
-        cluster = None
-        if only is None or "batch-ray" in only:
-            cluster = RayCluster()
-            cases.append(build_ray_case(Path(d) / "ray", cluster.address))
         if only:
             cases = [c for c in cases if c.name in only]
-        try:
-            rng = np.random.default_rng(args.seed)
-            print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
-                  f"{'mixed':>6} {'leftovers':>10} {'s/run':>6}", flush=True)
-            total_mixed = total_left = 0
-            for c in cases:
-                c.run_fully()
-                t = time.perf_counter()
-                for k in range(1, args.kills + 1):
-                    c.kill_once(rng)
-                    if k % 50 == 0 and k < args.kills:
-                        print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
-                c.run_fully()  # the next writer takes over and cleans up
-                left = len(c.leftovers())
-                n = c.counts
-                total_mixed += n["mixed"]
-                total_left += left
-                print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
-                      f"{n['between']:>8} {n['mixed']:>6} {left:>10} {c.seconds:>6.2f}   "
-                      f"({time.perf_counter() - t:.0f} s)", flush=True)
-        finally:
-            if cluster is not None:
-                cluster.stop()
+        rng = np.random.default_rng(args.seed)
+        print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
+              f"{'mixed':>6} {'leftovers':>10} {'s/run':>6}", flush=True)
+        total_mixed = total_left = 0
+        for c in cases:
+            c.run_fully()
+            t = time.perf_counter()
+            for k in range(1, args.kills + 1):
+                c.kill_once(rng)
+                if k % 50 == 0 and k < args.kills:
+                    print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
+            c.run_fully()  # the next writer takes over and cleans up
+            left = len(c.leftovers())
+            n = c.counts
+            total_mixed += n["mixed"]
+            total_left += left
+            print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
+                  f"{n['between']:>8} {n['mixed']:>6} {left:>10} {c.seconds:>6.2f}   "
+                  f"({time.perf_counter() - t:.0f} s)", flush=True)
         print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}")
         sys.exit(1 if total_mixed or total_left else 0)
 

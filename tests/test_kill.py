@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kill_harness import RayCluster, build_cases, build_ray_case, build_writer_cases
+from kill_harness import build_cases, build_writer_cases
 
 KILLS_PER_COMMAND = 10
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
@@ -25,21 +25,9 @@ def cases(tmp_path_factory):
             + build_writer_cases(root / "writers", frames=10)}
 
 
-@pytest.fixture(scope="module")
-def ray_case(tmp_path_factory):
-    pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
-    cluster = RayCluster()
-    try:
-        yield build_ray_case(tmp_path_factory.mktemp("kill-ray"), cluster.address, frames=10,
-                             scenes=1)
-    finally:
-        cluster.stop()
-
-
-@pytest.mark.parametrize("name", FIRST + WRITERS + ["batch-ray"])
-def test_killed_command_leaves_old_or_new(request, name):
-    case = (request.getfixturevalue("ray_case") if name == "batch-ray"
-            else request.getfixturevalue("cases")[name])
+@pytest.mark.parametrize("name", FIRST + WRITERS)
+def test_killed_command_leaves_old_or_new(cases, name):
+    case = cases[name]
     case.run_fully()
     rng = np.random.default_rng(sum(map(ord, name)))
     kinds = [case.kill_once(rng) for _ in range(KILLS_PER_COMMAND)]

@@ -62,7 +62,7 @@ def test_masks_from_video_keeps_the_old_masks_until_all_stages_are_done(video_sc
     with pytest.raises(RuntimeError, match="killed here"):
         scene_masks_from_video(video_scene, bg=BG, force=True, log=lambda s: None)
     assert (video_scene / "masks" / "c0.txt").read_bytes() == old
-    assert sorted(p.name for p in (video_scene / "masks").iterdir()) == ["c0.txt"]
+    assert sorted(p.name for p in (video_scene / "masks").iterdir()) == ["c0.txt", "ids.json"]
 
 
 def test_import_detections_tracks_before_the_masks_reach_their_name(video_scene, tmp_path,
@@ -97,7 +97,7 @@ def test_a_second_writer_of_the_masks_is_refused_and_dead_partials_removed(video
     (masks / f".c0.txt.partial-{dead}-def" / "c0.txt").write_text("x")
     (masks / f"..c0.txt.partial-{dead}-abc.tmp.partial-{dead}-x.tmp").write_text("x")
     scene_masks_from_video(video_scene, bg=BG, force=True, log=lambda s: None)
-    assert sorted(p.name for p in masks.iterdir()) == ["c0.txt"]
+    assert sorted(p.name for p in masks.iterdir()) == ["c0.txt", "ids.json"]
     t = read_mots(masks / "c0.txt")
     assert len(t) and (t.track_id >= 0).all() and (t.class_id > 0).all()
 

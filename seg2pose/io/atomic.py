@@ -405,15 +405,32 @@ def finish_commits(path: str | Path) -> list[Path]:
             pairs = [(Path(a), Path(b)) for a, b in pairs]
         except (OSError, ValueError, TypeError):
             pairs = []  # torn: written before any swap, so nothing was swapped yet
+        olds = []
         for tmp, final in pairs:
-            if tmp.exists():
-                swap_in(tmp, final)
+            if tmp.exists() or tmp.is_symlink():  # not renamed in yet
+                olds.append(_rename_in(tmp, final))
                 done.append(final)
+        for d in dict.fromkeys(final.parent for _, final in pairs):
+            fsync_dir(d)
+        for old in olds:
+            if old is not None:
+                _remove(old)
         for tmp, _ in pairs:
             _remove_partial_folder(tmp)
         with contextlib.suppress(OSError):
             os.unlink(e.path)
     return done
+
+
+def _rename_in(tmp: Path, path: Path) -> Path | None:
+    """Move an existing ``path`` aside (``.NAME.old-PID``) and ``tmp`` to ``path``: two
+    renames, no fsync between. Returns where the old output now is (None: there was none)."""
+    old = None
+    if path.exists() or path.is_symlink():
+        old = path.parent / f".{path.name}.old-{os.getpid()}-{os.urandom(3).hex()}"
+        os.replace(path, old)
+    os.replace(tmp, path)
+    return old
 
 
 def _remove_partial_folder(tmp: Path) -> None:
@@ -468,14 +485,15 @@ class OutputSet:
         self.built[path] = built
 
     def commit(self, *paths: str | Path) -> None:
-        """Swap in ``paths`` (default: every output built and not yet swapped in). Several
-        at once are recorded first, so a kill between two renames is finished by the next
-        writer (``finish_commits``)."""
+        """Swap in ``paths`` (default: every output built and not yet swapped in). One output
+        is exchanged with the old one in one step (``swap_in``). Several are made durable
+        first, then recorded, then renamed in one after another with nothing else between
+        (microseconds); a writer killed among those renames is finished by the next writer
+        of the set (``finish_commits``)."""
         todo = [self._check(p) for p in paths] if paths else list(self.built)
         todo = [p for p in todo if p in self.built]
         if not todo:
             return
-        record = None
         with os_errors(todo[0]):
             for p in todo:
                 tmp = self.built[p]
@@ -484,23 +502,32 @@ class OutputSet:
                 if tmp.is_file():
                     with open(tmp, "rb") as f:
                         os.fsync(f.fileno())
-            if len(todo) > 1:
-                # written in place: a torn record was cut before any swap, so means none
-                record = _commit_path(todo[0])
-                with open(record, "w", encoding="utf-8") as f:
-                    f.write(json.dumps([[str(self.built[p]), str(p)] for p in todo]))
-                    f.flush()
-                    os.fsync(f.fileno())
-                fsync_dir(record.parent)
-            swapped = []
-            for p in todo:
-                swapped.append(self.built.pop(p))
-                swap_in(swapped[-1], p)
-            for tmp in swapped:  # after all swaps: a build may lie in another one's folder
+                fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+            if len(todo) == 1:
+                tmp = self.built.pop(todo[0])
+                swap_in(tmp, todo[0])
                 _remove_partial_folder(tmp)
-            if record is not None:
-                os.unlink(record)
-                fsync_dir(record.parent)
+                return
+            # written in place: a torn record was cut before any rename, so means none
+            record = _commit_path(todo[0])
+            with open(record, "w", encoding="utf-8") as f:
+                f.write(json.dumps([[str(self.built[p]), str(p)] for p in todo]))
+                f.flush()
+                os.fsync(f.fileno())
+            fsync_dir(record.parent)
+            builds = [self.built.pop(p) for p in todo]
+            # the old outputs are moved aside (not exchanged): a build still under its partial
+            # name is then exactly one not yet renamed in, which is what finish_commits redoes
+            olds = [_rename_in(tmp, p) for tmp, p in zip(builds, todo)]
+            for d in dict.fromkeys(p.parent for p in todo):
+                fsync_dir(d)
+            os.unlink(record)
+            fsync_dir(record.parent)
+            for old in olds:
+                if old is not None:
+                    _remove(old)
+            for tmp in builds:  # after all renames: a build may lie in another one's folder
+                _remove_partial_folder(tmp)
 
     def discard(self) -> None:
         for tmp in self.parts:
