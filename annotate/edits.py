@@ -17,6 +17,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from annotate.headings import AUTO
 from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, mark_spans
 
 SUPPORT_RADIUS = 10.0    # metres from the nearest ground point: beyond, keyframes are flagged
@@ -111,6 +112,18 @@ class EditsMixin:
             return float(np.arctan2(d[1], d[0]))
         return k.heading
 
+    def _heading(self, track_id: int, frame: int, x: float, y: float, heading, flags
+                 ) -> tuple[float, tuple[str, ...]]:
+        """(heading, flags) of a keyframe about to be placed: a given heading is set by the
+        annotator; None follows the motion (flag AUTO; the project fills it in after the edit)."""
+        flags = tuple(fl for fl in flags if fl != AUTO)
+        if heading is not None:
+            return heading, flags
+        old = self.track(track_id).keyframes.get(frame)
+        if old is not None and AUTO not in old.flags:  # re-placed: a heading set stays set
+            return old.heading, flags
+        return self.default_heading(track_id, frame, x, y), flags + (AUTO,)
+
     def pose_at(self, track_id: int, frame: int) -> tuple[float, float, float]:
         """(x, y, heading) of a track at a frame: the keyframe, or the interpolation."""
         t = self.track(track_id)
@@ -156,6 +169,13 @@ class EditsMixin:
         return self._commit("set_size", [{"op": "set_fields", "id": t.id,
                                           "fields": {"size": list(self._size(size, t.cls))}}])
 
+    def set_meta(self, track_id: int, **fields):
+        """Set free-form track fields (JSON-able), e.g. run_track=12 links the track to that
+        road user of the run (accept_estimate, suggestions)."""
+        t = self.track(track_id)
+        return self._commit("set_meta", [{"op": "set_fields", "id": t.id,
+                                          "fields": {"meta": {**t.meta, **fields}}}])
+
     def set_interpolation(self, track_id: int, method: str | None):
         """Choose a track's interpolation (linear, hermite, pchip; None = the class default)."""
         self.check_methods(method)
@@ -166,22 +186,24 @@ class EditsMixin:
     # --- keyframes -------------------------------------------------------------------------------
     def set_keyframe(self, track_id: int, frame: int, x: float, y: float,
                      heading: float | None = None, flags=()):
-        """Add (or replace) the keyframe at ``frame``; heading None: see ``default_heading``."""
+        """Add (or replace) the keyframe at ``frame``; heading None: the direction of motion
+        (flag auto_heading, kept up to date as the neighbours change: headings.py)."""
         t, f = self.track(track_id), self._frame(frame)
         self._free(t, f)
-        if heading is None:
-            heading = self.default_heading(t.id, f, x, y)
+        heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
         return self._commit("set_keyframe", [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
 
     def move_keyframe(self, track_id: int, frame: int, x: float, y: float,
                       heading: float | None = None, _name: str = "move_keyframe"):
         """Move a keyframe (or the interpolated pose at ``frame``, making it a keyframe) to x, y;
-        heading None keeps it. Removes the estimate/normal flags: the pose is now checked."""
+        heading None keeps it (an auto heading, or a new keyframe's, follows the motion). Removes the estimate/normal flags: the pose is now checked."""
         t, f = self.track(track_id), self._frame(frame)
         old = t.keyframes.get(f)
         _, _, h0 = self.pose_at(t.id, f)
-        flags = tuple(fl for fl in (old.flags if old else ()) if fl not in CHECKED)
+        flags = tuple(fl for fl in (old.flags if old else (AUTO,)) if fl not in CHECKED)
+        if heading is not None:  # the annotator sets it: it no longer follows the motion
+            flags = tuple(fl for fl in flags if fl != AUTO)
         k = self._kf(t.id, f, x, y, h0 if heading is None else heading, flags)
         return self._commit(_name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
 

@@ -34,6 +34,8 @@ FLAGS = {
     "normal": "placed at a mask's normal position",
     "off_support": "more than SUPPORT_RADIUS from every ground point: z is extrapolated",
     "imported": "imported from another tool (T-Analyst)",
+    "auto_heading": "heading follows the motion between the neighbouring keyframes (headings.py) "
+                    "until the annotator sets it",
 }
 
 

@@ -114,7 +114,8 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     from s2p_review import columns as C
     from s2p_review import layout as L
     from s2p_review.columns import sizes_of as _with_size
-    from s2p_review.recording import log_static
+    from s2p_review.recording import LogContext, log_static
+    from s2p_review.timebase import scene_timebase
     from s2p_review.runs import load_run
 
     run = load_run(run_dir, scene)
@@ -122,7 +123,7 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     cams = list(scene.cameras)
     rec = rr.RecordingStream("s2p-bench")
     rec.save(rrd, default_blueprint=L.blueprint(cams, [run.name]))
-    log_static(rec, scene, cams)
+    log_static(LogContext(rec, scene, scene_timebase(scene), 0, 0), cams)
     poses, v = run.poses, run.views
     psz, gsz = _with_size(poses, scene), _with_size(gt, scene)
     frames = np.arange(int(poses.frame.min()), int(poses.frame.max()) + 1)

@@ -151,3 +151,4 @@ def make_run(scene: Scene, run_dir: Path, *, method: str = "baseline", residual:
             "created": "2026-01-01T00:00:00Z"}
     write_run_folder(run_dir, est, ViewTable.concat(views), meta, force=True)
     return run_dir
+

@@ -66,8 +66,8 @@ def test_click_places_keyframe_at_the_clicked_point(ctl):
 
     s = ctl.project.scene
     xy = pixel_to_ground(s.cameras["c1"], s.ground, (640.0, 420.0))  # a point in view
-    h = s.default_heights()["car"]
-    for mode, height in (("centre", h), ("ground", 0.0)):
+    ctl.project.set_size(tid, (4.0, 1.8, 1.6))  # centre mode: half the track's box height
+    for mode, height in (("centre", 0.8), ("ground", 0.0)):
         ctl.click_mode = mode
         msg = ctl.click("c1", _pixel(ctl, xy, height))
         assert "keyframe 0" in msg
@@ -214,6 +214,48 @@ def test_mask_mode_uses_the_mask_under_the_click(ctl):
     k = ctl.project.track(tid).keyframes[0]
     assert (k.x, k.y) == pytest.approx((x, y)) and "normal" in k.flags
     assert "no mask under" in ctl.click("c1", (1.0, 1.0))
+    # another road user's mask while this track is selected: refused, naming both, no keyframe
+    others = [j for j in np.flatnonzero(t.frame == 0) if t.track_id[j] != t.track_id[i]]
+    j = others[0]
+    m2 = rle.decode({"size": [t.height, t.width], "counts": t.rles[j]})
+    r2, c2 = np.nonzero(m2 & ~m)
+    msg = ctl.click("c1", (c2[len(c2) // 2] + 0.5, r2[len(r2) // 2] + 0.5))
+    assert msg.startswith("refused") and f"mask {t.track_id[j]}" in msg and f"track {tid}" in msg
+    assert list(ctl.project.tracks) == [tid] and len(ctl.project.track(tid).keyframes) == 1
+    # Esc: no track; the same click makes that road user's own track
+    ctl.do("deselect")
+    assert ctl.selected is None
+    ctl.click("c1", (c2[len(c2) // 2] + 0.5, r2[len(r2) // 2] + 0.5))
+    assert ctl.selected != tid and ctl.project.track(ctl.selected).meta["run_track"] == t.track_id[j]
+
+
+def test_class_keys_delete_with_confirmation_and_headings_shown(ctl):
+    classes = [c.name for c in ctl.project.scene.classes]
+    ctl.do("class_key:2")
+    assert ctl.new_class == classes[1]
+    ctl.do("new_track")
+    tid = ctl.selected
+    assert ctl.project.track(tid).cls == classes[1]
+    ctl.do("class_key:1")  # with a track selected: that track changes class (and size)
+    t = ctl.project.track(tid)
+    assert t.cls == classes[0] and t.size == tuple(ctl.project.scene.class_sizes()[classes[0]])
+    assert "classes" in ctl.do(f"class_key:{len(classes) + 1}")
+    ctl.click_mode = "ground"
+    ctl.click("c1", _pixel(ctl, (0.0, 0.0), 0.0))
+    assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["auto"]
+    layouts = []
+    ctl.on_layout.append(layouts.append)
+    assert "camera c1 large" in ctl.do("best_camera") and layouts == ["c1"]
+    ctl.do("large_camera")
+    assert ctl.large_camera == "c1" and layouts == ["c1", "c1"]
+    ctl.do("rotate:5")
+    assert [k["heading_mode"] for k in ctl.keyframe_rows()] == ["set"]
+    ctl.do("goto:2")
+    assert ctl.frame == 2 and "not a frame number" in ctl.do("goto:")
+    assert "Shift+Delete again" in ctl.do("delete_track")
+    assert tid in ctl.project.tracks
+    assert "deleted" in ctl.do("delete_track")
+    assert tid not in ctl.project.tracks and ctl.selected is None
 
 
 def test_logger_sends_one_track_and_empties_frames_it_left(ctl):
@@ -264,42 +306,6 @@ def test_run_of_another_scene_is_refused(scene_dir, tmp_path):
         check_scene(scene_dir, None, ["nope"])
 
 
-def test_s2p_annotate_serves_the_page_and_stops_its_server(scene_dir):
-    """`s2p annotate SCENE --no-browser` prints the URL, serves it, and SIGTERM stops the
-    server it started (its own process group) too."""
-    pytest.importorskip("marimo", reason="marimo is not installed (pip install -e '.[app]')")
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-    import urllib.request
-
-    from annotate.app.serve import _port_open, free_port
-
-    port = free_port()
-    root = str(Path(__file__).resolve().parents[1])
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.Popen([sys.executable, "-c", "from seg2pose.cli import main; main()", "annotate", str(scene_dir),
-                             "--no-browser", "--port", str(port)], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
-    try:
-        line = proc.stdout.readline()
-        assert f"http://127.0.0.1:{port}" in line, line
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30) as r:
-            assert r.status == 200
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(30)
-        t0 = time.monotonic()
-        while _port_open(port) and time.monotonic() - t0 < 15:
-            time.sleep(0.2)
-        assert not _port_open(port), "the server outlived s2p annotate"
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-
-
 def test_session_wiring_without_a_browser(scene_dir):
     """The page's wiring: viewer events and panel messages reach the controller, edits reach
     the viewer's data stream, the panel's HTML follows."""
@@ -338,8 +344,54 @@ def test_session_wiring_without_a_browser(scene_dir):
         k = s.ctl.project.track(tid).keyframes[2]
         assert np.hypot(k.x - xy[0], k.y - xy[1]) < 1e-6
         assert sent, "the new keyframe's track was not sent to the viewer"
+        # a click on the 3D view's ground places the keyframe at that world point; one above
+        # the ground (a box) is ignored with the reason
+        g = float(scene.ground.height(np.array([[1.0, 2.0]]))[0])
         s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
-            entity_path="/world/ground/mesh", view_name="world", position=[1.0, 2.0, 0.0])], **ev))
-        assert "click ignored" in s.ctl.message and "world is not a camera view" in s.ctl.message
+            entity_path="/world/ground/mesh", view_name="world", position=[1.0, 2.0, g])], **ev))
+        k = s.ctl.project.track(tid).keyframes[2]
+        assert (k.x, k.y) == (1.0, 2.0), s.ctl.message
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/annotation/t1", view_name="world", position=[1.0, 2.0, g + 1])], **ev))
+        assert "click ignored" in s.ctl.message and "from the ground" in s.ctl.message
+        # a repeated click: the viewer reports no selection change, the page reports the canvas
+        # click at the same page point as the last one that selected: it is that click again
+        s.ctl.click_mode = "ground"
+        s._on_panel_msg(None, {"canvas_click": [400, 300]}, [])     # (after the world click)
+        s._on_viewer_event(SelectionChangeEvent(items=[EntitySelectionItem(
+            entity_path="/world/cameras/c1/masks", view_name="camera c1",
+            position=[640.0, 420.0, None])], **ev))
+        s._on_panel_msg(None, {"canvas_click": [500, 320]}, [])     # it selected: remembered
+        s.ctl.do("nudge:0.5:0")
+        moved = s.ctl.project.track(tid).keyframes[2].x
+        s._on_panel_msg(None, {"canvas_click": [501, 320]}, [])     # same point, no selection
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved - 0.5)
+        s.ctl.do("nudge:0.5:0")
+        s._on_panel_msg(None, {"canvas_click": [900, 700]}, [])     # elsewhere (time panel): nothing
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved)
+        s._on_panel_msg(None, {"canvas_click": [501, 320], "frame": 7}, [])  # made at another frame
+        assert s.ctl.project.track(tid).keyframes[2].x == pytest.approx(moved)
+        assert "made at frame 7" in s.ctl.message
     finally:
         s.ctl.close()
+
+
+def test_a_reloaded_tab_keeps_the_edit_lock_another_tab_does_not(scene_dir):
+    import shutil
+
+    shutil.rmtree(scene_dir / "annotations", ignore_errors=True)
+    first = Controller.open(scene_dir, cameras=["c1"])
+    first.hello("tab-A")
+    other = Controller.open(scene_dir, cameras=["c1"])   # a second tab: read-only
+    other.hello("tab-B")
+    assert other.read_only and not first.read_only
+    reloaded = Controller.open(scene_dir, cameras=["c1"])  # tab A reloaded: opens read-only...
+    assert reloaded.read_only
+    reloaded.hello("tab-A")                                # ...and takes its lock back at once
+    try:
+        assert not reloaded.read_only and reloaded.read_only_reason is None
+        reloaded.do("new_track")
+        assert reloaded.selected in reloaded.project.tracks
+    finally:
+        for c in (reloaded, other, first):
+            c.close()

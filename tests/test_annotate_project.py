@@ -72,7 +72,7 @@ def test_bad_input_is_refused_with_names(project, scene):
         project.set_keyframe(1, 0, 500.0, 0.0)
     # off the support but within reach: kept, flagged and noted
     project.set_keyframe(1, 0, 40.0, 0.0)
-    assert project.track(1).keyframes[0].flags == ("off_support",)
+    assert project.track(1).keyframes[0].flags == ("auto_heading", "off_support")
     assert "off_support" in project.notes[-1]
     assert project.seq == 2  # the refused edits wrote nothing
 
@@ -125,12 +125,12 @@ def test_place_from_mask_normal_position_or_run_estimate(scene, tmp_path):
         assert k.flags == ("estimate",)
         p.place_from_mask(1, 6, "c0", 12, use_run=False)
         k = p.track(1).keyframes[6]
-        assert k.flags == ("normal",)
+        assert k.flags == ("auto_heading", "normal")
         truth = gt.xyz[(gt.frame == 6) & (gt.track_id == 12)][0]
         assert np.hypot(k.x - truth[0], k.y - truth[1]) < 3.0  # a normal position: near, not exact
         # a manual move marks it checked
         p.nudge(1, 6, 0.02, 0.0)
-        assert p.track(1).keyframes[6].flags == ()
+        assert p.track(1).keyframes[6].flags == ("auto_heading",)  # heading still auto
         with pytest.raises(EditError, match="no mask of track 99"):
             p.place_from_mask(1, 6, "c0", 99, use_run=False)
 
@@ -152,6 +152,14 @@ def test_preannotate_and_accept_estimates(scene, tmp_path):
         assert p.track(1).frames == [7, 10, 15, 20]
         with pytest.raises(EditError, match="no estimate of road user 55"):
             p.accept_estimate(1, 7, run_track=55)
+        # a track linked to no road user never pulls in the run track that shares its number
+        p.create_track("car")
+        with pytest.raises(EditError, match="track 2 is linked to no road user"):
+            p.accept_estimate(2, 7)
+        # pre-annotating a project with tracks: the road users annotated already are skipped
+        ch = p.preannotate(every=10, skip_annotated=True)
+        assert sorted(p.track(t).meta["run_track"] for t in ch.created) == \
+            sorted(set(by_run) - {12})
 
 
 def test_split_and_merge(project):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from collections import Counter
 from pathlib import Path
@@ -270,15 +271,84 @@ def test_rrd_masks_hold_class_ids(tiny):
 
 
 def test_mask_cadence(tiny):
+    """Filled masks on the cadence and blank between (never a stale mask); outlines and (as a
+    video asset) the video on every frame; JPEG video on its own cadence."""
     import rerun.chunk as rc
 
     scene, base, _, root = tiny
-    out = record(scene, [base], root / "cad.rrd", RecordOptions(mask_every=5, video_every=10)).rrd
-    rows = Counter()
-    for ch in rc.RrdReader(out).stream():
-        if not ch.is_static:
+    for fmt, image_rows in (("jpeg", 2), ("asset", N_FRAMES)):
+        out = record(scene, [base], root / f"cad-{fmt}.rrd", RecordOptions(
+            mask_every=5, video_every=10, style=LogStyle(video_format=fmt))).rrd
+        rows, fills, cleared = Counter(), [], []
+        for ch in rc.RrdReader(out).stream():
+            if ch.is_static:
+                continue
+            b = ch.to_record_batch()
             rows[ch.entity_path] += ch.num_rows
-    assert rows["/world/cameras/c0/masks"] == 4 and rows["/world/cameras/c0/image"] == 2
+            if ch.entity_path == "/world/cameras/c0/masks":
+                names = b.schema.names
+                (fills if "SegmentationImage:buffer" in names else cleared).extend(
+                    b.column("frame").to_pylist())
+        assert sorted(fills) == [0, 5, 10, 15]
+        assert sorted(cleared) == [f for f in range(N_FRAMES) if f % 5]
+        assert rows["/world/cameras/c0/masks/outlines"] == N_FRAMES
+        assert rows["/world/cameras/c0/image"] == image_rows, fmt
+
+
+def test_video_asset_shows_every_frame_as_that_frame(tiny, tmp_path):
+    """The viewer's video asset: each scene frame refers to a video frame that shows that
+    frame's number (a video whose frames carry a visible frame code)."""
+    import shutil
+
+    import av
+    import rerun.chunk as rc
+
+    from s2p_review.frame_code import read_code, write_code_video
+    from seg2pose.io.scene import load_scene
+
+    scene, base, _, _ = tiny
+    copy = tmp_path / "scene"
+    shutil.copytree(scene.root, copy, ignore=shutil.ignore_patterns("out"))
+    cam = scene.cameras["c0"]
+    write_code_video(copy / "video" / "c0.mp4", cam.width, cam.height, N_FRAMES)
+    out = record(load_scene(copy), [base], tmp_path / "asset.rrd",
+                 RecordOptions(cameras=["c0"], style=LogStyle(masks=False))).rrd
+    blob = refs = None
+    for ch in rc.RrdReader(out).stream():
+        if ch.entity_path != "/world/cameras/c0/image":
+            continue
+        b = ch.to_record_batch()
+        if ch.is_static and "AssetVideo:blob" in b.schema.names:
+            blob = bytes(b.column("AssetVideo:blob").to_pylist()[0][0])
+        elif not ch.is_static:
+            refs = dict(zip(b.column("frame").to_pylist(),
+                            [v[0] for v in b.column("VideoFrameReference:timestamp").to_pylist()]))
+    assert blob is not None and sorted(refs) == list(range(N_FRAMES))
+    with av.open(io.BytesIO(blob)) as c:
+        st = c.streams.video[0]
+        decoded = {int(round(fr.pts * st.time_base * 1e9)): fr.to_ndarray(format="gray")
+                   for fr in c.decode(st)}
+    for f in range(N_FRAMES):
+        img = decoded[refs[f]]
+        assert read_code(lambda u, v: img[int(v * img.shape[0]), int(u * img.shape[1])]) == f
+
+
+def test_mask_outlines_known_square(tmp_path):
+    from pycocotools import mask as cm
+
+    from s2p_review import imagery
+    from seg2pose.io.mots import MaskTable
+
+    m = np.zeros((40, 60), np.uint8, order="F")
+    m[10:20, 5:25] = 1
+    rle = cm.encode(m)["counts"]
+    t = MaskTable(np.array([0]), np.array([3]), np.array([1]), 40, 60, [rle])
+    polys, owner = imagery.outlines(t, tmp_path / "m.txt")
+    assert owner.tolist() == [0] and len(polys) == 1
+    p = polys[0]
+    assert (p[0] == p[-1]).all()  # closed
+    assert p[:, 0].min() == 5.5 and p[:, 0].max() == 24.5
+    assert p[:, 1].min() == 10.5 and p[:, 1].max() == 19.5
 
 
 # --- bad input and outputs ---------------------------------------------------------------------------
@@ -566,7 +636,8 @@ def test_video_stored_small_is_shown_at_camera_size(tiny):
 
     scene, base, _, root = tiny
     out = record(scene, [base], root / "small.rrd",
-                 RecordOptions(cameras=["c0"], style=LogStyle(masks=False, image_scale=0.5))).rrd
+                 RecordOptions(cameras=["c0"], style=LogStyle(masks=False, image_scale=0.5,
+                                                              video_format="jpeg"))).rrd
     scale = blob = None
     for ch in rc.RrdReader(out).stream():
         if ch.entity_path != "/world/cameras/c0/image":

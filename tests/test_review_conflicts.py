@@ -84,3 +84,20 @@ def test_bad_conflicts_file_names_line(tmp_path):
         "1,car,2,car,crossing,1,0,10,abc,,,,,\n")
     with pytest.raises(InputError, match=r"d.csv:2: field 'min_ttc_s'"):
         read_conflicts(tiny_header)
+
+
+def test_conflicts_review_option(tiny, capsys):
+    """`s2p conflicts RUN -o c.csv --review r.rrd`: both written; a file instead of a run folder
+    is one line."""
+    from seg2pose.cli import main
+
+    scene, run, _, root = tiny
+    for argv, code in (([str(run), "-o", str(root / "c2.csv"), "--review", str(root / "r.rrd"),
+                         "--all-pairs", "--near", "100"], 0),
+                       ([str(run / "poses.csv"), "-o", str(root / "c3.csv"), "--review",
+                         str(root / "r3.rrd")], 2)):
+        with pytest.raises(SystemExit) as e:
+            main(["conflicts", *argv])
+        assert e.value.code == code
+    assert (root / "r.rrd").stat().st_size > 0 and (root / "c2.csv").exists()
+    assert "--review needs a run folder" in capsys.readouterr().err

@@ -73,20 +73,50 @@ def test_frames_carry_the_scene_numbering(numbered):
     assert list(imagery.video_frames(scene, "c1", 0, 4)) == []
 
 
-def test_review_shows_the_right_frame_under_the_masks(numbered):
+@pytest.mark.parametrize("fmt", ["jpeg", "asset"])
+def test_review_shows_the_right_frame_under_the_masks(numbered, fmt):
+    """JPEG images at the scene's frames; or the video asset: each scene frame refers to the
+    asset's frame of that scene frame, and the frames without video are blank."""
+    import io
+
+    import av
     import rerun.chunk as rc
 
     scene, base, root = numbered
-    out = record(scene, [base], root / "v.rrd",
-                 RecordOptions(mask_every=1, video_every=1, style=LogStyle(masks=False))).rrd
+    out = record(scene, [base], root / f"v-{fmt}.rrd",
+                 RecordOptions(mask_every=1, video_every=1,
+                               style=LogStyle(masks=False, video_format=fmt))).rrd
     seen: dict[str, dict[int, int]] = {"c0": {}, "c1": {}}
+    blank: dict[str, list[int]] = {"c0": [], "c1": []}
+    assets: dict[str, dict[int, np.ndarray]] = {}
+    refs: dict[str, dict[int, int]] = {"c0": {}, "c1": {}}
     for ch in rc.RrdReader(out).stream():
         cam = ch.entity_path.split("/")[3] if ch.entity_path.endswith("/image") else None
-        if cam not in seen or ch.is_static:
+        if cam not in seen:
             continue
         b = ch.to_record_batch()
-        for f, blob in zip(b.column("frame").to_pylist(), b.column("EncodedImage:blob").to_pylist()):
-            img = cv2.imdecode(np.frombuffer(bytes(blob[0]), np.uint8), cv2.IMREAD_COLOR)
-            seen[cam][int(f)] = _frame_of(img)
+        names = b.schema.names
+        if ch.is_static and "AssetVideo:blob" in names:
+            with av.open(io.BytesIO(bytes(b.column("AssetVideo:blob").to_pylist()[0][0]))) as c:
+                st = c.streams.video[0]
+                assets[cam] = {int(round(fr.pts * st.time_base * 1e9)): fr.to_ndarray(format="bgr24")
+                               for fr in c.decode(st)}
+        elif ch.is_static:
+            continue
+        elif "EncodedImage:blob" in names:
+            for f, blob in zip(b.column("frame").to_pylist(), b.column("EncodedImage:blob").to_pylist()):
+                img = cv2.imdecode(np.frombuffer(bytes(blob[0]), np.uint8), cv2.IMREAD_COLOR)
+                seen[cam][int(f)] = _frame_of(img)
+        elif "VideoFrameReference:timestamp" in names:
+            for f, ts in zip(b.column("frame").to_pylist(),
+                             b.column("VideoFrameReference:timestamp").to_pylist()):
+                refs[cam][int(f)] = int(ts[0])
+        else:
+            blank[cam] += b.column("frame").to_pylist()
+    if fmt == "asset":
+        for cam, r in refs.items():
+            seen[cam] = {f: _frame_of(assets[cam][ts]) for f, ts in r.items()}
+        assert sorted(blank["c0"]) == [f for f in range(N_FRAMES) if f not in (4, 6, 8, 10)]
+        assert sorted(blank["c1"]) == list(range(5))
     assert seen["c0"] == {f: f for f in (4, 6, 8, 10)}
     assert seen["c1"] == {f: f for f in range(5, N_FRAMES)}

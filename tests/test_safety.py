@@ -215,3 +215,20 @@ def _grazing(a, b) -> bool:
           for e in (np.array([[1e-6, 0]]), np.array([[0, 1e-6]]), np.array([[-1e-6, 0]]),
                     np.array([[0, -1e-6]]))]
     return len({bool(np.isnan(v)) for v in xs}) > 1 or any(np.isfinite(v) and v > 29.99 for v in xs)
+
+
+def test_safety_imports_only_core_and_io():
+    """seg2pose.safety runs on tracks: within seg2pose it may use errors, say, io and itself."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "seg2pose" / "safety"
+    ok = ("seg2pose.errors", "seg2pose.say", "seg2pose.io", "seg2pose.safety")
+    bad = []
+    for p in sorted(root.glob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{p.name}: {n}" for n in names if n.startswith("seg2pose")
+                    and not any(n == o or n.startswith(o + ".") for o in ok)]
+    assert bad == []
