@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from annotate.headings import AUTO
-from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, mark_spans
+from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, keyframe_row, mark_spans
 
 SUPPORT_RADIUS = 10.0    # metres from the nearest ground point: beyond, keyframes are flagged
 REFUSE_RADIUS = 200.0    # metres: beyond, keyframes are refused
@@ -26,10 +26,6 @@ NUDGE_STEPS = (0.02, 0.10, 0.50)   # metres, the app's small / medium / large nu
 ROTATE_STEPS = (1.0, 5.0, 15.0)    # degrees
 MAX_SIZE = 30.0          # metres: no road user is longer, wider or taller
 CHECKED = {"estimate", "normal"}   # flags a manual correction removes (the pose is now checked)
-
-
-def _row(frame: int, k: Keyframe) -> list:
-    return [int(frame), k.x, k.y, k.heading, list(k.flags)]
 
 
 class EditsMixin:
@@ -192,7 +188,7 @@ class EditsMixin:
         self._free(t, f)
         heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
-        return self._commit("set_keyframe", [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit("set_keyframe", [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def move_keyframe(self, track_id: int, frame: int, x: float, y: float,
                       heading: float | None = None, _name: str = "move_keyframe"):
@@ -205,7 +201,7 @@ class EditsMixin:
         if heading is not None:  # the annotator sets it: it no longer follows the motion
             flags = tuple(fl for fl in flags if fl != AUTO)
         k = self._kf(t.id, f, x, y, h0 if heading is None else heading, flags)
-        return self._commit(_name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit(_name, [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def delete_keyframe(self, track_id: int, frame: int):
         t = self.track(track_id)
@@ -224,7 +220,7 @@ class EditsMixin:
         self._free(t, to)
         k = t.keyframes[int(frame)]
         return self._commit("retime_keyframe", [{"op": "set_keyframes", "id": t.id,
-                                                 "del": [int(frame)], "set": [_row(to, k)]}])
+                                                 "del": [int(frame)], "set": [keyframe_row(to, k)]}])
 
     def nudge(self, track_id: int, frame: int, dx: float, dy: float, relative: bool = False):
         """Shift the pose at ``frame`` by (dx, dy) metres: world axes, or with ``relative`` the
@@ -285,6 +281,6 @@ class EditsMixin:
             spans = mark_spans(spans, s0, s1, kind)
         return self._commit("merge_tracks", [
             {"op": "set_keyframes", "id": a.id,
-             "set": [_row(f, k) for f, k in sorted(b.keyframes.items())]},
+             "set": [keyframe_row(f, k) for f, k in sorted(b.keyframes.items())]},
             {"op": "set_fields", "id": a.id, "fields": {"spans": [list(s) for s in spans]}},
             {"op": "put_track", "id": b.id, "track": None}])

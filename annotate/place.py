@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from annotate.edits import _row
 from annotate.estimates import MaskIndex
-from annotate.model import EditError
-from seg2pose.ground import miss_reasons
+from annotate.model import EditError, keyframe_row
+from seg2pose.geometry.ground import miss_reasons
 
 
 def pixel_to_ground(camera, ground, uv, height: float = 0.0) -> tuple[float, float]:
@@ -96,7 +95,7 @@ class PlacementMixin:
         self._free(t, f)
         heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
-        return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def accept_estimate(self, track_id: int, frame: int | None = None, run_track: int | None = None,
                         every: int | None = None, frames: tuple[int, int] | None = None):
@@ -120,11 +119,11 @@ class PlacementMixin:
             self._free(t, f)
             k = self._kf(t.id, f, *est, flags=("estimate",))
             return self._commit("accept_estimate", [{"op": "set_keyframes", "id": t.id,
-                                                     "set": [_row(f, k)]}])
+                                                     "set": [keyframe_row(f, k)]}])
         rows = self._sample(self.run.track(rt), every, frames)
         if not len(rows[0]):
             raise EditError(f"the run has no estimates of road user {rt} in frames {frames}")
-        sets = [_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
+        sets = [keyframe_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
                 for f, x, y, h in zip(*rows) if t.span_at(f) != "outside"]
         return self._commit("accept_estimates", [{"op": "set_keyframes", "id": t.id, "set": sets}])
 
@@ -175,7 +174,7 @@ class PlacementMixin:
                 raise EditError(f"track {rid} has two rows in one frame")
             xy = table.xyz[pick, :2]
             hd = motion_headings(xy, table.heading[pick])
-            kfs = [_row(f, self._kf(tid, f, x, y, h, flags)) for f, (x, y), h in zip(frames, xy, hd)]
+            kfs = [keyframe_row(f, self._kf(tid, f, x, y, h, flags)) for f, (x, y), h in zip(frames, xy, hd)]
             ops.append({"op": "put_track", "id": tid, "track": {
                 "id": tid, "cls": cls, "size": list(self._size(size, cls)), "interp": None,
                 "keyframes": kfs, "spans": [], "meta": {"source_track": int(rid)}}})
@@ -203,7 +202,7 @@ class PlacementMixin:
             if len(fr) < min_estimates:
                 continue
             cls = str(est.cls[0])
-            kfs = [_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
+            kfs = [keyframe_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
                    for f, x, y, h in zip(fr, xs, ys, hs)]
             ops.append({"op": "put_track", "id": next_id, "track": {
                 "id": next_id, "cls": cls, "size": list(self._size(None, cls)), "interp": None,

@@ -30,7 +30,7 @@ from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
 from annotate.table import empty, track_poses
 from seg2pose.io.poses import PoseTable
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.scene import Scene, load_scene
 
 UNDO_LIMIT = 10_000      # edits kept for undo (the oldest are forgotten beyond this)

@@ -32,13 +32,13 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     """A 3-camera junction with n_users road users driving straight lines (wrapping around)."""
     import cv2
 
-    from seg2pose.camera import Camera, Rig
+    from seg2pose.geometry.camera import Camera, Rig
     from seg2pose.io.mots import MaskTable, write_mots
     from seg2pose.io.poses import PoseTable, write_poses
     from seg2pose.io.run import ViewTable, relative_path, write_run_folder
     from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
-    from seg2pose.masks import encode, mask_centers
-    from seg2pose.normal import normal_positions
+    from seg2pose.structures.masks import encode, mask_centers
+    from seg2pose.geometry.normal import normal_positions
     from s2p_review.columns import box_corners
 
     marker = root / "built.json"
@@ -110,7 +110,7 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
 
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.poses import read_poses
-    from seg2pose.evaluate import per_frame_errors
+    from seg2pose.eval.evaluate import per_frame_errors
     from s2p_review import columns as C
     from s2p_review import layout as L
     from s2p_review.columns import sizes_of as _with_size

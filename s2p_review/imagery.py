@@ -10,7 +10,7 @@ from typing import Iterator
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.scene import Scene
 from seg2pose.io.video import camera_reader

@@ -361,8 +361,8 @@ def log_views(ctx: LogContext, run: Run, cameras: list[str]) -> None:
 def error_series(run: Run, gt: PoseTable, scene: Scene, first: int, last: int
                  ) -> dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int, int]]]:
     """name -> (frames (F,), error (F,) metres, colour) of the per-frame mean error ("mean")
-    and of each class (seg2pose.evaluate.per_frame_errors); frames without a value left out."""
-    from seg2pose.evaluate import per_frame_errors
+    and of each class (seg2pose.eval.evaluate.per_frame_errors); frames without a value left out."""
+    from seg2pose.eval.evaluate import per_frame_errors
 
     frames, mean, per_class = per_frame_errors(run.poses.in_frames((first, last)),
                                                gt.in_frames((first, last)))

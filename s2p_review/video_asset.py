@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.scene import Scene
 from s2p_review import imagery
 

@@ -1,7 +1,7 @@
 """Kill s2p commands at random moments and classify what they leave under the outputs' names:
 ``absent``, ``old`` (the complete previous outputs), ``new`` (the complete new ones) or
 ``mixed`` (anything else: a partial or merged output, or a set of outputs of which some are
-old and some new). Used by tests/test_kill.py (10 kills a command) and
+old and some new). Used by tests/system/test_kill.py (4-10 kills a command) and
 benches/bench_faults.py (many).
 
 The commands run in processes forked from one Python that has imported s2p already
@@ -73,10 +73,10 @@ import json, os, sys, traceback
 sys.argv = ["s2p"]
 import numpy, cv2                      # what every command imports, loaded once
 cv2.setNumThreads(1)  # tiny frames: a thread pool per forked command costs more than it saves
-import seg2pose.cli, seg2pose.video_scene, seg2pose.pipeline, seg2pose.batch_steps
+import seg2pose.cli, seg2pose.video.video_scene, seg2pose.method.pipeline, seg2pose.batch.steps
 import seg2pose.io.tacal, annotate, annotate.tanalyst_io, s2p_review.mcap_export
-import seg2pose.segments, seg2pose.evaluate, annotate.export, s2p_review.annotated_mcap
-import torch, seg2pose.net, seg2pose.sparse  # `run` imports torch (no thread starts on import)
+import seg2pose.batch.segments, seg2pose.eval.evaluate, annotate.export, s2p_review.annotated_mcap
+import torch, seg2pose.method.net, seg2pose.method.sparse  # `run` imports torch (no thread starts on import)
 import typer, typer._adapters, typer._coercion, typer.core, typer.main, pydantic, tqdm
 import zoneinfo, fractions, email.utils, multiprocessing.synchronize, mcap_protobuf.writer
 for m in ("Color", "CameraCalibration", "FrameTransform", "SceneUpdate", "PosesInFrame",
@@ -317,7 +317,7 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     from seg2pose.io.mask_formats import save_masks
     from seg2pose.io.mots import read_mots
     from seg2pose.io.utocs import import_utocs
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.synth.generate import generate_scene
     from s2p_review.mcap_export import export_mcap
     from seg2pose.io.scene import load_scene
@@ -383,9 +383,8 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     from seg2pose.cli.annotation import export_set
     from seg2pose.io.scene import load_scene
     from seg2pose.io.tacal import camera_to_tacal, write_tacal
-    from seg2pose.video_scene import new_scene, scene_import_detections, scene_masks_from_video
-    from test_video_scene import calibration, det, rle
-    from video_fixtures import write_folder
+    from seg2pose.video.video_scene import new_scene, scene_import_detections, scene_masks_from_video
+    from video_fixtures import calibration, det, rle, write_folder
 
     root.mkdir(parents=True, exist_ok=True)
     old, out = root / "old", root / "out"

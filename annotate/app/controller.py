@@ -22,7 +22,7 @@ import numpy as np
 from annotate import LockedError, Project
 from annotate.headings import AUTO
 from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, CLICK_MODES, Actions
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session

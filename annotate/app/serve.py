@@ -26,7 +26,7 @@ from pathlib import Path
 
 from annotate.app.guard import TOKEN_PARAM, new_token
 from annotate.app.server import ARGS_ENV, TOKEN_ENV
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 LOG_NAME = "server.log"
 STOP_SECONDS = 4.0  # SIGTERM, then SIGKILL after this long: stopped within 5 s

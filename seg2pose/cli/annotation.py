@@ -20,7 +20,8 @@ import typer
 from typer.core import TyperGroup
 
 from seg2pose.cli.common import ANNOTATION, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.io.atomic import check_writable, outputs, replacing
 
 OPEN = "open"
 
@@ -160,7 +161,6 @@ def import_tanalyst_cmd(
 def _export_tanalyst(p, out: Path, start: str, fps, keyframes_only: bool, decimal: str,
                      force: bool) -> Path:
     from annotate.tanalyst_io import annotations_to_tanalyst
-    from seg2pose.io.atomic import replacing
     from seg2pose.io.tanalyst import write_tanalyst
 
     if decimal not in (",", "."):
@@ -231,7 +231,7 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     from annotate.tanalyst_io import annotations_to_tanalyst
     from s2p_review.annotated_mcap import export_annotated_mcap
     from s2p_review.foxglove_layout import layout_path
-    from seg2pose.io.atomic import check_writable, outputs
+
     from seg2pose.io.poses import write_poses
     from seg2pose.io.tanalyst import write_tanalyst
 

@@ -10,8 +10,7 @@ from pathlib import Path
 import typer
 
 from seg2pose.cli.common import REVIEW, parse_frames, speaks_flags
-from seg2pose.errors import S2PError
-
+from seg2pose.core.errors import S2PError
 
 _FLAG = {"masks": "--mask-every 1", "video": "--video-every 1"}
 
@@ -64,9 +63,9 @@ def register(app: typer.Typer) -> None:
 
         Masks, normal positions, residuals, fused road users, ground truth and errors, with a
         layout that opens ready to use."""
-        from seg2pose.io.scene import load_scene
         from s2p_review.recording import LogStyle
         from s2p_review.session import RecordOptions, Targets, record
+        from seg2pose.io.scene import load_scene
 
         to = Targets(rrd=save, spawn=spawn, connect=connect, screenshot=screenshot, frame=frame,
                      follow=follow, force=force)
@@ -108,8 +107,8 @@ def register(app: typer.Typer) -> None:
 
         Foxglove schemas plus lossless s2p records (an exact round trip), with a Foxglove layout
         beside it (NAME.layout.json)."""
-        from seg2pose.io.scene import load_scene
         from s2p_review.mcap_export import ExportOptions, export_mcap
+        from seg2pose.io.scene import load_scene
 
         res = export_mcap(load_scene(scene), run, out, ExportOptions(
             frames=parse_frames(frames), mask_every=mask_every, video_every=video_every,
@@ -155,7 +154,7 @@ def _check_restored_journal(folder: Path, mcap: Path) -> None:
     not replay is an error naming the MCAP file's attachment, before anything is moved into
     place."""
     from annotate import Project
-    from seg2pose.errors import InputError, S2PError
+    from seg2pose.core.errors import InputError, S2PError
 
     try:
         with Project.open(folder, read_only=True) as p:

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from seg2pose.cli.common import SAFETY, speaks_flags
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 
 
 def parse_r90(text: str | None) -> dict[str, float] | None:
@@ -90,7 +90,7 @@ def register(app: typer.Typer) -> None:
         from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
         from seg2pose.safety.kinematics import MotionOptions
         from seg2pose.safety.tracks import load_tracks
-        from seg2pose.say import say
+        from seg2pose.core.say import say
 
         check_writable(out, force)
         scene_dir = None

@@ -20,10 +20,10 @@ from typing import Iterable
 
 import numpy as np
 
-from seg2pose.errors import InputError
-from seg2pose.io.text import read_text
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import MAX_COORD
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.validate import MAX_COORD
+from seg2pose.io.text import read_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]
@@ -130,12 +130,14 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
     text = read_text(path, "pose file")
     reader = csv.reader(io.StringIO(text))
     try:
-        return _parse_poses(reader, path, kc)
+        return parse_poses(reader, path, kc)
     except csv.Error as e:
         raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
 
 
-def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+    """The pose table of a CSV ``reader`` (rows of ``path``, for messages); ``kc``: the known
+    classes (None: any)."""
     header = next(reader, None)
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)

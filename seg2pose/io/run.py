@@ -21,8 +21,6 @@ over with a note.
 
 from __future__ import annotations
 
-import datetime as _dt
-import hashlib
 import io
 import json
 import os
@@ -33,9 +31,8 @@ from typing import Iterable
 
 import numpy as np
 
-from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import (atomic_write_text, os_errors, output_lock, swap_in,
-                                temp_sibling_dir)
+from seg2pose.core.errors import InputError, S2PError
+from seg2pose.io.atomic import atomic_write_text, os_errors, output_lock, swap_in, temp_sibling_dir
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 
 RUN_FILE = "run.json"
@@ -176,18 +173,6 @@ def relative_path(target: str | Path, folder: str | Path) -> str:
     """``target`` as a path relative to ``folder`` (run.json holds no machine-specific
     absolute paths; POSIX separators)."""
     return Path(os.path.relpath(Path(target).resolve(), Path(folder).resolve())).as_posix()
-
-
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def now_utc() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 _FAR = 2.0  # gate-normalised distances are clipped here for the track-level mean
 _KEY = 1e6  # frame * _KEY + x (metres): one sort key for "same frame, near in x"
