@@ -66,6 +66,8 @@ def main() -> None:
             print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
                   f"{n['between']:>8} {n['mixed']:>6} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
+            for states, beside in c.mixed:
+                print(f"    mixed: outputs {states}, beside them {beside}", flush=True)
         print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}")
         sys.exit(1 if total_mixed or total_left else 0)
 

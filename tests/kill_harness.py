@@ -209,6 +209,7 @@ class Case:
     seconds: float = 1.0
     counts: dict = field(default_factory=lambda: {"absent": 0, "old": 0, "new": 0, "between": 0,
                                                   "mixed": 0})
+    mixed: list = field(default_factory=list)  # per mixed kill: each output's state, leftovers
 
     def __post_init__(self) -> None:
         self.outs = [Path(o) for o in self.outs]
@@ -273,6 +274,11 @@ class Case:
                 os.killpg(pid, signal.SIGKILL)
             z.wait()
         kind = self.classify()
+        if kind == "mixed":  # which outputs were what, and what lay beside them
+            st = self.snap()
+            self.mixed.append(([("new" if x == n else "old" if x == o else "absent" if x is None
+                                 else "other") for x, o, n in zip(st, self._old, self.new)],
+                               self.leftovers()))
         if self.resume and kind != "mixed":
             z.start([a for a in self.argv if a != "--force"])
             if z.wait(600) != 0 or self.snap() != self.new:
