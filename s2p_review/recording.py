@@ -15,6 +15,7 @@ from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 from s2p_review import imagery
 from s2p_review import layout as L
+from s2p_review.association import log_association
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
@@ -433,6 +434,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, look=look)
         log_views(ctx, run, run_cams)
+        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, style.masks)
         if gt is not None:
             metrics |= log_errors(ctx, run, gt)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes), video_frames)

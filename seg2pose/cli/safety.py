@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.cli.common import SAFETY, speaks_flags
+from seg2pose.cli.common import SAFETY, parse_frames, speaks_flags
 from seg2pose.core.errors import InputError, S2PError
 
 
@@ -59,6 +59,7 @@ def register(app: typer.Typer) -> None:
         tracks: Path = typer.Argument(..., help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a T-Analyst tracks CSV"),
         out: Path = typer.Option(..., "-o", "--out", help="output conflicts.csv"),
         fps: float | None = typer.Option(None, "--fps", help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)"),
+        frames: str | None = typer.Option(None, "--frames", help="only frames A:B (inclusive); default: all"),
         start: str | None = typer.Option(None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)"),
         ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
         pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
@@ -99,7 +100,10 @@ def register(app: typer.Typer) -> None:
             scene_dir = _scene_of(tracks)
         table_r90 = parse_r90(r90)
         t0 = time.perf_counter()
+        frame_range = parse_frames(frames)
         tr, notes = load_tracks(tracks, fps, parse_clock(start))
+        if frame_range is not None:
+            tr = tr.take((tr.frame >= frame_range[0]) & (tr.frame <= frame_range[1]))
         for n in notes:
             say(n, "note")
         if len(tr) == 0:

@@ -95,3 +95,17 @@ def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     # enters at 5 - (2.2 + 0.9) / 10 s
     assert float(r["pet_s"]) == pytest.approx(2 - 0.62, abs=0.01)
     assert r["pet_lo_s"] != ""
+
+
+def test_conflicts_frames_range(tmp_path, capsys):
+    """--frames A:B: only those frames (the crossing's second car reaches the spot after
+    frame 120, so frames 0:120 hold no conflict); a reversed range is one line."""
+    p = tmp_path / "poses.csv"
+    write_poses(p, crossing_poses())
+    out = tmp_path / "c.csv"
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--frames", "0:120")
+    assert code == 0, se
+    assert read_rows(out) == []
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--frames", "9:3",
+                      "--force")
+    assert code == 2 and "--frames" in se
