@@ -11,6 +11,7 @@ flushed, no handler run) is the same as for a command started from the shell."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import json
 import os
@@ -161,8 +162,10 @@ class Zygote:
             return ""
 
     def close(self) -> None:
-        self.p.stdin.close()
-        self.p.wait(timeout=30)
+        with contextlib.suppress(OSError, ValueError):
+            self.p.stdin.close()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.p.wait(timeout=30)
         self.err.unlink(missing_ok=True)
 
 
@@ -173,6 +176,7 @@ def zygote() -> Zygote:
     global _zygote
     if _zygote is None or _zygote.p.poll() is not None:
         _zygote = Zygote()
+        atexit.register(_zygote.close)  # its Python ends, and its error file goes
     return _zygote
 
 
