@@ -4,7 +4,7 @@ stopping at the stop line, pedestrians on the crossings, bicyclists), analysed f
 the conflict table. The traffic is drawn in numpy (no rendering): only the analysis is timed.
 
     PYTHONPATH=. .venv/bin/python benches/bench_conflicts.py [--hours 1] [--fps 30] [--in-view 50]
-        [--seed 0] [--all-pairs]
+        [--seed 0] [--all-pairs] [--chunk 60] [--profile N]
 
 Prints the rows, the time of each step and the total, as CPU seconds of this process (the
 analysis is single-threaded numpy, so on a shared machine CPU time is the figure that does not
@@ -15,6 +15,7 @@ records it.
 from __future__ import annotations
 
 import argparse
+import resource
 import time
 
 import numpy as np
@@ -92,6 +93,8 @@ def main() -> None:
     ap.add_argument("--in-view", type=float, default=50.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--all-pairs", action="store_true")
+    ap.add_argument("--chunk", type=float, default=60.0, help="seconds per chunk (0: whole recording)")
+    ap.add_argument("--profile", type=int, default=0, help="print the N functions of most CPU time (cProfile)")
     a = ap.parse_args()
     t0 = time.perf_counter()
     tr = junction_traffic(a.hours, a.fps, a.in_view, a.seed)
@@ -109,7 +112,15 @@ def main() -> None:
         last[:] = [now, name]
 
     w1, t1 = time.perf_counter(), time.process_time()
-    table = analyse(tr, ConflictOptions(all_pairs=a.all_pairs), progress=step)
+    opts = ConflictOptions(all_pairs=a.all_pairs, chunk_s=a.chunk)
+    if a.profile:
+        import cProfile
+        import pstats
+
+        prof = cProfile.Profile()
+        table = prof.runcall(analyse, tr, opts, progress=step)
+    else:
+        table = analyse(tr, opts, progress=step)
     step(None)
     total, wall = time.process_time() - t1, time.perf_counter() - w1
     text = format_conflicts(table, a.fps)
@@ -117,8 +128,11 @@ def main() -> None:
     print("CPU: " + "  ".join(f"{k} {v:.1f} s" for k, v in steps.items()))
     print(f"analysis {total:.1f} CPU s ({wall:.1f} s wall) for {a.hours:g} h at {a.fps:g} fps: "
           f"{len(table):,} rows "
-          f"({int(table.columns['conflict'].sum()):,} conflicts), {len(table.pairs.a):,} pair-frames "
-          f"compared for TTC; CSV text {t_fmt:.1f} s ({len(text) / 1e6:.1f} MB)")
+          f"({int(table.columns['conflict'].sum()):,} conflicts), {table.compared:,} pair-frames "
+          f"compared for TTC; CSV text {t_fmt:.1f} s ({len(text) / 1e6:.1f} MB); peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.2f} GB")
+    if a.profile:
+        pstats.Stats(prof).sort_stats("tottime").print_stats(a.profile)
 
 
 if __name__ == "__main__":
