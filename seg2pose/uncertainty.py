@@ -129,6 +129,9 @@ class StageModel:
             idx = np.flatnonzero(sel)
             if name != "*" and len(idx) < MIN_ROWS:
                 continue
+            if name != "*" and len(idx) == len(y):  # the only class: the pooled model is its own
+                m.coef[name], m.n_rows[name] = list(m.coef["*"]), int(len(idx))
+                continue
             if len(idx) > MAX_FIT_ROWS:  # an even subsample, deterministic
                 idx = idx[np.linspace(0, len(idx) - 1, MAX_FIT_ROWS).astype(int)]
             m.coef[name] = [float(v) for v in fit_quantile(X[idx], y[idx], q)]
