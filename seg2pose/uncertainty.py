@@ -15,7 +15,10 @@ Both stages are linear *quantile regressions* of log(error) per class (the 90th 
 the log error is the log of the 90th percentile of the error): fitted on a run of the
 validation split whose truth is known (``fit_calibration``, ``s2p calibrate``), written as a
 JSON beside the models or the run, and applied to any run of the same method (``s2p run
---r90``). A class with too few validation rows falls back to the pooled model of all classes.
+--r90``). A class with too few validation rows falls back to the pooled model of all classes. A
+calibration does not extrapolate: each feature is clipped to the range it had in the fit, and
+the bar to twice the largest error fitted (a scene unlike the validation scene, e.g. another
+camera height, gets the bars of the nearest case seen, not a linear guess far outside it).
 """
 
 from __future__ import annotations
@@ -33,9 +36,9 @@ QUANTILE = 0.9
 FORMAT = "s2p-r90"
 VERSION = 1
 VIEW_FEATURES = ["one", "log_distance", "log_grazing", "cut", "far", "log_spread", "log_residual"]
-POSE_FEATURES = ["one", "log_r_views", "log_n_views", "log_disagreement"]
-MIN_ROWS = 40          # a class with fewer validation rows uses the pooled model
-MAX_FIT_ROWS = 6000    # rows per class in the fit (an even subsample; the LP stays < 1 s)
+POSE_FEATURES = ["one", "log_r_views", "log_n_views", "log_disagreement", "end_on"]
+MIN_ROWS = 200         # a class with fewer validation rows uses the pooled model
+MAX_FIT_ROWS = 3000    # rows per class in a fit (an even subsample; the LP stays < 1 s)
 FLOOR_M = 0.02         # errors below this count as this (log of a near-zero error is noise)
 
 
@@ -55,18 +58,27 @@ def view_features(cam_center: np.ndarray, normal: np.ndarray, residual: np.ndarr
                             np.log(cues[:, 2] + 0.02), np.log(res + 0.05)])
 
 
-def pose_features(est: np.ndarray, r_view: np.ndarray) -> np.ndarray:
+def pose_features(est: np.ndarray, r_view: np.ndarray, heading: np.ndarray | None = None,
+                  origin_xy: np.ndarray | None = None) -> np.ndarray:
     """(P, len(POSE_FEATURES)) for P fused poses from the stacks of their views: est (C, P, 2)
     view estimates and r_view (C, P) the views' r90, metres, NaN where a camera did not see
-    the road user."""
+    the road user; heading (P,) radians of the fused poses (NaN: unknown) and origin_xy (2,)
+    the rig's ground point: "end_on" is |cos| of the angle between the heading and the line
+    of sight (1: seen end-on, where a long body's mask centre is far from its middle; 0.5
+    for an unknown heading)."""
     seen = np.isfinite(est).all(axis=2) & np.isfinite(r_view)
     n = np.maximum(seen.sum(axis=0), 1)
     r_comb = np.sqrt(np.where(seen, r_view ** 2, 0.0).sum(axis=0)) / n
     mean = np.where(seen[..., None], est, 0.0).sum(axis=0) / n[:, None]
     dev = np.where(seen, np.linalg.norm(np.nan_to_num(est) - mean[None], axis=2), 0.0)
     disagree = np.sqrt((dev ** 2).sum(axis=0) / n)
+    end_on = np.full(len(n), 0.5)
+    if heading is not None and origin_xy is not None:
+        sight = np.arctan2(mean[:, 1] - origin_xy[1], mean[:, 0] - origin_xy[0])
+        c = np.abs(np.cos(heading - sight))
+        end_on = np.where(np.isfinite(c), c, 0.5)
     return np.column_stack([np.ones(len(n)), np.log(np.maximum(r_comb, FLOOR_M)), np.log(n),
-                            np.log(disagree + 0.05)])
+                            np.log(disagree + 0.05), end_on])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -98,29 +110,69 @@ def fit_quantile(X: np.ndarray, y: np.ndarray, q: float = QUANTILE) -> np.ndarra
     return b
 
 
+FOLDS = 5
+
+
+def _subsample(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """At most MAX_FIT_ROWS rows, evenly spaced (deterministic)."""
+    if len(y) <= MAX_FIT_ROWS:
+        return X, y
+    idx = np.linspace(0, len(y) - 1, MAX_FIT_ROWS).astype(int)
+    return X[idx], y[idx]
+
+
+def _group_conformal_shift(X: np.ndarray, y: np.ndarray, groups: np.ndarray, q: float) -> float:
+    """The q-quantile of out-of-fold residuals y - X b, folds made of whole groups (FOLDS, or
+    one per group when fewer); 0 when there are fewer than two groups."""
+    ug = np.unique(groups)
+    if len(ug) < 2:
+        return 0.0
+    fold_of = dict(zip(ug.tolist(), np.random.default_rng(0).permutation(len(ug)) % min(FOLDS, len(ug))))
+    fold = np.array([fold_of[g] for g in groups.tolist()])
+    scores = []
+    for k in np.unique(fold):
+        test = fold == k
+        b = fit_quantile(*_subsample(X[~test], y[~test]), q)
+        scores.append(y[test] - X[test] @ b)
+    s = np.concatenate(scores)
+    return float(np.quantile(s, min(1.0, q * (len(s) + 1) / len(s))))
+
+
 @dataclass
 class StageModel:
-    """One stage (views or poses): features, and per class (and "*" pooled) coefficients."""
+    """One stage (views or poses): features, and per class (and "*" pooled) coefficients b,
+    the feature ranges of the fit (lo, hi) and the largest log error fitted (y_max)."""
 
     features: list[str]
     coef: dict[str, list[float]] = field(default_factory=dict)
     n_rows: dict[str, int] = field(default_factory=dict)
+    lo: dict[str, list[float]] = field(default_factory=dict)
+    hi: dict[str, list[float]] = field(default_factory=dict)
+    y_max: dict[str, float] = field(default_factory=dict)
 
     def predict(self, cls: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """r90 (N,) metres for rows of classes cls (N,) with features X (N, k)."""
+        """r90 (N,) metres for rows of classes cls (N,) with features X (N, k): features
+        clipped to the fit's range, the result to [FLOOR_M, 2 x the largest fitted error]."""
         out = np.full(len(X), np.nan)
-        pooled = np.asarray(self.coef["*"])
         for c in np.unique(cls):
             sel = cls == c
-            b = np.asarray(self.coef.get(str(c), pooled))
-            out[sel] = np.exp(X[sel] @ b)
+            k = str(c) if str(c) in self.coef else "*"
+            Xc = np.clip(X[sel], self.lo[k], self.hi[k])
+            y = np.minimum(Xc @ np.asarray(self.coef[k]), self.y_max[k] + math.log(2.0))
+            out[sel] = np.maximum(np.exp(y), FLOOR_M)
         return out
 
     @classmethod
     def fit(cls_, features: list[str], cls: np.ndarray, X: np.ndarray, err: np.ndarray,
-            q: float = QUANTILE) -> "StageModel":
+            groups: np.ndarray | None = None, q: float = QUANTILE) -> "StageModel":
+        """Per class (and pooled), the q-quantile regression of log(error) on X, then shifted
+        up by conformal calibration over ``groups`` (road users: a road user's errors are
+        alike, so a new road user is what the bar must cover): each fold of road users is
+        predicted by a fit on the others, and the intercept moves by the q-quantile of the
+        out-of-fold log(error / bar)."""
         ok = np.isfinite(err) & np.isfinite(X).all(axis=1)
-        cls, X, y = cls[ok], X[ok], np.log(np.maximum(err[ok], FLOOR_M))
+        groups = np.arange(len(err)) if groups is None else np.asarray(groups)
+        cls, X, y, groups = cls[ok], X[ok], np.log(np.maximum(err[ok], FLOOR_M)), groups[ok]
         if not len(y):
             raise InputError("no rows with a known error to calibrate r90_m on (does the run "
                              "share track ids and frames with the ground truth?)")
@@ -130,28 +182,42 @@ class StageModel:
             if name != "*" and len(idx) < MIN_ROWS:
                 continue
             if name != "*" and len(idx) == len(y):  # the only class: the pooled model is its own
-                m.coef[name], m.n_rows[name] = list(m.coef["*"]), int(len(idx))
+                for d in (m.coef, m.n_rows, m.lo, m.hi, m.y_max):
+                    d[name] = d["*"]
                 continue
-            if len(idx) > MAX_FIT_ROWS:  # an even subsample, deterministic
-                idx = idx[np.linspace(0, len(idx) - 1, MAX_FIT_ROWS).astype(int)]
-            m.coef[name] = [float(v) for v in fit_quantile(X[idx], y[idx], q)]
+            b = fit_quantile(*_subsample(X[idx], y[idx]), q)
+            shift = _group_conformal_shift(X[idx], y[idx], groups[idx], q)
+            b[0] += shift
+            m.coef[name] = [float(v) for v in b]
             m.n_rows[name] = int(sel.sum())
+            m.lo[name] = [float(v) for v in X[sel].min(axis=0)]
+            m.hi[name] = [float(v) for v in X[sel].max(axis=0)]
+            m.y_max[name] = float(y[sel].max() + max(shift, 0.0))
         return m
 
     def to_dict(self) -> dict:
-        return {"features": self.features, "coef": self.coef, "n_rows": self.n_rows}
+        return {"features": self.features, "coef": self.coef, "n_rows": self.n_rows,
+                "lo": self.lo, "hi": self.hi, "y_max": self.y_max}
 
     @classmethod
     def from_dict(cls, d: dict, features: list[str], where: str) -> "StageModel":
         if d.get("features") != features or "*" not in d.get("coef", {}):
             raise InputError(f"expected features {features} and a pooled ('*') model", field=where)
-        for k, b in d["coef"].items():
-            if not (isinstance(b, list) and len(b) == len(features)
-                    and all(isinstance(v, (int, float)) and math.isfinite(v) for v in b)):
-                raise InputError(f"class {k!r}: expected {len(features)} finite coefficients",
-                                 field=where)
-        return cls(list(features), {k: [float(v) for v in b] for k, b in d["coef"].items()},
-                   dict(d.get("n_rows", {})))
+        def vec(v) -> bool:
+            return (isinstance(v, list) and len(v) == len(features)
+                    and all(isinstance(x, (int, float)) and math.isfinite(x) for x in v))
+
+        for k in d["coef"]:
+            if not all(vec((d.get(key) or {}).get(k)) for key in ("coef", "lo", "hi")) or not (
+                    isinstance((d.get("y_max") or {}).get(k), (int, float))):
+                raise InputError(f"class {k!r}: expected {len(features)} finite coefficients, "
+                                 "feature ranges lo and hi, and y_max", field=where)
+        return cls(list(features), *({k: [float(v) for v in b] for k, b in d[key].items()}
+                                     for key in ("coef",)),
+                   dict(d.get("n_rows", {})),
+                   {k: [float(v) for v in d["lo"][k]] for k in d["coef"]},
+                   {k: [float(v) for v in d["hi"][k]] for k in d["coef"]},
+                   {k: float(d["y_max"][k]) for k in d["coef"]})
 
 
 @dataclass
@@ -233,13 +299,13 @@ def fit_calibration(scene, views, pose_keys, pose_est, pose_cls, pose_X, gt, met
     hit = (vi >= 0) & (views.track_id >= 0)
     v_err[hit] = np.linalg.norm(est[hit] - gt.xyz[vi[hit], :2], axis=1)
     Xv = views_matrix(scene, views)
-    view = StageModel.fit(VIEW_FEATURES, views.cls, Xv, v_err)
+    view = StageModel.fit(VIEW_FEATURES, views.cls, Xv, v_err, views.track_id)
     r_v = view.predict(views.cls, Xv)
     pi = np.array([g_index.get((int(f), int(t)), -1) if t >= 0 else -1 for f, t in pose_keys])
     p_err = np.full(len(pi), np.nan)
     p_err[pi >= 0] = np.linalg.norm(pose_est[pi >= 0] - gt.xyz[pi[pi >= 0], :2], axis=1)
     Xp = pose_X(r_v)
-    pose = StageModel.fit(POSE_FEATURES, pose_cls, Xp, p_err)
+    pose = StageModel.fit(POSE_FEATURES, pose_cls, Xp, p_err, pose_keys[:, 1])
     r_p = pose.predict(pose_cls, Xp)
     fit_cov = {"views": float(np.mean(v_err[hit] <= r_v[hit])),
                "poses": float(np.mean(p_err[pi >= 0] <= r_p[pi >= 0]))}
@@ -303,7 +369,8 @@ def calibrate_run(scene, run_dir: str | Path, out: str | Path | None = None,
     est_stack = g.stack((views.normal[:, :2] + views.residual)[g.keep])
 
     def pose_X(r_view: np.ndarray) -> np.ndarray:
-        return pose_features(est_stack, g.stack(r_view[g.keep]))[order]
+        return pose_features(est_stack[:, order], g.stack(r_view[g.keep])[:, order],
+                             poses.heading, scene.rig.center[:2])
 
     cal, cov = fit_calibration(
         scene, views, np.column_stack([poses.frame, poses.track_id]), poses.xyz[:, :2], poses.cls,
