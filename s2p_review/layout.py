@@ -109,12 +109,13 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
               fps: float | None = None, error_max: float | None = None,
-              timeline: str = TIMELINE):
+              timeline: str = TIMELINE, more_views=()):
     """The 3D world over the error plots (one per run, side by side, so that every series and
     its legend entry shows) on the left; one 2D view per camera on the right. eye: (position,
     look target) of the 3D view, metres (see ``default_eye``); fps: frames per second, so that
     playback runs in real time; error_max: the top of the error plots' common y axis, metres;
-    timeline: the timeline the time panel opens on."""
+    timeline: the timeline the time panel opens on; more_views: more views, in a row under the
+    world (e.g. ``s2p_review.conflicts.views()``)."""
     import rerun.blueprint as rrb
 
     cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
@@ -133,6 +134,8 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     # width of a half screen better stacked than side by side), a grid beyond three
     left = (rrb.Vertical(world, rrb.Horizontal(*plots), row_shares=[3, 1])
             if with_metrics and plots else world)
+    if more_views:
+        left = rrb.Vertical(left, rrb.Horizontal(*more_views), row_shares=[3, 1])
     if not cams:
         body = left
     else:

@@ -76,7 +76,8 @@ class ExportOptions:
     masks); image_scale: the size images are shown at, relative to the camera's (calibration
     and annotations follow; the mono16 masks stay full size); jpeg_quality: of video and
     display images; layout: write the Foxglove layout beside the file; attachments: more files
-    to carry, name -> bytes (e.g. an annotation journal, see ``annotated_mcap``)."""
+    to carry, name -> bytes (e.g. an annotation journal, see ``annotated_mcap``); conflicts:
+    a conflicts.csv (``s2p conflicts``) exported as events (``s2p_review.conflicts``)."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
@@ -88,6 +89,7 @@ class ExportOptions:
     jpeg_quality: int = 75
     layout: bool = True
     attachments: dict[str, bytes] | None = None
+    conflicts: Path | None = None  # a conflicts.csv: its rows as events on /s2p/conflicts
 
 
 @dataclass(frozen=True)
@@ -269,6 +271,11 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     psz = C.sizes_of(poses, scene)
     gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last)) if scene.gt_path.exists() else None
     t0 = tb.ns1(sel.first)
+    events = []
+    if opts.conflicts is not None:
+        from s2p_review import conflicts as CF
+
+        events = CF.mcap_items(CF.read_conflicts(opts.conflicts), tb, sel.first, sel.last)
     with replacing(out_path, force, folder=False) as tmp, open(tmp, "wb") as f:
         out = _Writer(f)
         out.pb.add_attachment(create_time=0, log_time=t0, name=SCENE_FILE, media_type=MEDIA_JSON,
@@ -290,7 +297,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
             "poses_with_size": str(run.poses.size is not None).lower(), "mask_pixel": MASK_PIXEL})
         streams = [_static_stream(scene, sel.cameras, t0, opts.image_scale),
                    _record_stream(run, sel, tb), _error_stream(tb, poses, gt),
-                   _road_user_stream(scene, sel, tb, poses, psz, gt)]
+                   _road_user_stream(scene, sel, tb, poses, psz, gt), iter(events)]
         streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
                     for k, name in enumerate(sel.cameras)]
         for ns, _rank, topic, payload in heapq.merge(*streams, key=lambda m: (m[0], m[1])):

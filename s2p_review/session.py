@@ -24,7 +24,8 @@ class RecordOptions:
     the runs' cameras, or all; mask_every / video_every: log masks / video every k-th frame
     only (a viewer shows the latest one, so a smaller file costs some lag; None = automatic,
     see ``selection.resolve_cadence``); style: the look (``recording.LogStyle``); start_ns: UTC
-    time of frame 0 in ns since the epoch (None: the scene's, when it has one)."""
+    time of frame 0 in ns since the epoch (None: the scene's, when it has one); conflicts:
+    a conflicts.csv to show with the first run's tracks (or the truth's without a run)."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
@@ -32,6 +33,7 @@ class RecordOptions:
     video_every: int | None = None
     style: LogStyle = field(default_factory=LogStyle)
     start_ns: int | None = None
+    conflicts: Path | None = None  # a conflicts.csv of the (first) run: see s2p_review.conflicts
 
 
 @dataclass(frozen=True)
@@ -103,10 +105,16 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
     sel = select(scene, runs, opts.frames, opts.cameras, opts.mask_every, opts.video_every,
                  style.masks, style.video)
     tb = scene_timebase(scene, opts.start_ns)
+    conflicts = None
+    if opts.conflicts is not None:
+        from s2p_review import conflicts as CF
+
+        conflicts = CF.read_conflicts(opts.conflicts)
     bp = L.blueprint(sel.cameras, [r.name for r in sel.runs],
                      with_metrics=scene.gt_path.exists() and bool(sel.runs),
                      eye=L.default_eye(scene), fps=scene.fps, error_max=_error_max(scene, sel),
-                     timeline=L.TIME if tb.start_ns is not None else L.TIMELINE)
+                     timeline=L.TIME if tb.start_ns is not None else L.TIMELINE,
+                     more_views=CF.views() if conflicts is not None else ())
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in sel.runs) if sel.runs else "scene")
     shot_viewer = None
@@ -130,6 +138,11 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
             rec.send_blueprint(bp, make_active=True, make_default=True)
             rec.send_recording_name(title)
             stats = log_all(rec, scene, sel, tb, style)
+            if conflicts is not None:
+                from seg2pose.io.poses import read_poses
+
+                poses = sel.runs[0].poses if sel.runs else read_poses(scene.gt_path)
+                CF.log_conflicts(rec, conflicts, poses, scene.fps, tb, sel.first, sel.last)
             rec.flush()
             return stats
 

@@ -119,6 +119,10 @@ class EvalResult:
     r90: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     match: str = "ids"        # how estimates were paired with the truth: ids | nearest
     match_note: str = ""      # why, when "auto" chose
+    # cross-camera id consistency (``id_consistency``): share of a road user's views in one frame
+    # carrying its majority id, over road-user frames seen by 2+ cameras; None: not measured
+    id_consistency: float | None = None
+    n_multi_view: int = 0     # those road-user frames
 
     @property
     def mean_heading_error_deg(self) -> float:
@@ -165,6 +169,8 @@ class EvalResult:
             "per_class": {k: num(v) for k, v in self.per_class.items()},
             "mean_heading_error_deg": num(self.mean_heading_error_deg),
             "match": self.match,
+            **({} if self.id_consistency is None else {
+                "id_consistency": num(self.id_consistency), "n_multi_view": int(self.n_multi_view)}),
             "bin_size": float(self.bin_size),
             "bins": [{"lo": float(lo), "hi": float(hi), "count": int(c), "mean_error": num(m)}
                      for lo, hi, c, m in self.bins],
@@ -220,6 +226,36 @@ def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZ
                       r90=est.r90[ie] if est.r90 is not None else np.full(len(ie), np.nan))
 
 
+def id_consistency(frame: np.ndarray, camera: np.ndarray, track_id: np.ndarray, xy: np.ndarray,
+                   gt: PoseTable, gate: float = 3.0) -> tuple[float, int]:
+    """Cross-camera id consistency of per-view estimates: each camera's views (frame (V,),
+    camera (V,), track_id (V,), ground position xy (V, 2) metres) are paired with the truth per
+    frame (``match_nearest``); then, per true road user and frame seen by two or more cameras,
+    the share of its views that carry its most frequent estimated id. Returns (share over all
+    those views, number of such road-user frames); NaN and 0 without any."""
+    gi, ti = [], []
+    for c in np.unique(camera):
+        sel = np.flatnonzero(camera == c)
+        est = PoseTable(frame[sel], track_id[sel], np.full(len(sel), "", object),
+                        np.column_stack([xy[sel], np.zeros(len(sel))]), np.full(len(sel), np.nan))
+        ie, ig = match_nearest(est, gt, gate)
+        gi.append(ig)
+        ti.append(track_id[sel][ie])
+    if not gi:
+        return float("nan"), 0
+    ig, tid = np.concatenate(gi), np.concatenate(ti)
+    # groups: (true road user, frame) = one gt row
+    rows, n_views = np.unique(ig, return_counts=True)
+    multi = rows[n_views >= 2]
+    sel = np.isin(ig, multi)
+    if not sel.any():
+        return float("nan"), 0
+    pairs, n = np.unique(np.stack([ig[sel], tid[sel]], axis=1), axis=0, return_counts=True)
+    top = np.zeros(int(pairs[:, 0].max()) + 1, np.int64)
+    np.maximum.at(top, pairs[:, 0], n)
+    return float(top[multi].sum() / sel.sum()), int(len(multi))
+
+
 def per_frame_errors(est: PoseTable, gt: PoseTable
                      ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Per-frame mean ground-plane error, for review plots.
@@ -271,6 +307,10 @@ def format_table(results: dict[str, EvalResult]) -> str:
                          for j, c in enumerate(cells)).rstrip()
 
     out = [line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]
+    for name, r in results.items():
+        if r.id_consistency is not None:
+            out.append(f"{name}: cross-camera id consistency {_fmt(r.id_consistency)} "
+                       f"({r.n_multi_view} road-user frames seen by 2+ cameras)")
     return "\n".join(out) + "\n"
 
 

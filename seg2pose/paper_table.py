@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from seg2pose.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import Scene
@@ -29,8 +31,21 @@ def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
     classes = [c.name for c in scene.classes]
     est = read_run_poses(run_dir, known_classes=classes)
     gt = read_poses(scene.gt_path, known_classes=classes)
-    return evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split),
-                    match=match, gate=gate)
+    res = evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split),
+                   match=match, gate=gate)
+    views_path = run_dir / "views.csv"
+    if res.match == "nearest" and views_path.exists():  # video input: ids of trackers
+        from seg2pose.evaluate import id_consistency
+        from seg2pose.io.run import read_views
+
+        v = read_views(views_path)
+        fr = scene.split_range(split)
+        keep = np.ones(len(v.frame), bool) if fr is None else (v.frame >= fr[0]) & (v.frame <= fr[1])
+        if len(np.unique(v.camera[keep])) > 1:
+            xy = v.normal[:, :2] + v.residual
+            res.id_consistency, res.n_multi_view = id_consistency(
+                v.frame[keep], v.camera[keep], v.track_id[keep], xy[keep], gt, gate)
+    return res
 
 
 def check_run_of_scene(run_dir: Path, scene: Scene) -> dict:

@@ -203,10 +203,16 @@ class ViewGroups:
         return np.where(self.keys[:, 1] < 0, -1, self.keys[:, 1])
 
 
-def fuse(views: ViewTable, scene: Scene, smooth: int = 0, r90=None) -> PoseTable:
+def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
+         config_cameras: list[str] | None = None, r90=None) -> PoseTable:
     """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
     z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
     sizes from the class. Detections without a track id (-1) are not fused with anything.
+
+    ``confirm`` > 0 (several cameras ``config_cameras`` with associated ids): a pose is kept only when
+    at least this share of the cameras whose image holds its place reported it
+    (``seen_share``): a blob one lens reports where the others see nothing is a false
+    detection more often than not (docs/RESULTS.md, "Multi-camera association").
 
     ``smooth`` > 0: each tracked road user's fused (x, y) replaced by a line fitted to its
     positions within ``smooth`` frames either side (``seg2pose.smoothing``; centred, so no lag
@@ -221,7 +227,13 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, r90=None) -> PoseTable
     stack = g.stack((views.normal[:, :2] + views.residual)[g.keep])
     cls = views.cls[g.keep]
     xy = fuse_views(stack)
-    out_tid = g.track_id
+    out_cls = cls[first]
+    kept = np.ones(len(ukeys), bool)
+    if confirm > 0 and config_cameras and len(config_cameras) > 1:
+        n_views = np.bincount(g.inv, minlength=len(ukeys))
+        kept = n_views >= confirm * seen_by(scene, config_cameras, xy, out_cls)
+        ukeys, xy, out_cls = ukeys[kept], xy[kept], out_cls[kept]
+    out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
     if smooth > 0:
         from seg2pose.smoothing import smooth_along_tracks
 
@@ -230,7 +242,6 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, r90=None) -> PoseTable
     heading = np.full(len(ukeys), np.nan)
     tracked = out_tid >= 0
     heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
-    out_cls = cls[first]
     sizes = scene.class_sizes()
     size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
     pose_r90 = None
@@ -238,10 +249,28 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, r90=None) -> PoseTable
         from seg2pose.uncertainty import pose_features
 
         pose_r90 = r90.pose.predict(out_cls, pose_features(
-            stack, g.stack(views.r90[g.keep]), heading, scene.rig.center[:2]))
+            stack[:, kept], g.stack(views.r90[g.keep])[:, kept], heading, scene.rig.center[:2]))
     table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size,
                       r90=pose_r90)
     return table.sorted()
+
+
+def seen_by(scene: Scene, cams: list[str], xy: np.ndarray, cls: np.ndarray,
+            margin: float = 0.02) -> np.ndarray:
+    """(N,) how many of ``cams`` have the place xy (N, 2) metres of a road user of class
+    ``cls`` (N,) in their image: its centre (the class's default height above the ground)
+    in front of the camera and at least ``margin`` of the image size inside the border."""
+    h = scene.default_heights()
+    X = np.column_stack([xy, scene.ground.height(xy) + np.array([h.get(str(c), 0.8) for c in cls])])
+    n = np.zeros(len(xy), np.int64)
+    for c in cams:
+        cam = scene.cameras[c]
+        uv, _, front = cam.project_points(X)
+        mx, my = margin * cam.width, margin * cam.height
+        with np.errstate(invalid="ignore"):
+            n += front & (uv[:, 0] >= mx) & (uv[:, 0] < cam.width - mx) & (uv[:, 1] >= my) \
+                & (uv[:, 1] < cam.height - my)
+    return n
 
 
 def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
@@ -316,10 +345,13 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
               config: str | None, models: ModelSet | None, split: str | None,
               center_method: str, n_frames: int, force: bool = False, smooth: int = 0,
-              far: FarResiduals | None = None, r90_path: Path | None = None) -> Path:
+              far: FarResiduals | None = None, track_ids: dict | None = None,
+              confirm: float = 0.0, r90_path: Path | None = None) -> Path:
     """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
-    views.csv, run.json, and flagged.csv when the residuals were checked). ``r90_path``: the
-    error bars' calibration (``seg2pose.uncertainty``; None: r90_m stays NaN)."""
+    views.csv, run.json, and flagged.csv when the residuals were checked). ``track_ids``: how
+    the ids were made (``check_track_ids``), recorded in run.json; ``confirm``: see ``fuse``;
+    ``r90_path``: the error bars' calibration (``seg2pose.uncertainty``; None: r90_m stays
+    NaN)."""
     run_dir = Path(run_dir)
     cal, r90_meta = None, {"calibration": None}
     if r90_path is not None and views.cues is not None:
@@ -337,10 +369,12 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
         views.r90 = view_r90(cal, scene, views)
         r90_meta = {"calibration": relative_path(r90_path, run_dir),
                     "sha256": file_sha256(r90_path)}
-    poses = fuse(views, scene, smooth, cal)
+    poses = fuse(views, scene, smooth, confirm, cams, r90=cal)
     if poses.r90 is None and views.cues is not None:
         poses.r90 = np.full(len(poses), np.nan)  # the column is always there; NaN: no calibration
     meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
+            **({"track_ids": track_ids} if track_ids else {}),
+            **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses), "r90": r90_meta}
     extra = {}
     if far is not None and models is not None:
@@ -350,12 +384,37 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
     return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
 
 
+# share of the cameras seeing a road user's place that must report it (runs of associated ids);
+# chosen on seeds 101-102 (docs/RESULTS.md, "Multi-camera association")
+CONFIRM_SHARE = 0.5
+
+
+def check_track_ids(scene: Scene, cams: list[str], fuse_unassociated: bool = False) -> dict:
+    """How the track ids of ``cams`` were made (``seg2pose.io.track_ids``), for run.json.
+    Refuses to fuse several cameras whose ids are each camera's own tracker's: late fusion
+    would average different road users that happen to share a number."""
+    from seg2pose.io.track_ids import ids_status
+
+    masks_dir = scene.masks_path(cams[0]).parent
+    source = scene.extra.get("source") if isinstance(scene.extra.get("source"), dict) else {}
+    kind, why = ids_status(masks_dir, cams, from_video=source.get("format") == "video")
+    if kind == "unassociated" and len(cams) > 1:
+        if not fuse_unassociated:
+            raise InputError(f"the track ids of cameras {', '.join(cams)} are not associated across "
+                             f"cameras ({why}); fusing them would average different road users "
+                             f"that share a number. Run `s2p associate {scene.root}` first (or "
+                             "pass --fuse-unassociated to fuse them anyway)", file=masks_dir)
+        return {"ids": "unassociated", "fused_anyway": True, "why": why}
+    return {"ids": kind, "why": why}
+
+
 def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
               baseline: bool = False, models_dir: str | Path | None = None,
               split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
               arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
               progress: bool = True, allow_incomplete: bool = False, smooth: int = 0,
-              far_residuals: str = "warn", r90: str | Path | None = None) -> Path:
+              far_residuals: str = "warn", fuse_unassociated: bool = False,
+              confirm: float | None = None, r90: str | Path | None = None) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
 
     config: a configuration of the rig (None = all cameras); baseline: normal positions only;
@@ -364,11 +423,16 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     checkpoints whose training did not finish (refused otherwise); smooth: fused positions
     smoothed along each track over this many frames either side (0: not; see ``fuse``);
     far_residuals: what to do with residuals longer than the model was trained on
-    (``FarResiduals``: warn, fallback, off); r90: the error bars' calibration (None: the
-    default one, ``default_r90_path``, where it exists)."""
+    (``FarResiduals``: warn, fallback, off); fuse_unassociated: fuse cameras whose ids were
+    never associated (``check_track_ids`` refuses otherwise); confirm: see ``fuse`` (default
+    ``CONFIRM_SHARE`` for cameras whose ids were associated, else 0: off); r90: the error bars'
+    calibration (None: the default one, ``default_r90_path``, where it exists)."""
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
+    track_ids = check_track_ids(scene, cams, fuse_unassociated)
+    if confirm is None:
+        confirm = CONFIRM_SHARE if track_ids["ids"] == "associated" else 0.0
     frame_range = scene.split_range(split)
     models = None
     if not baseline:
@@ -382,8 +446,8 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     views, nframes = compute_views(scene, cams, frame_range, models, center_method,
                                    chunk_frames, progress, far=far)
     return write_run(scene, run_dir, views, cams, config, models, split, center_method,
-                     nframes, force=force, smooth=smooth, far=far,
-                     r90_path=r90_path if r90_path.is_file() else None)
+                     nframes, force=force, smooth=smooth, far=far, track_ids=track_ids,
+                     confirm=confirm, r90_path=r90_path if r90_path.is_file() else None)
 
 
 R90_FILE = "r90.json"

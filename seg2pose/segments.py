@@ -52,7 +52,7 @@ from seg2pose.io.video import image_files
 from seg2pose.masks import iou
 from seg2pose.track import TrackConfig, track_mots
 from seg2pose.video_masks import BgConfig, masks_from_video
-from seg2pose.video_scene import camera_reader, scene_masks_from_video
+from seg2pose.video_scene import associate_step, camera_reader, scene_masks_from_video
 
 SEGMENTS_DIR = "batch/segments"
 LINK_IOU = 0.5  # masks of the two segments in an overlap frame are the same road user above this
@@ -365,7 +365,8 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
     out = {}
     for c, segs in plans.items():
         if len(segs) <= 1:
-            r = scene_masks_from_video(scene.root, [c], force=force, progress=progress, log=log)[c]
+            r = scene_masks_from_video(scene.root, [c], force=force, progress=progress,
+                                       associate=False, log=log)[c]
             out[c] = {"frames": r.n_frames, "masks": r.n_masks, "segments": 1, "seams": []}
             continue
         list((map_segments or map)(lambda s: run_segment(scene.root, s, log), segs))
@@ -380,4 +381,6 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
             f"{sum(x['id_changes'] for x in info['seams'])} id changes, "
             f"{sum(x['unlinked'] for x in info['seams'])} tracks not continued")
         out[c] = info
+    associate_step(scene, [c for c, segs in plans.items() if len(segs) > 1], False, log)
+    associate_step(scene, [], True, log)
     return out

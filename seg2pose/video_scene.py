@@ -19,6 +19,7 @@ from seg2pose.detections import DetectionConfig, import_detections
 from seg2pose.errors import InputError
 from seg2pose.io.atomic import check_writable
 from seg2pose.io.mots import write_mots
+from seg2pose.io.track_ids import mark_ids
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
 from seg2pose.io.text import load_json, read_text
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
@@ -35,14 +36,32 @@ def _cameras(scene: Scene, cameras: list[str] | None) -> list[str]:
     return names
 
 
+def associate_step(scene: Scene, tracked: list[str], associate: bool, log: Callable[[str], None]
+                   ) -> None:
+    """After a camera's tracker wrote ids: record them as the tracker's (masks/ids.json) and,
+    when ``associate`` and two or more cameras have masks, associate all cameras' ids."""
+    if tracked:
+        mark_ids(scene.masks_path(tracked[0]).parent, {c: "tracker" for c in tracked})
+    if not associate:
+        return
+    with_masks = [c for c in scene.cameras if scene.masks_path(c).exists()]
+    if associate and len(with_masks) > 1:
+        from seg2pose.video.associate_scene import associate_scene
+
+        associate_scene(scene.root, with_masks, force=True, log=log)
+
+
 def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = None, *,
                            bg: dict | None = None, tracker: dict | None = None,
                            track: bool = True, classify: bool = True, force: bool = False,
                            frames: tuple[int, int] | None = None, progress: bool = False,
+                           associate: bool = True,
                            log: Callable[[str], None] = print) -> dict[str, VideoMasksResult]:
     """masks/<camera>.txt from each camera's video: background subtraction, then the tracker
-    and size classes. Settings: ``scene.json`` ``extra.video_masks`` / ``extra.tracker`` /
-    ``extra.size_classes``, overridden by ``bg`` / ``tracker``."""
+    and size classes, then (``associate``, with two or more cameras) one id per road user over
+    the cameras (``s2p associate``). Settings: ``scene.json`` ``extra.video_masks`` /
+    ``extra.tracker`` / ``extra.size_classes`` / ``extra.associate``, overridden by ``bg`` /
+    ``tracker``."""
     scene = load_scene(scene_dir)
     sj = scene.root / SCENE_FILE
     cfg = BgConfig.from_dict({**(scene.extra.get("video_masks") or {}), **(bg or {})}, file=sj)
@@ -72,13 +91,16 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
             msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
         log(msg)
         out[c] = res
+    associate_step(scene, names if track else [], associate and track, log)
     return out
 
 
 def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
                 tracker: dict | None = None, classify: bool = False, force: bool = True,
-                progress: bool = False, log: Callable[[str], None] = print) -> dict[str, int]:
-    """Track ids for masks/<camera>.txt in place (and size classes for masks without one)."""
+                progress: bool = False, associate: bool = True,
+                log: Callable[[str], None] = print) -> dict[str, int]:
+    """Track ids for masks/<camera>.txt in place (and size classes for masks without one),
+    then (``associate``) one id per road user over the cameras."""
     scene = load_scene(scene_dir)
     sj = scene.root / SCENE_FILE
     tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})}, file=sj)
@@ -94,15 +116,17 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
                           size_rules(scene.classes, scene.extra, file=sj), fps=scene.fps, log=log)
         log(f"{c}: {n} tracks, {kept} masks")
         out[c] = n
+    associate_step(scene, list(out), associate, log)
     return out
 
 
 def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path, *,
                             cfg: DetectionConfig | None = None, tracker: dict | None = None,
-                            frame_offset: int = 0, force: bool = False,
+                            frame_offset: int = 0, force: bool = False, associate: bool = True,
                             log: Callable[[str], None] = print) -> int:
     """masks/<camera>.txt from a detector's COCO JSON: threshold, NMS, classes, bicyclists,
-    then the tracker when the file has no track ids. Returns the masks written."""
+    then the tracker when the file has no track ids, then (``associate``, when other cameras
+    have masks too) one id per road user over the cameras. Returns the masks written."""
     scene = load_scene(scene_dir)
     _cameras(scene, [camera])
     dst = check_writable(scene.masks_path(camera), force)
@@ -123,8 +147,11 @@ def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path
                                      file=scene.root / SCENE_FILE)
         n, kept = track_mots(dst, dst, cam, scene.ground, tcfg, log=log)
         log(f"{camera}: tracked into {n} tracks ({kept} masks)")
-        return kept
-    return len(table)
+    else:
+        kept = len(table)
+    # a detector's own track ids are per camera too
+    associate_step(scene, [camera], associate, log)
+    return kept
 
 
 # --- new scene ------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@
 One module per family of commands, each with ``register(app)``; they are imported and
 registered here by name, so a reader (and any tool) sees what depends on what. ``s2p --help``
 groups the commands in panels (``seg2pose.cli.common``): scene, method, review, annotation,
-batch.
+batch, safety.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ def _root() -> None:
 from seg2pose.cli import annotation, demo, method, review, scene  # noqa: E402  (after app exists)
 from seg2pose.cli import video  # noqa: E402
 from seg2pose.cli import batch  # noqa: E402
+from seg2pose.cli import safety  # noqa: E402
 
 scene.register(app)
 video.register(app)
@@ -42,6 +43,7 @@ review.register(app)
 demo.register(app)
 annotation.register(app)
 batch.register(app)
+safety.register(app)
 
 INTERRUPTED = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 

@@ -14,6 +14,7 @@ METHOD = "Method"
 REVIEW = "Review"
 ANNOTATION = "Annotation"
 BATCH = "Batch"
+SAFETY = "Safety"
 
 
 def parse_frames(text: str | None) -> tuple[int, int] | None:

@@ -47,6 +47,8 @@ def run_cmd(
     far_residuals: Literal["warn", "fallback", "off"] = typer.Option("warn", "--far-residuals", help="when the network moves a position further than it ever did in training (99th percentile of its training residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for them) or off"),
     r90: Optional[Path] = typer.Option(None, "--r90", help="calibration of the error bars r90_m (made by s2p calibrate; default: MODELS/r90.json, or SCENE/r90-baseline.json for --baseline, where it exists; without one r90_m is nan)"),
     force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
+    confirm: Optional[float] = typer.Option(None, "--confirm", min=0.0, max=1.0, help="keep a fused pose only when at least this share of the configuration's cameras that see its place report it (default 0.5 for associated ids, else 0: off)"),
+    fuse_unassociated: bool = typer.Option(False, "--fuse-unassociated", help="fuse cameras whose track ids are each camera's own tracker's (refused otherwise: run s2p associate first)"),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
 
@@ -62,7 +64,7 @@ def run_cmd(
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
                   allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals,
-                  r90=r90)
+                  fuse_unassociated=fuse_unassociated, confirm=confirm, r90=r90)
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")

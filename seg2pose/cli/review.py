@@ -57,6 +57,7 @@ def register(app: typer.Typer) -> None:
         start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
         image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
         force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
+        conflicts: Path | None = typer.Option(None, "--conflicts", help="conflicts.csv of the (first) run (made by `s2p conflicts`): events, highlighted pairs, TTC and distance plots"),
     ) -> None:
         """Review a scene and its runs in the Rerun viewer.
 
@@ -75,7 +76,7 @@ def register(app: typer.Typer) -> None:
                              mask_every=mask_every, video_every=video_every,
                              style=LogStyle(masks=masks, video=video,
                                             image_scale=image_scale),
-                             start_ns=_start_ns(start_time))
+                             start_ns=_start_ns(start_time), conflicts=conflicts)
         res = record(load_scene(scene), list(run), to, opts)
         _notes(res.notes)
         if res.rrd is not None:
@@ -96,6 +97,7 @@ def register(app: typer.Typer) -> None:
         start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
         image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
         force: bool = typer.Option(False, "--force", help="overwrite an existing file and its layout"),
+        conflicts: Path | None = typer.Option(None, "--conflicts", help="conflicts.csv of the run (made by `s2p conflicts`): exported as events on /s2p/conflicts"),
     ) -> None:
         """Export a scene and a run as MCAP, for Foxglove and archives.
 
@@ -106,7 +108,8 @@ def register(app: typer.Typer) -> None:
 
         res = export_mcap(load_scene(scene), run, out, ExportOptions(
             frames=parse_frames(frames), mask_every=mask_every, video_every=video_every,
-            video=video, start_ns=_start_ns(start_time), image_scale=image_scale), force=force)
+            video=video, start_ns=_start_ns(start_time), image_scale=image_scale,
+            conflicts=conflicts), force=force)
         _notes(res.notes)
         p = res.path
         typer.echo(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB) and its Foxglove layout {res.layout}; "

@@ -84,17 +84,20 @@ def register(app: typer.Typer) -> None:
         frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
         force: bool = typer.Option(False, "--force", help="replace existing masks/<camera>.txt"),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
+        associate: bool = typer.Option(True, "--associate/--no-associate",
+                                       help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
     ) -> None:
         """Instance masks from a static camera's video by background subtraction.
 
         OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks and
-        size classes, written to masks/<camera>.txt (MOTS). A truncated video keeps what was
-        read; a background that never settles is reported with its frames."""
+        size classes, written to masks/<camera>.txt (MOTS); with several cameras, their ids
+        associated (s2p associate). A truncated video keeps what was read; a background that
+        never settles is reported with its frames."""
         from seg2pose.video_scene import scene_masks_from_video
 
         scene_masks_from_video(scene, camera, bg=_pairs(setting, "--set"), track=track,
                                classify=classes, force=force, frames=parse_frames(frames),
-                               progress=progress, log=typer.echo)
+                               progress=progress, associate=associate, log=typer.echo)
 
     @app.command("track", rich_help_panel=SCENE)
     @speaks_flags
@@ -110,6 +113,8 @@ def register(app: typer.Typer) -> None:
         classes: bool = typer.Option(False, "--classes/--no-classes",
                                      help="also give masks without a class one from their track's world size"),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
+        associate: bool = typer.Option(True, "--associate/--no-associate",
+                                       help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
     ) -> None:
         """Give track ids to masks that have none.
 
@@ -119,7 +124,31 @@ def register(app: typer.Typer) -> None:
         from seg2pose.video_scene import scene_track
 
         scene_track(scene, camera, tracker=_pairs(setting, "--set"), classify=classes,
-                    progress=progress, log=typer.echo)
+                    progress=progress, associate=associate, log=typer.echo)
+
+    @app.command("associate", rich_help_panel=SCENE)
+    @speaks_flags
+    def associate_cmd(
+        scene: Path = typer.Argument(..., help="scene folder with masks/<camera>.txt of several cameras"),
+        camera: Optional[List[str]] = typer.Option(None, "--camera", help="only these cameras (repeatable; default all)"),
+        setting: List[str] = typer.Option([], "--set",
+                                          help="an association setting KEY=VALUE (repeatable), over "
+                                               "scene.json extra.associate: gate_m, height_sd, "
+                                               "gate_sigmas, track_weight, class_cost, min_run, "
+                                               "min_votes, split_blobs (true|false)"),
+        force: bool = typer.Option(False, "--force", help="associate masks that are associated already"),
+    ) -> None:
+        """Give one road user the same track id in every camera.
+
+        Each camera's tracker numbers its own tracks; fusing cameras needs one id per road
+        user. Masks are paired across cameras by their normal positions on the ground (per
+        frame, Hungarian, gated by the default heights' uncertainty), tracks cut where one
+        camera's tracker swapped road users, and joined so that no camera sees one road user
+        twice; a blob that other cameras see as several road users is split. masks/ is
+        rewritten as a unit and masks/ids.json records that the ids are associated."""
+        from seg2pose.video.associate_scene import associate_scene
+
+        associate_scene(scene, camera, cfg=_pairs(setting, "--set"), force=force, log=typer.echo)
 
     @app.command("import-detections", rich_help_panel=SCENE)
     @speaks_flags
@@ -134,6 +163,8 @@ def register(app: typer.Typer) -> None:
         frame_offset: int = typer.Option(0, "--frame-offset",
                                          help="added to every frame number (e.g. -1 when image ids start at 1)"),
         force: bool = typer.Option(False, "--force", help="replace an existing masks/<camera>.txt"),
+        associate: bool = typer.Option(True, "--associate/--no-associate",
+                                       help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
     ) -> None:
         """Masks from a detector's COCO output (Mask R-CNN, Detectron2, YOLO-seg...).
 
@@ -144,5 +175,5 @@ def register(app: typer.Typer) -> None:
 
         cfg = DetectionConfig(score_min=score, nms_iou=nms, lone_bicycles=lone_bicycles)
         n = scene_import_detections(scene, camera, coco, cfg=cfg, frame_offset=frame_offset,
-                                    force=force, log=typer.echo)
+                                    force=force, associate=associate, log=typer.echo)
         typer.echo(f"wrote {n} masks to {Path(scene) / 'masks' / f'{camera}.txt'}")

@@ -1,0 +1,118 @@
+"""Safety commands: ``s2p conflicts`` (traffic conflicts and surrogate safety measures)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import typer
+
+from seg2pose.cli.common import SAFETY, speaks_flags
+from seg2pose.errors import InputError, S2PError
+
+
+def parse_r90(text: str | None) -> dict[str, float] | None:
+    """``car=1.2,pedestrian=0.6`` -> {class: metres}."""
+    if text is None:
+        return None
+    out = {}
+    for item in text.split(","):
+        name, sep, val = item.partition("=")
+        try:
+            v = float(val)
+            if not sep or not name.strip() or not (0 <= v <= 1000):
+                raise ValueError
+        except ValueError:
+            raise InputError(f"expected CLASS=METRES[,CLASS=METRES...], got {text!r}",
+                             field="--r90") from None
+        out[name.strip()] = v
+    return out
+
+
+def parse_clock(text: str | None) -> int:
+    if text is None:
+        return 0
+    from seg2pose.io.tanalyst import parse_time
+
+    try:
+        return parse_time(text)
+    except InputError:
+        raise InputError(f"expected HH:MM:SS.mmm, got {text!r}", field="--start") from None
+
+
+def register(app: typer.Typer) -> None:
+    @app.command(rich_help_panel=SAFETY)
+    @speaks_flags
+    def conflicts(
+        tracks: Path = typer.Argument(..., help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a T-Analyst tracks CSV"),
+        out: Path = typer.Option(..., "-o", "--out", help="output conflicts.csv"),
+        fps: float | None = typer.Option(None, "--fps", help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)"),
+        start: str | None = typer.Option(None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)"),
+        ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
+        pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
+        near_m: float = typer.Option(25.0, "--near", min=0.1, help="road users farther apart than this (metres, centre to centre) are not compared for TTC"),
+        window_s: float = typer.Option(0.5, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
+        centred: bool = typer.Option(False, "--centred/--trailing", help="fit the velocity over a window around each frame instead of the one before it"),
+        brake: float = typer.Option(3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)"),
+        swerve: float = typer.Option(3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2"),
+        all_pairs: bool = typer.Option(False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts"),
+        pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
+        draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
+        r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres, 90 %%); say where the figures come from"),
+        corr_s: float = typer.Option(1.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
+        seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
+    ) -> None:
+        """Find traffic conflicts in road-user tracks: TTC, PET, Time-to-Accident, speeds.
+
+        One row per pair of road users that came close (min TTC <= --ttc or PET <= --pet; all
+        of them with --all-pairs), with the type (rear-end, crossing, head-on, pedestrian,
+        bicyclist), MaxS, DeltaS, max deceleration and, where the poses carry r90_m (or --r90
+        gives it), 90 % intervals of min TTC and PET."""
+        import numpy as np
+
+        from seg2pose.io.atomic import atomic_write_text, check_writable, output_lock
+        from seg2pose.safety.conflicts import (ConflictOptions, INTERVAL_COLUMNS, analyse,
+                                               format_conflicts)
+        from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+        from seg2pose.safety.kinematics import MotionOptions
+        from seg2pose.safety.tracks import load_tracks
+        from seg2pose.say import say
+
+        check_writable(out, force)
+        table_r90 = parse_r90(r90)
+        t0 = time.perf_counter()
+        tr, notes = load_tracks(tracks, fps, parse_clock(start))
+        for n in notes:
+            say(n, "note")
+        if len(tr) == 0:
+            raise S2PError(f"{tracks}: no poses of tracked road users")
+        if table_r90 is not None:
+            missing = sorted(set(tr.cls.astype(str)) - set(table_r90))
+            if missing:
+                raise InputError(f"no error radius for classes {', '.join(missing)}", field="--r90")
+            per_class = np.array([table_r90[str(c)] for c in tr.cls], float)
+            tr.r90 = per_class if tr.r90 is None else np.where(np.isfinite(tr.r90), tr.r90, per_class)
+        say(f"{len(tr):,} poses of {len(np.unique(tr.track_id)):,} road users, "
+            f"{(tr.frame.max() - tr.frame.min() + 1) / tr.fps if len(tr) else 0:.0f} s at {tr.fps:g} fps")
+        opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, near_m=near_m, brake_mps2=brake,
+                               swerve_mps2=swerve, all_pairs=all_pairs,
+                               pedestrian_pairs=pedestrian_pairs,
+                               motion=MotionOptions(window_s=window_s, centred=centred))
+        table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
+        n_conf = int(table.columns["conflict"].sum())
+        if draws > 0 and tr.r90 is not None and len(table):
+            from tqdm import tqdm
+
+            iv = conflict_intervals(tr, table, opts, IntervalOptions(draws=draws, corr_s=corr_s, seed=seed),
+                                    progress=lambda it: tqdm(it, desc="intervals", unit="pair"))
+            table.columns.update({k: iv[k] for k in INTERVAL_COLUMNS})
+        elif draws > 0 and tr.r90 is None:
+            say("the poses carry no r90_m: no error intervals (give --r90 CLASS=METRES,... for "
+                "a per-class error radius)", "note")
+        with output_lock(out):
+            check_writable(out, force)
+            atomic_write_text(out, format_conflicts(table, tr.fps))
+        typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s or PET <= {pet_s:g} s)"
+                   + (f" among {len(table)} encounters" if all_pairs else "")
+                   + f" in {time.perf_counter() - t0:.1f} s")

@@ -1,0 +1,251 @@
+"""Post-encroachment time: the time from the first road user's footprint leaving a spot to
+the second one's entering it (SSAM: "the time between when the first vehicle last occupied a
+position and the second vehicle first occupied the same position").
+
+Found from the footprints at every frame: PET is the smallest time between a frame of one road
+user and a frame of the other whose footprints overlap (they occupied a common spot), then
+refined between frames: the first one's exit from the second's footprint and the second's entry
+into the first's, with each moving in a straight line between its frames. For two cars crossing
+at right angles this is exactly "rear leaves the shared square" to "front enters it".
+
+Only moving rows (speed >= ``moving_mps``) are searched: a road user that stands still
+occupies one spot for long and is the subject of TTC, not PET. Rows more than ``window_s``
+apart are never paired (PET above that is not reported).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from seg2pose.safety.encounters import near_pairs, pair_codes
+from seg2pose.safety.footprints import overlap_interval, overlaps, reach
+from seg2pose.safety.kinematics import Motion
+from seg2pose.safety.tracks import Tracks
+
+
+SIZE_GROUPS = np.array([1.0, 2.0, 3.0, 4.5])  # metres of reach + travel: the search's groups
+
+
+@dataclass(frozen=True)
+class PetOptions:
+    """window_s: largest PET looked for, seconds; moving_mps: rows slower than this are not
+    searched; sample_s: the coarse search's step (then refined at every frame)."""
+
+    window_s: float = 5.0
+    moving_mps: float = 0.5
+    sample_s: float = 0.1
+
+
+@dataclass
+class PetResult:
+    """K pairs of road users whose footprints occupied a common spot within ``window_s``:
+    track_a < track_b: (K,) ids; pet: (K,) seconds; first: (K,) the track id that was there
+    first; row_first, row_second: (K,) the rows (frames) of the closest pair of frames;
+    t_exit, t_enter: (K,) seconds, the refined exit of the first and entry of the second."""
+
+    track_a: np.ndarray
+    track_b: np.ndarray
+    pet: np.ndarray
+    first: np.ndarray
+    row_first: np.ndarray
+    row_second: np.ndarray
+    t_exit: np.ndarray
+    t_enter: np.ndarray
+
+
+def _pair_in(a: np.ndarray, b: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """(M,) whether (a, b) is one of ``pairs`` (K, 2) of track ids."""
+    ids, inv = np.unique(np.r_[a, b, pairs[:, 0], pairs[:, 1]], return_inverse=True)
+    M, K = len(a), len(pairs)
+    key = inv[:2 * M + 2 * K].reshape(-1)
+    n = np.int64(len(ids))
+    return np.isin(key[:M] * n + key[M:2 * M], key[2 * M:2 * M + K] * n + key[2 * M + K:])
+
+
+def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
+                     exclude: np.ndarray | None = None, chunk_s: float = 60.0) -> np.ndarray:
+    """(K, 2) for each pair of road users whose footprints overlapped at two frames at most
+    ``window_s`` apart: the pair of rows closest in time (first column the lower track id).
+    ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0).
+
+    Coarse to fine: rows every ``sample_s`` (moving ones only) are paired by the k-d tree with
+    footprints grown by the travel to the frames in between; then, per pair of road users,
+    only the coarse pairs closest in time are looked at frame by frame (a band of a few
+    samples, widened until the closest overlap is certain): two cars following each other
+    overlap at hundreds of pairs of frames, of which one is wanted."""
+    fps = tracks.fps
+    s = max(1, int(round(opts.sample_s * fps)))
+    h = s // 2  # every frame is within h of a sample (s = 1: the samples are all frames)
+    moving = mot.speed >= opts.moving_mps
+    sampled = np.flatnonzero(moving & (tracks.frame % s == 0))
+    travel = mot.speed * h / fps
+    span = reach(tracks.size) + travel
+    t = tracks.t
+    best = []
+    if len(sampled) < 2:
+        return np.zeros((0, 2), np.int64)
+    ts = t[sampled]
+    t0 = float(ts.min())
+    k = np.floor((ts - t0) / chunk_s).astype(np.int64)
+    for c in np.unique(k):
+        # this chunk, and the next one's first window_s seconds (pairs reaching across)
+        mine = k == c
+        rows = sampled[mine | ((k == c + 1) & (ts - t0 - (c + 1) * chunk_s <= opts.window_s + s / fps))]
+        cand = _candidates(tracks, mot, rows, span, travel, opts.window_s + 2 * h / fps, exclude)
+        in_chunk = np.isin(cand, sampled[mine]).any(axis=1)
+        best.append(_closest_overlaps(tracks, mot, cand[in_chunk], s, h, opts.window_s))
+    return closest_in_time(tracks, np.concatenate(best))
+
+
+def _candidates(tracks, mot, rows, span, travel, dt, exclude) -> np.ndarray:
+    """(C, 2) pairs of ``rows`` of two road users within ``dt`` seconds whose footprints,
+    grown by their travel, overlap."""
+    # the search box must hold the pair's largest reach: search road users by size group
+    # (pedestrians with pedestrians need a box of 1 m, not a bus's 7 m)
+    groups = np.digitize(span[rows], SIZE_GROUPS)
+    cand = [np.zeros((0, 2), np.int64)]
+    for g1 in np.unique(groups):
+        for g2 in np.unique(groups):
+            if g2 < g1:
+                continue
+            r1, r2 = rows[groups == g1], rows[groups == g2]
+            r = float(span[r1].max() + span[r2].max())
+            cand.append(near_pairs(tracks, r1, r, dt, chunk_s=np.inf,
+                                   other=None if g1 == g2 else r2))
+    cand = np.concatenate(cand)
+    a, b = cand[:, 0], cand[:, 1]
+    if exclude is not None and len(exclude):
+        keep = ~_pair_in(tracks.track_id[a], tracks.track_id[b], exclude)
+        a, b = a[keep], b[keep]
+    grow_a = np.c_[2 * travel[a], 2 * travel[a]]
+    grow_b = np.c_[2 * travel[b], 2 * travel[b]]
+    hit = overlaps(tracks.xy[a], mot.heading[a], tracks.size[a] + grow_a,
+                   tracks.xy[b], mot.heading[b], tracks.size[b] + grow_b)
+    return np.c_[a[hit], b[hit]]
+
+
+def _closest_overlaps(tracks, mot, cand, s: int, h: int, window_s: float) -> np.ndarray:
+    """(K, 2) per pair of road users in ``cand`` (coarse pairs of sample rows), the pair of
+    frames closest in time whose footprints overlap. A coarse pair's gap is within 2h frames
+    of the gaps of the frames around it, so candidates are expanded in bands of gap: first
+    those within a few samples of the pair's smallest gap, then on until the best overlap
+    found leaves no candidate that could beat it."""
+    if len(cand) == 0:
+        return np.zeros((0, 2), np.int64)
+    fps = tracks.fps
+    tid, frame = tracks.track_id, tracks.frame
+    ids = np.unique(tid[cand.ravel()])
+    _, key = np.unique(pair_codes(tid[cand[:, 0]], tid[cand[:, 1]], ids), return_inverse=True)
+    key = key.reshape(-1)
+    gap = np.abs(frame[cand[:, 0]] - frame[cand[:, 1]])
+    order = np.lexsort((gap, key))
+    cand, key, gap = cand[order], key[order], gap[order]
+    npair = int(key.max()) + 1
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    band = 3 * s
+    limit = np.full(npair, 0, np.int64)
+    limit[key[first]] = gap[first] + band
+    best_gap = np.full(npair, np.iinfo(np.int64).max)
+    best = np.full((npair, 2), -1, np.int64)
+    done = np.zeros(len(cand), bool)
+    starts, ends = tracks.starts(), tracks.ends()
+    offs = np.arange(-h, h + 1)
+    max_gap = int(np.floor(window_s * fps + 1e-9))
+    while True:
+        todo = ~done & (gap <= limit[key])
+        if not todo.any():
+            break
+        done |= todo
+        a, b, kk = cand[todo, 0], cand[todo, 1], key[todo]
+        ra = a[:, None] + offs[None, :]
+        rb = b[:, None] + offs[None, :]
+        ra = np.where((ra >= starts[a][:, None]) & (ra <= ends[a][:, None]), ra, -1)
+        rb = np.where((rb >= starts[b][:, None]) & (rb <= ends[b][:, None]), rb, -1)
+        n = len(offs)
+        fa = np.repeat(ra, n, axis=1).ravel()
+        fb = np.tile(rb, (1, n)).ravel()
+        kf = np.repeat(kk, n * n)
+        ok = (fa >= 0) & (fb >= 0)
+        fa, fb, kf = fa[ok], fb[ok], kf[ok]
+        g = np.abs(frame[fa] - frame[fb])
+        ok = (g <= max_gap) & (g < best_gap[kf])
+        fa, fb, kf, g = fa[ok], fb[ok], kf[ok], g[ok]
+        hit = overlaps(tracks.xy[fa], mot.heading[fa], tracks.size[fa],
+                       tracks.xy[fb], mot.heading[fb], tracks.size[fb])
+        fa, fb, kf, g = fa[hit], fb[hit], kf[hit], g[hit]
+        o = np.lexsort((np.minimum(frame[fa], frame[fb]), g, kf))
+        fa, fb, kf, g = fa[o], fb[o], kf[o], g[o]
+        new = np.r_[True, kf[1:] != kf[:-1]] if len(kf) else np.zeros(0, bool)
+        fa, fb, kf, g = fa[new], fb[new], kf[new], g[new]
+        better = g < best_gap[kf]
+        best_gap[kf[better]] = g[better]
+        best[kf[better]] = np.c_[fa[better], fb[better]]
+        # a candidate can beat the best only if its gap is below best + 2h; with none found
+        # yet, widen the band
+        found = best_gap < np.iinfo(np.int64).max
+        limit = np.where(found, best_gap + 2 * h, limit + band)
+    return best[best[:, 0] >= 0]
+
+
+def closest_in_time(tracks: Tracks, rows: np.ndarray) -> np.ndarray:
+    """(K, 2) of ``rows`` (P, 2) (first column the lower track id): per pair of road users, the
+    pair of rows closest in time (ties: the earliest)."""
+    if len(rows) == 0:
+        return rows.reshape(0, 2)
+    tid = tracks.track_id
+    gap = np.abs(tracks.frame[rows[:, 0]] - tracks.frame[rows[:, 1]])
+    order = np.lexsort((np.minimum(tracks.frame[rows[:, 0]], tracks.frame[rows[:, 1]]), gap,
+                        tid[rows[:, 1]], tid[rows[:, 0]]))
+    rows = rows[order]
+    new = np.r_[True, (np.diff(tid[rows[:, 0]]) != 0) | (np.diff(tid[rows[:, 1]]) != 0)]
+    return rows[new]
+
+
+def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
+    """Exit and entry times between frames for rows ``first`` (K,) and ``second`` (K,) whose
+    footprints overlap, ``first`` not later: (t_exit, t_enter), (K,) seconds."""
+    t, xy, hd, size = tracks.t, tracks.xy, mot.heading, tracks.size
+    starts, ends = tracks.starts(), tracks.ends()
+    has_next = first < ends[first]
+    nxt = np.where(has_next, first + 1, first)
+    dt1 = t[nxt] - t[first]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v1 = np.where(has_next[:, None], (xy[nxt] - xy[first]) / np.where(dt1 > 0, dt1, 1)[:, None], 0)
+    _, leave = overlap_interval(xy[second], hd[second], size[second], xy[first], hd[first],
+                                size[first], v1)
+    alpha = np.clip(np.nan_to_num(leave, posinf=np.inf, neginf=0.0), 0, dt1)
+    at = xy[first] + v1 * alpha[:, None]
+    has_prev = second > starts[second]
+    prv = np.where(has_prev, second - 1, second)
+    dt2 = t[second] - t[prv]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v2 = np.where(has_prev[:, None], (xy[prv] - xy[second]) / np.where(dt2 > 0, dt2, 1)[:, None], 0)
+    _, leave = overlap_interval(at, hd[first], size[first], xy[second], hd[second], size[second], v2)
+    beta = np.clip(np.nan_to_num(leave, posinf=np.inf, neginf=0.0), 0, dt2)
+    t_exit, t_enter = t[first] + alpha, t[second] - beta
+    same = tracks.frame[first] == tracks.frame[second]  # side by side at one moment: PET 0
+    return np.where(same, t[first], t_exit), np.where(same, t[first], np.maximum(t_enter, t_exit))
+
+
+def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
+        rows: np.ndarray | None = None, touching: np.ndarray | None = None) -> PetResult:
+    """PET of every pair of road users that occupied a common spot within ``window_s``;
+    ``rows``: the overlapping pairs of rows to use (default: found by ``overlapping_rows``);
+    ``touching``: (K, 2) rows (lower track id first) of pairs already known to overlap at
+    one frame (PET 0 there; such pairs are not searched: groups walking together would
+    cost most of the search)."""
+    if rows is None:
+        excl = None if touching is None else np.c_[tracks.track_id[touching[:, 0]],
+                                                   tracks.track_id[touching[:, 1]]]
+        rows = overlapping_rows(tracks, mot, opts, excl)
+    if touching is not None and len(touching):
+        rows = np.r_[rows, touching]
+    best = closest_in_time(tracks, rows)
+    a, b = best[:, 0], best[:, 1]
+    a_first = tracks.t[a] <= tracks.t[b]
+    f1, f2 = np.where(a_first, a, b), np.where(a_first, b, a)
+    t_exit, t_enter = refine(tracks, mot, f1, f2)
+    return PetResult(tracks.track_id[a], tracks.track_id[b], t_enter - t_exit,
+                     tracks.track_id[f1], f1, f2, t_exit, t_enter)

@@ -1,0 +1,468 @@
+"""Cross-camera association: one road user, one track id in every camera.
+
+Each camera's tracker numbers its own tracks 1, 2, 3 ...; late fusion (paper 3.3) joins views by
+track id, so before fusing, the tracks of the cameras must be given common ids. The cameras share
+the world frame, so the cue is where each mask stands on the ground: its normal position (3.2).
+
+1. *Per frame, per camera pair*: masks are paired one to one (Hungarian,
+   ``scipy.optimize.linear_sum_assignment``) by the ground distance of their normal positions,
+   inside a gate that grows with what the default heights leave uncertain: a road user whose
+   centre is ``dh`` above the class's default height has its normal position moved along the
+   camera's ray by ``dh * r / H`` (r the ground distance from the camera, H the camera's height
+   above the point). The cost also holds the mean distance of the two masks' *tracks* over all
+   the frames they share, so a crossing, where two road users come close for a few frames, does
+   not swap the pairs, and a class difference.
+2. *Pieces*: a track whose partner in another camera changes for good (``min_run`` frames)
+   from one track to another that lived at the same time is cut there: one of the two cameras'
+   trackers swapped road users. Brief changes are noise and do not cut.
+3. *Join*: pieces matched in at least ``min_votes`` frames are joined, strongest first (union
+   find); a join is refused when it would give one camera two masks of one road user in a frame
+   (pieces of one camera that overlap in time): no road user gets two ids, no two one id. Then
+   the pieces of one track are joined again where nothing forbids it (a cut that other cameras do
+   not confirm heals).
+4. *Ids*: one per joined group, numbered 1.. in order of first appearance (stable over time); a
+   road user only one camera saw keeps its track, under an id of its own.
+
+The arrays in, ids out: ``associate``. The scene-level command (reading and writing masks,
+merged blobs split by the other cameras' views) is ``seg2pose.video.associate_scene``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from seg2pose.errors import InputError
+
+_FAR = 2.0  # gate-normalised distances are clipped here for the track-level mean
+_KEY = 1e6  # frame * _KEY + x (metres): one sort key for "same frame, near in x"
+
+
+@dataclass
+class AssociateConfig:
+    """Association settings (``scene.json`` ``extra.associate`` overrides them). Chosen on
+    synthetic seeds 101-102 (docs/RESULTS.md, "Multi-camera association")."""
+
+    gate_m: float = 1.0       # metres: the gate for two views of a road user of known height
+    height_sd: float = 0.3    # metres: spread of a road user's centre about the default height
+    gate_sigmas: float = 2.0  # the gate adds this many spreads of the two positions' difference
+    track_weight: float = 0.5  # weight of the tracks' mean distance in a frame's cost (0..1)
+    class_cost: float = 0.3   # added to the cost of two masks of different known classes
+    min_run: int = 8          # frames a track's new partner must hold before the track is cut
+    min_votes: int = 3        # frames two pieces must be paired in to be joined
+    split_blobs: bool = True  # split a mask that other cameras see as several road users
+
+    @classmethod
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> "AssociateConfig":
+        out = cls()
+        known = {f.name: f for f in fields(cls)}
+        for k, v in (d or {}).items():
+            if k not in known:
+                raise InputError(f"unknown setting {k!r}; known: {', '.join(sorted(known))}",
+                                 file=file, field=f"extra.associate.{k}")
+            kind = type(getattr(out, k))
+            if kind is bool:
+                if not isinstance(v, bool):
+                    raise InputError(f"expected true or false, got {v!r}", file=file,
+                                     field=f"extra.associate.{k}")
+            elif isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
+                raise InputError(f"expected a number >= 0, got {v!r}", file=file,
+                                 field=f"extra.associate.{k}")
+            setattr(out, k, kind(v))
+        return out
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class CameraViews:
+    """One camera's masks as association sees them: frame, track (the camera's tracker id; -1
+    none), cls (class id; 0 unknown): (N,) ints; xy (N, 2) normal positions, metres (NaN where
+    the ray missed the ground); spread (N,) metres: how far the normal position may lie from the
+    truth because of the default height (``position_spread``)."""
+
+    frame: np.ndarray
+    track: np.ndarray
+    cls: np.ndarray
+    xy: np.ndarray
+    spread: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.frame = np.asarray(self.frame, np.int64).reshape(-1)
+        self.track = np.asarray(self.track, np.int64).reshape(-1)
+        self.cls = np.asarray(self.cls, np.int64).reshape(-1)
+        self.xy = np.asarray(self.xy, np.float64).reshape(-1, 2)
+        self.spread = np.broadcast_to(np.asarray(self.spread, np.float64), self.frame.shape).copy()
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+
+def position_spread(camera_center: np.ndarray, xyz: np.ndarray, height: np.ndarray,
+                    height_sd: float) -> np.ndarray:
+    """(N,) metres: how far a normal position ``xyz`` (N, 3) on the ground moves along the
+    camera's ray when the road user's centre is ``height_sd`` metres above or below its default
+    ``height`` (N,): dh * r / (H - h), r the ground distance from the camera centre (3,), H the
+    camera's height above the position."""
+    r = np.linalg.norm(xyz[:, :2] - camera_center[:2], axis=1)
+    above = np.maximum(camera_center[2] - xyz[:, 2] - height, 0.5)  # a camera at eye level: capped
+    return height_sd * r / above
+
+
+@dataclass
+class Association:
+    """What ``associate`` found. ids: camera -> (N,) common track id per mask (1..);
+    road_users: ids handed out; pieces: tracks after cutting; cuts: tracks cut where a tracker
+    swapped; refused: joins refused because a camera would have seen one road user twice;
+    pairs: masks paired across cameras (all camera pairs, all frames); groups: camera ->
+    (N,) index of each mask's piece in ``piece_camera`` etc. (for flags and tests)."""
+
+    ids: dict[str, np.ndarray]
+    road_users: int
+    pieces: int
+    cuts: int
+    refused: int
+    pairs: int
+    cameras_of_id: dict[int, list[str]] = field(default_factory=dict)
+    blobs: object = None  # what the scene-level step did with merged blobs (associate_scene)
+
+    def summary(self) -> dict:
+        multi = sum(1 for v in self.cameras_of_id.values() if len(v) > 1)
+        return {"road_users": self.road_users, "seen_by_several_cameras": multi,
+                "pieces": self.pieces, "cuts": self.cuts, "joins_refused": self.refused,
+                "pairs": self.pairs}
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. per frame, per camera pair
+
+
+def _best_of(group: np.ndarray, cost: np.ndarray, n: int) -> np.ndarray:
+    """(P,) whether each candidate is the least-cost one of its group (ties: the first)."""
+    o = np.lexsort((np.arange(len(cost)), cost, group))
+    first = np.r_[True, group[o][1:] != group[o][:-1]]
+    best = np.zeros(len(cost), bool)
+    best[o[first]] = True
+    return best
+
+
+def _one_to_one(frame: np.ndarray, i: np.ndarray, j: np.ndarray, cost: np.ndarray
+                ) -> np.ndarray:
+    """Per frame, a one-to-one choice among candidate pairs (i, j) of least total cost.
+    Returns a mask (P,) of the chosen pairs.
+
+    Pairs that are each other's best (mutual least cost) are taken at once, all frames
+    together; where that leaves a mask with candidates whose best partner went elsewhere, the
+    frame is solved exactly (Hungarian, ``linear_sum_assignment``) over what is left. Most
+    frames need no solver: a road user's views are far closer to each other than to anyone
+    else's, or the track-level term of the cost tells them apart."""
+    keep = np.zeros(len(i), bool)
+    if not len(i):
+        return keep
+    ni, nj = int(i.max()) + 1, int(j.max()) + 1
+    mutual = _best_of(i, cost, ni) & _best_of(j, cost, nj)
+    keep[mutual] = True
+    taken_i = np.zeros(ni, bool)
+    taken_j = np.zeros(nj, bool)
+    taken_i[i[mutual]] = True
+    taken_j[j[mutual]] = True
+    rest = np.flatnonzero(~taken_i[i] & ~taken_j[j])
+    if not len(rest):
+        return keep
+    rest = rest[np.argsort(frame[rest], kind="stable")]
+    cuts = np.flatnonzero(np.diff(frame[rest])) + 1
+    for chunk in np.split(rest, cuts):
+        if len(chunk) == 1:
+            keep[chunk] = True
+            continue
+        ui, ii = np.unique(i[chunk], return_inverse=True)
+        uj, jj = np.unique(j[chunk], return_inverse=True)
+        m = np.full((len(ui), len(uj)), 1e9)
+        m[ii, jj] = cost[chunk]
+        r, c = linear_sum_assignment(m)
+        at = np.full((len(ui), len(uj)), -1)
+        at[ii, jj] = chunk
+        k = at[r, c]
+        keep[k[k >= 0]] = True
+    return keep
+
+
+def _near_pairs(a: CameraViews, b: CameraViews, reach: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j): masks of a and b in the same frame whose x differ by at most ``reach[i]``
+    metres (a window along x, found by searchsorted on frame * 1e6 + x: the full product of
+    every frame's masks is not formed)."""
+    ok_a = np.flatnonzero(np.isfinite(a.xy[:, 0]))
+    ok_b = np.flatnonzero(np.isfinite(b.xy[:, 0]))
+    if not len(ok_a) or not len(ok_b):
+        z = np.zeros(0, np.int64)
+        return z, z
+    x0 = float(np.median(b.xy[ok_b, 0]))
+    kb = b.frame[ok_b] * _KEY + np.clip(b.xy[ok_b, 0] - x0, -_KEY / 4, _KEY / 4)
+    o = np.argsort(kb, kind="stable")
+    kb, ob = kb[o], ok_b[o]
+    ka = a.frame[ok_a] * _KEY + np.clip(a.xy[ok_a, 0] - x0, -_KEY / 4, _KEY / 4)
+    lo = np.searchsorted(kb, ka - reach[ok_a], "left")
+    hi = np.searchsorted(kb, ka + reach[ok_a], "right")
+    n = hi - lo
+    i = np.repeat(ok_a, n)
+    start = np.repeat(np.cumsum(n) - n, n)
+    j = ob[np.repeat(lo, n) + (np.arange(len(i)) - start)]
+    return i, j
+
+
+def _pair_cameras(a: CameraViews, b: CameraViews, ta: np.ndarray, tb: np.ndarray,
+                  span_a: tuple[np.ndarray, np.ndarray], span_b: tuple[np.ndarray, np.ndarray],
+                  cfg: AssociateConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of cameras a and b paired per frame (rows of a, rows of b). ta, tb: each mask's
+    track index within its camera (0..); span_a, span_b: first and last frame per track."""
+    far_b = float(np.nanmax(b.spread, initial=0.0)) if len(b) else 0.0
+    reach = cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread, far_b)
+    i, j = _near_pairs(a, b, np.nan_to_num(reach, nan=0.0))
+    d = np.linalg.norm(a.xy[i] - b.xy[j], axis=1)
+    r = d / (cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread[i], b.spread[j]))
+    # the tracks' mean gate-normalised distance (clipped at _FAR) over the frames they share;
+    # frames where the two are not within reach count as _FAR
+    key = ta[i] * (int(tb.max(initial=0)) + 1) + tb[j]
+    uk, inv = np.unique(key, return_inverse=True)
+    near_sum = np.bincount(inv, weights=np.minimum(r, _FAR))
+    near_n = np.bincount(inv)
+    first_pair = np.zeros(len(uk), np.int64)
+    first_pair[inv] = np.arange(len(inv))
+    pa, pb = ta[i][first_pair], tb[j][first_pair]
+    shared = np.minimum(span_a[1][pa], span_b[1][pb]) - np.maximum(span_a[0][pa], span_b[0][pb]) + 1
+    shared = np.maximum(shared, near_n)
+    mean = (near_sum + _FAR * (shared - near_n)) / shared
+    near = r <= 1.0
+    i, j, r, inv = i[near], j[near], r[near], inv[near]
+    w = cfg.track_weight
+    cost = (1 - w) * r + w * mean[inv]
+    differ = (a.cls[i] > 0) & (b.cls[j] > 0) & (a.cls[i] != b.cls[j])
+    cost = cost + cfg.class_cost * differ
+    keep = _one_to_one(a.frame[i], i, j, cost)
+    return i[keep], j[keep]
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. pieces: tracks cut where a tracker swapped road users
+
+
+def _track_spans(track: np.ndarray, frame: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    first = np.full(n, np.iinfo(np.int64).max)
+    last = np.full(n, np.iinfo(np.int64).min)
+    np.minimum.at(first, track, frame)
+    np.maximum.at(last, track, frame)
+    return first, last
+
+
+def _runs(t_self: np.ndarray, frame: np.ndarray, t_other: np.ndarray, min_run: int
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of one partner per track, in frame order, those of at least ``min_run`` paired
+    frames (shorter ones are noise): track, partner, first and last frame (R,) each."""
+    o = np.lexsort((frame, t_self))
+    ts, fs, to = t_self[o], frame[o], t_other[o]
+    new = np.r_[True, (ts[1:] != ts[:-1]) | (to[1:] != to[:-1])] if len(ts) else np.zeros(0, bool)
+    start = np.flatnonzero(new)
+    end = np.r_[start[1:], len(ts)] - 1
+    long = (end - start + 1) >= min_run
+    return ts[start[long]], to[start[long]], fs[start[long]], fs[end[long]]
+
+
+def _cuts(runs: list[tuple[np.ndarray, ...]], spans: list[tuple[np.ndarray, np.ndarray]],
+          min_run: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where a track's partners change for good: (track, first frame of the new partners).
+
+    runs, spans: per other camera, ``_runs`` of this camera's tracks against it and the frame
+    spans of its tracks. A change to a partner that did not live at the same time as the old
+    one is the other camera's tracker losing and re-finding the road user: it cuts nothing. A
+    change cuts when more than half of the other cameras that pair the track around that frame
+    change partner there: with three cameras, the one camera whose tracker swapped is cut, not
+    the two that saw it right."""
+    props = []  # (track, frame, camera) of each proposed cut
+    for k, ((t, p, f0, f1), (first, last)) in enumerate(zip(runs, spans)):
+        change = np.flatnonzero((t[1:] == t[:-1]) & (p[1:] != p[:-1])) + 1
+        old, nw = p[change - 1], p[change]
+        alive = (last[old] >= first[nw]) & (last[nw] >= first[old])
+        change = change[alive]
+        props += [(int(t[c]), int(f0[c]), k) for c in change]
+    out_t, out_f = [], []
+    for track, f, k in sorted(props):
+        if out_t and out_t[-1] == track and abs(out_f[-1] - f) <= min_run:
+            continue  # one cut per change, however many cameras saw it
+        changed = {kk for tt, ff, kk in props if tt == track and abs(ff - f) <= min_run}
+        steady = 0
+        for kk, (t, p, f0, f1) in enumerate(runs):
+            if kk not in changed and np.any((t == track) & (f0 < f - min_run) & (f1 > f + min_run)):
+                steady += 1
+        if len(changed) > steady:
+            out_t.append(track)
+            out_f.append(f)
+    return np.array(out_t, np.int64), np.array(out_f, np.int64)
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. joins under the rule "one camera never sees one road user twice in a frame"
+
+
+class _Groups:
+    """Union-find over pieces; each group keeps, per camera, the frame spans of its pieces."""
+
+    def __init__(self, camera: np.ndarray, first: np.ndarray, last: np.ndarray):
+        n = len(camera)
+        self.parent = np.arange(n)
+        self.spans: list[dict[int, list[tuple[int, int]]]] = [
+            {int(camera[k]): [(int(first[k]), int(last[k]))]} for k in range(n)]
+        self.refused = 0
+
+    def find(self, k: int) -> int:
+        root = k
+        while self.parent[root] != root:
+            root = self.parent[root]
+        while self.parent[k] != root:
+            self.parent[k], k = root, self.parent[k]
+        return root
+
+    def join(self, a: int, b: int) -> bool:
+        ra, rb = self.find(a), self.find(b)
+        if ra == rb:
+            return True
+        sa, sb = self.spans[ra], self.spans[rb]
+        for cam, spans in sb.items():
+            for f0, f1 in spans:
+                if any(f0 <= g1 and g0 <= f1 for g0, g1 in sa.get(cam, ())):
+                    self.refused += 1
+                    return False
+        if len(sa) < len(sb):
+            ra, rb, sa, sb = rb, ra, sb, sa
+        for cam, spans in sb.items():
+            sa.setdefault(cam, []).extend(spans)
+        self.parent[rb] = ra
+        self.spans[rb] = {}
+        return True
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None) -> Association:
+    """Common track ids for the masks of several cameras of one scene (see the module
+    docstring). Masks without a track (-1) are road users of one frame."""
+    cfg = cfg or AssociateConfig()
+    names = list(views)
+    # tracks per camera: index 0.. (a mask without a track is a track of its own)
+    t_idx, n_t = {}, {}
+    for c in names:
+        v = views[c]
+        key = np.where(v.track >= 0, v.track, -1 - np.arange(len(v)))
+        _, t_idx[c] = np.unique(key, return_inverse=True)
+        t_idx[c] = t_idx[c].reshape(-1)
+        n_t[c] = int(t_idx[c].max(initial=-1)) + 1
+    spans = {c: _track_spans(t_idx[c], views[c].frame, n_t[c]) for c in names}
+
+    pairs: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    for ka, a in enumerate(names):
+        for b in names[ka + 1:]:
+            pairs[(a, b)] = _pair_cameras(views[a], views[b], t_idx[a], t_idx[b], spans[a],
+                                          spans[b], cfg)
+
+    # 2. cuts, from every camera's point of view
+    runs = {c: [] for c in names}
+    other_spans = {c: [] for c in names}
+    for (a, b), (i, j) in pairs.items():
+        for x, y, ix, iy in ((a, b, i, j), (b, a, j, i)):
+            runs[x].append(_runs(t_idx[x][ix], views[x].frame[ix], t_idx[y][iy], cfg.min_run))
+            other_spans[x].append(spans[y])
+    cut_t, cut_f = {}, {}
+    for c in names:
+        cut_t[c], cut_f[c] = _cuts(runs[c], other_spans[c], cfg.min_run)
+    piece = {}
+    p_cam, p_first, p_last, p_track, p_rank, p_start_xy, p_end_xy = [], [], [], [], [], [], []
+    n_pieces = n_cuts = 0
+    for k, c in enumerate(names):
+        v = views[c]
+        t = t_idx[c]
+        ck = np.unique(cut_t[c] * (1 << 32) + cut_f[c])
+        n_cuts += len(ck)
+        mk = t * (1 << 32) + v.frame
+        rank = np.searchsorted(ck, mk, "right") - np.searchsorted(ck, t * (1 << 32), "left")
+        uk, inv = np.unique(np.stack([t, rank], axis=1), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        piece[c] = inv + n_pieces
+        first, last = _track_spans(inv, v.frame, len(uk))
+        o = np.lexsort((v.frame, inv))
+        starts = np.flatnonzero(np.r_[True, inv[o][1:] != inv[o][:-1]])
+        ends = np.r_[starts[1:], len(o)] - 1
+        p_start_xy.append(v.xy[o[starts]])
+        p_end_xy.append(v.xy[o[ends]])
+        p_cam.append(np.full(len(uk), k))
+        p_first.append(first)
+        p_last.append(last)
+        p_track.append(uk[:, 0] + sum(n_t[x] for x in names[:k]))
+        p_rank.append(uk[:, 1])
+        n_pieces += len(uk)
+    cat = (lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.int64))
+    p_cam, p_first, p_last, p_track, p_rank = map(cat, (p_cam, p_first, p_last, p_track, p_rank))
+
+    # 3. joins: pieces paired across cameras, most votes first; then a track's own pieces
+    groups = _Groups(p_cam, p_first, p_last)
+    edge = [piece[a][i] * n_pieces + piece[b][j] for (a, b), (i, j) in pairs.items()]
+    edge = cat(edge)
+    ue, votes = np.unique(edge, return_counts=True)
+    strong = votes >= cfg.min_votes
+    ue, votes = ue[strong], votes[strong]
+    order = np.lexsort((ue, -votes))
+    for e in ue[order]:
+        groups.join(int(e // n_pieces), int(e % n_pieces))
+    # a track's own pieces, smoothest seam first: with two cameras a swap cuts both cameras'
+    # tracks, and the tracker that swapped is the one whose track jumps at the cut
+    o = np.lexsort((p_rank, p_track))
+    same = np.flatnonzero(p_track[o][1:] == p_track[o][:-1])
+    p_start_xy, p_end_xy = np.concatenate(p_start_xy), np.concatenate(p_end_xy)
+    jump = np.linalg.norm(p_start_xy[o[same + 1]] - p_end_xy[o[same]], axis=1)
+    jump = np.where(np.isfinite(jump), jump, np.inf)
+    for k in same[np.argsort(jump, kind="stable")]:
+        groups.join(int(o[k]), int(o[k + 1]))
+
+    # 4. ids in order of first appearance
+    root = np.array([groups.find(k) for k in range(n_pieces)], np.int64)
+    first_of_root = np.full(n_pieces, np.iinfo(np.int64).max)
+    np.minimum.at(first_of_root, root, p_first)
+    roots = np.unique(root)
+    roots = roots[np.lexsort((roots, first_of_root[roots]))]
+    gid = np.zeros(n_pieces, np.int64)
+    gid[roots] = np.arange(1, len(roots) + 1)
+    ids = {c: gid[root[piece[c]]] for c in names}
+    cams_of: dict[int, list[str]] = {}
+    for k, c in enumerate(names):
+        for g in np.unique(ids[c]):
+            cams_of.setdefault(int(g), []).append(c)
+    return Association(ids=ids, road_users=len(roots), pieces=n_pieces, cuts=n_cuts,
+                       refused=groups.refused, pairs=int(sum(len(i) for i, _ in pairs.values())),
+                       cameras_of_id=cams_of)
+
+
+def majority_class(ids: dict[str, np.ndarray], classes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """One class per road user: the most frequent known class (> 0) of its masks over all
+    cameras (the size classes of a far camera can differ from a near one's). Masks of a road
+    user without any known class keep theirs."""
+    names = list(ids)
+    g = np.concatenate([ids[c] for c in names])
+    k = np.concatenate([classes[c] for c in names])
+    known = k > 0
+    out = {c: classes[c].copy() for c in names}
+    if not known.any():
+        return out
+    pairs, n = np.unique(np.stack([g[known], k[known]], axis=1), axis=0, return_counts=True)
+    o = np.lexsort((pairs[:, 1], -n, pairs[:, 0]))  # per id: most masks first, then lower class
+    pairs = pairs[o]
+    top = pairs[np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]]
+    best = np.zeros(int(g.max()) + 1, np.int64)
+    best[top[:, 0]] = top[:, 1]
+    for c in names:
+        cls = best[ids[c]]
+        out[c] = np.where(cls > 0, cls, classes[c])
+    return out
