@@ -248,8 +248,8 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
     if r90 is not None and views.r90 is not None:
         from seg2pose.uncertainty import pose_features
 
-        pose_r90 = r90.pose.predict(out_cls, pose_features(
-            stack[:, kept], g.stack(views.r90[g.keep])[:, kept], heading, scene.rig.center[:2]))
+        pose_r90 = r90.pose.predict(out_cls, pose_features(stack[:, kept],
+                                                           g.stack(views.r90[g.keep])[:, kept]))
     table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size,
                       r90=pose_r90)
     return table.sorted()

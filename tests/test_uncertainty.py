@@ -55,9 +55,8 @@ def test_pose_features_by_hand():
     # one pose seen by two cameras 2 m apart (r90 1 m each), one seen by one camera
     est = np.array([[[0.0, 0.0], [5.0, 5.0]], [[2.0, 0.0], [np.nan, np.nan]]])
     r = np.array([[1.0, 0.5], [1.0, np.nan]])
-    X = pose_features(est, r, np.array([0.0, np.nan]), np.array([-10.0, 0.0]))
+    X = pose_features(est, r)
     assert X.shape == (2, len(POSE_FEATURES))
-    np.testing.assert_allclose(X[:, 4], [1.0, 0.5])  # heading along the line of sight; unknown
     np.testing.assert_allclose(np.exp(X[:, 1]), [np.sqrt(2) / 2, 0.5])
     np.testing.assert_allclose(np.exp(X[:, 2]), [2, 1])
     np.testing.assert_allclose(np.exp(X[:, 3]) - 0.05, [1.0, 0.0], atol=1e-12)
@@ -101,8 +100,8 @@ def test_calibration_json_round_trip_and_bad_files(tmp_path):
     view = StageModel(VIEW_FEATURES, {"*": [0.1] * 7, "car": [0.2] * 7}, {"*": 50, "car": 45},
                       {"*": [0.0] * 7, "car": [0.0] * 7}, {"*": [1.0] * 7, "car": [1.0] * 7},
                       {"*": 5.0, "car": 0.5})
-    pose = StageModel(POSE_FEATURES, {"*": [0.0, 1.0, 0.0, 0.0, 0.0]}, {"*": 50},
-                      {"*": [0.0] * 5}, {"*": [9.0] * 5}, {"*": 5.0})
+    pose = StageModel(POSE_FEATURES, {"*": [0.0, 1.0, 0.0, 0.0]}, {"*": 50},
+                      {"*": [0.0] * 4}, {"*": [9.0] * 4}, {"*": 5.0})
     cal = Calibration(view, pose, {"method": "baseline", "smooth_frames": 0})
     p = tmp_path / "r90.json"
     p.write_text(cal.to_json())
@@ -115,9 +114,9 @@ def test_calibration_json_round_trip_and_bad_files(tmp_path):
     np.testing.assert_allclose(back.view.predict(np.array(["car", "bus"], object), X),
                                [2 * np.exp(0.5), np.exp(0.7)])
     d = json.loads(p.read_text())
-    d["pose"]["coef"]["*"] = [1.0, "x", 0, 0, 0]
+    d["pose"]["coef"]["*"] = [1.0, "x", 0, 0]
     p.write_text(json.dumps(d))
-    with pytest.raises(InputError, match=r"r90.json: field 'pose': class '\*': expected 5 finite"):
+    with pytest.raises(InputError, match=r"r90.json: field 'pose': class '\*': expected 4 finite"):
         read_calibration(p)
     p.write_text("{}")
     with pytest.raises(InputError, match="not an r90 calibration"):
