@@ -94,6 +94,7 @@ def train_cmd(
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
     rough_video: Optional[bool] = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: off; on synthetic video it measured worse than clean rough models, docs/RESULTS.md)"),
     rough_occlusion: Optional[float] = typer.Option(None, "--rough-occlusion", help="share of rough-model examples partly hidden by a rough car or pedestrian in front"),
+    rough_random: Optional[bool] = typer.Option(None, "--rough-random/--no-rough-random", help="randomised rough models: each one's length, width and height drawn from ranges per class (cars 3.5-6 m long, 1.35-2.4 m high; pedestrians 1.1-2.0 m; bicyclists 1.5-2.3 m long), not one box per class (not measured yet on this CPU, docs/RESULTS.md)"),
     rough_every: Optional[int] = typer.Option(None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)"),
@@ -119,6 +120,7 @@ def train_cmd(
     cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
                 rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
+                rough_random=rough_random,
                 share_classes=share_classes, share_cameras=share_cameras,
                 rough_detector_noise=rough_noise, rough_video=rough_video, geometry=geometry, augment=augment,
                 device=device, threads=threads, seed=seed)
