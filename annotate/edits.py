@@ -17,7 +17,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, mark_spans
+from annotate.headings import AUTO
+from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, keyframe_row, mark_spans
 
 SUPPORT_RADIUS = 10.0    # metres from the nearest ground point: beyond, keyframes are flagged
 REFUSE_RADIUS = 200.0    # metres: beyond, keyframes are refused
@@ -25,10 +26,6 @@ NUDGE_STEPS = (0.02, 0.10, 0.50)   # metres, the app's small / medium / large nu
 ROTATE_STEPS = (1.0, 5.0, 15.0)    # degrees
 MAX_SIZE = 30.0          # metres: no road user is longer, wider or taller
 CHECKED = {"estimate", "normal"}   # flags a manual correction removes (the pose is now checked)
-
-
-def _row(frame: int, k: Keyframe) -> list:
-    return [int(frame), k.x, k.y, k.heading, list(k.flags)]
 
 
 class EditsMixin:
@@ -111,6 +108,18 @@ class EditsMixin:
             return float(np.arctan2(d[1], d[0]))
         return k.heading
 
+    def _heading(self, track_id: int, frame: int, x: float, y: float, heading, flags
+                 ) -> tuple[float, tuple[str, ...]]:
+        """(heading, flags) of a keyframe about to be placed: a given heading is set by the
+        annotator; None follows the motion (flag AUTO; the project fills it in after the edit)."""
+        flags = tuple(fl for fl in flags if fl != AUTO)
+        if heading is not None:
+            return heading, flags
+        old = self.track(track_id).keyframes.get(frame)
+        if old is not None and AUTO not in old.flags:  # re-placed: a heading set stays set
+            return old.heading, flags
+        return self.default_heading(track_id, frame, x, y), flags + (AUTO,)
+
     def pose_at(self, track_id: int, frame: int) -> tuple[float, float, float]:
         """(x, y, heading) of a track at a frame: the keyframe, or the interpolation."""
         t = self.track(track_id)
@@ -156,6 +165,13 @@ class EditsMixin:
         return self._commit("set_size", [{"op": "set_fields", "id": t.id,
                                           "fields": {"size": list(self._size(size, t.cls))}}])
 
+    def set_meta(self, track_id: int, **fields):
+        """Set free-form track fields (JSON-able), e.g. run_track=12 links the track to that
+        road user of the run (accept_estimate, suggestions)."""
+        t = self.track(track_id)
+        return self._commit("set_meta", [{"op": "set_fields", "id": t.id,
+                                          "fields": {"meta": {**t.meta, **fields}}}])
+
     def set_interpolation(self, track_id: int, method: str | None):
         """Choose a track's interpolation (linear, hermite, pchip; None = the class default)."""
         self.check_methods(method)
@@ -166,24 +182,26 @@ class EditsMixin:
     # --- keyframes -------------------------------------------------------------------------------
     def set_keyframe(self, track_id: int, frame: int, x: float, y: float,
                      heading: float | None = None, flags=()):
-        """Add (or replace) the keyframe at ``frame``; heading None: see ``default_heading``."""
+        """Add (or replace) the keyframe at ``frame``; heading None: the direction of motion
+        (flag auto_heading, kept up to date as the neighbours change: headings.py)."""
         t, f = self.track(track_id), self._frame(frame)
         self._free(t, f)
-        if heading is None:
-            heading = self.default_heading(t.id, f, x, y)
+        heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
-        return self._commit("set_keyframe", [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit("set_keyframe", [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def move_keyframe(self, track_id: int, frame: int, x: float, y: float,
                       heading: float | None = None, _name: str = "move_keyframe"):
         """Move a keyframe (or the interpolated pose at ``frame``, making it a keyframe) to x, y;
-        heading None keeps it. Removes the estimate/normal flags: the pose is now checked."""
+        heading None keeps it (an auto heading, or a new keyframe's, follows the motion). Removes the estimate/normal flags: the pose is now checked."""
         t, f = self.track(track_id), self._frame(frame)
         old = t.keyframes.get(f)
         _, _, h0 = self.pose_at(t.id, f)
-        flags = tuple(fl for fl in (old.flags if old else ()) if fl not in CHECKED)
+        flags = tuple(fl for fl in (old.flags if old else (AUTO,)) if fl not in CHECKED)
+        if heading is not None:  # the annotator sets it: it no longer follows the motion
+            flags = tuple(fl for fl in flags if fl != AUTO)
         k = self._kf(t.id, f, x, y, h0 if heading is None else heading, flags)
-        return self._commit(_name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit(_name, [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def delete_keyframe(self, track_id: int, frame: int):
         t = self.track(track_id)
@@ -202,7 +220,7 @@ class EditsMixin:
         self._free(t, to)
         k = t.keyframes[int(frame)]
         return self._commit("retime_keyframe", [{"op": "set_keyframes", "id": t.id,
-                                                 "del": [int(frame)], "set": [_row(to, k)]}])
+                                                 "del": [int(frame)], "set": [keyframe_row(to, k)]}])
 
     def nudge(self, track_id: int, frame: int, dx: float, dy: float, relative: bool = False):
         """Shift the pose at ``frame`` by (dx, dy) metres: world axes, or with ``relative`` the
@@ -263,6 +281,6 @@ class EditsMixin:
             spans = mark_spans(spans, s0, s1, kind)
         return self._commit("merge_tracks", [
             {"op": "set_keyframes", "id": a.id,
-             "set": [_row(f, k) for f, k in sorted(b.keyframes.items())]},
+             "set": [keyframe_row(f, k) for f, k in sorted(b.keyframes.items())]},
             {"op": "set_fields", "id": a.id, "fields": {"spans": [list(s) for s in spans]}},
             {"op": "put_track", "id": b.id, "track": None}])

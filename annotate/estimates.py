@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from annotate.model import EditError
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
-from seg2pose.masks import mask_centers
-from seg2pose.normal import DEFAULT_CENTER_METHOD, normal_positions
+from seg2pose.structures.masks import mask_centers
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
 
 
 def _fill_headings(table: PoseTable) -> np.ndarray:

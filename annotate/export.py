@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from annotate import journal as J
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.poses import PoseTable, write_poses
 
 RUN_META = {"kind": "annotations", "method": "annotation (keyframes + interpolation)"}

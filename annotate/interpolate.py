@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 METHODS = ("linear", "hermite", "pchip")
 STILL = 0.01  # metres: a chord shorter than this is a road user standing still

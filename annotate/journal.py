@@ -30,7 +30,7 @@ import re
 import socket
 from pathlib import Path
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text, fsync_dir
 
 VERSION = 1

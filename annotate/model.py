@@ -24,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 
 SPAN_KINDS = ("occluded", "outside")
 FLAG_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
@@ -34,6 +34,8 @@ FLAGS = {
     "normal": "placed at a mask's normal position",
     "off_support": "more than SUPPORT_RADIUS from every ground point: z is extrapolated",
     "imported": "imported from another tool (T-Analyst)",
+    "auto_heading": "heading follows the motion between the neighbouring keyframes (headings.py) "
+                    "until the annotator sets it",
 }
 
 
@@ -135,8 +137,9 @@ def mark_spans(spans: list[tuple[int, int, str]], first: int, last: int, kind: s
 
 
 # --- primitive operations -------------------------------------------------------------------------
-def _kf_row(frame: int, k: Keyframe) -> list:
-    return [frame, k.x, k.y, k.heading, list(k.flags)]
+def keyframe_row(frame: int, k: Keyframe) -> list:
+    """A keyframe as the journal's ``set_keyframes`` operation holds it."""
+    return [int(frame), k.x, k.y, k.heading, list(k.flags)]
 
 
 def check_flags(flags) -> tuple[str, ...]:
@@ -185,10 +188,10 @@ def apply_op(tracks: dict[int, Track], op: dict) -> dict:
             kfs[f] = Keyframe(float(r[1]), float(r[2]), float(r[3]),
                               tuple(r[4]) if len(r) > 4 else ())
             return {"op": "set_keyframes", "id": tid,
-                    "set": [] if old is None else [_kf_row(f, old)],
+                    "set": [] if old is None else [keyframe_row(f, old)],
                     "del": [f] if old is None else []}
         touched = [int(r[0]) for r in op.get("set", ())] + [int(f) for f in op.get("del", ())]
-        inv_set = [_kf_row(f, kfs[f]) for f in dict.fromkeys(touched) if f in kfs]
+        inv_set = [keyframe_row(f, kfs[f]) for f in dict.fromkeys(touched) if f in kfs]
         inv_del = [f for f in dict.fromkeys(touched) if f not in kfs]
         for f in op.get("del", ()):
             kfs.pop(int(f), None)

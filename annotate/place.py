@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from annotate.edits import _row
 from annotate.estimates import MaskIndex
-from annotate.model import EditError
-from seg2pose.ground import miss_reasons
+from annotate.model import EditError, keyframe_row
+from seg2pose.geometry.ground import miss_reasons
 
 
 def pixel_to_ground(camera, ground, uv, height: float = 0.0) -> tuple[float, float]:
@@ -70,8 +69,8 @@ class PlacementMixin:
     def place_from_pixel(self, track_id: int, frame: int, camera: str, uv, height: float = 0.0,
                          heading: float | None = None):
         """Put the track's keyframe at ``frame`` where pixel ``uv`` (u, v) of ``camera`` meets
-        the ground raised by ``height`` metres (see the module docstring). Keeps the heading
-        the track has there unless ``heading`` is given."""
+        the ground raised by ``height`` metres (see the module docstring). Heading: ``heading``
+        if given, else a heading set there before, else along the motion (headings.py)."""
         t, f = self.track(track_id), self._frame(frame)
         x, y = pixel_to_ground(self._camera(camera), self.scene.ground, uv, height)
         return self._place(t, f, x, y, heading, (), "place_from_pixel")
@@ -94,18 +93,22 @@ class PlacementMixin:
 
     def _place(self, t, f: int, x: float, y: float, heading, flags, name: str):
         self._free(t, f)
-        if heading is None:
-            heading = self.default_heading(t.id, f, x, y)
+        heading, flags = self._heading(t.id, f, x, y, heading, flags)
         k = self._kf(t.id, f, x, y, heading, flags)
-        return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [_row(f, k)]}])
+        return self._commit(name, [{"op": "set_keyframes", "id": t.id, "set": [keyframe_row(f, k)]}])
 
     def accept_estimate(self, track_id: int, frame: int | None = None, run_track: int | None = None,
                         every: int | None = None, frames: tuple[int, int] | None = None):
         """Take the run's estimate of road user ``run_track`` (default: the track's
-        meta["run_track"], else its own id) as keyframes (flag ``estimate``): at ``frame``, or
-        every ``every`` frames over ``frames`` (first, last) plus the last estimate there."""
+        meta["run_track"], set when the track was made from a mask or by pre-annotation) as
+        keyframes (flag ``estimate``): at ``frame``, or every ``every`` frames over ``frames``
+        (first, last) plus the last estimate there. A track linked to no road user of the run
+        is refused (its id is no run track's id: it would pull in another road user)."""
         t = self.track(track_id)
-        rt = int(run_track if run_track is not None else t.meta.get("run_track", t.id))
+        if run_track is None and "run_track" not in t.meta:
+            raise EditError(f"track {t.id} is linked to no road user of the run: make it from a "
+                            "mask (mask mode, no track selected) or pre-annotate")
+        rt = int(run_track if run_track is not None else t.meta["run_track"])
         if every is None:
             if frame is None:
                 raise EditError("give a frame, or every= and frames=")
@@ -116,11 +119,11 @@ class PlacementMixin:
             self._free(t, f)
             k = self._kf(t.id, f, *est, flags=("estimate",))
             return self._commit("accept_estimate", [{"op": "set_keyframes", "id": t.id,
-                                                     "set": [_row(f, k)]}])
+                                                     "set": [keyframe_row(f, k)]}])
         rows = self._sample(self.run.track(rt), every, frames)
         if not len(rows[0]):
             raise EditError(f"the run has no estimates of road user {rt} in frames {frames}")
-        sets = [_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
+        sets = [keyframe_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
                 for f, x, y, h in zip(*rows) if t.span_at(f) != "outside"]
         return self._commit("accept_estimates", [{"op": "set_keyframes", "id": t.id, "set": sets}])
 
@@ -171,7 +174,7 @@ class PlacementMixin:
                 raise EditError(f"track {rid} has two rows in one frame")
             xy = table.xyz[pick, :2]
             hd = motion_headings(xy, table.heading[pick])
-            kfs = [_row(f, self._kf(tid, f, x, y, h, flags)) for f, (x, y), h in zip(frames, xy, hd)]
+            kfs = [keyframe_row(f, self._kf(tid, f, x, y, h, flags)) for f, (x, y), h in zip(frames, xy, hd)]
             ops.append({"op": "put_track", "id": tid, "track": {
                 "id": tid, "cls": cls, "size": list(self._size(size, cls)), "interp": None,
                 "keyframes": kfs, "spans": [], "meta": {"source_track": int(rid)}}})
@@ -180,13 +183,17 @@ class PlacementMixin:
         return self._commit(name, ops)
 
     def preannotate(self, every: int = 25, frames: tuple[int, int] | None = None,
-                    run_tracks=None, min_estimates: int = 2):
+                    run_tracks=None, min_estimates: int = 2, skip_annotated: bool = False):
         """Pre-annotation: one new track per road user of the run (or of ``run_tracks``) with
         at least ``min_estimates`` estimates in ``frames``, keyframes every ``every`` frames
         from its estimates (flag ``estimate``, meta["run_track"] = its run id). One undoable
-        step; ``change.created`` holds the new ids."""
+        step; ``change.created`` holds the new ids. ``skip_annotated``: leave out road users
+        that a track is linked to already (meta["run_track"])."""
         run = self.run
         ids = run.track_ids() if run_tracks is None else [int(r) for r in run_tracks]
+        if skip_annotated:
+            linked = {int(t.meta["run_track"]) for t in self.tracks.values() if "run_track" in t.meta}
+            ids = [int(r) for r in ids if int(r) not in linked]
         next_id = max(self.tracks, default=0) + 1
         ops = []
         for rt in ids:
@@ -195,7 +202,7 @@ class PlacementMixin:
             if len(fr) < min_estimates:
                 continue
             cls = str(est.cls[0])
-            kfs = [_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
+            kfs = [keyframe_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
                    for f, x, y, h in zip(fr, xs, ys, hs)]
             ops.append({"op": "put_track", "id": next_id, "track": {
                 "id": next_id, "cls": cls, "size": list(self._size(None, cls)), "interp": None,

@@ -24,12 +24,13 @@ from typing import Callable, Mapping
 from annotate import journal as J
 from annotate.edits import EditsMixin
 from annotate.estimates import scene_frames
+from annotate.headings import auto_heading_op
 from annotate.place import PlacementMixin
 from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
 from annotate.table import empty, track_poses
 from seg2pose.io.poses import PoseTable
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.scene import Scene, load_scene
 
 UNDO_LIMIT = 10_000      # edits kept for undo (the oldest are forgotten beyond this)
@@ -213,15 +214,24 @@ class Project(EditsMixin, PlacementMixin):
         self._s.seq = seq
         return seq
 
-    def _apply_durably(self, record: dict, ops: list[dict]) -> tuple[int, list[dict]]:
+    def _apply_durably(self, kind: str, ops: list[dict], record: dict
+                       ) -> tuple[int, list[dict], list[dict]]:
         """Apply ops to scratch copies of their tracks, journal the record, then swap the copies
-        in: an op that fails or a journal write that fails leaves everything as it was."""
+        in: an op that fails or a journal write that fails leaves everything as it was. An
+        ``edit`` also brings the auto headings of the tracks it touches up to date (headings.py):
+        those ops join the edit's. Returns (seq, ops, inverse)."""
         if self.read_only:
             raise EditError("this project is open read-only")
         touched = op_tracks(ops)
         scratch = {t: self._s.tracks[t].copy() for t in touched if t in self._s.tracks}
         inverse = apply_ops(scratch, ops)
-        seq = self._write(record)
+        if kind == "edit":
+            extra = [op for t in sorted(scratch) if (op := auto_heading_op(scratch[t]))]
+            if extra:
+                inverse = apply_ops(scratch, extra) + inverse
+                ops = ops + extra
+                record = {**record, "ops": ops}
+        seq = self._write({"kind": kind, **record})
         for t in touched:
             if t in scratch:
                 self._s.tracks[t] = scratch[t]
@@ -230,17 +240,16 @@ class Project(EditsMixin, PlacementMixin):
             old = self._cache.pop(t, None)
             if old is not None:
                 self._stale[t] = old
-        return seq, inverse
+        return seq, ops, inverse
 
     def _commit(self, name: str, ops: list[dict]) -> Change:
         """Journal and apply one edit (a list of primitive ops) as one undoable step."""
         if not ops:
             return Change("edit", name, self._s.seq)
         before = set(self._s.tracks)
-        seq, inverse = self._apply_durably(
-            {"kind": "edit", "name": name, "ops": ops, "t": J.now()}, ops)
-        _push(self._s.undo, _Entry(seq, name, ops, inverse))
-        self._s.redo.clear()
+        seq, ops, inverse = self._apply_durably("edit", ops,
+                                                  {"name": name, "ops": ops, "t": J.now()})
+        _record_edit(self._s, _Entry(seq, name, ops, inverse))
         return self._changed("edit", name, seq, op_tracks(ops), before)
 
     def undo(self) -> Change | None:
@@ -252,14 +261,13 @@ class Project(EditsMixin, PlacementMixin):
         return self._step("redo")
 
     def _step(self, kind: str) -> Change | None:
-        src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
+        src = self._s.undo if kind == "undo" else self._s.redo
         if not src:
             return None
         e = src[-1]
         before = set(self._s.tracks)
-        seq, _ = self._apply_durably({"kind": kind, "of": e.seq},
-                                     e.inverse if kind == "undo" else e.ops)
-        dst.append(src.pop())
+        seq, _, _ = self._apply_durably(kind, _step_ops(e, kind), {"of": e.seq})
+        _swap(self._s, kind, e.seq)
         return self._changed(kind, e.name, seq, op_tracks(e.ops), before)
 
     def _changed(self, kind: str, name: str, seq: int, tracks: set[int], before: set[int]
@@ -316,19 +324,9 @@ class Project(EditsMixin, PlacementMixin):
         s.seq = seq
         if kind == "edit":
             ops = rec["ops"]
-            inverse = apply_ops(s.tracks, ops)
-            s.undo.append(_Entry(seq, rec["name"], ops, inverse))
-            if len(s.undo) > UNDO_LIMIT:
-                del s.undo[: len(s.undo) - UNDO_LIMIT]
-            if s.redo:
-                s.redo.clear()
+            _record_edit(s, _Entry(seq, rec["name"], ops, apply_ops(s.tracks, ops)))
         elif kind in ("undo", "redo"):
-            src, dst = (self._s.undo, self._s.redo) if kind == "undo" else (self._s.redo, self._s.undo)
-            if not src or src[-1].seq != rec["of"]:
-                raise ValueError(f"{kind} of edit {rec['of']}, which is not next to {kind}")
-            e = src.pop()
-            apply_ops(self._s.tracks, e.inverse if kind == "undo" else e.ops)
-            dst.append(e)
+            apply_ops(s.tracks, _step_ops(_swap(s, kind, rec["of"]), kind))
         elif kind != "note":
             raise ValueError(f"unknown record kind {kind!r}")
 
@@ -404,10 +402,28 @@ class Project(EditsMixin, PlacementMixin):
             raise EditError(f"unknown interpolation {method!r}; known: {', '.join(METHODS)}")
 
 
-def _push(stack: list[_Entry], e: _Entry) -> None:
-    stack.append(e)
-    if len(stack) > UNDO_LIMIT:
-        del stack[: len(stack) - UNDO_LIMIT]
+def _record_edit(s: _State, e: _Entry) -> None:
+    """A new edit joins the undo history (the oldest forgotten beyond UNDO_LIMIT) and ends the
+    redo history: the same for edits made now and edits replayed from the journal."""
+    s.undo.append(e)
+    if len(s.undo) > UNDO_LIMIT:
+        del s.undo[: len(s.undo) - UNDO_LIMIT]
+    s.redo.clear()
+
+
+def _swap(s: _State, kind: str, of: int) -> _Entry:
+    """Move edit ``of`` from the top of the undo history to the redo one (``kind`` "undo") or
+    back ("redo"); returns it. Raises ValueError when it is not on top (a damaged journal)."""
+    src, dst = (s.undo, s.redo) if kind == "undo" else (s.redo, s.undo)
+    if not src or src[-1].seq != of:
+        raise ValueError(f"{kind} of edit {of}, which is not next to {kind}")
+    dst.append(src.pop())
+    return dst[-1]
+
+
+def _step_ops(e: _Entry, kind: str) -> list[dict]:
+    """The ops that undo (its inverse) or redo (its ops) edit ``e``."""
+    return e.inverse if kind == "undo" else e.ops
 
 
 def _snapshot_dict(s: _State, scene: str, fingerprint: str) -> dict:

@@ -70,6 +70,51 @@ def _pairs(a: PoseTable, b: PoseTable) -> tuple[np.ndarray, np.ndarray]:
     return i[same], j[same]
 
 
+def _matched(project, ann: PoseTable, ref: PoseTable, source: str
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row pairs (i of ann, j of ref, distance metres) of each track with the reference road
+    user that speaks for it: its run track (pre-annotated or made from a mask), else the one
+    within GATE metres of it in the most frames. ref sorted by frame."""
+    i, j = _pairs(ann, ref)
+    d = np.linalg.norm(ann.xyz[i, :2] - ref.xyz[j, :2], axis=1)
+    near = d < GATE
+    match = {}
+    for t in np.unique(ann.track_id):
+        meta = project.track(int(t)).meta
+        if source == "estimate" and "run_track" in meta:
+            match[int(t)] = int(meta["run_track"])
+            continue
+        sel = near & (ann.track_id[i] == t)
+        if sel.any():
+            ids, counts = np.unique(ref.track_id[j[sel]], return_counts=True)
+            match[int(t)] = int(ids[np.argmax(counts)])
+    mine = np.array([match.get(int(t), -(10 ** 9)) for t in ann.track_id[i]]) == ref.track_id[j]
+    return i[mine], j[mine], d[mine]
+
+
+def reference(project, source: str = "estimate") -> PoseTable:
+    """The reference poses (a run's estimates, or the masks' fused normal positions) sorted
+    by frame, for ``distance_series`` (worth keeping: the normal positions take a while)."""
+    ref = _reference(project, source)
+    return ref.take(np.argsort(ref.frame, kind="stable"))
+
+
+def distance_series(project, track_id: int, source: str = "estimate",
+                    ref: PoseTable | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(frames (F,), distance (F,) metres) of one track over its span: how far its pose
+    (keyframe or interpolation) is from the reference road user that speaks for it (see
+    ``suggest_keyframes``); NaN where the reference has no pose. ref: ``reference(project,
+    source)`` if already at hand."""
+    ann = project.track_poses(track_id)
+    out = np.full(len(ann), np.nan)
+    if len(ann):
+        ref = reference(project, source) if ref is None else ref
+        if len(ref):
+            i, _, d = _matched(project, ann, ref, source)
+            out[i] = d
+    return np.asarray(ann.frame, np.int64), out
+
+
 def suggest_keyframes(project, source: str = "estimate", threshold: float = 0.5,
                       tracks=None, min_gap: int = 10, top: int | None = 100) -> list[Suggestion]:
     """Frames where a track's interpolation and the reference disagree by more than
@@ -84,22 +129,7 @@ def suggest_keyframes(project, source: str = "estimate", threshold: float = 0.5,
     ann = ann.take(ann.source == "interpolated")
     if not len(ann) or not len(ref):
         return []
-    i, j = _pairs(ann, ref)
-    d = np.linalg.norm(ann.xyz[i, :2] - ref.xyz[j, :2], axis=1)
-    # which reference road user speaks for each track: most frames within the gate
-    near = d < GATE
-    match = {}
-    for t in np.unique(ann.track_id):
-        meta = project.track(int(t)).meta
-        if source == "estimate" and "run_track" in meta:
-            match[int(t)] = int(meta["run_track"])
-            continue
-        sel = near & (ann.track_id[i] == t)
-        if sel.any():
-            ids, counts = np.unique(ref.track_id[j[sel]], return_counts=True)
-            match[int(t)] = int(ids[np.argmax(counts)])
-    mine = np.array([match.get(int(t), -(10 ** 9)) for t in ann.track_id[i]]) == ref.track_id[j]
-    i, j, d = i[mine], j[mine], d[mine]
+    i, j, d = _matched(project, ann, ref, source)
     out = []
     for t in np.unique(ann.track_id[i]):
         sel = np.flatnonzero((ann.track_id[i] == t) & (d > threshold))

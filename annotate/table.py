@@ -12,7 +12,7 @@ import numpy as np
 
 from annotate.interpolate import interpolate
 from annotate.model import Track
-from seg2pose.ground import GroundSurface
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.poses import SOURCES, PoseTable
 
 __all__ = ["SOURCES", "segments", "track_poses", "empty"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from annotate.model import EditError, Track
 from annotate.place import motion_headings
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.tanalyst import (CLASS_TO_TYPE, TYPE_TO_CLASS, TAnalystTable, frames_to_times,
                                   times_to_frames)
 

@@ -38,7 +38,7 @@ from annotate import Project  # noqa: E402
 from annotate.interpolate import METHODS, interpolate  # noqa: E402
 from annotate.model import Track, keyframe  # noqa: E402
 from annotate.table import track_poses  # noqa: E402
-from seg2pose.ground import GroundSurface  # noqa: E402
+from seg2pose.geometry.ground import GroundSurface  # noqa: E402
 
 
 def median_ms(fn, repeat: int) -> str:

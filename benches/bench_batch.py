@@ -45,16 +45,16 @@ def bench_video_segments(root: Path, n_frames: int) -> None:
     import ray
 
     from bench_video import H, W, write_video
-    from seg2pose.batch import BatchOptions, run_study
-    from seg2pose.batch_steps import MASKS_FROM_VIDEO
-    from seg2pose.camera import Camera
-    from seg2pose.classify import classify_mots, size_rules
+    from seg2pose.batch.study import BatchOptions, run_study
+    from seg2pose.batch.steps import MASKS_FROM_VIDEO
+    from seg2pose.geometry.camera import Camera
+    from seg2pose.video.classify import classify_mots, size_rules
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.scene import load_scene
-    from seg2pose.mask_eval import score_masks
-    from seg2pose.track import TrackConfig, track_mots
-    from seg2pose.video_masks import BgConfig, masks_from_video
-    from seg2pose.video_scene import new_scene
+    from seg2pose.eval.mask_eval import score_masks
+    from seg2pose.video.track import TrackConfig, track_mots
+    from seg2pose.video.video_masks import BgConfig, masks_from_video
+    from seg2pose.video.video_scene import new_scene
 
     cv2.setNumThreads(1)  # per core
     cam = Camera.look_at("c0", np.array([0.0, -25.0, 14.0]), np.array([0.0, 15.0, 0.0]), 1000.0, W, H)
@@ -93,14 +93,14 @@ def bench_video_segments(root: Path, n_frames: int) -> None:
     try:
         @ray.remote
         def warm():  # start both workers and import what the segments need, before timing
-            import seg2pose.segments  # noqa: F401
+            import seg2pose.batch.segments  # noqa: F401
             time.sleep(1.0)
 
         ray.get([warm.remote() for _ in range(2)])
 
         @ray.remote
         def uncut_task(scene_dir):  # the uncut run as one Ray task: its CPU seconds there
-            from seg2pose.video_scene import scene_masks_from_video
+            from seg2pose.video.video_scene import scene_masks_from_video
 
             c = time.process_time()
             scene_masks_from_video(scene_dir, log=lambda s: None)
@@ -145,7 +145,7 @@ def switch_frames(truth: Path, est: Path) -> list[int]:
     from scipy.optimize import linear_sum_assignment
 
     from seg2pose.io.mots import iter_mots
-    from seg2pose.masks import iou
+    from seg2pose.structures.masks import iou
 
     other = {f: t for f, t in iter_mots(est)}
     last: dict[int, int] = {}
@@ -171,9 +171,9 @@ def bench_models(root: Path) -> None:
 
     from seg2pose.io.run import read_run_meta
     from seg2pose.io.scene import load_scene
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.synth.generate import generate_scene
-    from seg2pose.train import TrainConfig, train_scene
+    from seg2pose.training.train import TrainConfig, train_scene
 
     torch.set_num_threads(1)
     sd = generate_scene(root / "train", frames=150, seed=5, progress=False, workers=1)
@@ -218,7 +218,7 @@ def main() -> None:
 
     import ray
 
-    from seg2pose.batch import BATCH_DIR, BatchOptions, Step, run_study
+    from seg2pose.batch.study import BATCH_DIR, BatchOptions, Step, run_study
     from seg2pose.cli.batch import STEPS
     from seg2pose.synth.generate import generate_scene
 

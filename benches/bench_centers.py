@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.heights import collect_height_views, subsample_views
+from seg2pose.method.heights import collect_height_views, subsample_views
 from seg2pose.io.mots import iter_mots
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-from seg2pose.masks import mask_centers
-from seg2pose.matching import match_masks_to_truth
-from seg2pose.normal import CENTER_METHODS, default_height_bisection, normal_positions
+from seg2pose.structures.masks import mask_centers
+from seg2pose.method.matching import match_masks_to_truth
+from seg2pose.geometry.normal import CENTER_METHODS, default_height_bisection, normal_positions
 
 
 def tuned_heights(scene, center: str) -> dict[str, float]:
@@ -62,8 +62,8 @@ def test_errors(scene, center: str, heights: dict[str, float]) -> dict[str, np.n
 def fused_errors(scene, center: str, heights: dict[str, float], configs: list[str],
                  workdir: Path) -> dict[str, float]:
     """Mean error of the fused baseline (``s2p run --baseline``) per configuration, test split."""
-    from seg2pose.evaluate import evaluate
-    from seg2pose.pipeline import run_scene
+    from seg2pose.eval.evaluate import evaluate
+    from seg2pose.method.pipeline import run_scene
 
     for c in scene.classes:
         c.default_height = heights[c.name]

@@ -32,13 +32,13 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     """A 3-camera junction with n_users road users driving straight lines (wrapping around)."""
     import cv2
 
-    from seg2pose.camera import Camera, Rig
+    from seg2pose.geometry.camera import Camera, Rig
     from seg2pose.io.mots import MaskTable, write_mots
     from seg2pose.io.poses import PoseTable, write_poses
     from seg2pose.io.run import ViewTable, relative_path, write_run_folder
     from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
-    from seg2pose.masks import encode, mask_centers
-    from seg2pose.normal import normal_positions
+    from seg2pose.structures.masks import encode, mask_centers
+    from seg2pose.geometry.normal import normal_positions
     from s2p_review.columns import box_corners
 
     marker = root / "built.json"
@@ -110,11 +110,12 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
 
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.poses import read_poses
-    from seg2pose.evaluate import per_frame_errors
+    from seg2pose.eval.evaluate import per_frame_errors
     from s2p_review import columns as C
     from s2p_review import layout as L
     from s2p_review.columns import sizes_of as _with_size
-    from s2p_review.recording import log_static
+    from s2p_review.recording import LogContext, log_static
+    from s2p_review.timebase import scene_timebase
     from s2p_review.runs import load_run
 
     run = load_run(run_dir, scene)
@@ -122,7 +123,7 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     cams = list(scene.cameras)
     rec = rr.RecordingStream("s2p-bench")
     rec.save(rrd, default_blueprint=L.blueprint(cams, [run.name]))
-    log_static(rec, scene, cams)
+    log_static(LogContext(rec, scene, scene_timebase(scene), 0, 0), cams)
     poses, v = run.poses, run.views
     psz, gsz = _with_size(poses, scene), _with_size(gt, scene)
     frames = np.arange(int(poses.frame.min()), int(poses.frame.max()) + 1)

@@ -30,7 +30,7 @@ from seg2pose.synth.rig import make_device
 from seg2pose.synth.rough import render_rough_examples
 from seg2pose.synth.traffic import TrafficConfig, Visit, simulate
 from seg2pose.synth.world import build_world
-from seg2pose.ground import GroundSurface
+from seg2pose.geometry.ground import GroundSurface
 
 
 def twenty_in_view(cam, n_frames: int, seed: int = 0):

@@ -58,7 +58,7 @@ def write_video(path: Path, n_frames: int, n_users: int) -> None:
 
 
 def _masks_child(video: str, out: str, q) -> None:
-    from seg2pose.video_masks import BgConfig, masks_from_video
+    from seg2pose.video.video_masks import BgConfig, masks_from_video
 
     t = time.perf_counter()
     res = masks_from_video(video, out, BgConfig(), log=lambda s: None)
@@ -82,7 +82,7 @@ def bgsub_only(video: Path, n: int) -> float:
     """frames/s of background subtraction + morphology + components + RLE on decoded frames."""
     import cv2
 
-    from seg2pose.video_masks import BackgroundMasks, BgConfig
+    from seg2pose.video.video_masks import BackgroundMasks, BgConfig
 
     cap = cv2.VideoCapture(str(video))
     frames = []
@@ -108,11 +108,11 @@ def tracker_fps(n_frames: int, n_users: int, repeat: int = 1
     of wall time, frames per second of this process's CPU time) per run; plus the share of
     frames with a split. On a loaded machine the CPU figure is the steadier one.
     The blobs overlap often (they are drawn at random and wrap around): a worst case."""
-    from seg2pose.camera import Camera
-    from seg2pose.ground import GroundSurface
+    from seg2pose.geometry.camera import Camera
+    from seg2pose.geometry.ground import GroundSurface
     from seg2pose.io.mots import MaskTable
-    from seg2pose.masks import encode
-    from seg2pose.track import track_frames
+    from seg2pose.structures.masks import encode
+    from seg2pose.video.track import track_frames
 
     us = users(n_users)
     tabs = []
@@ -130,7 +130,7 @@ def tracker_fps(n_frames: int, n_users: int, repeat: int = 1
     cam = Camera.look_at("c", np.array([-12.0, -12.0, 10.0]), np.array([-1.0, -1.0, 0.0]), 900.0, W, H)
     g = np.array([(x, y, 0.0) for x in range(-30, 31, 10) for y in range(-30, 31, 10)], float)
     ground = GroundSurface(g)
-    from seg2pose.track import TrackConfig, Tracker, _run
+    from seg2pose.video.track import TrackConfig, Tracker, _run
 
     out: list[list[tuple[float, float]]] = [[], [], []]
     for _ in range(repeat):

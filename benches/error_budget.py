@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.evaluate import match_poses
+from seg2pose.eval.evaluate import match_poses
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-from seg2pose.smoothing import smooth_along_tracks
+from seg2pose.geometry.smoothing import smooth_along_tracks
 
 NOISE_WINDOW = 4  # frames either side
 
@@ -35,7 +35,7 @@ def budget(scene, run_dir: Path, smooth: int = 0, cls: str | None = None) -> dic
     gt = read_poses(scene.gt_path)
     if smooth:
         from seg2pose.io.run import read_views
-        from seg2pose.pipeline import fuse
+        from seg2pose.method.pipeline import fuse
 
         est = fuse(read_views(run_dir / "views.csv"), scene, smooth)
     else:

@@ -38,8 +38,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seg2pose.io.mots import iter_mots, read_mots  # noqa: E402
-from seg2pose.mask_eval import score_masks  # noqa: E402
-from seg2pose.masks import decode, encode  # noqa: E402
+from seg2pose.eval.mask_eval import score_masks  # noqa: E402
+from seg2pose.structures.masks import decode, encode  # noqa: E402
 
 
 def fresh_scene(src: Path, dst: Path) -> None:
@@ -96,7 +96,7 @@ def recall_moving_still(truth: Path, est: Path, cam: str, step_m: float = 0.03) 
     from scipy.optimize import linear_sum_assignment
 
     from seg2pose.io.poses import read_poses
-    from seg2pose.masks import iou, rle_stats
+    from seg2pose.structures.masks import iou, rle_stats
 
     gt = read_poses(truth / "gt" / "poses.csv")
     o = np.lexsort((gt.frame, gt.track_id))

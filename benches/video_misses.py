@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seg2pose.io.mots import iter_mots  # noqa: E402
 from seg2pose.io.poses import read_poses  # noqa: E402
 from seg2pose.io.scene import load_scene  # noqa: E402
-from seg2pose.masks import iou, rle_stats  # noqa: E402
+from seg2pose.structures.masks import iou, rle_stats  # noqa: E402
 
 REASONS = ("merged", "occluded", "fragmented", "oversized", "faint", "other")
 

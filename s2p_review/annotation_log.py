@@ -171,7 +171,8 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
               frames: tuple[int, int] | None = None, *, video: bool = True, masks: bool = True):
     """Log the scene (cameras, ground, video frames under masks) and the run's estimates for
     comparison, as ``s2p review`` does but without ground truth (annotators must not see it).
-    Returns (blueprint, cameras shown, (first, last) frames, notes for the user)."""
+    Returns (blueprint, cameras shown, (first, last) frames, notes for the user, camera ->
+    scene frames that have video)."""
     from s2p_review.recording import LogStyle, log_all
     from s2p_review.selection import select
 
@@ -181,4 +182,69 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
                                                                      gt=False))
     bp = L.blueprint(sel.cameras, [r.name for r in sel.runs], with_metrics=False,
                      eye=L.default_eye(scene), fps=scene.fps)
-    return bp, sel.cameras, (sel.first, sel.last), list(stats.notes)
+    return bp, sel.cameras, (sel.first, sel.last), list(stats.notes), stats.video_frames
+
+
+TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (send_timeline)
+
+
+def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | None = None,
+                  timeline: str = L.TIMELINE):
+    """The annotation app's layout: camera ``large`` big on the left over the selected track's
+    keyframe timeline; the 3D world and the other cameras small on the right."""
+    import rerun.blueprint as rrb
+
+    large = large if large in cameras else (cameras[0] if cameras else None)
+    extra = {}
+    if eye is not None:
+        extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
+    world = rrb.Spatial3DView(origin="world", name="world", contents=["+ world/**"],
+                              line_grid=rrb.LineGrid3D(visible=False), **extra)
+    small = [rrb.Spatial2DView(origin=L.cam_path(c), name=f"{VIEW_PREFIX}{c}")
+             for c in cameras if c != large]
+    plot = rrb.TimeSeriesView(origin=TIMELINE_PATH, name="selected track: keyframes, distance "
+                              "to the estimates (m)",
+                              plot_legend=rrb.PlotLegend(corner="lefttop", visible=True))
+    if large is None:
+        body = rrb.Vertical(world, plot, row_shares=[4, 1])
+    else:
+        left = rrb.Vertical(rrb.Spatial2DView(origin=L.cam_path(large), name=f"{VIEW_PREFIX}{large}"),
+                            plot, row_shares=[4, 1])
+        right = rrb.Vertical(world, *small) if len(small) <= 3 else \
+            rrb.Vertical(world, rrb.Grid(*small, grid_columns=2), row_shares=[1, 2])
+        body = rrb.Horizontal(left, right, column_shares=[3, 1])
+    return rrb.Blueprint(body, rrb.TimePanel(state="collapsed", timeline=timeline, fps=fps),
+                         rrb.SelectionPanel(state="hidden"), rrb.BlueprintPanel(state="hidden"),
+                         auto_views=False, collapse_panels=False)
+
+
+def send_timeline(rec, scene, frames: np.ndarray, distance: np.ndarray, keyframes: np.ndarray,
+                  previous: tuple[int, int] | None = None) -> tuple[int, int] | None:
+    """The selected track's timeline: the distance (metres) between its interpolation and the
+    run's estimates (or the masks' normal positions) per frame, NaN where there is none, and
+    its keyframes as points on the 0 line. ``previous``: the frame span sent last time, emptied
+    first. Returns the span sent now."""
+    import rerun as rr
+
+    tb = scene_timebase(scene)
+    if previous is not None:
+        lo, hi = previous
+        fr = np.arange(lo, hi + 1)
+        for ent in (f"{TIMELINE_PATH}/distance", f"{TIMELINE_PATH}/keyframes"):
+            rec.send_columns(ent, indexes=tb.rerun_columns(fr),
+                             columns=rr.Clear.columns(is_recursive=np.zeros(len(fr), bool)))
+    rec.log(f"{TIMELINE_PATH}/distance", rr.SeriesLines(colors=[(230, 120, 40)],
+                                                        names=["distance to the estimates"]),
+            static=True)
+    rec.log(f"{TIMELINE_PATH}/keyframes", rr.SeriesPoints(colors=[SELECTED_COLOR],
+                                                          names=["keyframes"], marker_sizes=[5.0]),
+            static=True)
+    ok = np.isfinite(distance)
+    if ok.any():
+        rec.send_columns(f"{TIMELINE_PATH}/distance", indexes=tb.rerun_columns(frames[ok]),
+                         columns=rr.Scalars.columns(scalars=distance[ok]))
+    if len(keyframes):
+        rec.send_columns(f"{TIMELINE_PATH}/keyframes", indexes=tb.rerun_columns(keyframes),
+                         columns=rr.Scalars.columns(scalars=np.zeros(len(keyframes))))
+    span = [int(a) for a in (frames[ok] if ok.any() else keyframes)]
+    return (min(span), max(span)) if span else None

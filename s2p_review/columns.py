@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from seg2pose.masks import foreground_runs
+from seg2pose.structures.masks import foreground_runs
 
 if TYPE_CHECKING:
     from seg2pose.io.poses import PoseTable

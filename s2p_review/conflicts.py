@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.text import read_text
 from s2p_review import layout as L

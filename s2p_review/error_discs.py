@@ -1,6 +1,6 @@
 """The error bar of each estimated pose in review: a disc on the ground under the road user
 with radius r90_m (the radius that holds the true position with 90 % probability,
-``seg2pose.uncertainty``), outlined in a colour by size -- green for a tight bar, through
+``seg2pose.method.uncertainty``), outlined in a colour by size -- green for a tight bar, through
 yellow, to red at ``R90_RED_M`` and beyond -- so that the poses to distrust stand out.
 
 Runs without r90_m (older runs, runs without a calibration) draw nothing.
@@ -32,9 +32,9 @@ def r90_colors(r90: np.ndarray, red_m: float = R90_RED_M) -> np.ndarray:
     return np.round(out).astype(np.uint8)
 
 
-def log_error_discs(rec, ent: str, table, tb, first: int, last: int) -> bool:
-    """Log the discs of ``table`` (a PoseTable with r90) under ``ent`` per frame in [first,
-    last]; False (nothing logged) when it has no finite r90_m."""
+def log_error_discs(ctx, ent: str, table) -> bool:
+    """Log the discs of ``table`` (a PoseTable with r90) under ``ent`` per frame of ``ctx``
+    (``recording.LogContext``); False (nothing logged) when it has no finite r90_m."""
     import rerun as rr
 
     from s2p_review import columns as C
@@ -46,10 +46,9 @@ def log_error_discs(rec, ent: str, table, tb, first: int, last: int) -> bool:
     if not len(t):
         return False
     rings = disc_outlines(t.xyz, t.r90)
-    rec.log(ent, rr.LineStrips3D.from_fields(radii=0.03), static=True)
-    rec.send_columns(ent, indexes=tb.rerun_columns(np.arange(first, last + 1)),
-                     columns=rr.LineStrips3D.columns(
-                         strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
-                         colors=r90_colors(t.r90), labels=[f"r90 {v:.2f} m" for v in t.r90])
-                     .partition(C.frame_lengths(t.frame, first, last)))
+    ctx.static(ent, rr.LineStrips3D.from_fields(radii=0.03))
+    ctx.send_range(ent, rr.LineStrips3D.columns(
+        strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
+        colors=r90_colors(t.r90), labels=[f"r90 {v:.2f} m" for v in t.r90])
+        .partition(C.frame_lengths(t.frame, ctx.first, ctx.last)))
     return True

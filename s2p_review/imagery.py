@@ -10,7 +10,7 @@ from typing import Iterator
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.scene import Scene
 from seg2pose.io.video import camera_reader
@@ -92,3 +92,31 @@ def paint(tables: list[MaskTable], values: list[np.ndarray], path: Path, dtype=n
         fr = [int(f) for t in tables for f in t.frame[:1]]
         raise InputError(f"frames {min(fr, default='?')}..{max(fr, default='?')}: {e}",
                          file=path) from None
+
+
+OUTLINE_TOLERANCE = 0.8  # pixels: outlines are simplified to within this of the mask's edge
+
+
+def outlines(table: MaskTable, path: Path) -> tuple[list[np.ndarray], np.ndarray]:
+    """Outlines of one frame's masks: closed polylines (each (K, 2) float32, image pixels x
+    right, y down, on pixel centres) and for each polyline the row of ``table`` it outlines
+    (P,). Later masks cover earlier ones, as when painted; outer edges only."""
+    import cv2
+    from scipy import ndimage
+
+    n = len(table)
+    if n == 0:
+        return [], np.zeros(0, np.int64)
+    labels = paint([table], [np.arange(1, n + 1)], path, dtype=np.uint16)[0]
+    polys, owner = [], []
+    for k, sl in enumerate(ndimage.find_objects(labels, max_label=n)):
+        if sl is None:
+            continue  # wholly covered by later masks
+        crop = (labels[sl] == k + 1).astype(np.uint8)
+        contours, _ = cv2.findContours(crop, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        for c in contours:
+            c = cv2.approxPolyDP(c, OUTLINE_TOLERANCE, True)[:, 0, :]
+            pts = np.vstack([c, c[:1]]).astype(np.float32) + [sl[1].start + 0.5, sl[0].start + 0.5]
+            polys.append(pts)
+            owner.append(k)
+    return polys, np.asarray(owner, np.int64)

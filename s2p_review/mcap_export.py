@@ -45,7 +45,7 @@ from typing import Iterator
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
@@ -179,7 +179,7 @@ def _error_stream(tb: Timebase, poses: PoseTable, gt: PoseTable | None) -> Itera
     """Per-frame ground-plane errors against the truth (for the layout's plot)."""
     if gt is None:
         return
-    from seg2pose.evaluate import per_frame_errors
+    from seg2pose.eval.evaluate import per_frame_errors
 
     frames, mean, per_class = per_frame_errors(poses, gt)
     for k, f in enumerate(frames.tolist()):
@@ -193,7 +193,7 @@ def _camera_stream(scene: Scene, name: str, rank: int, sel: Selection, tb: Timeb
                    ) -> Iterator[Item]:
     """One camera's images and annotations, frame by frame. The outlines of the latest mask
     frame stay on the annotations until the next one (viewers keep showing that mask)."""
-    from seg2pose.masks import rle_stats
+    from seg2pose.structures.masks import rle_stats
 
     cam = scene.cameras[name]
     s = opts.image_scale

@@ -10,11 +10,11 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import temp_sibling_dir
 from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
-from seg2pose.io.validate import inside, safe_name
+from seg2pose.core.validate import inside, safe_name
 from s2p_review import mcap_records as R
 from s2p_review.annotated_mcap import restore_annotation_files
 

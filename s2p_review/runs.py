@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, read_run
 from seg2pose.io.scene import Scene

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.scene import Scene
 from s2p_review.runs import Run, load_run, scene_last_frame
 

@@ -9,7 +9,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_path, check_writable
 from seg2pose.io.scene import Scene
 from s2p_review import layout as L

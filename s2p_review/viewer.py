@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlparse
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_bytes, check_writable
 
 

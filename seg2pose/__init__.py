@@ -5,7 +5,7 @@ holds the maths and the pipeline and imports no UI: ``s2p_review`` (Rerun) and `
 build on it.
 """
 
-from seg2pose.errors import S2PError, InputError
+from seg2pose.core.errors import InputError, S2PError
 
 __version__ = "0.1.0"
 __all__ = ["S2PError", "InputError", "__version__"]

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
+from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import ClassSpec, Scene
-from seg2pose.masks import encode
+from seg2pose.structures.masks import encode
 
 W, H = 64, 48
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]

@@ -1,6 +1,6 @@
 """Kill s2p commands at random moments and classify what they leave under the output's name:
 ``absent``, ``old`` (the complete previous output), ``new`` (the complete new one) or
-``mixed`` (anything else: a partial or merged output). Used by tests/test_kill.py (a few kills)
+``mixed`` (anything else: a partial or merged output). Used by tests/system/test_kill.py (a few kills)
 and benches/bench_faults.py (many)."""
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     from seg2pose.io.mask_formats import save_masks
     from seg2pose.io.mots import read_mots
     from seg2pose.io.utocs import import_utocs
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.synth.generate import generate_scene
     from s2p_review.mcap_export import export_mcap
     from seg2pose.io.scene import load_scene

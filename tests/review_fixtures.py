@@ -9,17 +9,20 @@ shifted by a known offset, with per-view rows (mask centres, normal positions, r
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
+from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
-from seg2pose.masks import encode, mask_centers
-from seg2pose.normal import normal_positions
+from seg2pose.structures.masks import encode, mask_centers
+from s2p_review.recording import LogStyle
+from s2p_review.session import RecordOptions
+from seg2pose.geometry.normal import normal_positions
 
 W, H = 160, 120
 FPS = 10.0
@@ -151,3 +154,36 @@ def make_run(scene: Scene, run_dir: Path, *, method: str = "baseline", residual:
             "created": "2026-01-01T00:00:00Z"}
     write_run_folder(run_dir, est, ViewTable.concat(views), meta, force=True)
     return run_dir
+
+
+# --- the review tests' scene ----------------------------------------------------------------------
+
+N_FRAMES = 20
+NO_IMAGES = RecordOptions(style=LogStyle(masks=False, video=False))
+
+
+def review_scene(tmp_path_factory):
+    """The review tests' scene (``N_FRAMES`` frames with video) and two runs of it, baseline and
+    Seg2PoseNet: (scene, base run folder, s2pn run folder, root)."""
+    root = tmp_path_factory.mktemp("review")
+    scene = make_scene(root / "scene", n_frames=N_FRAMES, video=True)
+    base = make_run(scene, root / "scene" / "out" / "run-base")
+    s2pn = make_run(scene, root / "scene" / "out" / "run-s2pn", method="seg2posenet", residual=0.2)
+    return scene, base, s2pn, root
+
+
+def rrd_rows(path: Path) -> tuple[Counter, Counter, list]:
+    """(rows per entity, chunks per (entity, component), blueprints) of an .rrd file."""
+    import rerun.chunk as rc
+
+    reader = rc.RrdReader(path)
+    rows, comps = Counter(), Counter()
+    for ch in reader.stream():
+        if ch.is_static:
+            for n in ch.to_record_batch().schema.names:
+                comps[(ch.entity_path, n)] += 1
+            continue
+        rows[ch.entity_path] += ch.num_rows
+        for n in ch.to_record_batch().schema.names:
+            comps[(ch.entity_path, n)] += 1
+    return rows, comps, reader.blueprints()

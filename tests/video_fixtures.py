@@ -3,9 +3,13 @@ milliseconds: a smooth random background, sensor noise, moving coloured rectangl
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+
+from seg2pose.geometry.camera import Camera
+from seg2pose.structures.masks import encode
 
 H, W = 120, 160
 
@@ -83,3 +87,27 @@ def single_threaded_opencv():
     cv2.setNumThreads(1)
     yield
     cv2.setNumThreads(before)
+
+
+# --- detector output and calibration files ----------------------------------------------------
+
+
+def rle(x0, y0, w, h):
+    m = np.zeros((H, W), np.uint8)
+    m[y0:y0 + h, x0:x0 + w] = 1
+    return {"size": [H, W], "counts": encode(m).decode()}
+
+
+def det(image_id, cat, seg, score=0.9):
+    return {"image_id": image_id, "category_id": cat, "segmentation": seg, "score": score}
+
+
+def calibration(tmp_path, name="c0", with_size=False):
+    cam = Camera.look_at(name, np.array([0.0, -10.0, 8.0]), np.array([0.0, 10.0, 0.0]), 150.0, W, H)
+    d = {"name": name, "K": cam.K.tolist(), "R": cam.R.tolist(), "t": cam.t.tolist()}
+    if with_size:
+        d.update(width=W + 10, height=H)
+    (tmp_path / "calib.json").write_text(json.dumps({"cameras": [d]}))
+    g = "\n".join(f"{x},{y},0" for x in range(-20, 21, 10) for y in range(-10, 41, 10))
+    (tmp_path / "ground.csv").write_text(g + "\n")
+    return cam

@@ -12,7 +12,7 @@ from annotate.edits import NUDGE_STEPS, ROTATE_STEPS
 
 CLICK_MODES = ("centre", "ground", "mask")
 CLICK_MODE_HELP = {
-    "centre": "click the middle of the road user (ray meets the ground raised by the class's default height)",
+    "centre": "click the middle of the road user (the ray meets the world at half its box's height)",
     "ground": "click where the road user touches the ground",
     "mask": "click a mask: its Seg2Pose estimate (with --run) or its normal position",
 }
@@ -60,10 +60,16 @@ ACTIONS: list[Action] = [
     Action("prev_track", "◀ track", "Shift+t", "track"),
     Action("next_track", "track ▶", "t", "track"),
     Action("new_track", "new track", "n", "track"),
+    Action("deselect", "no track (then a mask click makes one)", "Escape", "track"),
     Action("delete_keyframe", "delete keyframe", "Delete", "track"),
+    Action("delete_track", "delete track (press twice)", "Shift+Delete", "track"),
+    Action("goto_frame", "go to frame…", "f", "time"),
     Action("click_mode", "click mode", "c", "track"),
+    Action("large_camera", "next camera large", "k", "view"),
+    Action("best_camera", "the selected track's best camera large", "Shift+k", "view"),
     Action("accept_estimate", "accept estimate", "y", "track"),
     Action("accept_every", "accept estimates every N", "Shift+y", "track"),
+    Action("preannotate", "pre-annotate every road user of the run", "Shift+p", "track"),
     Action("occluded", "occluded from here", "o", "span"),
     Action("outside", "outside from here", "x", "span"),
     Action("visible", "visible here", "v", "span"),
@@ -73,10 +79,13 @@ ACTIONS: list[Action] = [
     Action("undo", "undo", "Ctrl+z", "history"),
     Action("redo", "redo", "Ctrl+y", "history"),
     *_nudges(), *_rotations(),
+    *[Action(f"class_key:{i}", f"class {i}", str(i), "class") for i in range(1, 10)],
 ]
 ACTION_BY_NAME = {a.name: a for a in ACTIONS}
 SHORTCUTS = {a.key: a.name for a in ACTIONS}
 SHORTCUTS["Ctrl+Shift+z"] = "redo"
+PAGE_ACTIONS = {"goto_frame"}  # done by the page itself (focus the frame field), not the server
+CONFIRM_SECONDS = 5.0          # a second Shift+Delete within this long deletes the track
 
 
 class Actions:
@@ -101,12 +110,17 @@ class Actions:
     def _do(self, name: str) -> str | None:
         p = self.project
         if name.startswith("goto:"):
-            self.goto(int(name.split(":")[1]))
+            try:
+                self.goto(int(name.split(":")[1]))
+            except ValueError:
+                raise EditError(f"go to frame: {name.split(':')[1]!r} is not a frame number") from None
             return None
         if name.startswith("select:"):
             tid = int(name.split(":")[1])
             self._select(tid if tid in p.tracks else None)
             return None
+        if name.startswith("class_key:"):
+            return self._class_key(int(name.split(":")[1]))
         if name.startswith("class:"):
             cls = name.split(":", 1)[1]
             if cls not in [c.name for c in p.scene.classes]:
@@ -184,9 +198,66 @@ class Actions:
         self._select(ch.track)
         return f"track {ch.track} ({self.new_class}): click it in a camera view"
 
+    def _a_deselect(self):
+        if self.selected is None:
+            return "no track selected"
+        self._select(None)
+        return ("no track selected: n makes one; in mask mode a click on a mask makes the track "
+                "of that road user")
+
+    def _a_delete_track(self):
+        import time
+
+        tid = self._need_track()
+        pending = getattr(self, "_confirm", None)
+        if pending is None or pending[0] != tid or time.monotonic() - pending[1] > CONFIRM_SECONDS:
+            self._confirm = (tid, time.monotonic())
+            n = len(self.project.track(tid).keyframes)
+            return (f"delete track {tid} ({self.project.track(tid).cls}, {n} keyframes)? press "
+                    f"Shift+Delete again within {CONFIRM_SECONDS:.0f} s (undo brings it back)")
+        self._confirm = None
+        self._select(None)
+        self._edit(self.project.delete_track, tid)
+        return f"track {tid} deleted (Ctrl+z brings it back)"
+
+    def _a_goto_frame(self):
+        return "type a frame number in the frame field and press Enter"
+
+    def _class_key(self, i: int) -> str:
+        classes = [c.name for c in self.project.scene.classes]
+        if not 1 <= i <= len(classes):
+            raise EditError(f"class key {i}: the scene has {len(classes)} classes "
+                            f"({', '.join(classes)})")
+        cls = classes[i - 1]
+        self.new_class = cls
+        self._save()
+        if self.selected is None:
+            return f"new tracks are {cls}"
+        self._edit(self.project.set_class, self.selected, cls, resize=True)
+        return f"track {self.selected} is a {cls} (typical size); new tracks are {cls}"
+
+    def _a_preannotate(self):
+        ch = self._edit(self.project.preannotate, every=self.every, frames=self.frame_range,
+                        skip_annotated=True)
+        return (f"pre-annotated {len(ch.created)} road users of the run (keyframes every "
+                f"{self.every} frames, flagged estimate); road users already annotated skipped")
+
     def _a_delete_keyframe(self):
         self._edit(self.project.delete_keyframe, self._need_track(), self.frame)
         return f"keyframe {self.frame} deleted"
+
+    def _a_large_camera(self):
+        cams = self.cameras
+        i = cams.index(self.large_camera) + 1 if self.large_camera in cams else 0
+        self._show_large(cams[i % len(cams)])
+        return f"camera {self.large_camera} large (k: the next one)"
+
+    def _a_best_camera(self):
+        cam = self.best_camera(self._need_track())
+        if cam is None:
+            return f"track {self.selected} is in no camera's view at frame {self.frame}"
+        self._show_large(cam)
+        return f"camera {cam} large: it sees track {self.selected} best here"
 
     def _a_click_mode(self):
         self.click_mode = CLICK_MODES[(CLICK_MODES.index(self.click_mode) + 1) % len(CLICK_MODES)]

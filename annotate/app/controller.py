@@ -20,21 +20,32 @@ from typing import Callable
 import numpy as np
 
 from annotate import LockedError, Project
+from annotate.headings import AUTO
 from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, CLICK_MODES, Actions
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
+GROUND_TOLERANCE = 0.25         # metres: a 3D click this close to the ground surface is on it
 HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
 @dataclass
 class _Holder:
     controller: "Controller"
     since: str
     seen: float
+    tab: str | None = None  # the browser tab's id (kept by the tab across reloads)
 
 
 _HOLDERS: dict[str, _Holder] = {}
 _HOLDERS_LOCK = threading.RLock()  # open() closes a silent holder while holding it
+
+
+def close_all() -> None:
+    """Close every project a page of this process holds (the server is stopping): their edit
+    locks are released."""
+    with _HOLDERS_LOCK:
+        for h in list(_HOLDERS.values()):
+            h.controller.close()
 
 
 @dataclass
@@ -54,9 +65,12 @@ class Controller(Actions):
     message: str = ""
     last_click: dict | None = None
     clicks: int = 0
+    video_frames: dict = field(default_factory=dict)  # camera -> frames with video (the viewer's)
     viewer_state: str = "loading"  # loading -> open (recording arrived) -> ready (time cursor seen)
     on_tracks: list[Callable[[set[int], int | None], None]] = field(default_factory=list)
     on_frame: list[Callable[[int], None]] = field(default_factory=list)
+    on_layout: list[Callable[[str], None]] = field(default_factory=list)
+    large_camera: str | None = None   # the camera shown large (remembered)
     lock: threading.RLock = field(default_factory=threading.RLock)
 
     # --- opening, closing, holding -------------------------------------------------------------
@@ -91,12 +105,38 @@ class Controller(Actions):
             c = cls(project, cams, (int(fr[0]), int(fr[1])), read_only_reason=reason)
             c.new_class = scene.classes[0].name if scene.classes else ""
             c.frame = c.frame_range[0]
+            c.large_camera = cams[0] if cams else None
             c._restore()
             if reason is None:
                 _HOLDERS[key] = _Holder(c, time.strftime("%H:%M:%S"), time.monotonic())
             c._key = key
+            c._run = run
             c.message = reason or "ready"
         return c
+
+    def hello(self, tab: str) -> None:
+        """The page names its browser tab (an id the tab keeps across reloads). The tab that
+        held the project for editing and was reloaded gets it back at once; any other tab
+        stays read-only."""
+        with _HOLDERS_LOCK:
+            h = _HOLDERS.get(getattr(self, "_key", ""))
+            if h is not None and h.controller is self:
+                h.tab = h.tab or str(tab)
+                return
+            if not self.read_only or h is None or h.tab != str(tab):
+                return
+            h.controller.close()  # this tab's page before the reload
+            try:
+                project = Project.open(self.project.scene, run=self._run)
+            except LockedError as e:
+                self.read_only_reason = f"read-only: {e}"
+                return
+            self.project.close()
+            self.project = project
+            self.read_only_reason = None
+            _HOLDERS[self._key] = _Holder(self, time.strftime("%H:%M:%S"), time.monotonic(),
+                                          str(tab))
+            self.message = "ready (this tab edits again after the reload)"
 
     def touch(self) -> None:
         """The page is alive (any message from it, or its heartbeat)."""
@@ -139,12 +179,14 @@ class Controller(Actions):
             self.every = d["every"]
         if d.get("new_class") in [c.name for c in self.project.scene.classes]:
             self.new_class = d["new_class"]
+        if d.get("large_camera") in self.cameras:
+            self.large_camera = d["large_camera"]
 
     def _save(self) -> None:
         if self.read_only:
             return
         d = {"frame": self.frame, "selected": self.selected, "click_mode": self.click_mode,
-             "every": self.every, "new_class": self.new_class}
+             "every": self.every, "new_class": self.new_class, "large_camera": self.large_camera}
         try:
             atomic_write_text(self.state_path, json.dumps(d))
         except OSError:
@@ -163,6 +205,38 @@ class Controller(Actions):
             self.previous = old
         self._save()
         self._tracks_changed({t for t in (old, tid) if t is not None})
+
+    def _show_large(self, cam: str) -> None:
+        self.large_camera = cam
+        self._save()
+        for cb in list(self.on_layout):
+            cb(cam)
+
+    def best_camera(self, tid: int) -> str | None:
+        """The camera that sees track ``tid`` best at the current frame: its box projected
+        largest, wholly in front of the camera; None when none sees it."""
+        from seg2pose.safety.footprints import corners as footprint
+
+        try:
+            x, y, h = self.project.pose_at(tid, self.frame)
+        except S2PError:
+            return None
+        t = self.project.track(tid)
+        z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
+        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([t.size]))[0]  # (4, 2)
+        corners = np.vstack([np.c_[foot, np.full(4, z)], np.c_[foot, np.full(4, z + t.size[2])]])
+        best, area = None, 0.0
+        for cam in self.cameras:
+            c = self.project.scene.cameras[cam]
+            uv, _, front = c.project_points(corners)
+            if not front.all():
+                continue
+            lo = np.clip(uv.min(axis=0), 0, [c.width, c.height])
+            hi = np.clip(uv.max(axis=0), 0, [c.width, c.height])
+            a = float(np.prod(np.maximum(hi - lo, 0)))
+            if a > area:
+                best, area = cam, a
+        return best
 
     def goto(self, frame: int, from_viewer: bool = False) -> None:
         """Move to ``frame`` (clamped to the scene); unless the viewer told us, move its cursor."""
@@ -218,7 +292,10 @@ class Controller(Actions):
         t = self.project.track(tid)
         height = 0.0
         if self.click_mode == "centre":
-            height = float(self.project.scene.default_heights().get(t.cls, 0.0))
+            # a click on the middle of the road user is a click on its box's centre: half the
+            # box's height above the ground (benches/annotate_accuracy.py compares this with
+            # the class's default height of the normal position)
+            height = float(t.size[2]) / 2
         self._edit(self.project.place_from_pixel, tid, self.frame, camera, (u, v), height=height)
         k = self.project.track(tid).keyframes[self.frame]
         return f"track {tid}: keyframe {self.frame} at ({k.x:.2f}, {k.y:.2f}) m"
@@ -228,14 +305,58 @@ class Controller(Actions):
         if hit is None:
             return f"no mask under pixel ({u:.0f}, {v:.0f}) of camera {camera} in frame {self.frame}"
         mask_track, cls = hit
-        if self.selected is None:
-            ch = self._edit(self.project.create_track, cls, meta={"run_track": int(mask_track)})
+        p = self.project
+        if self.selected is None:  # no track: the click makes the track of that road user
+            ch = self._edit(p.create_track, cls, meta={"run_track": int(mask_track)})
             self._select(ch.track)
+        else:  # never join another road user to the selected track silently
+            t = p.track(self.selected)
+            linked = t.meta.get("run_track")
+            if linked is None and t.keyframes:
+                return (f"refused: track {t.id} is linked to no road user and has keyframes; mask "
+                        f"{mask_track} is road user {mask_track}. Esc (no track), then click the "
+                        "mask to make its own track")
+            if linked is not None and int(linked) != int(mask_track):
+                return (f"refused: mask {mask_track} is road user {mask_track}, track {t.id} "
+                        f"follows road user {linked}. Esc (no track), then click the mask to "
+                        "make its own track")
+            if linked is None:
+                self._edit(p.set_meta, t.id, run_track=int(mask_track))
         tid = self.selected
-        self._edit(self.project.place_from_mask, tid, self.frame, camera, mask_track)
-        k = self.project.track(tid).keyframes[self.frame]
+        self._edit(p.place_from_mask, tid, self.frame, camera, mask_track)
+        k = p.track(tid).keyframes[self.frame]
         return (f"track {tid}: keyframe {self.frame} from mask {mask_track} "
                 f"({', '.join(k.flags) or 'placed'}) at ({k.x:.2f}, {k.y:.2f}) m")
+
+    def click_world(self, xyz, entity: str = "") -> str:
+        """A click in the 3D view at world point ``xyz`` (metres; None: the event carried no
+        point): on the ground it places the selected track's keyframe there."""
+        with self.lock:
+            self.touch()
+            self.clicks += 1
+            ok = xyz is not None and len(xyz) >= 3 and all(
+                v is not None and math.isfinite(float(v)) for v in list(xyz)[:3])
+            self.last_click = {"camera": None, "n": self.clicks,
+                               "xyz": [round(float(v), 3) for v in list(xyz)[:3]] if ok else None,
+                               "uv": None}
+            try:
+                self.message = self._click_world(xyz if ok else None, entity)
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def _click_world(self, xyz, entity: str) -> str:
+        if xyz is None:
+            return ("click ignored: the 3D view did not say which point was clicked; click the "
+                    "ground (grey mesh) or a camera view's image")
+        x, y, z = (float(v) for v in list(xyz)[:3])
+        g = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
+        if abs(z - g) > GROUND_TOLERANCE:
+            return (f"click ignored: that point ({entity or 'an object'}) is {z - g:+.2f} m from "
+                    "the ground; click the ground itself to place a keyframe")
+        tid = self._need_track()
+        self._edit(self.project.set_keyframe, tid, self.frame, x, y)
+        return f"track {tid}: keyframe {self.frame} at ({x:.2f}, {y:.2f}) m (3D view)"
 
     def mask_at(self, camera: str, u: float, v: float) -> tuple[int, str] | None:
         """(mask track id, class name) of the topmost mask of ``camera`` covering pixel (u, v)
@@ -297,7 +418,8 @@ class Controller(Actions):
             return []
         t = self.project.track(self.selected)
         return [{"frame": f, "x": k.x, "y": k.y, "heading_deg": math.degrees(k.heading),
-                 "flags": list(k.flags), "current": f == self.frame}
+                 "heading_mode": "auto" if AUTO in k.flags else "set",
+                 "flags": [fl for fl in k.flags if fl != AUTO], "current": f == self.frame}
                 for f, k in sorted(t.keyframes.items())]
 
     def panel(self) -> dict:
@@ -312,7 +434,8 @@ class Controller(Actions):
                     hit = np.flatnonzero(tab.frame == self.frame)
                     src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
                 here = src
-            return {"scene": self.project.scene.name, "frame": self.frame,
+            no_video = [c for c, fr in sorted(self.video_frames.items()) if self.frame not in fr]
+            return {"scene": self.project.scene.name, "frame": self.frame, "no_video": no_video,
                     "frame_range": list(self.frame_range), "selected": self.selected,
                     "here": here, "click_mode": self.click_mode,
                     "click_help": CLICK_MODE_HELP[self.click_mode], "new_class": self.new_class,

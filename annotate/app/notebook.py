@@ -16,7 +16,7 @@ def _():
     import marimo as mo
 
     from annotate.app.session import session_from_env
-    from seg2pose.errors import S2PError
+    from seg2pose.core.errors import S2PError
 
     try:
         session = session_from_env()

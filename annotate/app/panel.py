@@ -33,7 +33,27 @@ function render({ model, el }) {
   box.addEventListener('change', (e) => {
     const t = e.target;
     if (t.dataset.prefix) { model.send({action: t.dataset.prefix + t.value}); }
+    if (t.dataset.testid === 'goto') { t.blur(); }
   });
+  // clicks on the viewer's canvas (not drags): the viewer reports a click only as a change of
+  // its selection, so a second click on the same point says nothing; the server repeats the
+  // last click when a canvas click at the same place brings no selection change (session.py).
+  // Sent after two frames, when the viewer has reported the selection a click made.
+  let down = null;
+  const ondown = (e) => {
+    const t = (e.composedPath && e.composedPath()[0]) || e.target;
+    down = (t.tagName === 'CANVAS') ? [e.clientX, e.clientY] : null;
+  };
+  const onup = (e) => {
+    if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 4) { down = null; return; }
+    const at = down; down = null;
+    const fr = box.querySelector('[data-testid=frame-number]');  // the frame clicked at
+    const frame = fr ? parseInt(fr.textContent, 10) : null;
+    requestAnimationFrame(() => requestAnimationFrame(() => setTimeout(
+      () => model.send({canvas_click: at, frame: frame}), 150)));
+  };
+  window.addEventListener('pointerdown', ondown, true);
+  window.addEventListener('pointerup', onup, true);
   const onkey = (e) => {
     const t = (e.composedPath && e.composedPath()[0]) || e.target;
     // typing into a visible form field of the panel is not a shortcut (the viewer's own
@@ -44,11 +64,25 @@ function render({ model, el }) {
     const name = model.get('shortcuts')[keyName(e)];
     if (!name) return;
     e.preventDefault(); e.stopImmediatePropagation();
+    if (name === 'goto_frame') {  // the page's own action: type the frame, Enter goes there
+      const f = box.querySelector('[data-testid=goto]');
+      if (f) { f.focus(); f.select(); }
+      return;
+    }
     model.send({action: name});
   };
   window.addEventListener('keydown', onkey, true);
+  // the tab's id survives reloads (sessionStorage is per tab): a reloaded tab keeps the edit lock
+  let tab = sessionStorage.getItem('s2p-annotate-tab');
+  if (!tab) {
+    tab = (crypto.randomUUID ? crypto.randomUUID() : String(Math.random()).slice(2));
+    sessionStorage.setItem('s2p-annotate-tab', tab);
+  }
+  model.send({hello: tab});
   const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
-  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat); };
+  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat);
+                 window.removeEventListener('pointerdown', ondown, true);
+                 window.removeEventListener('pointerup', onup, true); };
 }
 export default { render };
 """
@@ -63,7 +97,11 @@ _CSS = """
 .s2p-panel button { margin: 1px; padding: 1px 6px; font-size: 12px; }
 .s2p-panel kbd { font-size: 11px; color: #555; border: 1px solid #bbb; border-radius: 3px;
                  padding: 0 3px; margin-left: 3px; }
-.s2p-panel .msg { padding: 3px 6px; background: #eef; border-radius: 4px; }
+.s2p-panel .msg { padding: 3px 6px; background: #eef; border-radius: 4px; height: 2.7em;
+                 overflow: hidden; }
+.s2p-panel td.warn { max-width: 16em; }
+.s2p-panel td.warn summary { white-space: nowrap; overflow: hidden; text-overflow: ellipsis;
+                             cursor: pointer; }
 .s2p-panel .ro { padding: 3px 6px; background: #fdd; border-radius: 4px; font-weight: bold; }
 .s2p-panel .warn { color: #b00; }
 """
@@ -87,6 +125,17 @@ def _button(a: dict, disabled: bool = False) -> str:
             f'{" disabled" if disabled else ""}>{_e(a["label"])}<kbd>{_e(a["key"])}</kbd></button>')
 
 
+def _warnings(w: list[str]) -> str:
+    """A track's warnings on one line (how many, the first), the rest on demand."""
+    if not w:
+        return ""
+    head = f"{len(w)}: {w[0]}" if len(w) > 1 else w[0]
+    if len(w) == 1:
+        return f'<span title="{_e(head)}">{_e(head)}</span>'
+    return (f'<details><summary title="{_e("; ".join(w))}">{_e(head)}</summary>'
+            + "".join(f"<div>{_e(x)}</div>" for x in w[1:]) + "</details>")
+
+
 def render(p: dict) -> str:
     """The panel's HTML from ``Controller.panel()`` data."""
     out = []
@@ -98,7 +147,11 @@ def render(p: dict) -> str:
                f'<b data-testid="frame-number">{p["frame"]}</b> of {p["frame_range"][0]}..'
                f'{p["frame_range"][1]}{_e(here)}</div>')
     out.append(f'<div>viewer: <span data-testid="viewer-state">{_e(p["viewer"])}</span></div>')
-    out.append(f'<div class="msg" data-testid="message">{_e(p["message"])}</div>')
+    if p.get("no_video"):
+        out.append(f'<div class="warn" data-testid="no-video">no video for frame {p["frame"]} in '
+                   f'{_e(", ".join(p["no_video"]))}: the camera view shows no picture</div>')
+    out.append(f'<div class="msg" data-testid="message" title="{_e(p["message"])}">'
+               f'{_e(p["message"])}</div>')
     lc = p["last_click"]
     if lc:
         out.append(f'<div data-testid="last-click" data-n="{lc["n"]}" data-camera="{_e(lc["camera"])}"'
@@ -108,6 +161,9 @@ def render(p: dict) -> str:
                f'{_e(p["click_help"])}</div>')
     opts = "".join(f'<option{" selected" if c == p["new_class"] else ""}>{_e(c)}</option>'
                    for c in p["classes"])
+    out.append(f'<div>go to frame <input type="number" data-testid="goto" data-prefix="goto:" '
+               f'min="{p["frame_range"][0]}" max="{p["frame_range"][1]}" style="width:5em">'
+               '<kbd>f</kbd></div>')
     out.append(f'<div>new tracks: <select data-prefix="class:">{opts}</select> · accept every '
                f'<input type="number" min="1" value="{p["every"]}" data-prefix="every:" '
                f'style="width:4em"> frames</div>')
@@ -119,20 +175,28 @@ def render(p: dict) -> str:
         rows.append(f'<tr data-action="select:{t["id"]}" data-track="{t["id"]}"'
                     f'{" class=sel" if t["selected"] else ""}><td>{t["id"]}</td><td>{_e(t["cls"])}'
                     f'</td><td>{t["keyframes"]}</td><td>{span}</td><td>{_e(t["interp"])}</td>'
-                    f'<td class="warn">{_e("; ".join(t["warnings"]))}</td></tr>')
+                    f'<td class="warn">{_warnings(t["warnings"])}</td></tr>')
     out.append(f'<h4>tracks</h4><table data-testid="tracks">{"".join(rows)}</table>')
     if sel is not None:
-        rows = ["<tr><th>frame</th><th>x (m)</th><th>y (m)</th><th>heading (°)</th><th>flags</th></tr>"]
+        rows = ["<tr><th>frame</th><th>x (m)</th><th>y (m)</th><th>heading (°)</th><th></th>"
+                "<th>flags</th></tr>"]
         for k in p["keyframes"]:
             rows.append(f'<tr data-action="goto:{k["frame"]}" data-frame="{k["frame"]}"'
                         f'{" class=sel" if k["current"] else ""}><td>{k["frame"]}</td>'
                         f'<td>{k["x"]:.2f}</td><td>{k["y"]:.2f}</td><td>{k["heading_deg"]:.1f}</td>'
+                        f'<td data-testid="heading-mode">{k["heading_mode"]}</td>'
                         f'<td>{_e(", ".join(k["flags"]))}</td></tr>')
         out.append(f'<h4>keyframes of track {sel}</h4><table data-testid="keyframes">'
                    f'{"".join(rows)}</table>')
     groups: dict[str, list[str]] = {}
     ro = bool(p["read_only"])
+    classes = p["classes"]
     for a in p["actions"]:
+        if a["name"].startswith("class_key:"):  # one button per class of the scene, named
+            i = int(a["name"].split(":")[1])
+            if i > len(classes):
+                continue
+            a = {**a, "label": classes[i - 1]}
         edit = a["group"] not in ("time",) and a["name"] not in ("next_track", "prev_track",
                                                                  "click_mode")
         groups.setdefault(a["group"], []).append(_button(a, disabled=ro and edit))

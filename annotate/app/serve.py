@@ -1,8 +1,14 @@
-"""Serve the annotation page: ``marimo run notebook.py`` as a child process on a local port.
+"""Serve the annotation page: the server process (server.py: marimo behind the Guard) as a
+child on a loopback port, with a random token per start.
 
-The child gets its arguments in S2P_ANNOTATE_ARGS (JSON) and RERUN_NOTEBOOK_ASSET=serve-local
-(the viewer's JavaScript and Wasm come from the installed rerun-notebook package, never the
-internet). ``Server`` starts it in its own process group and stops the whole group.
+The child gets its arguments in S2P_ANNOTATE_ARGS (JSON), the token in S2P_ANNOTATE_TOKEN, and
+RERUN_NOTEBOOK_ASSET=serve-local (the viewer's JavaScript and Wasm come from the installed
+rerun-notebook package, never the internet). ``Server`` starts it in its own process group and
+stops the whole group. Its log goes to SCENE/annotations/server.log (else a private temporary
+folder), opened without following links.
+
+From another machine, reach the app through an SSH tunnel (never by binding another address):
+``ssh -N -L 8765:127.0.0.1:PORT user@host``, then open the printed URL with 127.0.0.1:8765.
 """
 
 from __future__ import annotations
@@ -18,10 +24,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from seg2pose.errors import S2PError
+from annotate.app.guard import TOKEN_PARAM, new_token
+from annotate.app.server import ARGS_ENV, TOKEN_ENV
+from seg2pose.core.errors import S2PError
 
-NOTEBOOK = Path(__file__).with_name("notebook.py")
-SESSION_TTL = 5  # seconds marimo keeps a page's session after its tab is gone
+LOG_NAME = "server.log"
+STOP_SECONDS = 4.0  # SIGTERM, then SIGKILL after this long: stopped within 5 s
 
 
 def free_port() -> int:
@@ -42,13 +50,19 @@ class Server:
 
     proc: subprocess.Popen
     port: int
+    token: str
     log: Path | None = None
 
     @property
-    def url(self) -> str:
+    def base(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def stop(self, timeout: float = 10.0) -> None:
+    @property
+    def url(self) -> str:
+        """The page's address with the access token (what the annotator opens)."""
+        return f"{self.base}/?{TOKEN_PARAM}={self.token}"
+
+    def stop(self, timeout: float = STOP_SECONDS) -> None:
         """Stop the server and everything it started (its process group)."""
         if self.proc.poll() is not None:
             return
@@ -78,30 +92,52 @@ def check_scene(scene: Path, run: Path | None, cameras: list[str] | None) -> Non
         RunEstimates.load(run, s)  # refuses a run made on another scene (fingerprint)
 
 
+def open_log(scene: Path) -> tuple[int, Path]:
+    """(fd, path) of the server's log: SCENE/annotations/server.log, else a file in a fresh
+    private temporary folder; opened for appending without following a link, owner-only."""
+    import tempfile
+
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    folder = Path(scene) / "annotations"
+    try:
+        folder.mkdir(exist_ok=True)
+        path = folder / LOG_NAME
+        return os.open(path, flags, 0o600), path
+    except OSError:
+        path = Path(tempfile.mkdtemp(prefix="s2p-annotate-")) / LOG_NAME  # mode 0700
+        return os.open(path, flags | os.O_EXCL, 0o600), path
+
+
 def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None,
           port: int | None = None, native: bool = False, log: Path | None = None,
           wait: float = 60.0) -> Server:
     """Start the page's server and wait until it listens. log: a file for the server's output
-    (default: inherit this process's). Raises S2PError when it does not come up."""
+    (default: SCENE/annotations/server.log, see ``open_log``). Raises S2PError when it does not
+    come up."""
     port = port or free_port()
     if _port_open(port):
         raise S2PError(f"port {port} is in use; choose another with --port")
+    token = new_token()
     env = dict(os.environ)
     env["RERUN_NOTEBOOK_ASSET"] = "serve-local"
-    env["S2P_ANNOTATE_ARGS"] = json.dumps({
+    env[ARGS_ENV] = json.dumps({
         "scene": str(Path(scene).resolve()), "run": None if run is None else str(Path(run).resolve()),
-        "cameras": list(cameras) if cameras else None, "native": native})
+        "cameras": list(cameras) if cameras else None, "native": native, "port": port})
+    env[TOKEN_ENV] = token
     # the page imports s2p's packages: make this checkout importable in the child as it is here
     root = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
-    cmd = [sys.executable, "-m", "marimo", "run", str(NOTEBOOK), "--headless", "--port", str(port),
-           "--host", "127.0.0.1", "--no-token", "--session-ttl", str(SESSION_TTL), "--no-sandbox"]
-    out = open(log, "ab") if log is not None else None
-    proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT if out else None,
-                            start_new_session=True)
-    if out is not None:
-        out.close()
-    server = Server(proc, port, log)
+    cmd = [sys.executable, "-m", "annotate.app.server"]
+    if log is None:
+        fd, log = open_log(Path(scene))
+    else:
+        fd = os.open(log, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o600)
+    try:
+        proc = subprocess.Popen(cmd, env=env, stdout=fd, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    finally:
+        os.close(fd)
+    server = Server(proc, port, token, log)
     atexit.register(server.stop)  # whatever happens to this process, the server goes with it
     t0 = time.monotonic()
     while not _port_open(port):
@@ -124,14 +160,15 @@ def run_app(scene: Path, run: Path | None = None, cameras: list[str] | None = No
 
     check_scene(scene, run, cameras)
     # the server runs in its own process group (so that stopping it stops all it started):
-    # a SIGTERM to this process must still stop it, like Ctrl-C does
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    import tempfile
-
-    port = port or free_port()
-    log = Path(tempfile.gettempdir()) / f"s2p-annotate-{port}.log"
-    server = start(scene, run, cameras, port=port, native=native, log=log)
-    echo(f"annotation app for {scene} at {server.url}  (Ctrl-C to stop; server log: {log})")
+    # SIGINT and SIGTERM to this process stop it (SIGINT too where a shell started us in the
+    # background with SIGINT ignored)
+    for sig, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        signal.signal(sig, lambda *_, c=code: sys.exit(c))
+    server = start(scene, run, cameras, port=port, native=native)
+    echo(f"annotation app for {scene} at {server.url}\n  (only this machine can reach it; from "
+         f"another one use an SSH tunnel: ssh -N -L {server.port}:127.0.0.1:{server.port} "
+         f"USER@THIS-HOST, then open the same URL there. Ctrl-C stops it; server log: "
+         f"{server.log})")
     if browser:
         webbrowser.open(server.url)
     try:

@@ -21,12 +21,15 @@ os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the w
 from annotate.app.actions import SHORTCUTS  # noqa: E402
 from annotate.app.controller import Controller  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
+from s2p_review import layout as L  # noqa: E402
 from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
-                                       camera_of_view, log_scene, new_recording)
+                                       app_blueprint, camera_of_view, log_scene, new_recording,
+                                       send_timeline)
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 760
-PENDING_SECONDS = 3.0  # how long the viewer may take to show a frame the page moved it to
+PENDING_SECONDS = 30.0  # how long the viewer may take to show a frame the page moved it to (a loaded machine lags 20 s)
+REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat  # how long the viewer may take to show a frame the page moved it to
 
 
 def track_columns(project, tid: int) -> TrackColumns:
@@ -59,10 +62,13 @@ class Session:
             target = Tee(self.rec, other)
         self.target = target
         p = self.ctl.project
-        bp, cams, _, self.notes = log_scene(target, p.scene, run, self.ctl.cameras,
-                                            frames=self.ctl.frame_range)
-        for r in ([self.rec] if target is self.rec else target.recs):
-            r.send_blueprint(bp, make_active=True, make_default=True)
+        bp, cams, _, self.notes, video = log_scene(target, p.scene, run, self.ctl.cameras,
+                                                   frames=self.ctl.frame_range)
+        self.ctl.video_frames = {c: set(map(int, f)) for c, f in video.items()}
+        self._eye = L.default_eye(p.scene)
+        self._send_layout(self.ctl.large_camera)
+        self._timeline_span = None
+        self._ref = None
         self.logger = AnnotationLogger(target, p.scene, cams)
         self.last_send_ms = 0.0
         for tid in p.tracks:
@@ -74,6 +80,8 @@ class Session:
             self.ctl.message = "; ".join(self.notes)
         self.ctl.on_tracks.append(self._resend)
         self.ctl.on_frame.append(self._move_cursor)
+        self.ctl.on_layout.append(self._send_layout)
+        self._send_timeline()
         self.viewer.on_event(self._on_viewer_event)
         self.panel.on_msg(self._on_panel_msg)
         self.viewer.set_time_ctrl(sequence=self.ctl.frame, timeline="frame")
@@ -84,8 +92,33 @@ class Session:
         t0 = time.perf_counter()
         for tid in sorted(ids):
             self.logger.send_track(track_columns(self.ctl.project, tid), selected=tid == selected)
+        if selected in ids or selected is None:
+            self._send_timeline()
         self.target.flush()
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
+
+    def _send_layout(self, large: str | None) -> None:
+        bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps)
+        for r in ([self.rec] if self.target is self.rec else self.target.recs):
+            r.send_blueprint(bp, make_active=True, make_default=True)
+
+    def _send_timeline(self) -> None:
+        """The selected track's keyframes and its distance to the run's estimates (or the
+        masks' normal positions) per frame, in the timeline view under the large camera."""
+        import numpy as np
+
+        from annotate.review import distance_series, reference
+
+        p, tid = self.ctl.project, self.ctl.selected
+        frames = dist = kfs = np.zeros(0, np.int64)
+        if tid is not None and tid in p.tracks:
+            source = "estimate" if getattr(p, "_run", None) is not None else "normal"
+            if self._ref is None:
+                self._ref = reference(p, source)
+            frames, dist = distance_series(p, tid, source, ref=self._ref)
+            kfs = np.asarray(p.track(tid).frames, np.int64)
+        self._timeline_span = send_timeline(self.target, p.scene, frames, np.asarray(dist, float),
+                                            kfs, previous=self._timeline_span)
 
     def _move_cursor(self, frame: int) -> None:
         # until the viewer shows this frame, its reports of earlier cursor positions are stale
@@ -102,6 +135,13 @@ class Session:
         if "action" in content:
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
+        elif "canvas_click" in content:
+            self._on_canvas_click(content["canvas_click"], content.get("frame"))
+        elif "hello" in content:
+            was = self.ctl.read_only
+            self.ctl.hello(str(content["hello"]))
+            if was != self.ctl.read_only:
+                self.refresh_panel()
         else:
             self.ctl.touch()
 
@@ -141,12 +181,45 @@ class Session:
             if not items:
                 return  # a click on empty space, or the selection cleared
             it = items[0]
-            cam = camera_of_view(it.view_name, it.entity_path, self.ctl.cameras)
-            where = "" if cam else (f"{it.view_name} is not a camera view" if it.view_name
-                                    else "not in a view")
-            pos = it.position if cam else None
-            self.ctl.click(cam, pos, where)
-            self.refresh_panel()
+            self._last_click = (it.view_name, it.entity_path, it.position)
+            self._selected_since_click = True
+            self._apply_click(*self._last_click)
+
+    def _apply_click(self, view_name, entity_path, position) -> None:
+        cam = camera_of_view(view_name, entity_path, self.ctl.cameras)
+        if cam is not None:
+            self.ctl.click(cam, position)
+        elif view_name and (entity_path or "").strip("/").startswith("world"):
+            self.ctl.click_world(position, entity_path)  # the 3D view
+        else:
+            self.ctl.click(None, None, "not in a view")
+        self.refresh_panel()
+
+    def _on_canvas_click(self, at, frame=None) -> None:
+        """A click on the viewer's canvas at page point ``at`` (reported by the panel after the
+        viewer had time to report a selection). Every click is an edit, repeated or not: the
+        viewer reports a click only as a selection *change*, so a click that brought none, at
+        the page point of the last click that did, is that click again (same camera, same
+        pixel, at the frame it was made at). Clicks elsewhere without a selection (the time
+        panel, empty space) do nothing; a repeat that arrives after the frame changed is not
+        applied to the new frame."""
+        try:
+            x, y = float(at[0]), float(at[1])
+        except (TypeError, ValueError, IndexError):
+            return
+        if getattr(self, "_selected_since_click", False):
+            self._selected_since_click = False
+            self._last_click_at = (x, y)
+            return
+        last = getattr(self, "_last_click_at", None)
+        if last is not None and getattr(self, "_last_click", None) is not None and \
+                abs(x - last[0]) <= REPEAT_PX and abs(y - last[1]) <= REPEAT_PX:
+            if frame is not None and int(frame) != self.ctl.frame:
+                self.ctl.message = (f"click ignored: it was made at frame {frame}, the page is at "
+                                    f"frame {self.ctl.frame} now; click again")
+                self.refresh_panel()
+                return
+            self._apply_click(*self._last_click)
 
 
 def session_from_env() -> Session:

@@ -5,6 +5,10 @@ One module per family of commands, each with ``register(app)``; they are importe
 registered here by name, so a reader (and any tool) sees what depends on what. ``s2p --help``
 groups the commands in panels (``seg2pose.cli.common``): scene, method, review, annotation,
 batch, safety.
+
+A command imports the libraries it runs inside its function: ``s2p`` imports every command
+module at start, and ``s2p --help`` should not wait for torch, scipy, OpenCV or Rerun
+(tests/system/test_architecture.py checks that starting the command layer loads none of them).
 """
 
 from __future__ import annotations
@@ -13,7 +17,8 @@ import sys
 
 import typer
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
+from seg2pose.io.atomic import os_error_message
 
 app = typer.Typer(
     name="s2p",
@@ -31,10 +36,7 @@ def _root() -> None:
     """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
 
 
-from seg2pose.cli import annotation, demo, method, review, scene  # noqa: E402  (after app exists)
-from seg2pose.cli import video  # noqa: E402
-from seg2pose.cli import batch  # noqa: E402
-from seg2pose.cli import safety  # noqa: E402
+from seg2pose.cli import annotation, batch, demo, method, review, safety, scene, video  # noqa: E402  (after app exists)
 
 scene.register(app)
 video.register(app)
@@ -60,8 +62,6 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         rc = INTERRUPTED
     except OSError as e:  # the disk, not the input: still one line (outputs are atomic)
-        from seg2pose.io.atomic import os_error_message
-
         typer.secho(f"error: {os_error_message(e)}", fg=typer.colors.RED, err=True)
         sys.exit(2)
     except typer.Abort:  # end of input at a prompt

@@ -20,7 +20,8 @@ import typer
 from typer.core import TyperGroup
 
 from seg2pose.cli.common import ANNOTATION, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.io.atomic import check_writable
 
 OPEN = "open"
 
@@ -95,7 +96,8 @@ def open_cmd(
                                        "its estimates are shown, can be accepted as keyframes and "
                                        "drive the suggested keyframes"),
     camera: list[str] = typer.Option([], "--camera", help="cameras to show (repeatable; default: all)"),
-    port: Optional[int] = typer.Option(None, "--port", help="local port of the app (default: a free one)"),
+    port: Optional[int] = typer.Option(None, "--port", help="local port of the app on 127.0.0.1 (default: "
+                                        "a free one; other machines: an SSH tunnel, see below)"),
     browser: bool = typer.Option(True, "--browser/--no-browser", help="open the app in your web browser"),
     native: bool = typer.Option(False, "--native", help="also show the recording in the native Rerun "
                                 "viewer (display only; clicks come from the page)"),
@@ -105,7 +107,13 @@ def open_cmd(
     A local web page (no internet, no account) with the Rerun viewer — cameras, the
     annotation's boxes, the run's estimates — and a panel of tracks, keyframes and actions with
     their keyboard shortcuts. Prints the URL; every edit is journalled at once; stop with
-    Ctrl-C."""
+    Ctrl-C (or SIGTERM).
+
+    The server listens on 127.0.0.1 only and needs the random token in the printed URL
+    (page, websocket and API); requests naming another Host or Origin are refused. To annotate
+    from another machine, tunnel the port over SSH rather than exposing it: on your machine run
+    `ssh -N -L PORT:127.0.0.1:PORT USER@SERVER` and open the printed URL there. The server's log
+    is SCENE/annotations/server.log."""
     from annotate.app.serve import run_app
 
     run_app(scene, run, list(camera) or None, port=port, browser=browser, native=native,
@@ -153,7 +161,6 @@ def import_tanalyst_cmd(
 def _export_tanalyst(p, out: Path, start: str, fps, keyframes_only: bool, decimal: str,
                      force: bool) -> Path:
     from annotate.tanalyst_io import annotations_to_tanalyst
-    from seg2pose.io.atomic import check_writable
     from seg2pose.io.tanalyst import write_tanalyst
 
     if decimal not in (",", "."):

@@ -1,5 +1,5 @@
 """``s2p batch STUDY STEP...``: the single-scene commands over every scene of a study folder,
-on Ray (local, or a cluster by ``--address``) or serially without it (seg2pose/batch.py).
+on Ray (local, or a cluster by ``--address``) or serially without it (seg2pose/batch/study.py).
 
 The export and review steps need s2p_review, which only the command layer may import: they are
 defined here and handed to the library as Steps."""
@@ -11,10 +11,11 @@ from typing import List, Optional
 
 import typer
 
-from seg2pose.batch import BATCH_DIR, BatchOptions, Step, format_summary, ray_available, run_study
-from seg2pose.batch_steps import LIBRARY_STEPS, _scene_inputs, run_dir
+from seg2pose.batch.steps import LIBRARY_STEPS, run_dir, scene_inputs
+from seg2pose.batch.study import BATCH_DIR, BatchOptions, Step, format_summary, run_study
 from seg2pose.cli.common import BATCH, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.core.ray import ray_available
 
 
 def mcap_path(scene_dir: Path, opts: BatchOptions) -> Path:
@@ -26,7 +27,7 @@ def rrd_path(scene_dir: Path, opts: BatchOptions) -> Path:
 
 
 def _view_inputs(scene_dir: Path, opts: BatchOptions) -> list[Path]:
-    return _scene_inputs(scene_dir) + [scene_dir / "video", scene_dir / "gt", run_dir(scene_dir, opts)]
+    return scene_inputs(scene_dir) + [scene_dir / "video", scene_dir / "gt", run_dir(scene_dir, opts)]
 
 
 def _export(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:

@@ -6,7 +6,7 @@ import functools
 import inspect
 from typing import Callable
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 # the groups of ``s2p --help`` (typer's rich_help_panel)
 SCENE = "Scene"

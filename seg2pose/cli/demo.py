@@ -36,13 +36,13 @@ def _step(msg: str) -> float:
 def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: int = 0,
              retrain: bool = False, record: bool = True) -> dict:
     """Run the demo; returns a summary dict (paths and mean errors)."""
-    from seg2pose.evaluate import evaluate, format_table
+    from seg2pose.eval.evaluate import evaluate, format_table
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
     from seg2pose.io.scene import load_scene
-    from seg2pose.pipeline import run_scene
+    from seg2pose.method.pipeline import run_scene
     from seg2pose.synth import generate_scene
-    from seg2pose.train import TrainConfig, train_scene
+    from seg2pose.training.train import TrainConfig, train_scene
 
     t0 = time.perf_counter()
     summary: dict = {"scene": str(scene_dir)}
@@ -61,7 +61,7 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         scene.save()
 
     _step("default heights by bisection on the training split (paper 3.2)")
-    from seg2pose.heights import update_default_heights
+    from seg2pose.method.heights import update_default_heights
     update_default_heights(scene, split="train", log=typer.echo)  # saved, and set on scene
 
     models = scene_dir / "models"
@@ -99,7 +99,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     if record:
         from s2p_review.mcap_export import ExportOptions, export_mcap
         from s2p_review.recording import LogStyle
-        from s2p_review.session import RecordOptions, Targets, record as record_rrd
+        from s2p_review.session import RecordOptions, Targets
+        from s2p_review.session import record as record_rrd
 
         logs_dir.mkdir(parents=True, exist_ok=True)
         rrd = logs_dir / "demo.rrd"

@@ -8,6 +8,7 @@ from typing import List, Literal, Optional
 import typer
 
 from seg2pose.cli.common import METHOD, speaks_flags
+from seg2pose.core.ray import ray_map
 
 Arch = Literal["paper", "lite", "lite-hr"]
 Center = Literal["bbox", "centroid"]
@@ -57,8 +58,8 @@ def run_cmd(
     (fused poses) and views.csv (one row per camera view)."""
     from seg2pose.io.run import read_run_meta
     from seg2pose.io.scene import load_scene
-    from seg2pose.pipeline import run_scene
-    from seg2pose.sparse import set_enabled
+    from seg2pose.method.pipeline import run_scene
+    from seg2pose.method.sparse import set_enabled
 
     set_enabled(sparse)
     d = run_scene(load_scene(scene), out, config=config, baseline=baseline, models_dir=models,
@@ -113,9 +114,8 @@ def train_cmd(
     The paper's protocol: best of four runs, Adam 5e-5, batch 16, 64 batches per epoch,
     50 epochs, every fourth example a rough model. An interrupted training resumes from its
     checkpoints."""
-    from seg2pose.train_fanout import ray_map
     from seg2pose.io.scene import load_scene
-    from seg2pose.train import TrainConfig, train_scene
+    from seg2pose.training.train import TrainConfig, train_scene
 
     cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
@@ -146,9 +146,9 @@ def eval_cmd(
     Overall, per class and per 5 m of distance from the cameras."""
     import json
 
-    from seg2pose.evaluate import format_r90_table, format_table
+    from seg2pose.eval.evaluate import format_r90_table, format_table
+    from seg2pose.eval.paper_table import evaluate_run
     from seg2pose.io.scene import load_scene
-    from seg2pose.paper_table import evaluate_run
 
     res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
     if res.match_note:
@@ -176,7 +176,7 @@ def calibrate_cmd(
     their disagreement): a quantile regression. Runs made afterwards carry r90_m in poses.csv
     and views.csv; s2p eval reports its coverage."""
     from seg2pose.io.scene import load_scene
-    from seg2pose.uncertainty import calibrate_run
+    from seg2pose.method.uncertainty import calibrate_run
 
     path, cal = calibrate_run(load_scene(scene), run, out, force)
     cov = cal.meta["coverage_on_fit"]
@@ -200,9 +200,9 @@ def paper_table_cmd(
 
     Every configuration with and without Seg2PoseNet: mean error overall and per 5 m of
     distance. Writes table.txt, results.json, error_vs_distance.png and the run folders."""
+    from seg2pose.eval.paper_table import paper_table
     from seg2pose.io.scene import load_scene
-    from seg2pose.paper_table import paper_table
-    from seg2pose.sparse import set_enabled
+    from seg2pose.method.sparse import set_enabled
 
     set_enabled(sparse)
     out_dir, text = paper_table(load_scene(scene), models_dir=models, split=split, out_dir=out,
@@ -225,7 +225,7 @@ def bench_accuracy_cmd(
 
     For each seed: s2p synth, heights, train and paper-table, then the nine configurations'
     error ratios to the baseline, mean (min-max) over the seeds. Writes ROOT/accuracy.json."""
-    from seg2pose.accuracy import run_benchmark
+    from seg2pose.cli.accuracy import run_benchmark
 
     _, text = run_benchmark(root, seed or [100, 101, 102], preset, tuple(variant or ("s2pn", "zero")),
                             threads, tuple(train_arg or ()), log=typer.echo, smooth=smooth)

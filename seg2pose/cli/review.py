@@ -10,8 +10,7 @@ from pathlib import Path
 import typer
 
 from seg2pose.cli.common import REVIEW, parse_frames, speaks_flags
-from seg2pose.errors import S2PError
-
+from seg2pose.core.errors import S2PError
 
 _FLAG = {"masks": "--mask-every 1", "video": "--video-every 1"}
 
@@ -51,8 +50,9 @@ def register(app: typer.Typer) -> None:
         follow: bool = typer.Option(False, "--follow/--no-follow", help="make a spawned or connected viewer follow the newest frame"),
         camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
         mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
-        video_every: int | None = typer.Option(None, "--video-every", min=1, help="log video frames every k-th frame (default: as for masks)"),
-        masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks"),
+        video_every: int | None = typer.Option(None, "--video-every", min=1, help="with --video-as jpeg: log video frames every k-th frame (default: as for masks)"),
+        video_as: str = typer.Option("asset", "--video-as", help="asset: every frame, one H.264 video per camera that the viewer decodes (a few MB; encoded once, cached); jpeg: JPEG images every --video-every frames"),
+        masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks (outlines every frame, filled every --mask-every frames)"),
         video: bool = typer.Option(True, "--video/--no-video", help="show the video frames (when the scene has video)"),
         start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
         image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
@@ -63,18 +63,22 @@ def register(app: typer.Typer) -> None:
 
         Masks, normal positions, residuals, fused road users, ground truth and errors, with a
         layout that opens ready to use."""
-        from seg2pose.io.scene import load_scene
         from s2p_review.recording import LogStyle
         from s2p_review.session import RecordOptions, Targets, record
+        from seg2pose.io.scene import load_scene
 
         to = Targets(rrd=save, spawn=spawn, connect=connect, screenshot=screenshot, frame=frame,
                      follow=follow, force=force)
         if not to.any():
             raise S2PError("nothing to do: pass -o FILE.rrd, --spawn, --connect URL or "
                            "--screenshot FILE.png")
+        from s2p_review.recording import VIDEO_FORMATS
+
+        if video_as not in VIDEO_FORMATS:
+            raise S2PError(f"--video-as {video_as!r}: expected one of {', '.join(VIDEO_FORMATS)}")
         opts = RecordOptions(frames=parse_frames(frames), cameras=list(camera) or None,
                              mask_every=mask_every, video_every=video_every,
-                             style=LogStyle(masks=masks, video=video,
+                             style=LogStyle(masks=masks, video=video, video_format=video_as,
                                             image_scale=image_scale),
                              start_ns=_start_ns(start_time), conflicts=conflicts)
         res = record(load_scene(scene), list(run), to, opts)
@@ -103,8 +107,8 @@ def register(app: typer.Typer) -> None:
 
         Foxglove schemas plus lossless s2p records (an exact round trip), with a Foxglove layout
         beside it (NAME.layout.json)."""
-        from seg2pose.io.scene import load_scene
         from s2p_review.mcap_export import ExportOptions, export_mcap
+        from seg2pose.io.scene import load_scene
 
         res = export_mcap(load_scene(scene), run, out, ExportOptions(
             frames=parse_frames(frames), mask_every=mask_every, video_every=video_every,

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.cli.common import SAFETY, speaks_flags
-from seg2pose.errors import InputError, S2PError
+from seg2pose.cli.common import SAFETY, parse_frames, speaks_flags
+from seg2pose.core.errors import InputError, S2PError
 
 
 def parse_r90(text: str | None) -> dict[str, float] | None:
@@ -40,6 +40,18 @@ def parse_clock(text: str | None) -> int:
         raise InputError(f"expected HH:MM:SS.mmm, got {text!r}", field="--start") from None
 
 
+def _scene_of(tracks: Path) -> Path:
+    """The scene folder of a run folder (its run.json's "scene")."""
+    from seg2pose.io.run import read_run_meta
+
+    if not tracks.is_dir():
+        raise InputError("--review needs a run folder (made by `s2p run`), not a file", file=tracks)
+    scene = read_run_meta(tracks).get("scene")
+    if not isinstance(scene, str):
+        raise InputError("run.json names no scene folder", file=tracks / "run.json")
+    return (tracks / scene).resolve()
+
+
 def register(app: typer.Typer) -> None:
     @app.command(rich_help_panel=SAFETY)
     @speaks_flags
@@ -47,20 +59,22 @@ def register(app: typer.Typer) -> None:
         tracks: Path = typer.Argument(..., help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a T-Analyst tracks CSV"),
         out: Path = typer.Option(..., "-o", "--out", help="output conflicts.csv"),
         fps: float | None = typer.Option(None, "--fps", help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)"),
+        frames: str | None = typer.Option(None, "--frames", help="only frames A:B (inclusive); default: all"),
         start: str | None = typer.Option(None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)"),
         ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
         pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
         near_m: float = typer.Option(25.0, "--near", min=0.1, help="road users farther apart than this (metres, centre to centre) are not compared for TTC"),
-        window_s: float = typer.Option(0.5, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
+        window_s: float = typer.Option(1.0, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
         centred: bool = typer.Option(False, "--centred/--trailing", help="fit the velocity over a window around each frame instead of the one before it"),
         brake: float = typer.Option(3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)"),
         swerve: float = typer.Option(3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2"),
         all_pairs: bool = typer.Option(False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts"),
         pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
         draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
-        r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres, 90 %%); say where the figures come from"),
-        corr_s: float = typer.Option(1.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
+        r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 percent of the positions lie; say where the figures come from)"),
+        corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
         seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
+        review: Path | None = typer.Option(None, "--review", help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder of a scene)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
     ) -> None:
         """Find traffic conflicts in road-user tracks: TTC, PET, Time-to-Accident, speeds.
@@ -77,12 +91,19 @@ def register(app: typer.Typer) -> None:
         from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
         from seg2pose.safety.kinematics import MotionOptions
         from seg2pose.safety.tracks import load_tracks
-        from seg2pose.say import say
+        from seg2pose.core.say import say
 
         check_writable(out, force)
+        scene_dir = None
+        if review is not None:
+            check_writable(review, force)
+            scene_dir = _scene_of(tracks)
         table_r90 = parse_r90(r90)
         t0 = time.perf_counter()
+        frame_range = parse_frames(frames)
         tr, notes = load_tracks(tracks, fps, parse_clock(start))
+        if frame_range is not None:
+            tr = tr.take((tr.frame >= frame_range[0]) & (tr.frame <= frame_range[1]))
         for n in notes:
             say(n, "note")
         if len(tr) == 0:
@@ -116,3 +137,10 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s or PET <= {pet_s:g} s)"
                    + (f" among {len(table)} encounters" if all_pairs else "")
                    + f" in {time.perf_counter() - t0:.1f} s")
+        if review is not None:
+            from seg2pose.io.scene import load_scene
+            from s2p_review.session import RecordOptions, Targets, record
+
+            res = record(load_scene(scene_dir), [tracks], Targets(rrd=review, force=force),
+                         RecordOptions(conflicts=out))
+            typer.echo(f"wrote {res.rrd}; open it with:  rerun {res.rrd}")

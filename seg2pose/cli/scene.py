@@ -10,7 +10,8 @@ import numpy as np
 import typer
 
 from seg2pose.cli.common import SCENE, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.io.atomic import check_writable
 
 NOISE_KEYS = ["miss_rate", "min_area", "small_area", "small_miss", "occlusion_miss", "merge_rate",
               "class_confusion",
@@ -173,13 +174,13 @@ def heights_cmd(
 
     About half of the split's normal positions then end up closer to the camera than the
     truth. Writes the heights into scene.json."""
-    from seg2pose.heights import update_default_heights
     from seg2pose.io.scene import load_scene
+    from seg2pose.method.heights import update_default_heights
 
     sc = load_scene(scene)
     views = None
     if rough > 0:
-        from seg2pose.rough_heights import rough_height_views
+        from seg2pose.training.rough_heights import rough_height_views
 
         views = rough_height_views(sc, rough, center=center, cameras=camera or None,
                                    video=rough_video)
@@ -197,7 +198,6 @@ def convert_masks_cmd(
     force: bool = typer.Option(False, "--force", help="replace an existing output entirely (a PNG folder keeps none of its old frames)"),
 ) -> None:
     """Convert instance masks between MOTS text, COCO RLE JSON and PNG instance-id images."""
-    from seg2pose.io.atomic import check_writable
     from seg2pose.io.mask_formats import read_masks, save_masks
 
     check_writable(out, force)

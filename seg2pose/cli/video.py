@@ -10,7 +10,7 @@ from typing import List, Optional
 import typer
 
 from seg2pose.cli.common import SCENE, parse_frames, speaks_flags
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 
 def _pairs(items: list[str], what: str) -> dict:
@@ -52,7 +52,7 @@ def register(app: typer.Typer) -> None:
         """Make a scene folder from video, calibration and ground points.
 
         No masks yet: they come next from s2p masks-from-video or s2p import-detections."""
-        from seg2pose.video_scene import new_scene
+        from seg2pose.video.video_scene import new_scene
 
         videos = {}
         for v in video:
@@ -93,7 +93,7 @@ def register(app: typer.Typer) -> None:
         size classes, written to masks/<camera>.txt (MOTS); with several cameras, their ids
         associated (s2p associate). A truncated video keeps what was read; a background that
         never settles is reported with its frames."""
-        from seg2pose.video_scene import scene_masks_from_video
+        from seg2pose.video.video_scene import scene_masks_from_video
 
         scene_masks_from_video(scene, camera, bg=_pairs(setting, "--set"), track=track,
                                classify=classes, force=force, frames=parse_frames(frames),
@@ -121,7 +121,7 @@ def register(app: typer.Typer) -> None:
         Mask IoU + world distance of normal positions, Hungarian assignment, re-identification
         after short gaps; the masks file is rewritten in place (atomically), masks of tracks
         shorter than min_length dropped."""
-        from seg2pose.video_scene import scene_track
+        from seg2pose.video.video_scene import scene_track
 
         scene_track(scene, camera, tracker=_pairs(setting, "--set"), classify=classes,
                     progress=progress, associate=associate, log=typer.echo)
@@ -170,8 +170,8 @@ def register(app: typer.Typer) -> None:
 
         Score threshold, mask NMS, COCO classes mapped to the scene's, person + bicycle ->
         bicyclist (the paper's Figure 2), then the tracker when the file has no track ids."""
-        from seg2pose.detections import DetectionConfig
-        from seg2pose.video_scene import scene_import_detections
+        from seg2pose.video.detections import DetectionConfig
+        from seg2pose.video.video_scene import scene_import_detections
 
         cfg = DetectionConfig(score_min=score, nms_iou=nms, lone_bicycles=lone_bicycles)
         n = scene_import_detections(scene, camera, coco, cfg=cfg, frame_offset=frame_offset,

@@ -31,7 +31,8 @@ import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
-from seg2pose.errors import S2PError
+from seg2pose.core.errors import S2PError
+from seg2pose.core.say import say
 
 _PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:[-.].*)?$")
 
@@ -247,8 +248,6 @@ def output_lock(path: str | Path) -> Iterator[Path]:
     """Hold ``.NAME.lock`` beside ``path`` while writing it. A live holder makes this raise
     S2PError naming it; the lock of a process on this machine that no longer runs is taken
     over with a note."""
-    from seg2pose.say import say
-
     path = Path(path)
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)

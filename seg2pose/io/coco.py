@@ -28,12 +28,12 @@ from typing import Iterable
 import numpy as np
 from pycocotools import mask as mask_util
 
-from seg2pose.errors import InputError
-from seg2pose.io.text import load_json
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import number
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.mots import MaskTable
-from seg2pose.io.validate import number
-from seg2pose.masks import decode_counts
+from seg2pose.io.text import load_json
+from seg2pose.structures.masks import decode_counts
 
 
 def _int(rec: dict, key: str, path: Path, i: int, default=None) -> int:

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.io.atomic import replacing
+from seg2pose.io.coco import read_coco, write_coco
+from seg2pose.io.mots import read_mots, write_mots
 
 MASK_FORMATS = ("mots", "coco", "png")
 
@@ -19,9 +22,7 @@ def detect_mask_format(path: Path) -> str:
 
 def read_masks(path: str | Path, fmt: str | None = None, known_classes=None):
     """A masks file/folder in any supported format -> MaskTable."""
-    from seg2pose.io.coco import read_coco
-    from seg2pose.io.mots import read_mots
-    from seg2pose.io.png import read_png_folder
+    from seg2pose.io.png import read_png_folder  # lazy: loads OpenCV
 
     path = Path(path)
     if not path.exists():
@@ -38,9 +39,7 @@ def read_masks(path: str | Path, fmt: str | None = None, known_classes=None):
 
 
 def write_masks(path: str | Path, table, fmt: str) -> None:
-    from seg2pose.io.coco import write_coco
-    from seg2pose.io.mots import write_mots
-    from seg2pose.io.png import write_png_folder
+    from seg2pose.io.png import write_png_folder  # lazy: loads OpenCV
 
     if fmt == "mots":
         write_mots(path, table)
@@ -57,8 +56,6 @@ def save_masks(path: str | Path, table, fmt: str, force: bool = False) -> None:
     """Write ``table`` to ``path`` as one unit: built beside it and swapped in, so an
     existing output is replaced entirely (``force``; a PNG folder keeps none of its old
     frames) and an interrupted write leaves it as it was."""
-    from seg2pose.io.atomic import replacing
-
     if fmt not in MASK_FORMATS:
         raise InputError(f"unknown mask format {fmt!r}; use one of {', '.join(MASK_FORMATS)}",
                          field="format")

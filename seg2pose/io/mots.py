@@ -14,9 +14,9 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_open
-from seg2pose.masks import decode_counts
+from seg2pose.structures.masks import decode_counts
 
 _INT = re.compile(r"^[+-]?[0-9]{1,19}$")
 _BLOCK = 2048  # detections checked together by iter_mots (whole frames; frames are yielded one by one)

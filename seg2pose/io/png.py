@@ -17,10 +17,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_bytes
 from seg2pose.io.mots import MaskTable
-from seg2pose.masks import decode, encode
+from seg2pose.structures.masks import decode, encode
 
 ID_FACTOR = 1000
 IGNORE_ID = 10000

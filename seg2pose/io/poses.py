@@ -4,10 +4,10 @@ CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h][,source][,r90_m]
 heading in radians counter-clockwise from +x; x, y, z is the road user's ground contact point
 (bottom centre). ``r90_m`` (estimated poses of ``s2p run``) is the pose's error bar: the radius,
 metres on the ground, around x, y that holds the true position with 90 % probability
-(``seg2pose.uncertainty``; NaN where the run had no calibration). Files without it stay valid. Floats are written with ``repr`` so that a round trip is exact. ``source`` (annotated
-ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
+(``seg2pose.method.uncertainty``; NaN where the run had no calibration). Floats are written
+with ``repr`` so that a round trip is exact. ``source`` (annotated ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
 ``interpolated`` between keyframes, or ``occluded`` (inside a span marked occluded: training
-skips these). Files without it stay valid.
+skips these). Files without ``source`` or ``r90_m`` stay valid.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from typing import Iterable
 
 import numpy as np
 
-from seg2pose.errors import InputError
-from seg2pose.io.text import read_text
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import MAX_COORD
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.validate import MAX_COORD
+from seg2pose.io.text import read_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]
@@ -144,12 +144,14 @@ def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> 
     text = read_text(path, "pose file")
     reader = csv.reader(io.StringIO(text))
     try:
-        return _parse_poses(reader, path, kc)
+        return parse_poses(reader, path, kc)
     except csv.Error as e:
         raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
 
 
-def _parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
+    """The pose table of a CSV ``reader`` (rows of ``path``, for messages); ``kc``: the known
+    classes (None: any)."""
     header = next(reader, None)
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)

@@ -14,7 +14,7 @@ A run folder is the contract between ``s2p run`` (pipeline), evaluation, review 
                     cut,far,spread_m,r90_m: the mask touches the image border (0/1), the
                     residual was flagged far (0/1), the spread of an ensemble's residuals
                     (metres, 0 for one model) and the view's error bar (metres, 90 %; NaN
-                    without a calibration; ``seg2pose.uncertainty``)
+                    without a calibration; ``seg2pose.method.uncertainty``)
 
 The folder is written as a unit (``write_run_folder``): the files go into a temporary sibling
 folder, are flushed to disk, and the folder is renamed into place, so a reader never sees a mix
@@ -25,8 +25,6 @@ over with a note.
 
 from __future__ import annotations
 
-import datetime as _dt
-import hashlib
 import io
 import json
 import os
@@ -37,9 +35,8 @@ from typing import Iterable
 
 import numpy as np
 
-from seg2pose.errors import InputError, S2PError
-from seg2pose.io.atomic import (atomic_write_text, os_errors, output_lock, swap_in,
-                                temp_sibling_dir)
+from seg2pose.core.errors import InputError, S2PError
+from seg2pose.io.atomic import atomic_write_text, os_errors, output_lock, swap_in, temp_sibling_dir
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 
 RUN_FILE = "run.json"
@@ -208,18 +205,6 @@ def relative_path(target: str | Path, folder: str | Path) -> str:
     """``target`` as a path relative to ``folder`` (run.json holds no machine-specific
     absolute paths; POSIX separators)."""
     return Path(os.path.relpath(Path(target).resolve(), Path(folder).resolve())).as_posix()
-
-
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def now_utc() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -30,13 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
-from seg2pose.errors import InputError
-from seg2pose.io.text import read_text, load_json
-from seg2pose.ground import GroundSurface
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number, safe_name
+from seg2pose.geometry.camera import Camera, Rig
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.validate import (FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number,
-                                  safe_name)
+from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.text import load_json, read_text
 
 SCENE_VERSION = 1
 MAX_CLASS_ID = 65535
@@ -121,8 +121,6 @@ class Scene:
                    check_rles: bool = True):
         """Stream a camera's masks (``masks/<camera>.txt``) frame by frame, checked against the
         scene's class ids and the camera's image size: (frame, MaskTable) pairs."""
-        from seg2pose.io.mots import iter_mots
-
         cam = self.cameras[camera]
         return iter_mots(self.masks_path(camera), [c.id for c in self.classes], frame_range,
                          check_rles=check_rles, image_size=(cam.height, cam.width))
@@ -130,8 +128,6 @@ class Scene:
     def read_masks(self, camera: str, frame_range: tuple[int, int] | None = None):
         """A camera's masks as one MaskTable (checked like ``iter_masks``; an empty table of
         the camera's size when the file has no detections)."""
-        from seg2pose.io.mots import MaskTable
-
         tables = [t for _, t in self.iter_masks(camera, frame_range)]
         if not tables:
             cam = self.cameras[camera]

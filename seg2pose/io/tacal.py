@@ -10,9 +10,9 @@ A ``.tacal`` is plain text, one ``name: value`` per line, 19 names::
     Tx, Ty, Tz, r1 … r9   world -> camera: [Xc, Yc, Zc] = R [x, y, z] + T, R = [[r1, r2, r3], …]
 
 Projection: Xu = f Xc / Zc, Yu = f Yc / Zc; Xu = Xd (1 + k (Xd² + Yd²)), likewise Yu;
-u = Sx Xd / dx + Cx, v = Yd / dy + Cy. As a :class:`~seg2pose.camera.Camera` that is
+u = Sx Xd / dx + Cx, v = Yd / dy + Cy. As a :class:`~seg2pose.geometry.camera.Camera` that is
 K = [[Sx f / dx, 0, Cx], [0, f / dy, Cy], [0, 0, 1]], R, t = T and a
-:class:`~seg2pose.camera.TsaiDistortion` (k, f). The pixel coordinates (u, v) are taken to be
+:class:`~seg2pose.geometry.camera.TsaiDistortion` (k, f). The pixel coordinates (u, v) are taken to be
 in s2p's convention (origin at the top-left corner of the image): the file does not say
 otherwise, and Tsai's frame-buffer principal point of a 2Cx-wide image is then its centre.
 
@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, TsaiDistortion
-from seg2pose.errors import InputError
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import safe_name
+from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig, TsaiDistortion
+from seg2pose.io.atomic import atomic_write_text, check_writable
+from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
 from seg2pose.io.text import read_text
 
 TACAL_FIELDS = ("dx", "dy", "Cx", "Cy", "Sx", "f", "k", "Tx", "Ty", "Tz",
@@ -166,8 +168,6 @@ def camera_to_tacal(cam: Camera) -> Tacal:
     f comes from the Tsai distortion when there is one, otherwise the sensor unit is the pixel
     height (dy = 1, f = fy); dx = dy and Sx = fx / fy. A camera read from a ``.tacal`` with
     dx = dy therefore gives its numbers back (up to rounding in the last digit)."""
-    from seg2pose.camera import OpenCVDistortion
-
     K = cam.K
     if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]) or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0:
         raise InputError(f"camera {cam.name!r} has a skewed K; Tsai's model has no skew",
@@ -193,11 +193,6 @@ def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: s
     stems), a ground points CSV and the video's frame rate. Configurations: one per camera
     (named as the camera) and ``all``. size: (width, height) pixels of every camera; default
     2 Cx x 2 Cy of each file. Returns the saved Scene."""
-    from seg2pose.camera import Rig
-    from seg2pose.io.atomic import check_writable
-    from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
-    from seg2pose.io.validate import safe_name
-
     out = Path(out)
     check_writable(out / SCENE_FILE, force)
     if not files:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.text import read_text
 

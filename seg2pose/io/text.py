@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 
 def read_text(path: str | Path, what: str = "file") -> str:

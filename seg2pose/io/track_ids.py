@@ -27,7 +27,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_text, output_lock
 
 IDS_FILE = "ids.json"

@@ -32,14 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, Rig
-from seg2pose.say import say
-from seg2pose.errors import InputError
-from seg2pose.io.text import load_json
+from seg2pose.core.errors import InputError
+from seg2pose.core.say import say
+from seg2pose.core.validate import FPS_RANGE, MAX_COORD, number, safe_name
+from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import PoseTable, write_poses
-from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time
-from seg2pose.io.validate import FPS_RANGE, MAX_COORD, number, safe_name
+from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, parse_start_time, read_ground_points
+from seg2pose.io.text import load_json
 
 MIRROR = np.diag([1.0, -1.0, 1.0])  # CARLA (left-handed) <-> this project (right-handed)
 # camera axes: OpenCV (x right, y down, z forward) from CARLA's local (x forward, y right, z up)
@@ -126,8 +126,6 @@ def read_cameras_json(path: Path) -> tuple[tuple[float, float, float], list[Utoc
 
 def read_utocs_ground(path: Path) -> np.ndarray:
     """UTOCS ground points (n, 3) in CARLA coordinates (validated like a scene's)."""
-    from seg2pose.io.scene import read_ground_points
-
     return read_ground_points(path)
 
 

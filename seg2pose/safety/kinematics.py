@@ -26,9 +26,11 @@ from seg2pose.safety.tracks import Tracks
 class MotionOptions:
     """window_s: seconds of track the slopes are fitted over (at least 2 frames); centred:
     window around the frame instead of before it; moving_mps: below this speed a road user is
-    standing (its heading, when the poses give none, is kept from when it last moved)."""
+    standing (its heading, when the poses give none, is kept from when it last moved).
+    The 1 s window was chosen on the tuning scene (synthetic seed 201, baseline tracks): the
+    median error of min TTC against the truth's was 0.26 s with it, 0.59 s with 0.5 s."""
 
-    window_s: float = 0.5
+    window_s: float = 1.0
     centred: bool = False
     moving_mps: float = 0.5
 

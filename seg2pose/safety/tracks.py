@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.errors import InputError
-from seg2pose.io.poses import PoseTable, _parse_poses
+from seg2pose.core.errors import InputError
+from seg2pose.core.validate import FPS_RANGE
+from seg2pose.io.poses import PoseTable, parse_poses
+from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
 from seg2pose.io.text import read_text
-from seg2pose.io.validate import FPS_RANGE
 
 R90_COLUMN = "r90_m"
 # typical footprints (length, width, metres) where a row gives none: a mid-size car, an adult
@@ -142,7 +143,7 @@ def read_poses_r90(path: Path) -> tuple[PoseTable, np.ndarray | None]:
     if header[-1:] != [R90_COLUMN]:
         r = csv.reader(io.StringIO(text))
         try:
-            return _parse_poses(r, path, None), None
+            return parse_poses(r, path, None), None
         except csv.Error as e:
             raise InputError(f"malformed CSV: {e}", file=path, line=r.line_num) from None
     r90 = []
@@ -162,7 +163,7 @@ def read_poses_r90(path: Path) -> tuple[PoseTable, np.ndarray | None]:
     rest = io.StringIO()
     csv.writer(rest, lineterminator="\n").writerows([r[:-1] for r in rows if r])
     # line numbers stay right: blank lines were dropped only where the reader skips them anyway
-    return _parse_poses(csv.reader(io.StringIO(rest.getvalue())), path, None), np.array(r90, float)
+    return parse_poses(csv.reader(io.StringIO(rest.getvalue())), path, None), np.array(r90, float)
 
 
 def _scene_fps(scene_dir: Path) -> float | None:
@@ -210,8 +211,6 @@ def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0) -
         raise InputError("tracks not found (expected a run folder, a poses.csv or a T-Analyst CSV)",
                          file=path)
     if is_tanalyst(path):
-        from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
-
         if fps is None:
             raise InputError("a T-Analyst file has times, not frames: pass --fps", file=path)
         ta = read_tanalyst(path)

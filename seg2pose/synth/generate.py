@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Rig
-from seg2pose.errors import InputError, S2PError
+from seg2pose.core.errors import InputError, S2PError
+from seg2pose.geometry.camera import Rig
 from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
@@ -29,6 +29,7 @@ from seg2pose.synth.render import MATCH_RULES, FrameRenderer
 from seg2pose.synth.rig import load_rig
 from seg2pose.synth.shapes import CLASS_NAMES, TYPICAL_SIZES
 from seg2pose.synth.traffic import TrafficConfig, simulate
+from seg2pose.synth.video import write_video
 from seg2pose.synth.world import build_world
 
 DT = 0.075  # s between frames (paper 4.1)
@@ -119,8 +120,6 @@ def _mask_task(args: tuple[str, int, int]) -> tuple[str, int, int, str, int]:
 
 
 def _video_task(cam_name: str) -> str:
-    from seg2pose.synth.video import write_video
-
     st = _STATE
     idx = st["cam_names"].index(cam_name)
     write_video(st["tmp"] / "video" / f"{cam_name}.mp4", st["rig"].cameras[cam_name], idx,

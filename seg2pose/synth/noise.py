@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, fields
 import cv2
 import numpy as np
 
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
 
 
 @dataclass(frozen=True)

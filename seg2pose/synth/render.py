@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from seg2pose.camera import Camera
-from seg2pose.masks import rle_contains
+from seg2pose.geometry.camera import Camera
+from seg2pose.structures.masks import rle_contains
 from seg2pose.synth.noise import Det, NoiseConfig, apply_noise
 from seg2pose.synth.raster import bbox_of, fill_parts, project_parts, rle_from_crop_t
 from seg2pose.synth.world import World
-
 
 MATCH_RULES = ("all", "center")
 

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.camera import Camera, OpenCVDistortion, Rig
-from seg2pose.errors import InputError
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig
 
 WIDTH, HEIGHT = 1280, 720
 FOCAL = 900.0  # pixels: about 71 x 44 degrees field of view

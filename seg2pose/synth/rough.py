@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from seg2pose.camera import Camera
-from seg2pose.errors import InputError
-from seg2pose.ground import GroundSurface
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.synth.raster import fill_parts, project_parts, rle_from_crop_t
 from seg2pose.synth.shapes import hexa
 

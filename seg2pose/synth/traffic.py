@@ -25,8 +25,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.synth import junction as J
-from seg2pose.synth.routes import (Route, arc_lengths, densify, green_start, offset_polyline,
-                                   pedestrian_route, vehicle_route)
+from seg2pose.synth.routes import (
+    Route,
+    arc_lengths,
+    densify,
+    green_start,
+    offset_polyline,
+    pedestrian_route,
+    vehicle_route,
+)
 
 DS = 0.25  # m, grid step of speed profiles
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seg2pose.camera import Camera
+from seg2pose.geometry.camera import Camera
 from seg2pose.synth import junction as J
 from seg2pose.synth.raster import SHIFT, project_parts
 from seg2pose.synth.shapes import BODY, FACES, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL

@@ -1,0 +1,122 @@
+"""Conflicts from estimated tracks against conflicts from the truth, on synthetic scenes.
+
+For each scene and run (the run's frames, e.g. ``s2p run --split test``), `s2p conflicts` is
+computed on the truth (SCENE/gt/poses.csv over the run's frames) and on the run, every
+encounter kept (``--all-pairs``), pedestrian pairs left out as by default. Synthetic runs keep
+the truth's track ids, so encounters pair up by their two ids. Reported:
+
+- share found: of the truth's conflicts at min TTC <= 1.5 s (PET <= 5 s), the share whose pair
+  also has min TTC <= 1.5 s (PET <= 5 s) in the run; false alarms: the run's conflicts whose
+  pair is none in the truth;
+- indicator errors: median and 90th percentile of |run - truth| of min TTC and PET over the
+  pairs where both have the indicator (and the truth's is at or below the threshold);
+- coverage: the share of those truth values inside the run's 90 % interval (sampling within
+  r90, per class from ``--r90``: the run's poses carry no r90_m yet), and the intervals'
+  median width.
+
+    PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN [--pair ...]
+        --r90 car=0.93,pedestrian=0.39,bicyclist=0.79 [--draws 200] [--window 1.0] [--corr 3.0]
+
+Prints one line per run and the pooled figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from seg2pose.io.poses import read_poses
+from seg2pose.safety.conflicts import ConflictOptions, analyse
+from seg2pose.safety.kinematics import MotionOptions
+from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+from seg2pose.safety.tracks import from_poses, load_tracks
+
+TTC, PET = 1.5, 5.0
+
+
+def table_of(tracks, opts):
+    t = analyse(tracks, opts)
+    c = t.columns
+    return t, {(int(a), int(b)): i for i, (a, b) in enumerate(zip(c["track_a"], c["track_b"]))}
+
+
+def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
+            window_s: float = 1.0, corr_s: float = 3.0) -> dict:
+    est, _ = load_tracks(run)
+    fps = est.fps
+    gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
+    truth, _ = from_poses(gt, fps)
+    opts = ConflictOptions(all_pairs=True, motion=MotionOptions(window_s=window_s))
+    tt, ti = table_of(truth, opts)
+    et, ei = table_of(est, opts)
+    if r90 is not None:
+        est.r90 = np.array([r90[str(c)] for c in est.cls], float)
+        conf = et.take(et.columns["conflict"].astype(bool))
+        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s))
+        pos = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(conf.columns["track_a"],
+                                                                  conf.columns["track_b"]))}
+    out = {"scene": scene.name, "run": run.name, "method": json.loads((run / "run.json").read_text()).get("method")}
+    tc, ec = tt.columns, et.columns
+    for name, col, thr, lo, hi in (("ttc", "min_ttc_s", TTC, "min_ttc_lo_s", "min_ttc_hi_s"),
+                                   ("pet", "pet_s", PET, "pet_lo_s", "pet_hi_s")):
+        true_conf = [k for k, i in ti.items() if tc[col][i] <= thr]
+        est_conf = [k for k, i in ei.items() if ec[col][i] <= thr]
+        found = [k for k in true_conf if k in ei and ec[col][ei[k]] <= thr]
+        false = [k for k in est_conf if not (k in ti and tc[col][ti[k]] <= thr)]
+        both = [k for k in true_conf if k in ei and np.isfinite(ec[col][ei[k]])]
+        err = np.array([abs(ec[col][ei[k]] - tc[col][ti[k]]) for k in both])
+        out[name] = {"truth": len(true_conf), "found": len(found), "est": len(est_conf),
+                     "false": len(false), "err": err}
+        if r90 is not None:
+            inside, width = [], []
+            for k in both:
+                if k in pos and np.isfinite(iv[lo][pos[k]]):
+                    inside.append(iv[lo][pos[k]] - 1e-9 <= tc[col][ti[k]] <= iv[hi][pos[k]] + 1e-9)
+                    width.append(iv[hi][pos[k]] - iv[lo][pos[k]])
+            out[name]["inside"] = np.array(inside, bool)
+            out[name]["width"] = np.array(width)
+    return out
+
+
+def line(name: str, m: dict) -> str:
+    e = m["err"]
+    s = (f"{name}: truth {m['truth']}, found {m['found']} ({100 * m['found'] / max(m['truth'], 1):.0f} %), "
+         f"run's {m['est']} with {m['false']} false; |error| median "
+         f"{np.median(e) if len(e) else float('nan'):.2f} s, p90 "
+         f"{np.percentile(e, 90) if len(e) else float('nan'):.2f} s (n={len(e)})")
+    if "inside" in m:
+        s += (f"; coverage {100 * m['inside'].mean() if len(m['inside']) else float('nan'):.0f} % "
+              f"(n={len(m['inside'])}), width median "
+              f"{np.median(m['width']) if len(m['width']) else float('nan'):.2f} s")
+    return s
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--pair", nargs=2, action="append", metavar=("SCENE", "RUN"), required=True)
+    ap.add_argument("--r90", default=None, help="class=metres,... (90 %% error radius per class)")
+    ap.add_argument("--draws", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--window", type=float, default=1.0, help="velocity window, s (--window of s2p conflicts)")
+    ap.add_argument("--corr", type=float, default=3.0, help="error correlation time, s (--error-corr)")
+    a = ap.parse_args()
+    r90 = None if a.r90 is None else {k: float(v) for k, v in (x.split("=") for x in a.r90.split(","))}
+    pooled = {}
+    for scene, run in a.pair:
+        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr)
+        print(f"{m['scene']} {m['run']} ({m['method']})")
+        for name in ("ttc", "pet"):
+            print("  " + line(name, m[name]))
+            p = pooled.setdefault((m["method"], name), {})
+            for k, v in m[name].items():
+                p[k] = (np.r_[p[k], v] if isinstance(v, np.ndarray) else p.get(k, 0) + v) if k in p else v
+    print("pooled")
+    for (method, name), m in pooled.items():
+        print(f"  {method}: " + line(name, m))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,458 @@
+"""Inference: masks -> normal positions (3.2) -> Seg2PoseNet residuals (3.3) -> late fusion
+(mean over views, 3.3) -> headings from motion (3.4) -> a run folder.
+
+The run folder itself (run.json, poses.csv, views.csv) is read and written by
+``seg2pose.io.run``.
+
+Masks are streamed: all cameras of the configuration are read in lockstep, a chunk of frames at
+a time, and the network sees batches of crops gathered across the chunk's frames (one batch
+per model: models are per camera and class, or per camera with a class input).
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterator
+
+import numpy as np
+
+from seg2pose.core.clock import utc_now
+from seg2pose.core.digest import file_sha256
+from seg2pose.core.errors import InputError
+from seg2pose.core.say import warn_once
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
+from seg2pose.geometry.smoothing import smooth_along_tracks
+from seg2pose.io.mots import MaskTable
+from seg2pose.io.poses import PoseTable
+from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
+from seg2pose.io.scene import Scene
+from seg2pose.method.checkpoint import load_models, predict_residuals
+from seg2pose.method.ood import POLICIES, flag_far, flagged_poses, format_flagged
+from seg2pose.structures.masks import CROP_SIZE, mask_centers, rle_stats
+
+if TYPE_CHECKING:  # torch is imported only when a run uses models
+    from seg2pose.method.checkpoint import ModelSet
+
+
+def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
+                ) -> Iterator[tuple[int, dict[str, MaskTable]]]:
+    """Stream all cameras' masks in lockstep: (frame, {camera: detections of that frame}),
+    frames in increasing order; a camera without detections in a frame is absent."""
+    its = {}
+    for cam in cameras:
+        path = scene.masks_path(cam)
+        if not path.exists():
+            raise InputError(f"no masks for camera {cam!r}", file=path)
+        its[cam] = scene.iter_masks(cam, frame_range)
+    heap: list[tuple[int, int, str, MaskTable]] = []
+    for k, (cam, it) in enumerate(its.items()):
+        nxt = next(it, None)
+        if nxt is not None:
+            heapq.heappush(heap, (nxt[0], k, cam, nxt[1]))
+    order = {cam: k for k, cam in enumerate(its)}
+    while heap:
+        frame = heap[0][0]
+        out = {}
+        while heap and heap[0][0] == frame:
+            _, _, cam, table = heapq.heappop(heap)
+            out[cam] = table
+            nxt = next(its[cam], None)
+            if nxt is not None:
+                heapq.heappush(heap, (nxt[0], order[cam], cam, nxt[1]))
+        yield frame, out
+
+
+# ----------------------------------------------------------------------------------------------
+# per-view estimates
+
+
+def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
+                   models: ModelSet | None, said: set[str], batch: int = 64,
+                   far: FarResiduals | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For the detections of one camera (any number of frames): class names (N,), mask centres
+    (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground),
+    residuals (N, 2) metres (zeros for the baseline or a missed ray) and the error bar's cues
+    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres).
+    ``far``: residuals longer than the model learned (``seg2pose.method.ood``) are recorded there,
+    and dropped with its fallback policy."""
+    camera = scene.cameras[cam]
+    by_id = scene.class_by_id()
+    n = len(table)
+    names = np.array([by_id[c].name if c in by_id else "" for c in table.class_id], dtype=object)
+    heights = np.array([by_id[c].default_height if c in by_id else np.nan for c in table.class_id])
+    if (table.class_id == 0).any():
+        warn_once(said, "noclass", f"camera {cam}: detections without a class (class_id 0) are skipped")
+    uv = mask_centers(table.rles, table.height, table.width, center_method)
+    normal = np.full((n, 3), np.nan)
+    ok = np.isfinite(uv[:, 0]) & np.isfinite(heights)
+    if ok.any():
+        normal[ok], _ = normal_positions(camera, scene.ground, uv[ok], heights[ok])
+    residual = np.zeros((n, 2))
+    cues = np.zeros((n, 3))
+    _, _, box = rle_stats(table.rles, table.height, table.width)
+    with np.errstate(invalid="ignore"):
+        cues[:, 0] = ((box[:, 0] <= 0) | (box[:, 1] <= 0) | (box[:, 2] >= table.width)
+                      | (box[:, 3] >= table.height))
+    if models is None or n == 0:
+        return names, uv, normal, residual, cues
+    big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
+    if big.any():
+        warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
+                        "cropped around their centre")
+    usable = np.isfinite(normal[:, 0])
+    groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
+    for (mcam, c), ck in models.models.items():
+        if mcam == cam:
+            groups.setdefault(id(ck), (ck, []))[1].append(c)
+    for ck, cls_of_model in groups.values():
+        sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
+
+        residual[sel], cues[sel, 2] = predict_with_spread(
+            scene, cam, ck, [table.rles[i] for i in sel], table.height, table.width, uv[sel],
+            normal[sel, :2], names[sel], batch)
+        if far is not None:
+            cues[far.check(table, cam, sel, residual, names, ck.info.get("residual_limit")), 1] = 1
+    return names, uv, normal, residual, cues
+
+
+@dataclass
+class FarResiduals:
+    """Views whose residual is longer than their model's training residuals (``seg2pose.method.ood``):
+    policy "warn" records them, "fallback" also drops their residual (the normal position
+    stays), "off" does nothing."""
+
+    policy: str = "warn"
+    rows: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise InputError(f"unknown policy {self.policy!r} for far residuals; use one of "
+                             f"{', '.join(POLICIES)}", field="far_residuals")
+
+    def check(self, table: MaskTable, cam: str, sel: np.ndarray, residual: np.ndarray,
+              names: np.ndarray, limits: dict | None) -> np.ndarray:
+        """The flagged rows among ``sel`` (indices)."""
+        if self.policy == "off" or not len(sel):
+            return np.zeros(0, np.int64)
+        flag, lim = flag_far(residual[sel], names[sel], limits)
+        i = sel[flag]
+        if not len(i):
+            return i
+        self.rows.append((table.frame[i], table.track_id[i], np.full(len(i), cam, object),
+                          names[i], residual[i].copy(), lim[flag]))
+        if self.policy == "fallback":
+            residual[i] = 0.0
+        return i
+
+    def summary(self) -> tuple[dict, str | None]:
+        """(run.json entry, flagged.csv text or None)."""
+        if self.policy == "off":
+            return {"policy": "off"}, None
+        cols = [np.concatenate(c) for c in zip(*self.rows)] if self.rows else [np.zeros(0)] * 6
+        n_poses = flagged_poses(cols[0], cols[1])
+        return ({"policy": self.policy, "flagged_views": int(len(cols[0])),
+                 "flagged_poses": n_poses, "file": "flagged.csv"},
+                format_flagged(*cols))
+
+
+# ----------------------------------------------------------------------------------------------
+# fusion and the run folder
+
+
+@dataclass
+class ViewGroups:
+    """Views grouped into fused poses (one per frame and track id; an untracked view, id -1,
+    is a pose of its own). keep: (N,) the views that take part (finite estimate, a class);
+    keys: (P, 2) frame and grouping id, in np.unique order; first: (P,) a kept view of each
+    pose; inv: (K,) pose of each kept view; cam_idx: (K,) its camera; n_cams."""
+
+    keep: np.ndarray
+    keys: np.ndarray
+    first: np.ndarray
+    inv: np.ndarray
+    cam_idx: np.ndarray
+    n_cams: int
+
+    @classmethod
+    def of(cls, views: ViewTable) -> "ViewGroups":
+        est = views.normal[:, :2] + views.residual
+        keep = np.isfinite(est).all(axis=1) & (views.cls != "")
+        key_tid = views.track_id[keep].copy()
+        lone = key_tid < 0  # untracked detections get unique negative keys: they stay alone
+        key_tid[lone] = -1 - np.arange(int(lone.sum()))
+        keys = np.stack([views.frame[keep], key_tid], axis=1)
+        ukeys, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        cams, cam_idx = np.unique(views.camera[keep], return_inverse=True)
+        return cls(keep, ukeys, first, inv.reshape(-1), cam_idx, len(cams))
+
+    def stack(self, values: np.ndarray) -> np.ndarray:
+        """(n_cams, P, ...) the kept views' ``values`` (K, ...) by camera and pose; NaN where a
+        camera did not see the pose's road user."""
+        out = np.full((self.n_cams, len(self.keys)) + values.shape[1:], np.nan)
+        out[self.cam_idx, self.inv] = values  # one detection per (camera, road user, frame)
+        return out
+
+    @property
+    def track_id(self) -> np.ndarray:
+        return np.where(self.keys[:, 1] < 0, -1, self.keys[:, 1])
+
+
+def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
+         config_cameras: list[str] | None = None, r90=None) -> PoseTable:
+    """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
+    z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
+    sizes from the class. Detections without a track id (-1) are not fused with anything.
+
+    ``confirm`` > 0 (several cameras ``config_cameras`` with associated ids): a pose is kept only when
+    at least this share of the cameras whose image holds its place reported it
+    (``seen_share``): a blob one lens reports where the others see nothing is a false
+    detection more often than not (docs/RESULTS.md, "Multi-camera association").
+
+    ``smooth`` > 0: each tracked road user's fused (x, y) replaced by a line fitted to its
+    positions within ``smooth`` frames either side (``seg2pose.geometry.smoothing``; centred, so no lag
+    on steady motion), before z and the headings.
+
+    ``r90``: a ``seg2pose.method.uncertainty.Calibration``; with it (and views that carry their r90),
+    each pose gets its error bar (PoseTable.r90)."""
+    g = ViewGroups.of(views)
+    if not g.keep.any():
+        return PoseTable.empty(with_size=True)
+    ukeys, first = g.keys, g.first
+    stack = g.stack((views.normal[:, :2] + views.residual)[g.keep])
+    cls = views.cls[g.keep]
+    xy = fuse_views(stack)
+    out_cls = cls[first]
+    kept = np.ones(len(ukeys), bool)
+    if confirm > 0 and config_cameras and len(config_cameras) > 1:
+        n_views = np.bincount(g.inv, minlength=len(ukeys))
+        kept = n_views >= confirm * seen_by(scene, config_cameras, xy, out_cls)
+        ukeys, xy, out_cls = ukeys[kept], xy[kept], out_cls[kept]
+    out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
+    if smooth > 0:
+        xy = smooth_along_tracks(out_tid, ukeys[:, 0], xy, smooth, degree=1)
+    z = scene.ground.height(xy)
+    heading = np.full(len(ukeys), np.nan)
+    tracked = out_tid >= 0
+    heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
+    sizes = scene.class_sizes()
+    size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
+    pose_r90 = None
+    if r90 is not None and views.r90 is not None:
+        from seg2pose.method.uncertainty import pose_features
+
+        pose_r90 = r90.pose.predict(out_cls, pose_features(stack[:, kept],
+                                                           g.stack(views.r90[g.keep])[:, kept]))
+    table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size,
+                      r90=pose_r90)
+    return table.sorted()
+
+
+def seen_by(scene: Scene, cams: list[str], xy: np.ndarray, cls: np.ndarray,
+            margin: float = 0.02) -> np.ndarray:
+    """(N,) how many of ``cams`` have the place xy (N, 2) metres of a road user of class
+    ``cls`` (N,) in their image: its centre (the class's default height above the ground)
+    in front of the camera and at least ``margin`` of the image size inside the border."""
+    h = scene.default_heights()
+    X = np.column_stack([xy, scene.ground.height(xy) + np.array([h.get(str(c), 0.8) for c in cls])])
+    n = np.zeros(len(xy), np.int64)
+    for c in cams:
+        cam = scene.cameras[c]
+        uv, _, front = cam.project_points(X)
+        mx, my = margin * cam.width, margin * cam.height
+        with np.errstate(invalid="ignore"):
+            n += front & (uv[:, 0] >= mx) & (uv[:, 0] < cam.width - mx) & (uv[:, 1] >= my) \
+                & (uv[:, 1] < cam.height - my)
+    return n
+
+
+def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | None,
+                  models: ModelSet | None, center_method: str = DEFAULT_CENTER_METHOD, chunk_frames: int = 32,
+                  progress: bool = True, far: FarResiduals | None = None) -> tuple[ViewTable, int]:
+    """Per-view estimates of all detections of ``cams`` (streamed in lockstep, ``chunk_frames``
+    frames per network batch group): the rows of views.csv (sorted by frame, track id,
+    camera), and the number of frames."""
+    from tqdm import tqdm
+
+    said: set[str] = set()  # warnings said once per run
+    rows: list[ViewTable] = []
+
+    def flush(chunk: dict[str, list[MaskTable]]) -> None:
+        for cam, tables in chunk.items():
+            if not tables:
+                continue
+            t = MaskTable.concat(tables)
+            names, uv, normal, residual, cues = view_estimates(scene, cam, t, center_method,
+                                                               models, said, far=far)
+            rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
+                                  uv, normal, residual, cues))
+
+    chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
+    nframes = 0
+    bar = tqdm(total=None if frame_range is None else frame_range[1] - frame_range[0] + 1,
+               desc=f"s2p run {'baseline' if models is None else 'seg2posenet'}", unit="frame",
+               disable=not progress, leave=False)
+    for _, tables in iter_frames(scene, cams, frame_range):
+        for cam, t in tables.items():
+            chunk[cam].append(t)
+        nframes += 1
+        bar.update(1)
+        if nframes % chunk_frames == 0:
+            flush(chunk)
+            chunk = {c: [] for c in cams}
+    flush(chunk)
+    bar.close()
+    return ViewTable.concat(rows).sorted(), nframes
+
+
+def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
+             models: ModelSet | None, split: str | None, center_method: str, smooth: int = 0) -> dict:
+    """run.json of a run (paths relative to the run folder; the checkpoints named with their
+    sha256, so a run says exactly which models made it)."""
+    fr = scene.split_range(split)
+    digests: dict[Path, str] = {}
+
+    def model_entry(p: Path) -> dict:
+        if p not in digests:
+            digests[p] = file_sha256(p)
+        return {"path": relative_path(p, run_dir), "file": p.name, "sha256": digests[p]}
+
+    entries = {}
+    for (c, k), p in ({} if models is None else models.paths).items():
+        if c not in cams:
+            continue
+        files = [model_entry(Path(x)) for x in (p if isinstance(p, list) else [p])]
+        entry = {key: [f[key] for f in files] if isinstance(p, list) else files[0][key]
+                 for key in ("path", "file", "sha256")}
+        info = models.models[(c, k)].info
+        entries[f"{c}/{k}"] = {**entry, **{kk: info.get(kk) for kk in ("val_loss", "epoch", "seed")}}
+    return {
+        "scene": relative_path(scene.root, run_dir), "scene_fingerprint": scene.fingerprint(),
+        "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
+        "center_method": center_method, **({"smooth_frames": int(smooth)} if smooth else {}),
+        "models": entries,
+        "split": split, "frame_range": None if fr is None else list(fr), "created": utc_now(),
+    }
+
+
+def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
+              config: str | None, models: ModelSet | None, split: str | None,
+              center_method: str, n_frames: int, force: bool = False, smooth: int = 0,
+              far: FarResiduals | None = None, track_ids: dict | None = None,
+              confirm: float = 0.0, r90_path: Path | None = None) -> Path:
+    """Fuse per-view estimates (``smooth``: see ``fuse``) and write the run folder (poses.csv,
+    views.csv, run.json, and flagged.csv when the residuals were checked). ``track_ids``: how
+    the ids were made (``check_track_ids``), recorded in run.json; ``confirm``: see ``fuse``;
+    ``r90_path``: the error bars' calibration (``seg2pose.method.uncertainty``; None: r90_m stays
+    NaN)."""
+    run_dir = Path(run_dir)
+    cal, r90_meta = None, {"calibration": None}
+    if r90_path is not None and views.cues is not None:
+        from seg2pose.method.uncertainty import read_calibration, view_r90
+
+        cal = read_calibration(r90_path)
+        method = "baseline" if models is None else "seg2posenet"
+        if cal.meta.get("method") not in (None, method):
+            raise InputError(f"this r90 calibration was fitted on a {cal.meta['method']} run; "
+                             f"this is a {method} run (fit one with s2p calibrate)", file=r90_path)
+        if int(cal.meta.get("smooth_frames") or 0) != smooth:
+            warn_once(set(), "r90smooth", f"the r90 calibration {r90_path} was fitted on a run "
+                      f"with --smooth {cal.meta.get('smooth_frames') or 0}, this one has --smooth "
+                      f"{smooth}: its coverage may differ from 90 %")
+        views.r90 = view_r90(cal, scene, views)
+        r90_meta = {"calibration": relative_path(r90_path, run_dir),
+                    "sha256": file_sha256(r90_path)}
+    poses = fuse(views, scene, smooth, confirm, cams, r90=cal)
+    if poses.r90 is None and views.cues is not None:
+        poses.r90 = np.full(len(poses), np.nan)  # the column is always there; NaN: no calibration
+    meta = {**run_meta(scene, run_dir, cams, config, models, split, center_method, smooth),
+            **({"track_ids": track_ids} if track_ids else {}),
+            **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
+            "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses), "r90": r90_meta}
+    extra = {}
+    if far is not None and models is not None:
+        meta["far_residuals"], text = far.summary()
+        if text is not None:
+            extra["flagged.csv"] = text
+    return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
+
+
+# share of the cameras seeing a road user's place that must report it (runs of associated ids);
+# chosen on seeds 101-102 (docs/RESULTS.md, "Multi-camera association")
+CONFIRM_SHARE = 0.5
+
+
+def check_track_ids(scene: Scene, cams: list[str], fuse_unassociated: bool = False) -> dict:
+    """How the track ids of ``cams`` were made (``seg2pose.io.track_ids``), for run.json.
+    Refuses to fuse several cameras whose ids are each camera's own tracker's: late fusion
+    would average different road users that happen to share a number."""
+    from seg2pose.io.track_ids import ids_status
+
+    masks_dir = scene.masks_path(cams[0]).parent
+    source = scene.extra.get("source") if isinstance(scene.extra.get("source"), dict) else {}
+    kind, why = ids_status(masks_dir, cams, from_video=source.get("format") == "video")
+    if kind == "unassociated" and len(cams) > 1:
+        if not fuse_unassociated:
+            raise InputError(f"the track ids of cameras {', '.join(cams)} are not associated across "
+                             f"cameras ({why}); fusing them would average different road users "
+                             f"that share a number. Run `s2p associate {scene.root}` first (or "
+                             "pass --fuse-unassociated to fuse them anyway)", file=masks_dir)
+        return {"ids": "unassociated", "fused_anyway": True, "why": why}
+    return {"ids": kind, "why": why}
+
+
+def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
+              baseline: bool = False, models_dir: str | Path | None = None,
+              split: str | None = None, force: bool = False, center_method: str = DEFAULT_CENTER_METHOD,
+              arch: str | None = None, chunk_frames: int = 32, device: str | None = None,
+              progress: bool = True, allow_incomplete: bool = False, smooth: int = 0,
+              far_residuals: str = "warn", fuse_unassociated: bool = False,
+              confirm: float | None = None, r90: str | Path | None = None) -> Path:
+    """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring).
+
+    config: a configuration of the rig (None = all cameras); baseline: normal positions only;
+    models_dir: checkpoints (default SCENE/models), or a list of folders whose models are
+    averaged (Ensemble); split: a named frame range of the scene; allow_incomplete: use
+    checkpoints whose training did not finish (refused otherwise); smooth: fused positions
+    smoothed along each track over this many frames either side (0: not; see ``fuse``);
+    far_residuals: what to do with residuals longer than the model was trained on
+    (``FarResiduals``: warn, fallback, off); fuse_unassociated: fuse cameras whose ids were
+    never associated (``check_track_ids`` refuses otherwise); confirm: see ``fuse`` (default
+    ``CONFIRM_SHARE`` for cameras whose ids were associated, else 0: off); r90: the error bars'
+    calibration (None: the default one, ``default_r90_path``, where it exists)."""
+    run_dir = Path(run_dir)
+    check_run_writable(run_dir, force)  # before the work, not only after it
+    cams = [c.name for c in scene.rig.select(config)]
+    track_ids = check_track_ids(scene, cams, fuse_unassociated)
+    if confirm is None:
+        confirm = CONFIRM_SHARE if track_ids["ids"] == "associated" else 0.0
+    frame_range = scene.split_range(split)
+    models = None
+    if not baseline:
+        models = load_models(scene, cams, models_dir, arch, device, allow_incomplete)
+    far = None if models is None else FarResiduals(far_residuals)
+    r90_path = Path(r90) if r90 is not None else default_r90_path(scene, models_dir, baseline)
+    if r90 is not None and not r90_path.is_file():
+        raise InputError("r90 calibration not found (make one with s2p calibrate)", file=r90_path)
+    views, nframes = compute_views(scene, cams, frame_range, models, center_method,
+                                   chunk_frames, progress, far=far)
+    return write_run(scene, run_dir, views, cams, config, models, split, center_method,
+                     nframes, force=force, smooth=smooth, far=far, track_ids=track_ids,
+                     confirm=confirm, r90_path=r90_path if r90_path.is_file() else None)
+
+
+R90_FILE = "r90.json"
+R90_BASELINE_FILE = "r90-baseline.json"
+
+
+def default_r90_path(scene: Scene, models_dir=None, baseline: bool = False) -> Path:
+    """Where a run looks for its error bars' calibration when none is named (and where ``s2p
+    calibrate`` writes it): beside the models (the first folder's r90.json) for Seg2PoseNet,
+    SCENE/r90-baseline.json for the baseline."""
+    if baseline:
+        return scene.root / R90_BASELINE_FILE
+    from seg2pose.method.checkpoint import model_dirs
+
+    return model_dirs(scene, models_dir)[0] / R90_FILE

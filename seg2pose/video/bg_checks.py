@@ -1,0 +1,135 @@
+"""Checks on background-subtraction output, pure functions on images: which "shadow" pixels
+are a flat body rather than a shadow (``flat_pixels``), and which long-lasting foreground is
+a ghost (``ghost_mask``). Used by ``seg2pose.video.video_masks``.
+
+Images: (H, W, 3) BGR or (H, W) grey uint8; pixels x right, y down.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TEX_WIN = 5  # window (pixels) of the shadow texture test
+
+
+def texture_stats(background: np.ndarray, t: float) -> tuple:
+    """What ``flat_pixels`` needs of a background image (H, W, 3) uint8, computed once per
+    background: grey (H, W) float32, its TEX_WIN box mean, t^2 times its box variance where it
+    has texture (grey-level spread >= 2; elsewhere -1: no test there), and t^2."""
+    import cv2
+
+    k = (TEX_WIN, TEX_WIN)
+    gb = cv2.cvtColor(background, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    mb = cv2.boxFilter(gb, -1, k)
+    vb = cv2.sqrBoxFilter(gb, -1, k) - mb * mb
+    return gb, mb, np.where(vb >= 4.0, t * t * vb, -1.0).astype(np.float32), t * t
+
+
+def flat_pixels(image: np.ndarray, raw: np.ndarray, stats: tuple, fg: np.ndarray,
+                near_background: bool = False) -> None:
+    """Sets ``fg`` (H, W) uint8 to 1 where ``image`` (H, W, 3) uint8 does not carry the
+    background's texture although the subtractor's output ``raw`` (H, W) uint8 (0 background,
+    127 shadow, 255 foreground) calls the pixel shadow or, with ``near_background``, background
+    or shadow next to foreground or shadow. A shadow darkens the road and keeps its texture
+    (normalised cross-correlation of frame and background over TEX_WIN x TEX_WIN near 1), and
+    so does empty road; the flat grey or dark body of a car that passes MOG2's brightness-and-
+    colour tests does not (correlation < t, and less spread of grey levels than the background:
+    ``stats``: ``texture_stats(bg, t)``). Looked at box
+    by box where shadow (or foreground and shadow) is dense: 8x8 blocks mostly so (and, near
+    background, the blocks next to them), not the single noise pixels MOG2 calls shadow all
+    over the image."""
+    import cv2
+
+    H, W = raw.shape
+    sure = ((raw > 0) if near_background else (raw == 127)).view(np.uint8)
+    coarse = cv2.resize(sure, (W // 8, H // 8), interpolation=cv2.INTER_AREA)
+    if near_background:
+        coarse = cv2.dilate(coarse, np.ones((3, 3), np.uint8))
+    _, _, boxes, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+    k = (TEX_WIN, TEX_WIN)
+    t2 = stats[3]
+    for x, y, w, h, area in boxes[1:]:
+        if area < 2:
+            continue
+        y0, y1 = max(8 * y - 8, 0), min(8 * (y + h) + 8, H)
+        x0, x1 = max(8 * x - 8, 0), min(8 * (x + w) + 8, W)
+        gb, mb, tvb = (a[y0:y1, x0:x1] for a in stats[:3])
+        gi = cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY).astype(np.float32)
+        ma = cv2.boxFilter(gi, -1, k)
+        va = np.maximum(cv2.sqrBoxFilter(gi, -1, k) - ma * ma, 1.0)  # floored: flat is flat
+        cab = cv2.boxFilter(gi * gb, -1, k) - ma * mb
+        r = raw[y0:y1, x0:x1]
+        cand = (r != 255) if near_background else (r == 127)
+        # ncc = cab / sqrt(va * vb) < t, without the square root
+        # ... and the frame has less texture than the background there (a body hides it; a
+        # window across a shadow's or a road user's edge sees a step, more spread than road)
+        flat = ((cab < 0) | (cab * cab < tvb * va)) & (t2 * va < tvb) & cand
+        # the majority of a 7x7 window decides: single pixels of a textured road that
+        # correlate badly by chance, and the thin bands where a window straddles an edge (a
+        # shadow's own, a road user's: a step the background lacks) drop out; bodies, whose
+        # correlation is noise around 0 (low for most pixels, not all), fill in
+        major = cv2.boxFilter(flat.view(np.uint8), cv2.CV_32F, (7, 7)) > 0.5
+        fg[y0:y1, x0:x1] |= (major & cand).view(np.uint8)
+
+
+def edge_strength(img: np.ndarray) -> np.ndarray:
+    """(h, w) float32 gradient strength of a BGR crop: |Sobel| summed over x, y and the
+    channels, after a small blur so that the road's fine texture and noise count little."""
+    import cv2
+
+    b = cv2.GaussianBlur(img, (5, 5), 1.2).astype(np.float32)
+    g = np.abs(cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3))
+    return g.sum(axis=2) if g.ndim == 3 else g
+
+
+def ncc(a: np.ndarray, b: np.ndarray, k: int = 7) -> np.ndarray:
+    """(h, w) float32 normalised cross-correlation of two grey or BGR uint8 crops over k x k
+    windows (about 0 where either is flat)."""
+    import cv2
+
+    if a.ndim == 3:
+        a, b = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY), cv2.cvtColor(b, cv2.COLOR_BGR2GRAY)
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    ma, mb = cv2.boxFilter(a, -1, (k, k)), cv2.boxFilter(b, -1, (k, k))
+    va = cv2.boxFilter(a * a, -1, (k, k)) - ma * ma
+    vb = cv2.boxFilter(b * b, -1, (k, k)) - mb * mb
+    return (cv2.boxFilter(a * b, -1, (k, k)) - ma * mb) / np.sqrt(np.maximum(va, 1.0) * np.maximum(vb, 1.0))
+
+
+def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,
+               quiet: np.ndarray, min_area: int, ratio: float) -> np.ndarray:
+    """(H, W) bool: the components of ``static`` (H, W) bool (long-lasting foreground) that are
+    ghosts. A road user that stopped has its outline in the frame and not in the background
+    image; a ghost (the background image holds a road user that has left) the other way round.
+    A component of at least ``min_area`` pixels is a ghost when the mean edge strength
+    (``edge_strength``) along its outline (a 5 px band) is ``ratio`` times larger in ``background``
+    than in ``frame`` (both (H, W, 3) or (H, W) uint8), and at least half of a ring 2-6 px
+    around it is ``quiet`` ((H, W) bool: neither foreground nor shadow) with the background's
+    texture (``ncc`` >= 0.3). A ghost lies in the empty road; a bright road marking covered
+    by a flat dark car body (which MOG2 may take for background or shadow) has the same
+    outline edges but lies inside the car.
+    """
+    import cv2
+
+    out = np.zeros(static.shape, bool)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(static.view(np.uint8), connectivity=8)
+    H, W = static.shape
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    k_ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (13, 13))
+    for i in range(1, n):
+        x, y, w, h, area = stats[i]
+        if area < min_area:
+            continue
+        x0, y0, x1, y1 = max(x - 8, 0), max(y - 8, 0), min(x + w + 8, W), min(y + h + 8, H)
+        blob = (lab[y0:y1, x0:x1] == i).view(np.uint8)
+        near = cv2.dilate(blob, k)
+        ring = (cv2.dilate(blob, k_ring) - near).view(bool)
+        ok = quiet[y0:y1, x0:x1][ring] & (ncc(frame[y0:y1, x0:x1], background[y0:y1, x0:x1])[ring] >= 0.3)
+        if not ok.mean() >= 0.5:
+            continue
+        band = (near - cv2.erode(blob, k)).view(bool)
+        e_frame = edge_strength(frame[y0:y1, x0:x1])[band].mean()
+        e_bg = edge_strength(background[y0:y1, x0:x1])[band].mean()
+        if e_bg > ratio * max(e_frame, 1e-6):
+            out[y0:y1, x0:x1] |= blob.view(bool)
+    return out

@@ -1,0 +1,476 @@
+"""A mask tracker for masks without track ids (background subtraction, detector output): the
+role SORTS plays in the paper.
+
+Per frame, every live track (seen within ``max_gap`` frames) is scored against every new mask
+by two cues: the mask IoU with the track's last mask (pycocotools on RLE: no mask is decoded)
+and the world distance between the track's predicted position (constant velocity) and the
+mask's normal position, which stays informative for small, far-away masks whose IoU collapses
+from frame to frame. One Hungarian assignment (``scipy.optimize.linear_sum_assignment``) per
+frame picks the pairs; a pair is allowed when IoU >= ``iou_min`` or the distance is inside a
+gate that widens with the gap. First (``split_min`` > 0, the default), a mask that holds most
+of the predicted masks of two or more established tracks (road users that overlap in the image
+and came out of background subtraction as one blob) is split between them: each track's shape
+(its last whole mask, carried along by its pixel motion while it is merged) is its predicted
+mask, a pixel inside several goes to the nearest road user (the one reaching lowest in the
+image), a pixel outside all to the nearest predicted mask. Unmatched masks start tracks; a
+track lost for up to ``max_gap`` frames can be picked up again (re-identification after an
+occlusion); tracks shorter than ``min_length`` frames are dropped at the end. Deterministic: same input, same ids.
+
+Long sequences are streamed: the first pass keeps only the live tracks and one id per mask,
+the second runs the same (deterministic) tracker again and writes the masks with final ids.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+from pycocotools import mask as mask_util
+from scipy.optimize import linear_sum_assignment
+
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
+from seg2pose.geometry.ground import GroundSurface
+from seg2pose.io.mots import MaskTable, iter_mots, write_mots
+from seg2pose.structures.masks import decode_counts
+from seg2pose.structures.rle_runs import box_of_runs, shift_counts, shift_rles
+from seg2pose.video.video_masks import labels_to_rles
+
+_BLOCK = 256          # frames whose normal positions are computed together
+_INVALID = 1e6        # cost of a forbidden pair
+TRACK_HEIGHT = 0.8    # metres: one default height for all masks (no class is known yet)
+SPLIT_MIN_AGE = 3     # masks a track needs before a blob is split for it (not a fragment)
+
+
+@dataclass
+class TrackConfig:
+    """Tracker settings (``scene.json`` ``extra.tracker`` overrides them)."""
+
+    iou_min: float = 0.15     # least IoU with the track's last mask for an association by overlap
+    gate_m: float = 2.0       # world distance gate, metres, for a track seen in the previous frame
+    gate_growth: float = 0.4  # metres added to the gate per further missed frame
+    max_gap: int = 20         # frames a lost track waits to be picked up again
+    min_length: int = 5       # shorter tracks (frames with a mask) are dropped
+    gap_penalty: float = 0.02  # cost per missed frame: recent tracks win ties
+    split_min: float = 0.5    # > 0: a mask holding this share of two or more tracks' predicted
+    #                           masks is split between them (merged blobs); 0: off. Chosen on
+    #                           seeds 101-102 (docs/RESULTS.md): recall +3 to +8 points
+
+    @classmethod
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> "TrackConfig":
+        out = cls()
+        known = {f.name for f in fields(cls)}
+        for k, v in (d or {}).items():
+            if k not in known:
+                raise InputError(f"unknown setting {k!r}; known: {', '.join(sorted(known))}",
+                                 file=file, field=f"extra.tracker.{k}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
+                raise InputError(f"expected a number >= 0, got {v!r}", file=file,
+                                 field=f"extra.tracker.{k}")
+            setattr(out, k, type(getattr(out, k))(v))
+        return out
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class Tracker:
+    """Frame-by-frame association. ``update`` returns a provisional id per mask; ``final_ids``
+    turns all ids handed out into the final ones (short tracks -> -1, ids renumbered 1.. in
+    order of first appearance)."""
+
+    def __init__(self, height: int, width: int, cfg: TrackConfig | None = None):
+        self.cfg = cfg or TrackConfig()
+        self.size = [int(height), int(width)]
+        self.ids = np.zeros(0, np.int64)       # live tracks
+        self.last = np.zeros(0, np.int64)      # frame each was last seen
+        self.pos = np.zeros((0, 2))            # last world position (x, y) metres, NaN unknown
+        self.vel = np.zeros((0, 2))            # metres per frame
+        self.box = np.zeros((0, 2))            # last mask's box centre, pixels
+        self.pxvel = np.zeros((0, 2))          # its motion, pixels per frame (NaN: seen once)
+        self.rles: list[bytes] = []            # last mask of each live track
+        # last whole mask (not a part cut from a merged blob), carried along by the track's
+        # motion while it is merged: what the road user looks like when nothing hides it
+        self.shape: list[bytes] = []
+        self.shape_box = np.zeros((0, 4))      # its box (x, y, w, h) pixels and area, pixels
+        self.shape_area = np.zeros(0)
+        self._pred: dict[int, bytes] = {}      # this frame's predicted masks, by track row
+        self._lazy: dict[int, int] = {}        # rows with a predicted mask: their shift
+        self.length: list[int] = []            # masks per id (index = provisional id)
+        # world positions (D, 2) of masks made by splitting; None: unknown (IoU only)
+        self.positions: Callable[[list[bytes]], np.ndarray] | None = None
+
+    def _cost(self, frame: int, rles: list[bytes], xy: np.ndarray) -> np.ndarray:
+        c = self.cfg
+        gap = (frame - self.last).astype(np.float64)                     # (T,)
+        iou = np.asarray(mask_util.iou([{"size": self.size, "counts": r} for r in self.rles],
+                                       [{"size": self.size, "counts": r} for r in rles],
+                                       [0] * len(rles)), float).reshape(len(self.rles), len(rles))
+        pred = self.pos + self.vel * gap[:, None]
+        dist = np.linalg.norm(pred[:, None, :] - xy[None, :, :], axis=2)  # (T, D), NaN unknown
+        gate = c.gate_m + c.gate_growth * (gap - 1)
+        with np.errstate(invalid="ignore"):
+            near = dist <= gate[:, None]
+            closeness = np.where(near, 1.0 - dist / gate[:, None], 0.0)
+        ok = (iou >= c.iou_min) | near
+        cost = 1.0 - np.maximum(iou, closeness) + c.gap_penalty * (gap - 1)[:, None]
+        return np.where(ok, cost, _INVALID)
+
+    def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray, bd: np.ndarray,
+                      ad: np.ndarray) -> tuple[list[bytes], np.ndarray, np.ndarray]:
+        """Masks holding >= split_min of two or more established tracks' predicted masks,
+        split between those tracks. Returns masks, positions (NaN for split parts, filled in
+        by ``positions`` when set) and, per output mask, the index of the input mask it came
+        from."""
+        src = np.arange(len(rles))
+        recent = np.flatnonzero((frame - self.last == 1)
+                                & (np.asarray(self.length, np.int64)[self.ids] >= SPLIT_MIN_AGE)
+                                if len(self.ids) else np.zeros(0, bool))
+        if self.cfg.split_min <= 0 or len(recent) < 2 or not rles:
+            return rles, xy, src
+        # each track's shape moved on by its pixel motion: where the road user is expected
+        h = self.size[0]
+        shift = np.round(np.nan_to_num(self.pxvel[recent])).astype(np.int64)
+        # boxes first (cheap): only tracks whose predicted box meets a mask's box that meets
+        # two or more of them can take part
+        bt = self.shape_box[recent]
+        bt[:, :2] += shift
+        meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
+                & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
+        cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
+        if cand.sum() < 2:
+            return rles, xy, src
+        recent, shift, bt = recent[cand], shift[cand], bt[cand]
+        # exact upper bounds before any decoding: a track's share inside a mask is at most
+        # the overlap of their boxes over the track's predicted area (exact where the shape
+        # moves without leaving the image: no pixel wraps into the next column or falls off)
+        at0 = self.shape_area[recent]
+        ow = np.minimum(bt[:, None, 0] + bt[:, None, 2], bd[None, :, 0] + bd[None, :, 2]) \
+            - np.maximum(bt[:, None, 0], bd[None, :, 0])
+        oh = np.minimum(bt[:, None, 1] + bt[:, None, 3], bd[None, :, 1] + bd[None, :, 3]) \
+            - np.maximum(bt[:, None, 1], bd[None, :, 1])
+        inner = ((bt[:, 0] >= 0) & (bt[:, 0] + bt[:, 2] <= self.size[1])
+                 & (bt[:, 1] >= 0) & (bt[:, 1] + bt[:, 3] <= h))
+        bound = np.minimum(np.maximum(ow, 0) * np.maximum(oh, 0), ad[None, :]) / np.maximum(at0, 1.0)[:, None]
+        may = ~inner[:, None] | (bound >= self.cfg.split_min - 1e-9)          # (T, D)
+        need = may[:, may.sum(axis=0) >= 2].any(axis=1)
+        if not need.any():
+            return rles, xy, src
+        # every track of ``recent`` has a predicted mask (a part matched to it takes that
+        # mask as its shape); only those that may be inside a merged mask are moved now
+        lazy = {int(i): int(dx) * h + int(dy) for i, (dx, dy) in zip(recent, shift)}
+        sel = recent[need]
+        # masks that none of them may be inside cannot hold a share >= split_min: leaving them
+        # out changes no share's row maximum that matters
+        cols = np.flatnonzero(may[need].any(axis=0))
+        # the runs of their shapes and of those masks, decoded at once (reused by _split)
+        vals, off = decode_counts([self.shape[i] for i in sel] + [rles[k] for k in cols])
+        runs = [vals[off[j]:off[j + 1]] for j in range(len(off) - 1)]
+        blob_runs = dict(zip(cols.tolist(), runs[len(sel):]))
+        moved, pred_runs = [], {}
+        for j, i in enumerate(sel.tolist()):
+            k = lazy[i]
+            pred_runs[i] = shift_counts(runs[j], k, h * self.size[1]) if k else runs[j]
+            moved.append(mask_util.frPyObjects({"size": self.size, "counts": pred_runs[i].tolist()},
+                                               *self.size)["counts"] if k else self.shape[i])
+        pred = dict(zip(sel.tolist(), moved))
+        objs_t = [{"size": self.size, "counts": r} for r in moved]
+        objs_d = [{"size": self.size, "counts": rles[k]} for k in cols]
+        iou = np.asarray(mask_util.iou(objs_t, objs_d, [0] * len(cols)), float).reshape(len(sel), len(cols))
+        at = mask_util.area(objs_t).astype(np.float64)
+        frac = iou * (at[:, None] + ad[None, cols]) / (1.0 + iou) / np.maximum(at[:, None], 1.0)
+        inside = np.zeros((len(sel), len(rles)), bool)
+        inside[:, cols] = (frac >= self.cfg.split_min) & (frac == frac.max(axis=1, keepdims=True))
+        merged = set(np.flatnonzero(inside.sum(axis=0) >= 2).tolist())
+        if not merged:
+            return rles, xy, src
+        recent = sel
+        out_r, out_src, split_rows = [], [], []
+        for d in range(len(rles)):
+            if d not in merged:
+                out_r.append(rles[d])
+                out_src.append(d)
+                continue
+            members = recent[inside[:, d]]
+            for part in self._split(rles[d], [pred[int(i)] for i in members],
+                                    [blob_runs[d], *(pred_runs[int(i)] for i in members)]):
+                split_rows.append(len(out_r))
+                out_r.append(part)
+                out_src.append(d)
+        self._pred, self._lazy = pred, lazy
+        out_xy = xy[out_src].reshape(-1, 2)
+        out_xy[split_rows] = np.nan
+        if self.positions is not None and split_rows:
+            out_xy[split_rows] = self.positions([out_r[i] for i in split_rows])
+        return out_r, out_xy, np.array(out_src, np.int64)
+
+    def _boxes(self, rles: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 4) boxes (x, y, w, h) pixels and (N,) areas, pixels, of RLE masks."""
+        if not rles:
+            return np.zeros((0, 4)), np.zeros(0)
+        objs = [{"size": self.size, "counts": r} for r in rles]
+        return mask_util.toBbox(objs).reshape(-1, 4), mask_util.area(objs).astype(np.float64)
+
+    def _predicted(self, r: int) -> bytes:
+        """Track row ``r``'s predicted mask this frame (its shape moved on), made on demand."""
+        if r not in self._pred:
+            self._pred[r] = shift_rles([self.shape[r]], [self._lazy[r]], self.size)[0]
+        return self._pred[r]
+
+    def _split(self, blob: bytes, predicted: list[bytes], runs: list[np.ndarray],
+               min_px: int = 20) -> list[bytes]:
+        """The blob's pixels shared out between road users with the ``predicted`` masks (their
+        shapes moved on by their motion): a pixel inside predicted masks goes to the nearest
+        of those road users (the lowest mask bottom in the image: the camera looks down on the
+        ground, so lower is nearer and hides the others); a pixel outside all of them to the
+        nearest predicted mask (distance transform). Works in the blob's box; parts under
+        ``min_px`` pixels are dropped. ``runs``: the run lengths of the blob and the predicted
+        masks (uncompressed RLE counts)."""
+        import cv2
+
+        h, w = self.size
+        x0, y0, bw, bh = (int(v) for v in mask_util.toBbox({"size": self.size, "counts": blob}))
+        strips = box_of_runs(runs, h, x0, x0 + bw, y0, y0 + bh)
+        m = strips[0]
+        covered = strips[1:]
+        # the predicted mask's lowest row, over the whole mask (it may reach past the blob)
+        pb = mask_util.toBbox([{"size": self.size, "counts": r} for r in predicted]).reshape(-1, 4)
+        bottom = np.where(pb[:, 3] > 0, pb[:, 1] + pb[:, 3], -1.0)
+        held = covered.any(axis=0)
+        if (m & ~held).any():      # pixels outside every predicted mask: the nearest one
+            # the first of the nearest (as argmin): a later one must be strictly nearer
+            best = cv2.distanceTransform((~covered[0]).astype(np.uint8), cv2.DIST_L2, 3)
+            owner = np.zeros((bh, bw), np.int64)
+            for k in range(1, len(covered)):
+                dk = cv2.distanceTransform((~covered[k]).astype(np.uint8), cv2.DIST_L2, 3)
+                nearer = dk < best
+                owner[nearer] = k
+                best = np.where(nearer, dk, best)
+        else:
+            owner = np.zeros((bh, bw), np.int64)
+        # among the predicted masks that hold a pixel, the nearest road user takes it: paint
+        # them from the farthest to the nearest (equal bottoms: the first track last)
+        for k in sorted(range(len(predicted)), key=lambda k: (bottom[k], -k)):
+            owner[covered[k]] = k
+        lab = np.where(m, owner + 1, 0)
+        counts = np.bincount(lab.ravel(), minlength=len(predicted) + 1)
+        keep = np.flatnonzero(counts[1:] >= min_px) + 1
+        return labels_to_rles(lab, keep, x0=x0, width=w, y0=y0, height=h)  # all parts in one pass
+
+    def update(self, frame: int, rles: list[bytes], xy: np.ndarray | None = None) -> np.ndarray:
+        """Provisional ids of one frame's masks. xy: (D, 2) world positions, metres (normal
+        positions), NaN where unknown; None = IoU only. Frames must increase. When a merged
+        mask was split, ``self.out_rles`` holds the frame's masks after splitting and
+        ``self.out_source`` the input mask each came from; the ids are for those."""
+        c = self.cfg
+        d = len(rles)
+        xy = np.full((d, 2), np.nan) if xy is None else np.asarray(xy, float).reshape(d, 2)
+        alive = frame - self.last <= c.max_gap
+        if not alive.all():
+            keep = np.flatnonzero(alive)
+            self.ids, self.last = self.ids[keep], self.last[keep]
+            self.pos, self.vel = self.pos[keep], self.vel[keep]
+            self.box, self.pxvel = self.box[keep], self.pxvel[keep]
+            self.rles = [self.rles[i] for i in keep]
+            self.shape = [self.shape[i] for i in keep]
+            self.shape_box, self.shape_area = self.shape_box[keep], self.shape_area[keep]
+        self._pred, self._lazy = {}, {}
+        given = list(rles)
+        bb, area = self._boxes(given)
+        rles, xy, self.out_source = self._split_merged(frame, given, xy, bb, area)
+        if rles is not given:                  # split: boxes of the new masks
+            bb, area = self._boxes(rles)
+        self.out_rles = rles
+        self.out_split = np.r_[False, self.out_source[1:] == self.out_source[:-1]] | \
+            np.r_[self.out_source[:-1] == self.out_source[1:], False]
+        d = len(rles)
+        out = np.full(d, -1, np.int64)
+        if d:
+            box = bb[:, :2] + bb[:, 2:] / 2
+        if d == 0:
+            return out
+        rows = cols = np.zeros(0, np.int64)
+        if len(self.ids):
+            cost = self._cost(frame, rles, xy)
+            rows, cols = linear_sum_assignment(cost)
+            good = cost[rows, cols] < _INVALID
+            rows, cols = rows[good], cols[good]
+        # matched tracks: position, velocity (smoothed, per frame), last mask
+        if len(rows):
+            gap = (frame - self.last[rows]).astype(np.float64)[:, None]
+            step = (xy[cols] - self.pos[rows]) / gap
+            fresh = np.isfinite(step).all(axis=1)
+            self.vel[rows] = np.where(fresh[:, None] & np.isfinite(self.vel[rows]),
+                                      0.6 * self.vel[rows] + 0.4 * step,
+                                      np.where(fresh[:, None], step, self.vel[rows]))
+            has = np.isfinite(xy[cols]).all(axis=1)
+            self.pos[rows] = np.where(has[:, None], xy[cols], self.pos[rows])
+            px = (box[cols] - self.box[rows]) / gap
+            old = self.pxvel[rows]
+            self.pxvel[rows] = np.where(np.isnan(old), px, 0.6 * old + 0.4 * px)
+            self.box[rows] = box[cols]
+            self.last[rows] = frame
+            for r, cc in zip(rows, cols):
+                self.rles[r] = rles[cc]
+                whole_mask = not self.out_split[cc] or int(r) not in self._lazy
+                if whole_mask:
+                    self.shape[r], self.shape_box[r], self.shape_area[r] = rles[cc], bb[cc], area[cc]
+                else:
+                    self.shape[r] = self._predicted(int(r))
+                    b, a = self._boxes([self.shape[r]])
+                    self.shape_box[r], self.shape_area[r] = b[0], a[0]
+            out[cols] = self.ids[rows]
+        # births
+        taken = np.zeros(d, bool)
+        taken[cols] = True
+        new = np.flatnonzero(~taken)
+        if len(new):
+            nid = np.arange(len(self.length), len(self.length) + len(new))
+            self.length.extend([0] * len(new))
+            self.ids = np.r_[self.ids, nid]
+            self.last = np.r_[self.last, np.full(len(new), frame)]
+            self.pos = np.vstack([self.pos, xy[new]])
+            self.vel = np.vstack([self.vel, np.zeros((len(new), 2))])
+            self.box = np.vstack([self.box, box[new]])
+            self.pxvel = np.vstack([self.pxvel, np.full((len(new), 2), np.nan)])  # unknown yet
+            self.rles.extend(rles[i] for i in new)
+            self.shape.extend(rles[i] for i in new)
+            self.shape_box = np.vstack([self.shape_box, bb[new]])
+            self.shape_area = np.r_[self.shape_area, area[new]]
+            out[new] = nid
+        for i in out:
+            self.length[i] += 1
+        return out
+
+    def final_ids(self, provisional: np.ndarray) -> np.ndarray:
+        """Final ids for provisional ones (any shape): tracks shorter than ``min_length`` -> -1,
+        the others renumbered 1, 2, ... in order of first appearance."""
+        p = np.asarray(provisional, np.int64)
+        long_ = np.asarray(self.length) >= max(self.cfg.min_length, 1)
+        new = np.full(len(self.length), -1, np.int64)
+        new[long_] = np.arange(1, int(long_.sum()) + 1)  # provisional ids are in birth order
+        return np.where(p >= 0, new[np.maximum(p, 0)], -1)
+
+
+def world_positions(table: MaskTable, camera: Camera | None, ground: GroundSurface | None,
+                    height: float = TRACK_HEIGHT) -> np.ndarray:
+    """(N, 2) metres: where the ray through each mask's bounding-box centre meets the plane
+    ``height`` above the ground's mean height (NaN without a camera, or where the ray points
+    above the horizon). A cheap stand-in for normal positions: association needs positions
+    that are consistent from frame to frame, not exact ones."""
+    n = len(table)
+    if camera is None or ground is None or n == 0:
+        return np.full((n, 2), np.nan)
+    box = mask_util.toBbox([{"size": [table.height, table.width], "counts": r}
+                            for r in table.rles]).reshape(n, 4)
+    cen = box[:, :2] + box[:, 2:] / 2
+    d = camera.unproject(cen)
+    o = camera.center
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (ground.z_mean + height - o[2]) / d[:, 2]
+    s = np.where(s > 0, s, np.nan)
+    return o[None, :2] + s[:, None] * d[:, :2]
+
+
+def _blocks(frames: Iterable[tuple[int, MaskTable]]) -> Iterator[list[tuple[int, MaskTable]]]:
+    block: list[tuple[int, MaskTable]] = []
+    for item in frames:
+        block.append(item)
+        if len(block) == _BLOCK:
+            yield block
+            block = []
+    if block:
+        yield block
+
+
+def _run(frames: Iterable[tuple[int, MaskTable]], tr: Tracker, camera: Camera | None,
+         ground: GroundSurface | None, bar=None) -> Iterator[tuple[MaskTable, np.ndarray]]:
+    """Per frame with masks: the frame's masks after splitting (class ids and scores of the
+    mask each came from) and their provisional ids."""
+    last_frame = None
+    if camera is not None and ground is not None:
+        def parts_xy(rles: list[bytes]) -> np.ndarray:
+            z = np.zeros(len(rles), np.int64)
+            return world_positions(MaskTable(z, z - 1, z, tr.size[0], tr.size[1], rles), camera, ground)
+        tr.positions = parts_xy
+    for block in _blocks(frames):
+        xy = world_positions(MaskTable.concat([t for _, t in block]), camera, ground)
+        k = 0
+        for f, t in block:
+            if last_frame is not None and f <= last_frame:
+                raise InputError(f"frame {f} comes after frame {last_frame}: frames must increase")
+            last_frame = f
+            ids = tr.update(f, t.rles, xy[k:k + len(t)])
+            k += len(t)
+            src = tr.out_source
+            out = MaskTable(np.full(len(src), f), np.full(len(src), -1), t.class_id[src],
+                            t.height, t.width, tr.out_rles,
+                            None if t.score is None else t.score[src])
+            yield out, ids
+        if bar is not None:
+            bar.update(len(block))
+
+
+def track_frames(frames: Iterable[tuple[int, MaskTable]], height: int, width: int,
+                 camera: Camera | None = None, ground: GroundSurface | None = None,
+                 cfg: TrackConfig | None = None, progress: bool = False) -> np.ndarray:
+    """Final track ids of every output mask of a frame-ordered stream (in stream order; split
+    masks count one each); -1 for masks of dropped short tracks."""
+    from tqdm import tqdm
+
+    tr = Tracker(height, width, cfg)
+    with tqdm(desc="tracking", unit="frame", disable=not progress, leave=False) as bar:
+        parts = [ids for _, ids in _run(frames, tr, camera, ground, bar)]
+    return tr.final_ids(np.concatenate(parts) if parts else np.zeros(0, np.int64))
+
+
+def track_table(table: MaskTable, camera: Camera | None = None,
+                ground: GroundSurface | None = None, cfg: TrackConfig | None = None) -> MaskTable:
+    """The masks of ``table`` with track ids (frame order; merged masks split; masks of short
+    tracks dropped)."""
+    t = table.take(np.argsort(table.frame, kind="stable"))
+    tr = Tracker(t.height, t.width, cfg)
+    res = list(_run(t.frames(), tr, camera, ground))
+    if not res:
+        return MaskTable.empty(t.height, t.width)
+    out = MaskTable.concat([m for m, _ in res])
+    out.track_id = tr.final_ids(np.concatenate([ids for _, ids in res]))
+    return out.take(out.track_id >= 0)
+
+
+def track_mots(src: str | Path, out: str | Path, camera: Camera | None = None,
+               ground: GroundSurface | None = None, cfg: TrackConfig | None = None,
+               known_classes=None, progress: bool = False,
+               log: Callable[[str], None] = print) -> tuple[int, int]:
+    """Track the masks of MOTS file ``src`` into ``out`` (may be the same path; written
+    atomically): two streaming passes. Returns (tracks kept, masks kept)."""
+    src = Path(src)
+    first = None
+    for _, t in iter_mots(src, known_classes):
+        first = t
+        break
+    if first is None:
+        write_mots(out, [])
+        log(f"note: {src} has no masks; wrote an empty file")
+        return 0, 0
+    h, w = first.height, first.width
+    tr = Tracker(h, w, cfg)
+    n_prov = 0
+    for _, ids in _run(iter_mots(src, known_classes), tr, camera, ground):
+        n_prov += len(ids)
+    final = tr.final_ids(np.arange(len(tr.length)))          # provisional id -> final id
+    kept = {"masks": 0}
+
+    def rewritten() -> Iterator[MaskTable]:
+        again = Tracker(h, w, cfg)                              # the same ids, deterministically
+        for m, ids in _run(iter_mots(src, known_classes, check_rles=False), again, camera, ground):
+            m.track_id = final[ids]
+            keep = m.track_id >= 0
+            if keep.any():
+                kept["masks"] += int(keep.sum())
+                yield m.take(keep)
+
+    write_mots(out, rewritten())
+    return int(final.max(initial=0)), kept["masks"]

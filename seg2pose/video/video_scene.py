@@ -1,0 +1,264 @@
+"""From video to a scene's masks, per camera: background-subtraction masks -> tracks -> size
+classes, or a detector's COCO file -> tracks; and a new scene from video + calibration +
+ground points. The functions here are what ``s2p masks-from-video``, ``s2p import-detections``,
+``s2p track`` and ``s2p new-scene`` run.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera, Rig
+from seg2pose.io.atomic import check_writable
+from seg2pose.io.mots import write_mots
+from seg2pose.io.track_ids import mark_ids
+from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
+from seg2pose.io.text import load_json, read_text
+from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
+from seg2pose.video.classify import classify_mots, size_rules
+from seg2pose.video.detections import DetectionConfig, import_detections
+from seg2pose.video.track import TrackConfig, track_mots
+from seg2pose.video.video_masks import BgConfig, VideoMasksResult, masks_from_video
+
+
+def _cameras(scene: Scene, cameras: list[str] | None) -> list[str]:
+    names = list(cameras) if cameras else list(scene.cameras)
+    unknown = [c for c in names if c not in scene.cameras]
+    if unknown:
+        raise InputError(f"unknown cameras {unknown}; the scene has {list(scene.cameras)}",
+                         file=scene.root / SCENE_FILE, field="cameras")
+    return names
+
+
+def associate_step(scene: Scene, tracked: list[str], associate: bool, log: Callable[[str], None]
+                   ) -> None:
+    """After a camera's tracker wrote ids: record them as the tracker's (masks/ids.json) and,
+    when ``associate`` and two or more cameras have masks, associate all cameras' ids."""
+    if tracked:
+        mark_ids(scene.masks_path(tracked[0]).parent, {c: "tracker" for c in tracked})
+    if not associate:
+        return
+    with_masks = [c for c in scene.cameras if scene.masks_path(c).exists()]
+    if associate and len(with_masks) > 1:
+        from seg2pose.video.associate_scene import associate_scene
+
+        associate_scene(scene.root, with_masks, force=True, log=log)
+
+
+def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = None, *,
+                           bg: dict | None = None, tracker: dict | None = None,
+                           track: bool = True, classify: bool = True, force: bool = False,
+                           frames: tuple[int, int] | None = None, progress: bool = False,
+                           associate: bool = True,
+                           log: Callable[[str], None] = print) -> dict[str, VideoMasksResult]:
+    """masks/<camera>.txt from each camera's video: background subtraction, then the tracker
+    and size classes, then (``associate``, with two or more cameras) one id per road user over
+    the cameras (``s2p associate``). Settings: ``scene.json`` ``extra.video_masks`` /
+    ``extra.tracker`` / ``extra.size_classes`` / ``extra.associate``, overridden by ``bg`` /
+    ``tracker``."""
+    scene = load_scene(scene_dir)
+    sj = scene.root / SCENE_FILE
+    cfg = BgConfig.from_dict({**(scene.extra.get("video_masks") or {}), **(bg or {})}, file=sj)
+    tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})}, file=sj)
+    rules = size_rules(scene.classes, scene.extra, file=sj) if classify else None
+    names = _cameras(scene, cameras)
+    for c in names:
+        check_writable(scene.masks_path(c), force)
+    out = {}
+    for c in names:
+        reader = camera_reader(scene, c)
+        dst = scene.masks_path(c)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        res = masks_from_video(reader.path, dst, cfg, camera=scene.cameras[c],
+                               first_frame=reader.first, frame_step=reader.step, frames=frames,
+                               progress=progress, log=log)
+        msg = f"{c}: {res.n_frames} frames -> {res.n_masks} masks"
+        if track:
+            n_tracks, n_kept = track_mots(dst, dst, scene.cameras[c], scene.ground, tcfg,
+                                          progress=progress, log=log)
+            msg += f" -> {n_tracks} tracks ({n_kept} masks)"
+        if rules is not None:
+            votes = classify_mots(dst, dst, scene.cameras[c], scene.ground, rules,
+                                  fps=scene.fps, log=log)
+            names_by_id = {k.id: k.name for k in scene.classes}
+            counts = np.unique(list(votes.values()), return_counts=True) if votes else ([], [])
+            msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
+        log(msg)
+        out[c] = res
+    associate_step(scene, names if track else [], associate and track, log)
+    return out
+
+
+def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
+                tracker: dict | None = None, classify: bool = False, force: bool = True,
+                progress: bool = False, associate: bool = True,
+                log: Callable[[str], None] = print) -> dict[str, int]:
+    """Track ids for masks/<camera>.txt in place (and size classes for masks without one),
+    then (``associate``) one id per road user over the cameras."""
+    scene = load_scene(scene_dir)
+    sj = scene.root / SCENE_FILE
+    tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})}, file=sj)
+    out = {}
+    for c in _cameras(scene, cameras):
+        src = scene.masks_path(c)
+        if not src.exists():
+            raise InputError("no masks for this camera", file=src)
+        n, kept = track_mots(src, src, scene.cameras[c], scene.ground, tcfg,
+                             known_classes=[k.id for k in scene.classes], progress=progress, log=log)
+        if classify:
+            classify_mots(src, src, scene.cameras[c], scene.ground,
+                          size_rules(scene.classes, scene.extra, file=sj), fps=scene.fps, log=log)
+        log(f"{c}: {n} tracks, {kept} masks")
+        out[c] = n
+    associate_step(scene, list(out), associate, log)
+    return out
+
+
+def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path, *,
+                            cfg: DetectionConfig | None = None, tracker: dict | None = None,
+                            frame_offset: int = 0, force: bool = False, associate: bool = True,
+                            log: Callable[[str], None] = print) -> int:
+    """masks/<camera>.txt from a detector's COCO JSON: threshold, NMS, classes, bicyclists,
+    then the tracker when the file has no track ids, then (``associate``, when other cameras
+    have masks too) one id per road user over the cameras. Returns the masks written."""
+    scene = load_scene(scene_dir)
+    _cameras(scene, [camera])
+    dst = check_writable(scene.masks_path(camera), force)
+    cam = scene.cameras[camera]
+    n_frames = None
+    if scene.video_path(camera) is not None:
+        reader = camera_reader(scene, camera)
+        _, _, n = reader.header()
+        if n:
+            n_frames = reader.first + reader.step * n
+    table = import_detections(coco, {k.name: k.id for k in scene.classes}, cfg=cfg,
+                              size=(cam.height, cam.width), n_frames=n_frames,
+                              frame_offset=frame_offset, log=log)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    write_mots(dst, table)
+    if len(table) and (table.track_id < 0).any():
+        tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})},
+                                     file=scene.root / SCENE_FILE)
+        n, kept = track_mots(dst, dst, cam, scene.ground, tcfg, log=log)
+        log(f"{camera}: tracked into {n} tracks ({kept} masks)")
+    else:
+        kept = len(table)
+    # a detector's own track ids are per camera too
+    associate_step(scene, [camera], associate, log)
+    return kept
+
+
+# --- new scene ------------------------------------------------------------------------------------
+def read_calibration(path: str | Path, sizes: dict[str, tuple[int, int]]) -> dict[str, Camera]:
+    """Cameras from a calibration file: JSON ``{"cameras": [{name, P | K, R, t, [width,
+    height], [distortion]}, ...]}`` (or one such object), or a text file of 12 numbers (a 3x4
+    P, row by row) for a single camera. Missing image sizes come from ``sizes`` (camera name
+    -> (width, height) of its video)."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        d = load_json(path, "calibration file")
+        items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
+        if not isinstance(items, list) or not items:
+            raise InputError("expected {\"cameras\": [...]} or one camera object", file=path)
+        cams = {}
+        for i, c in enumerate(items):
+            if not isinstance(c, dict):
+                raise InputError("expected an object", file=path, field=f"cameras[{i}]")
+            c = dict(c)
+            if "name" not in c and len(items) == 1 and len(sizes) == 1:
+                c["name"] = next(iter(sizes))
+            name = str(c.get("name"))
+            if ("width" not in c or "height" not in c) and name in sizes:
+                c["width"], c["height"] = sizes[name]
+            cam = Camera.from_dict(c, file=path, where=f"cameras[{i}]")
+            cams[cam.name] = cam
+        return cams
+    nums = re.split(r"[\s,;]+", read_text(path, "calibration file").strip())
+    try:
+        P = np.array([float(v) for v in nums if v], float)
+    except ValueError:
+        raise InputError("expected 12 numbers (a 3x4 projection matrix P, row by row)",
+                         file=path) from None
+    if P.size != 12 or not np.isfinite(P).all():
+        raise InputError(f"expected 12 finite numbers (P, 3x4), got {P.size}", file=path)
+    if len(sizes) != 1:
+        raise InputError("a P text file describes one camera; give one video", file=path)
+    name, (w, h) = next(iter(sizes.items()))
+    return {name: Camera.from_P(name, P.reshape(3, 4), w, h)}
+
+
+def new_scene(out: str | Path, videos: dict[str, str | Path], calibration: str | Path,
+              ground_points: str | Path, *, fps: float | None = None, name: str | None = None,
+              force: bool = False, log: Callable[[str], None] = print) -> Scene:
+    """A scene folder from videos (camera name -> video file or image folder), a calibration
+    file (``read_calibration``) and ground points (x,y,z CSV, metres). Videos are linked (or
+    copied) to video/<camera>.<ext>; masks come next from ``masks-from-video`` or a detector."""
+    out = Path(out)
+    check_writable(out / SCENE_FILE, force)
+    if not videos:
+        raise InputError("no video given", field="videos")
+    readers = {c: FrameReader(Path(v)) for c, v in videos.items()}
+    sizes, counts = {}, {}
+    for c, r in readers.items():
+        w, h, n = r.header()
+        sizes[c], counts[c] = (w, h), n
+    cams = read_calibration(calibration, sizes)
+    missing = [c for c in videos if c not in cams]
+    if missing:
+        raise InputError(f"the calibration has no camera {missing[0]!r} (it has {list(cams)})",
+                         file=calibration)
+    for c, r in readers.items():
+        r.check_size(cams[c].width, cams[c].height)
+    ground = read_ground_points(ground_points)
+    if fps is None:
+        import cv2
+        first = next(iter(readers.values()))
+        fps = 10.0
+        if not first.is_folder:
+            cap = cv2.VideoCapture(str(first.path))
+            fps = float(cap.get(cv2.CAP_PROP_FPS)) or 10.0
+            cap.release()
+    cams = {c: cams[c] for c in videos}
+    configs = {f"mono-{c}": [c] for c in cams}
+    if len(cams) > 1:
+        configs["all"] = list(cams)
+    scene = Scene(root=out, name=name or out.name, fps=float(fps),
+                  rig=Rig(cameras=cams, configs=configs, name="rig"), ground_points=ground,
+                  classes=[ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES],
+                  extra={"source": {"format": "video", "calibration": str(Path(calibration).resolve()),
+                                    "videos": {c: str(Path(v).resolve()) for c, v in videos.items()}}})
+    (out / "masks").mkdir(parents=True, exist_ok=True)
+    for c, r in readers.items():
+        dst = out / "video" / (c if r.is_folder else f"{c}{r.path.suffix.lower()}")
+        if r.path.suffix.lower() not in VIDEO_EXTS + ("",) and not r.is_folder:
+            raise InputError(f"expected a video ({', '.join(VIDEO_EXTS)}) or an image folder",
+                             file=r.path)
+        _link(r.path, dst)
+    scene.save(out)  # scene.json last: its presence marks a finished scene
+    log(f"new scene {out}: {len(cams)} cameras ({', '.join(f'{c} {sizes[c][0]}x{sizes[c][1]}, 'f'{counts[c]} frames' for c in cams)}), "
+        f"{len(ground)} ground points, {fps:g} fps")
+    return scene
+
+
+def _link(src: Path, dst: Path) -> None:
+    """Hard-link (or copy) a file or image folder to dst."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists():
+        shutil.rmtree(dst) if dst.is_dir() else dst.unlink()
+    if src.is_dir():
+        dst.mkdir()
+        for p in sorted(src.iterdir()):
+            if p.is_file():
+                _link(p, dst / p.name)
+        return
+    try:
+        dst.hardlink_to(src)
+    except OSError:
+        shutil.copy2(src, dst)
+
