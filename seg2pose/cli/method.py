@@ -176,7 +176,7 @@ def calibrate_cmd(
     their disagreement): a quantile regression. Runs made afterwards carry r90_m in poses.csv
     and views.csv; s2p eval reports its coverage."""
     from seg2pose.io.scene import load_scene
-    from seg2pose.method.uncertainty import calibrate_run
+    from seg2pose.method.r90_calibrate import calibrate_run
 
     path, cal = calibrate_run(load_scene(scene), run, out, force)
     cov = cal.meta["coverage_on_fit"]

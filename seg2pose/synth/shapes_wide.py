@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seg2pose.synth.shapes import BODY, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL, Shape, _shape, hexa
+from seg2pose.synth.shapes import BODY, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL, Shape, hexa, make_shape
 
 KIND_SHARES = {
     "car": {"small car": 0.2, "car": 0.34, "suv": 0.2, "van": 0.12, "truck": 0.08, "bus": 0.06},
@@ -74,7 +74,7 @@ def vehicle_parts(rng: np.random.Generator, kind: str | None = None) -> Shape:
         for sy in (-1, 1):
             y = sy * (w / 2 - 0.15)
             parts.append((hexa(x - r, x + r, y - 0.13, y + 0.13, 0.0, 2 * r), WHEEL, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 def person_parts(h: float, w: float, d: float, bag: str | None = None) -> list:
@@ -106,7 +106,7 @@ def pedestrian_parts(rng: np.random.Generator, kind: str | None = None) -> Shape
     if kind == "child":
         h = rng.uniform(0.95, 1.45)
         parts = person_parts(h, 0.27 * h, 0.15 * h)
-        return _shape(parts)
+        return make_shape(parts)
     h = float(np.clip(rng.normal(1.72, 0.1), 1.45, 2.02))
     w, d = rng.uniform(0.4, 0.56), rng.uniform(0.22, 0.32)
     bag = rng.choice(["side", "back"]) if kind == "adult with bag" else None
@@ -119,7 +119,7 @@ def pedestrian_parts(rng: np.random.Generator, kind: str | None = None) -> Shape
             for sy in (-1, 1):
                 parts.append((hexa(x - 0.09, x + 0.09, sy * 0.26 - 0.03, sy * 0.26 + 0.03,
                                    0.0, 0.18), WHEEL, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 def bicyclist_parts(rng: np.random.Generator, kind: str | None = None) -> Shape:
@@ -159,7 +159,7 @@ def bicyclist_parts(rng: np.random.Generator, kind: str | None = None) -> Shape:
                        top=(-0.3 + lean, -0.02 + lean, -sw, sw)), TOP, 0.0))
     head = 0.13 if moto else 0.1  # a helmet
     parts.append((hexa(-head + lean, head + lean, -0.9 * head, 0.9 * head, hs, h), SKIN, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 WIDE_MAKERS = {"pedestrian": pedestrian_parts, "bicyclist": bicyclist_parts, "car": vehicle_parts}

@@ -155,7 +155,7 @@ def test_run_calibrate_run_eval_on_a_tiny_scene(tmp_path):
     from seg2pose.io.run import read_run
     from seg2pose.eval.paper_table import evaluate_run
     from seg2pose.method.pipeline import default_r90_path, run_scene
-    from seg2pose.method.uncertainty import calibrate_run
+    from seg2pose.method.r90_calibrate import calibrate_run
 
     scene = make_tiny_scene(tmp_path / "s", frames=40, n_users=9)
     run_scene(scene, tmp_path / "val", baseline=True, split="val", progress=False)
