@@ -267,7 +267,7 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
                                              occlusion=max(occlusion, 0.2))
     else:
         rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion,
-                                             random_sizes=random_sizes)
+                                             **({"random_sizes": True} if random_sizes else {}))
     if detector_noise and len(rles) and look is None:
         rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:
