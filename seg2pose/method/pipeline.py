@@ -28,7 +28,7 @@ from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
-from seg2pose.method.checkpoint import load_models, predict_residuals
+from seg2pose.method.checkpoint import load_models, predict_with_spread
 from seg2pose.method.ood import POLICIES, flag_far, flagged_poses, format_flagged
 from seg2pose.structures.masks import CROP_SIZE, mask_centers, rle_stats
 
