@@ -10,6 +10,10 @@ the truth's track ids, so encounters pair up by their two ids. Reported:
   pair is none in the truth;
 - indicator errors: median and 90th percentile of |run - truth| of min TTC and PET over the
   pairs where both have the indicator (and the truth's is at or below the threshold);
+- Time-to-Accident and conflicting speed: over the truth's TTC conflicts with a TA (an evasive
+  action on a collision course), how many also have one in the run, whether it is the same
+  road user that evades, and the median / 90th percentile of |run - truth| of TA and of the
+  conflicting speed;
 - coverage: the share of those truth values inside the run's 90 % interval (sampling within
   r90, per class from ``--r90``: the run's poses carry no r90_m yet), and the intervals'
   median width.
@@ -78,7 +82,24 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                     width.append(iv[hi][pos[k]] - iv[lo][pos[k]])
             out[name]["inside"] = np.array(inside, bool)
             out[name]["width"] = np.array(width)
+    ta = [k for k, i in ti.items() if tc["min_ttc_s"][i] <= TTC and np.isfinite(tc["ta_s"][i])]
+    both = [k for k in ta if k in ei and np.isfinite(ec["ta_s"][ei[k]])]
+    out["ta"] = {"truth": len(ta), "found": len(both),
+                 "same": sum(ec["evasive_track"][ei[k]] == tc["evasive_track"][ti[k]] for k in both),
+                 "err": np.array([abs(ec["ta_s"][ei[k]] - tc["ta_s"][ti[k]]) for k in both]),
+                 "speed_err": np.array([abs(ec["conflicting_speed_mps"][ei[k]]
+                                            - tc["conflicting_speed_mps"][ti[k]]) for k in both])}
     return out
+
+
+def ta_line(m: dict) -> str:
+    def q(x, p):
+        return np.percentile(x, p) if len(x) else float("nan")
+
+    return (f"ta: truth's TTC conflicts with a TA {m['truth']}, with a TA in the run too "
+            f"{m['found']} (same evasive road user {m['same']}); |TA error| median "
+            f"{q(m['err'], 50):.2f} s, p90 {q(m['err'], 90):.2f} s; |conflicting speed error| "
+            f"median {q(m['speed_err'], 50):.2f} m/s, p90 {q(m['speed_err'], 90):.2f} m/s")
 
 
 def line(name: str, m: dict) -> str:
@@ -108,14 +129,16 @@ def main() -> None:
     for scene, run in a.pair:
         m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr)
         print(f"{m['scene']} {m['run']} ({m['method']})")
-        for name in ("ttc", "pet"):
-            print("  " + line(name, m[name]))
+        print("  " + ta_line(m["ta"]))
+        for name in ("ttc", "pet", "ta"):
+            if name != "ta":
+                print("  " + line(name, m[name]))
             p = pooled.setdefault((m["method"], name), {})
             for k, v in m[name].items():
                 p[k] = (np.r_[p[k], v] if isinstance(v, np.ndarray) else p.get(k, 0) + v) if k in p else v
     print("pooled")
     for (method, name), m in pooled.items():
-        print(f"  {method}: " + line(name, m))
+        print(f"  {method}: " + (ta_line(m) if name == "ta" else line(name, m)))
 
 
 if __name__ == "__main__":

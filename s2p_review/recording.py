@@ -31,8 +31,9 @@ class LogStyle:
     "asset" (every frame, one H.264 video per camera decoded by the viewer: video_asset.py) or
     "jpeg" (JPEG images on the video cadence); jpeg_quality and image_scale: how video frames
     are stored (shrunk to image_scale of the camera's size and shown at full size again);
-    mask_outlines: every frame's masks as outlines (besides the filled masks on the mask
-    cadence, which are blank on the frames between)."""
+    mask_outlines: every frame's masks as outlines; mask_fills: the filled masks on the mask
+    cadence, blank on the frames between (off in the annotation app: a 1280x720 fill is 0.9 MB
+    a frame, outlines a few kB)."""
 
     masks: bool = True
     video: bool = True
@@ -43,6 +44,7 @@ class LogStyle:
     jpeg_quality: int = 75
     image_scale: float = 1.0
     mask_outlines: bool = True
+    mask_fills: bool = True  # the filled masks on the cadence (the annotation app: outlines only)
 
 
 @dataclass(frozen=True)
@@ -148,18 +150,20 @@ def log_masks(ctx: LogContext, cam: str, every: int) -> int:
     path = scene.masks_path(cam)
     if not path.exists():
         return 0
-    ctx.static(ent, rr.SegmentationImage.from_fields(
-        format=rr.components.ImageFormat(width=camera.width, height=camera.height,
-                                         channel_datatype="U8"), opacity=0.6, draw_order=5.0))
+    sent = 0
+    if ctx.style.mask_fills:
+        ctx.static(ent, rr.SegmentationImage.from_fields(
+            format=rr.components.ImageFormat(width=camera.width, height=camera.height,
+                                             channel_datatype="U8"), opacity=0.6, draw_order=5.0))
 
-    def send(batch):
-        imgs = imagery.paint([t for _, t in batch], [t.class_id for _, t in batch], path)
-        ctx.send(ent, [f for f, _ in batch],
-                 rr.SegmentationImage.columns(buffer=imgs.reshape(len(batch), -1)))
+        def send(batch):
+            imgs = imagery.paint([t for _, t in batch], [t.class_id for _, t in batch], path)
+            ctx.send(ent, [f for f, _ in batch],
+                     rr.SegmentationImage.columns(buffer=imgs.reshape(len(batch), -1)))
 
-    sent = _batched(imagery.mask_frames(scene, cam, ctx.first, ctx.last, every), send)
-    if every > 1:
-        _clear_frames(ctx, ent, [f for f in ctx.frames if (f - ctx.first) % every])
+        sent = _batched(imagery.mask_frames(scene, cam, ctx.first, ctx.last, every), send)
+        if every > 1:
+            _clear_frames(ctx, ent, [f for f in ctx.frames if (f - ctx.first) % every])
     if ctx.style.mask_outlines:
         log_mask_outlines(ctx, cam)
     return sent

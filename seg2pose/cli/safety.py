@@ -74,6 +74,8 @@ def register(app: typer.Typer) -> None:
         r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 percent of the positions lie; say where the figures come from)"),
         corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
         seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
+        workers: int = typer.Option(2, "--workers", min=1, help="processes the time chunks are analysed in (the result does not depend on it)"),
+        chunk_s: float = typer.Option(60.0, "--chunk", min=1.0, help="seconds of recording whose pair frames are held at once (memory then grows only with the poses themselves; the result does not depend on it)"),
         review: Path | None = typer.Option(None, "--review", help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder of a scene)"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
     ) -> None:
@@ -118,8 +120,8 @@ def register(app: typer.Typer) -> None:
             f"{(tr.frame.max() - tr.frame.min() + 1) / tr.fps if len(tr) else 0:.0f} s at {tr.fps:g} fps")
         opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, near_m=near_m, brake_mps2=brake,
                                swerve_mps2=swerve, all_pairs=all_pairs,
-                               pedestrian_pairs=pedestrian_pairs,
-                               motion=MotionOptions(window_s=window_s, centred=centred))
+                               pedestrian_pairs=pedestrian_pairs, chunk_s=chunk_s,
+                               workers=workers, motion=MotionOptions(window_s=window_s, centred=centred))
         table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
         n_conf = int(table.columns["conflict"].sum())
         if draws > 0 and tr.r90 is not None and len(table):

@@ -135,7 +135,7 @@ def import_tacal_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
     fps: float = typer.Option(..., "--fps", help="the videos' frame rate (frames per second)"),
     size: Optional[str] = typer.Option(None, "--size", help="image size WIDTHxHEIGHT of every camera, e.g. 1280x720 (default: twice the principal point Cx, Cy of each file)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene.json"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete)"),
 ) -> None:
     """Make a scene from T-Analyst .tacal calibrations and ground points.
 
@@ -149,8 +149,11 @@ def import_tacal_cmd(
             w, h = (int(v) for v in size.lower().split("x"))
         except ValueError:
             raise InputError(f"expected WIDTHxHEIGHT, got {size!r}", field="--size") from None
-        if w <= 0 or h <= 0:
-            raise InputError(f"image size must be positive, got {size!r}", field="--size")
+        from seg2pose.core.validate import MAX_IMAGE_SIDE
+
+        if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+            raise InputError(f"expected WIDTHxHEIGHT, each in 1..{MAX_IMAGE_SIDE} pixels, got "
+                             f"{size!r}", field="--size")
         wh = (w, h)
     s = scene_from_tacals(files, ground, out, fps, wh, force)
     for c in s.cameras.values():

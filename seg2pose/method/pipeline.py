@@ -314,6 +314,29 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str],
     return write_run_folder(run_dir, poses, views, meta, force=force, extra_files=extra)
 
 
+def check_tracked(scene: Scene, cameras: list[str]) -> None:
+    """Refuse masks files none of whose masks has a track id (``masks-from-video --no-track``,
+    a detector without a tracker): headings and the fusion of views need tracks. Reads up to
+    the first tracked mask (the first line, usually)."""
+    for c in cameras:
+        path = scene.masks_path(c)
+        if not path.exists():
+            continue
+        n = 0
+        with open(path, "rb") as f:
+            for line in f:
+                parts = line.split(None, 2)
+                if len(parts) < 2:
+                    continue
+                if parts[1] != b"-1":
+                    break
+                n += 1
+            else:
+                if n:
+                    raise InputError(f"none of its {n} masks has a track id (all -1); give "
+                                     f"them ids first: s2p track {scene.root}", file=path)
+
+
 # share of the cameras seeing a road user's place that must report it (runs of associated ids);
 # chosen on seeds 101-102 (docs/RESULTS.md, "Multi-camera association")
 CONFIRM_SHARE = 0.5
@@ -359,6 +382,7 @@ def run_scene(scene: Scene, run_dir: str | Path, config: str | None = None,
     run_dir = Path(run_dir)
     check_run_writable(run_dir, force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(config)]
+    check_tracked(scene, cams)
     track_ids = check_track_ids(scene, cams, fuse_unassociated)
     if confirm is None:
         confirm = CONFIRM_SHARE if track_ids["ids"] == "associated" else 0.0
