@@ -13,6 +13,7 @@ import numpy as np
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import Scene
 from s2p_review import columns as C
+from s2p_review.error_discs import log_error_discs
 from s2p_review import imagery
 from s2p_review import layout as L
 from s2p_review.association import log_association
@@ -433,6 +434,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
         log_boxes(ctx, f"world/road_users/{run.name}", poses, sz, look=look)
         if style.trail > 1:
             log_trails(ctx, f"world/road_users/{run.name}/trails", poses, style.trail)
+        log_error_discs(ctx, f"world/road_users/{run.name}/r90", poses)
         run_cams = [c for c in cameras if c in (run.cameras or cameras)]
         for cam in run_cams:
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
