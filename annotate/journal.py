@@ -20,17 +20,15 @@ writer moves it aside to ``torn-<time>.jsonl`` before appending.
 
 from __future__ import annotations
 
-import contextlib
-import datetime as _dt
 import errno
-import fcntl
 import json
 import os
 import re
-import socket
 from pathlib import Path
 
+from seg2pose.core.clock import utc_now, utc_stamp
 from seg2pose.core.errors import S2PError
+from seg2pose.core.locks import KernelLock, LockHolder
 from seg2pose.io.atomic import atomic_write_text, fsync_dir
 
 VERSION = 1
@@ -52,7 +50,8 @@ class NotSavedError(S2PError):
 
 
 def now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    """A journal record's time: UTC, ISO 8601 to the millisecond."""
+    return utc_now("milliseconds")
 
 
 def dumps(record: dict) -> bytes:
@@ -181,7 +180,7 @@ def write_snapshot(folder: Path, after: int, state: dict) -> Path:
 def move_torn(path: Path, good: int) -> Path:
     """Cut a torn tail off a segment, keeping it in ``torn-<time>.jsonl`` beside it."""
     data = path.read_bytes()
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S%f")
+    stamp = utc_stamp(microseconds=True)
     keep = path.parent / f"torn-{stamp}.jsonl"
     keep.write_bytes(data[good:])
     with open(path, "r+b") as f:
@@ -193,63 +192,30 @@ def move_torn(path: Path, good: int) -> Path:
 
 
 # --- the lock ---------------------------------------------------------------------------------------
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 class Lock:
     """The writer's lock: flock on ``annotations/lock`` (released by the kernel when the
-    process dies) plus its holder's pid, host and start time for the refusal message."""
+    process dies) plus its holder's pid, host and start time for the refusal message
+    (``seg2pose.core.locks.KernelLock``)."""
 
     def __init__(self, folder: Path, scene_name: str):
         self.path = folder / "lock"
         self.note: str | None = None
-        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-        try:
-            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            holder = self._holder()
-            os.close(self.fd)
-            self.fd = -1
-            who = (f"pid {holder.get('pid')} on {holder.get('host')} since {holder.get('since')}"
-                   if holder else "another process")
-            raise LockedError(f"scene {scene_name!r} is being annotated by {who} ({self.path}); "
-                              "close that session or open the project read-only") from None
-        old = self._holder()
-        if old:
-            same_host = old.get("host") == socket.gethostname()
-            state = ("no longer runs" if same_host and not _alive(int(old.get("pid", -1)))
-                     else "holds no lock any more")
-            self.note = (f"took over the lock of pid {old.get('pid')} on {old.get('host')} "
-                         f"(since {old.get('since')}), which {state}")
-        me = {"pid": os.getpid(), "host": socket.gethostname(), "since": now()}
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, json.dumps(me).encode(), 0)
-        os.fsync(self.fd)
 
-    def _holder(self) -> dict:
-        try:
-            with open(self.path, "rb") as f:
-                d = json.loads(f.read() or b"{}")
-            return d if isinstance(d, dict) else {}
-        except (OSError, ValueError):
-            return {}
+        def busy(h: LockHolder | None) -> LockedError:
+            who = f"pid {h.pid} on {h.host} since {h.since}" if h else "another process"
+            return LockedError(f"scene {scene_name!r} is being annotated by {who} ({self.path}); "
+                               "close that session or open the project read-only")
+
+        self._lock = KernelLock(self.path, busy)
+        old = self._lock.previous
+        if old:
+            state = "no longer runs" if old.gone else "holds no lock any more"
+            self.note = (f"took over the lock of pid {old.pid} on {old.host} "
+                         f"(since {old.since}), which {state}")
 
     def release(self) -> None:
         """Clear the holder and release the lock (the file stays: others may wait on it)."""
-        if self.fd < 0:
-            return
-        with contextlib.suppress(OSError):
-            os.ftruncate(self.fd, 0)
-        fcntl.flock(self.fd, fcntl.LOCK_UN)
-        os.close(self.fd)
-        self.fd = -1
+        self._lock.release()
 
 
 def load_json(path: Path) -> dict:

@@ -26,18 +26,17 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import datetime as _dt
 import errno
 import json
 import os
 import re
 import shutil
-import socket
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 from seg2pose.core.errors import S2PError
+from seg2pose.core.locks import ExclusiveLock, LockHolder, pid_alive
 from seg2pose.core.say import say
 
 _PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:[-.].*)?$")
@@ -73,21 +72,6 @@ def _temp_sibling(path: Path, suffix: str) -> tuple[int, str]:
     fd, tmp = tempfile.mkstemp(prefix=_prefix(path), suffix=suffix, dir=path.parent)
     os.chmod(tmp, 0o666 & ~_umask())
     return fd, tmp
-
-
-def pid_alive(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this machine."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, another user's
-        return True
-    except OverflowError:
-        return False
-    return True
 
 
 def clean_stale_partials(path: str | Path) -> list[Path]:
@@ -262,10 +246,6 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 # whole outputs: lock, build beside, swap in
 
 
-def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
 def lock_path(path: str | Path) -> Path:
     path = Path(path)
     return path.with_name(f".{path.name}.lock")
@@ -273,55 +253,30 @@ def lock_path(path: str | Path) -> Path:
 
 @contextlib.contextmanager
 def output_lock(path: str | Path) -> Iterator[Path]:
-    """Hold ``.NAME.lock`` beside ``path`` while writing it. A live holder makes this raise
-    S2PError naming it; the lock of a process on this machine that no longer runs is taken
-    over with a note."""
+    """Hold ``.NAME.lock`` beside ``path`` while writing it (``seg2pose.core.locks``). A live
+    holder makes this raise S2PError naming it; the lock of a process on this machine that no
+    longer runs is taken over with a note."""
     path = Path(path)
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
     lock = lock_path(path)
-    me = {"pid": os.getpid(), "host": socket.gethostname(), "time": _now()}
-    for attempt in range(3):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                text = lock.read_text(encoding="utf-8", errors="replace")
-            except FileNotFoundError:
-                continue  # released meanwhile
-            try:
-                holder = json.loads(text)
-                pid, host = int(holder["pid"]), str(holder["host"])
-            except (ValueError, KeyError, TypeError):
-                # written by a process killed between creating and filling it: stale once old
-                holder, pid, host = {}, -1, me["host"]
-            if host == me["host"] and not pid_alive(pid) and attempt < 2:
-                say(f"taking over the lock {lock} of process {pid}, which no longer runs "
-                    f"(it started writing {path} at {holder.get('time', '?')})", kind="note")
-                with contextlib.suppress(FileNotFoundError):
-                    if lock.read_text(encoding="utf-8", errors="replace") == text:
-                        lock.unlink()
-                continue
-            raise S2PError(f"{path} is being written by process {pid} on {host or '?'} since "
-                           f"{holder.get('time', '?')}; wait for it to finish (or remove {lock} "
-                           "if that process is gone)") from None
-        except OSError as e:
-            raise S2PError(os_error_message(e, path)) from e
-        try:
-            with os_errors(path), os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(json.dumps(me) + "\n")
-        except BaseException:
-            with contextlib.suppress(OSError):
-                lock.unlink()
-            raise
-        break
-    else:
-        raise S2PError(f"could not take the lock {lock} of {path}")
+
+    def busy(h: LockHolder) -> S2PError:
+        return S2PError(f"{path} is being written by process {h.pid} on {h.host or '?'} since "
+                        f"{h.since}; wait for it to finish (or remove {lock} if that process is gone)")
+
+    def taken_over(h: LockHolder | None) -> None:
+        say(f"taking over the lock {lock} of process {h.pid if h else -1}, which no longer runs "
+            f"(it started writing {path} at {h.since if h else '?'})", kind="note")
+
+    held = ExclusiveLock(lock, busy, taken_over)
+    with os_errors(path):
+        if not held.acquire():
+            raise S2PError(f"could not take the lock {lock} of {path}")
     try:
         yield lock
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            lock.unlink()
+        held.release()
 
 
 def _exchange(a: Path, b: Path) -> bool:

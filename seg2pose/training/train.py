@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -38,6 +39,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from seg2pose.core.clock import utc_stamp
 from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
 from seg2pose.io.atomic import atomic_path
@@ -131,10 +133,7 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainCon
     """Move a damaged resume state out of the way (``.state.pt.damaged-<time>``) and return a
     resume state rebuilt from the last good checkpoint (weights and best so far; the
     optimiser starts afresh), or None to train from the start."""
-    import datetime as dt
-    import os
-
-    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    stamp = utc_stamp()
     bad = state_path.with_name(f"{state_path.name}.damaged-{stamp}")
     os.replace(state_path, bad)
     why = f"{type(err).__name__}: {(str(err).splitlines() or [''])[0][:100]}"

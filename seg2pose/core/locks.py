@@ -1,0 +1,157 @@
+"""Locks: one holder record, one "does that process still run" check and one take-over rule for
+every lock of s2p.
+
+A lock file holds its holder's record (``LockHolder``: pid, host, since). A holder on this
+machine whose process no longer runs is gone: its lock is taken over with a note. Two ways of
+holding a lock file, each where its property is needed:
+
+- ``ExclusiveLock``: the file is created exclusively (``O_EXCL``) and removed on release, so it
+  is seen from every host that sees the folder (a study on a shared disk, batch runs on Ray).
+  The output lock of seg2pose.io.atomic (``.NAME.lock`` beside each output).
+- ``KernelLock``: ``flock`` on a file that stays, released by the kernel however its holder
+  dies; the record only names the holder. The annotation journal (annotate.journal), whose
+  writer is an interactive session that may hold it for hours and be killed at any time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from seg2pose.core.clock import utc_now
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    except OverflowError:
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class LockHolder:
+    """Who holds a lock: process ``pid`` on ``host`` since ``since`` (ISO 8601, UTC)."""
+
+    pid: int
+    host: str
+    since: str = "?"
+
+    @classmethod
+    def me(cls, timespec: str = "seconds") -> "LockHolder":
+        return cls(os.getpid(), socket.gethostname(), utc_now(timespec))
+
+    @classmethod
+    def parse(cls, text: str | bytes) -> "LockHolder | None":
+        """The record of a lock file, or None when it holds none (empty, or cut short by a
+        kill between creating and filling it). ``time`` is the older files' name of ``since``."""
+        try:
+            d = json.loads(text)
+            return cls(int(d["pid"]), str(d["host"]), str(d.get("since", d.get("time", "?"))))
+        except (ValueError, KeyError, TypeError):
+            return None
+
+    def to_json(self) -> str:
+        return json.dumps({"pid": self.pid, "host": self.host, "since": self.since})
+
+    @property
+    def gone(self) -> bool:
+        """A holder on this machine whose process no longer runs (its lock may be taken over)."""
+        return self.host == socket.gethostname() and not pid_alive(self.pid)
+
+
+class ExclusiveLock:
+    """Hold the lock file ``path`` (created exclusively, removed on release). A live holder
+    makes ``acquire`` raise ``busy(holder)``; a gone one (or a file without a record, from a
+    holder killed while writing it) is taken over after ``taken_over(holder)``. OSErrors pass
+    through: the caller names its output in them."""
+
+    def __init__(self, path: Path, busy: Callable[[LockHolder], Exception],
+                 taken_over: Callable[[LockHolder | None], None] = lambda holder: None):
+        self.path, self.busy, self.taken_over = Path(path), busy, taken_over
+
+    def acquire(self) -> bool:
+        """Take the lock; False when it was released and re-taken by others three times
+        over while this tried."""
+        me = LockHolder.me()
+        for attempt in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                try:
+                    text = self.path.read_text(encoding="utf-8", errors="replace")
+                except FileNotFoundError:
+                    continue  # released meanwhile
+                holder = LockHolder.parse(text)
+                if (holder is None or holder.gone) and attempt < 2:
+                    self.taken_over(holder)
+                    with contextlib.suppress(FileNotFoundError):
+                        if self.path.read_text(encoding="utf-8", errors="replace") == text:
+                            self.path.unlink()
+                    continue
+                raise self.busy(holder or LockHolder(-1, me.host)) from None
+            try:
+                with os.fdopen(fd, "w", encoding="utf-8") as f:
+                    f.write(me.to_json() + "\n")
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    self.path.unlink()
+                raise
+            return True
+        return False
+
+    def release(self) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+
+
+class KernelLock:
+    """``flock`` on ``path`` (the file stays: others may wait on it) with the holder's record
+    in it. A held lock makes the constructor raise ``busy(holder or None)``; ``previous`` is
+    the record a holder left behind without releasing (killed), else None."""
+
+    def __init__(self, path: Path, busy: Callable[[LockHolder | None], Exception],
+                 timespec: str = "milliseconds"):
+        self.path = Path(path)
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = self.holder()
+            os.close(self.fd)
+            self.fd = -1
+            raise busy(holder) from None
+        self.previous = self.holder()
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, LockHolder.me(timespec).to_json().encode(), 0)
+        os.fsync(self.fd)
+
+    def holder(self) -> LockHolder | None:
+        try:
+            with open(self.path, "rb") as f:
+                return LockHolder.parse(f.read() or b"{}")
+        except OSError:
+            return None
+
+    def release(self) -> None:
+        """Clear the record and release the lock (idempotent)."""
+        if self.fd < 0:
+            return
+        with contextlib.suppress(OSError):
+            os.ftruncate(self.fd, 0)
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+        self.fd = -1

@@ -1,0 +1,82 @@
+"""The one lock-holder record and alive check (seg2pose/core/locks.py) and its two lock files:
+exclusive (outputs) and kernel-released (the annotation journal)."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from seg2pose.core.locks import ExclusiveLock, KernelLock, LockHolder, pid_alive
+
+
+def dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+class Busy(Exception):
+    pass
+
+
+def test_holder_record_round_trip_and_old_files():
+    me = LockHolder.me()
+    assert me.pid == os.getpid() and me.host == socket.gethostname() and not me.gone
+    assert LockHolder.parse(me.to_json()) == me
+    # older output locks named the start "time"; a record without one says "?"
+    assert LockHolder.parse('{"pid": 7, "host": "h", "time": "T"}') == LockHolder(7, "h", "T")
+    assert LockHolder.parse('{"pid": 7, "host": "h"}').since == "?"
+    for bad in ("", "{}", "not json", '{"pid": "x", "host": "h"}', "[1]", '{"pid": 3'):
+        assert LockHolder.parse(bad) is None
+
+
+def test_alive_check():
+    assert pid_alive(os.getpid())
+    assert not pid_alive(dead_pid()) and not pid_alive(0) and not pid_alive(-1)
+    assert not pid_alive(2 ** 80)
+    assert LockHolder(dead_pid(), socket.gethostname()).gone
+    assert not LockHolder(dead_pid(), "another-host").gone  # cannot tell: not taken over
+
+
+def test_exclusive_lock_refuses_a_live_holder_and_takes_over_a_gone_one(tmp_path):
+    path = tmp_path / ".out.lock"
+    seen = []
+    a = ExclusiveLock(path, Busy, seen.append)
+    assert a.acquire() and LockHolder.parse(path.read_text()).pid == os.getpid()
+    with pytest.raises(Busy) as e:
+        ExclusiveLock(path, Busy).acquire()
+    assert e.value.args[0].pid == os.getpid()
+    a.release()
+    assert not path.exists()
+    gone = LockHolder(dead_pid(), socket.gethostname(), "T0")
+    path.write_text(gone.to_json())
+    assert ExclusiveLock(path, Busy, seen.append).acquire()
+    path.write_text("")  # a holder killed between creating the file and writing its record
+    assert ExclusiveLock(path, Busy, seen.append).acquire()
+    assert seen == [gone, None]
+    path.write_text(json.dumps({"pid": 1, "host": "elsewhere"}))  # another host's: kept
+    with pytest.raises(Busy):
+        ExclusiveLock(path, Busy, seen.append).acquire()
+
+
+def test_kernel_lock_names_its_holder_and_the_one_before(tmp_path):
+    path = tmp_path / "lock"
+    gone = LockHolder(dead_pid(), socket.gethostname(), "T0")
+    path.write_text(gone.to_json())
+    a = KernelLock(path, Busy)
+    assert a.previous == gone and a.holder().pid == os.getpid()
+    # flock is per open file description: a second open in this process is refused too
+    with pytest.raises(Busy) as e:
+        KernelLock(path, Busy)
+    assert e.value.args[0].pid == os.getpid()
+    a.release()
+    a.release()  # idempotent
+    assert path.exists() and path.read_text() == ""
+    b = KernelLock(path, Busy)
+    assert b.previous is None
+    b.release()
