@@ -20,6 +20,7 @@ the truth's track ids, so encounters pair up by their two ids. Reported:
 
     PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN [--pair ...]
         --r90 car=0.93,pedestrian=0.39,bicyclist=0.79 [--draws 200] [--window 1.0] [--corr 3.0]
+        [--heading90 car=40,pedestrian=61,bicyclist=16]
 
 Prints one line per run and the pooled figures.
 """
@@ -48,7 +49,7 @@ def table_of(tracks, opts):
 
 
 def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
-            window_s: float = 1.0, corr_s: float = 3.0) -> dict:
+            window_s: float = 1.0, corr_s: float = 3.0, heading90: dict | None = None) -> dict:
     est, _ = load_tracks(run)
     fps = est.fps
     gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
@@ -59,7 +60,9 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
     if r90 is not None:
         est.r90 = np.array([r90[str(c)] for c in est.cls], float)
         conf = et.take(et.columns["conflict"].astype(bool))
-        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s))
+        h90 = None if heading90 is None else np.radians([heading90[str(c)] for c in est.cls])
+        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s),
+                                heading90=h90)
         pos = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(conf.columns["track_a"],
                                                                   conf.columns["track_b"]))}
     out = {"scene": scene.name, "run": run.name, "method": json.loads((run / "run.json").read_text()).get("method")}
@@ -123,11 +126,14 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--window", type=float, default=1.0, help="velocity window, s (--window of s2p conflicts)")
     ap.add_argument("--corr", type=float, default=3.0, help="error correlation time, s (--error-corr)")
+    ap.add_argument("--heading90", default=None, help="class=degrees,... (90 %% heading error per class; "
+                    "intervals then also perturb headings)")
     a = ap.parse_args()
+    h90 = None if a.heading90 is None else {k: float(v) for k, v in (x.split("=") for x in a.heading90.split(","))}
     r90 = None if a.r90 is None else {k: float(v) for k, v in (x.split("=") for x in a.r90.split(","))}
     pooled = {}
     for scene, run in a.pair:
-        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr)
+        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90)
         print(f"{m['scene']} {m['run']} ({m['method']})")
         print("  " + ta_line(m["ta"]))
         for name in ("ttc", "pet", "ta"):

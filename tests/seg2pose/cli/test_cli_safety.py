@@ -77,6 +77,22 @@ def test_conflicts_without_fps_and_bad_r90_are_one_line(tmp_path, capsys):
     assert code == 2 and f"{p}:6" in se and "r90_m" in se and len(se.strip().splitlines()) == 1
 
 
+def test_conflicts_heading90(tmp_path, capsys):
+    """--heading90: intervals that also turn the footprints; a bad value or a class without
+    one is one line naming the option."""
+    p = tmp_path / "poses.csv"
+    write_with_r90(p, crossing_poses(), 0.3)
+    out = tmp_path / "c.csv"
+    for bad in ("car=400", "pedestrian=10"):
+        code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90", bad)
+        assert code == 2 and "--heading90" in se and len(se.strip().splitlines()) == 1, se
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90",
+                      "car=20", "--draws", "40")
+    assert code == 0, se
+    r = read_rows(out)[0]
+    assert float(r["pet_lo_s"]) <= float(r["pet_s"]) <= float(r["pet_hi_s"])
+
+
 def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     """T-Analyst tracks: positions and times only; headings from motion, sizes by class
     (cars 4.4 x 1.8 m), frames from the time stamps at --fps."""
