@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seg2pose.eval.accuracy import s2p_command  # noqa: E402
+from seg2pose.cli.accuracy import s2p_command  # noqa: E402
 
 
 def sh(*args) -> None:
