@@ -36,7 +36,7 @@ def _step(msg: str) -> float:
 def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: int = 0,
              retrain: bool = False, record: bool = True) -> dict:
     """Run the demo; returns a summary dict (paths and mean errors)."""
-    from seg2pose.eval.evaluate import evaluate, format_table
+    from seg2pose.eval.evaluate import evaluate, format_table, seen_truth
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_poses
     from seg2pose.io.scene import load_scene
@@ -132,22 +132,6 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         typer.echo(f"  MCAP export        {summary['mcap']}  open in Foxglove with the layout "
                    f"{Path(summary['mcap']).with_suffix('.layout.json')}")
     return summary
-
-
-def seen_truth(scene, cameras: list[str], gt, frame_range):
-    """The rows of ``gt`` (PoseTable) within ``frame_range`` whose road user has a mask in one
-    of ``cameras`` in that frame: what the configuration can see at all."""
-    import numpy as np
-
-    from seg2pose.io.mots import iter_mots
-
-    gt = gt.in_frames(frame_range)
-    seen = set()
-    for cam in cameras:
-        for f, t in iter_mots(scene.masks_path(cam), frame_range=frame_range):
-            seen.update((f, int(k)) for k in t.track_id)
-    keep = np.array([(int(f), int(k)) in seen for f, k in zip(gt.frame, gt.track_id)], bool)
-    return gt.take(np.flatnonzero(keep))
 
 
 def register(app: typer.Typer) -> None:

@@ -17,7 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.io.atomic import atomic_path
+from seg2pose.io.mots import iter_mots
 from seg2pose.io.poses import PoseTable
+from seg2pose.io.scene import Scene
 
 BIN_SIZE = 5.0  # metres, as in Figures 6-7
 
@@ -190,6 +192,21 @@ def _distance_bins(errors: np.ndarray, distances: np.ndarray, bin_size: float
         mean = total / count
     return [(k * bin_size, (k + 1) * bin_size, int(count[k]),
              float(mean[k]) if count[k] else float("nan")) for k in range(nb)]
+
+
+def seen_truth(scene: Scene, cameras: list[str], gt: PoseTable,
+               frame_range: tuple[int, int] | None) -> PoseTable:
+    """The rows of ``gt`` within ``frame_range`` whose road user has a mask in one of
+    ``cameras`` in that frame: what the configuration can see at all (the truth a
+    configuration is scored against when it should not be charged for road users it never
+    saw)."""
+    gt = gt.in_frames(frame_range)
+    seen = set()
+    for cam in cameras:
+        for f, t in iter_mots(scene.masks_path(cam), frame_range=frame_range):
+            seen.update((f, int(k)) for k in t.track_id)
+    keep = np.array([(int(f), int(k)) in seen for f, k in zip(gt.frame, gt.track_id)], bool)
+    return gt.take(np.flatnonzero(keep))
 
 
 def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZE,

@@ -147,3 +147,28 @@ def test_nearest_pairs_tracker_ids_and_auto_chooses_it():
                   zip(gt.frame, gt.track_id, gt.cls, gt.xyz[:, 0], gt.xyz[:, 1])])
     auto = evaluate(same, gt, (0.0, 0.0), match="auto")
     assert (auto.match, auto.n_matched, auto.match_note) == ("ids", 18, "")
+
+
+def test_seen_truth_keeps_the_rows_with_a_mask_in_the_cameras(tmp_path):
+    """Known answer on the tiny scene (every road user visible in every camera) after removing
+    masks: camera c1 keeps the even frames of every road user but 2; c0 keeps road user 2 only.
+    A truth row is seen when one of the configuration's cameras has its mask in that frame."""
+    from seg2pose.eval.evaluate import seen_truth
+    from seg2pose.io.mots import read_mots, write_mots
+    from seg2pose.io.poses import read_poses
+
+    from scene_fixtures import make_tiny_scene
+
+    scene = make_tiny_scene(tmp_path, frames=20, n_users=6, seed=3)
+    gt = read_poses(scene.gt_path)
+    c1, c0 = read_mots(scene.masks_path("c1")), read_mots(scene.masks_path("c0"))
+    write_mots(scene.masks_path("c1"), c1.take(np.flatnonzero((c1.track_id != 2) & (c1.frame % 2 == 0))))
+    write_mots(scene.masks_path("c0"), c0.take(np.flatnonzero(c0.track_id == 2)))
+    rows = list(zip(gt.frame.tolist(), gt.track_id.tolist()))
+    got = seen_truth(scene, ["c1"], gt, None)
+    assert list(zip(got.frame.tolist(), got.track_id.tolist())) == [
+        (f, k) for f, k in rows if k != 2 and f % 2 == 0]
+    got = seen_truth(scene, ["c0", "c1"], gt, (5, 14))
+    assert list(zip(got.frame.tolist(), got.track_id.tolist())) == [
+        (f, k) for f, k in rows if 5 <= f <= 14 and (k == 2 or f % 2 == 0)]
+
