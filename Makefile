@@ -15,10 +15,11 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-# The real Rerun viewer runs headless on Mesa's software Vulkan (tests against the viewer need it).
+# The real Rerun viewer runs headless on Mesa's software Vulkan (tests against the viewer need it),
+# and decodes the camera videos (H.264) with the ffmpeg executable it finds on the PATH.
 viewer-deps:
-	@if ! ldconfig -p | grep -q libvulkan_lvp || ! ldconfig -p | grep -q 'libvulkan\.so\.1' || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then \
-	  if [ "$$(id -u)" = 0 ]; then (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null) || echo "warning: could not install mesa-vulkan-drivers; viewer tests will be skipped"; \
+	@if ! ldconfig -p | grep -q libvulkan_lvp || ! ldconfig -p | grep -q 'libvulkan\.so\.1' || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || ! command -v ffmpeg >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 ffmpeg >/dev/null) || echo "warning: could not install mesa-vulkan-drivers; viewer tests will be skipped"; \
 	  else echo "warning: not root, cannot install mesa-vulkan-drivers; viewer tests will be skipped"; fi; \
 	fi
 

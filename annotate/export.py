@@ -30,25 +30,40 @@ def annotated_poses(project, frames: tuple[int, int] | None = None) -> PoseTable
     return project.poses(frames=frames)
 
 
+def gt_replaceable(path: Path, force: bool) -> bool:
+    """Whether ``path`` may be replaced by an annotation export: absent, from an earlier
+    annotation export (it has a ``source`` column), or ``force``. Else an S2PError."""
+    if force or not path.exists():
+        return True
+    try:
+        with open(path, encoding="utf-8") as f:
+            header = f.readline().strip().split(",")
+    except (OSError, UnicodeDecodeError):
+        header = []
+    if header[-1:] != ["source"]:
+        raise S2PError(f"{path} holds ground truth that is not an annotation export (no "
+                       "source column); pass --force to replace it, or choose another output")
+    return True
+
+
+def gt_table(project) -> PoseTable:
+    """The annotated poses for ``gt/poses.csv`` (an S2PError when there are none)."""
+    table = annotated_poses(project)
+    if not len(table):
+        raise S2PError(f"{project.scene.root}: the annotation project has no annotated poses yet")
+    return table
+
+
 def export_gt(project, path: str | Path | None = None, force: bool = False) -> Path:
     """Write the annotated poses to ``path`` (default: the scene's ``gt/poses.csv``), atomically.
 
     An existing file that came from an annotation export (it has a ``source`` column) is
     replaced; ground truth from elsewhere (no ``source`` column) is kept unless ``force``."""
+    from seg2pose.io.atomic import replacing
+
     path = Path(path) if path is not None else project.scene.gt_path
-    if path.exists() and not force:
-        try:
-            with open(path, encoding="utf-8") as f:
-                header = f.readline().strip().split(",")
-        except (OSError, UnicodeDecodeError):
-            header = []
-        if header[-1:] != ["source"]:
-            raise S2PError(f"{path} holds ground truth that is not an annotation export (no "
-                           "source column); pass --force to replace it, or choose another output")
-    table = annotated_poses(project)
-    if not len(table):
-        raise S2PError(f"{project.scene.root}: the annotation project has no annotated poses yet")
-    write_poses(path, table)
+    with replacing(path, force=gt_replaceable(path, force), folder=False) as tmp:
+        write_poses(tmp, gt_table(project))
     return path
 
 

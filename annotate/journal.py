@@ -169,6 +169,8 @@ def write_snapshot(folder: Path, after: int, state: dict) -> Path:
     path = folder / snapshot_name(after)
     try:
         atomic_write_text(path, json.dumps(state, separators=(",", ":"), allow_nan=False))
+    except S2PError as e:  # atomic_write_text's one line (disk full, read-only, ...)
+        raise NotSavedError(f"{path}: snapshot not written: {e}") from None
     except OSError as e:
         raise NotSavedError(f"{path}: snapshot not written: {e.strerror}") from None
     fsync_dir(folder)

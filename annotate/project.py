@@ -91,6 +91,7 @@ class Project(EditsMixin, PlacementMixin):
         self._cache: dict[int, PoseTable] = {}
         self._stale: dict[int, PoseTable] = {}  # tables of changed tracks: z to reuse
         self._subscribers: list[Callable[[Change], None]] = []
+        self._snapshot_retry = 0  # after a snapshot that could not be written: the record to retry at
         self._segment: J.Segment | None = None
         self._segment_start = 0
         self._lock: J.Lock | None = None
@@ -275,8 +276,16 @@ class Project(EditsMixin, PlacementMixin):
         after = set(self._s.tracks)
         ch = Change(kind, name, seq, frozenset(tracks), frozenset(after - before),
                     frozenset(before - after))
-        if not self.read_only and self._s.seq - self._segment_start >= self.snapshot_every:
-            self.snapshot()
+        if (not self.read_only and self._s.seq - self._segment_start >= self.snapshot_every
+                and self._s.seq >= self._snapshot_retry):
+            try:
+                self.snapshot()
+            except (S2PError, OSError) as e:
+                # the edit is in the journal: saved. A snapshot only compacts the journal, so
+                # one that cannot be written (disk full) is a note, tried again later
+                self._snapshot_retry = self._s.seq + max(1, self.snapshot_every // 10)
+                self.notes.append(f"{e}; the edit is saved in the journal, the snapshot will be "
+                                  f"tried again after record {self._snapshot_retry}")
         for cb in list(self._subscribers):
             cb(ch)
         return ch
@@ -346,8 +355,19 @@ class Project(EditsMixin, PlacementMixin):
         path = J.write_snapshot(self.folder, seq, _snapshot_dict(self._s, self.scene.name,
                                                                   self.fingerprint))
         old = self._segment
+        try:
+            new = J.new_segment(self.folder, seq, self._header())
+        except (S2PError, OSError) as e:
+            # without its segment the snapshot would hide the records still appended to the
+            # old one: take it back
+            path.unlink(missing_ok=True)
+            if seq != self._segment_start:
+                (self.folder / J.segment_name(seq)).unlink(missing_ok=True)
+            J.fsync_dir(self.folder)
+            raise J.NotSavedError(f"{path}: snapshot not written: {e}") from None
         self._segment_start = seq
-        self._segment = J.new_segment(self.folder, seq, self._header())
+        self._segment = new
+        self._snapshot_retry = 0
         old.close()
         segs, snaps = J.list_files(self.folder)
         for a, p in list(segs.items()) + list(snaps.items()):

@@ -10,7 +10,12 @@ at which the click's ray may meet the world:
 - ``half``: half the track's box height (the class's typical size: the box centre's height
   when the road user is of typical size),
 - ``default``: the class's default height (``scene.json``), what the normal position of a
-  mask uses (paper 3.2) and what the app's centre mode used before.
+  mask uses (paper 3.2) and what the app's centre mode used before,
+- ``own``: half the road user's own height (the annotator set the track's size to the road
+  user's),
+- ``surface`` (a diagnostic): as ``own``, but the click is where the centre would be over
+  the engine's ground model (eq. 1) rather than over the true ground: what is left is the
+  pixel and the interpolation; the difference to ``own`` is the ground model's error.
 
 Clicks land on pixel centres (the annotator's pixel: u, v rounded to k + 0.5), or with
 ``--zoom Z`` on a grid Z times finer (the annotator zoomed the camera view in Z times). Seeds
@@ -62,7 +67,7 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path, zooms=(1,)) ->
     sizes = scene.class_sizes()
     defaults = scene.default_heights()
     out = {}
-    for mode in [(h, z) for z in zooms for h in ("half", "default")]:
+    for mode in [(h, z) for z in zooms for h in ("half", "default", "own", "surface")]:
         mode, zoom = f"{mode[0]} x{mode[1]}", mode[1]
         import shutil
 
@@ -81,6 +86,8 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path, zooms=(1,)) ->
                 cls = str(gt.cls[rows[0]])
                 size = np.asarray(sizes[cls], float)
                 height = size[2] / 2 if mode.startswith("half") else float(defaults[cls])
+                own = mode.startswith(("own", "surface"))  # the track has the user's own size
+                surface = mode.startswith("surface")
                 t = p.create_track(cls).track
                 picks = list(range(0, len(fr), every))
                 if picks[-1] != len(fr) - 1:
@@ -89,12 +96,15 @@ def annotate_seed(seed: int, frames: int, every: int, work: Path, zooms=(1,)) ->
                 for i in picks:
                     x, y, z = gt.xyz[rows[i]]
                     h_true = gt.size[rows[i], 2] if gt.size is not None else size[2]
+                    if surface:  # where the centre would be over the engine's ground model
+                        z = float(scene.ground.height(np.array([[x, y]]))[0])
                     centre = np.array([x, y, z + h_true / 2])  # the truth's own box centre
                     cam, uv = best_camera(scene, centre, size)
                     if cam is None:
                         continue
                     pix = (np.floor(uv * zoom) + 0.5) / zoom  # the annotator's (zoomed) pixel
-                    p.place_from_pixel(t, int(fr[i]), cam, pix, height=height)
+                    p.place_from_pixel(t, int(fr[i]), cam, pix,
+                                       height=h_true / 2 if own else height)
                     k = p.track(t).keyframes[int(fr[i])]
                     placed.append(float(np.hypot(k.x - x, k.y - y)))
                 if len(placed) < 5:

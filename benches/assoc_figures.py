@@ -115,6 +115,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="an s2p associate setting")
     ap.add_argument("--reuse", action="store_true", help="start from the kept tracker masks")
     ap.add_argument("--skip-before", action="store_true", help="no runs before association")
+    ap.add_argument("--skip-alone", action="store_true", help="no runs of the cameras alone (kept from an earlier call)")
+    ap.add_argument("--confirm", type=float, default=None, help="s2p run --confirm for the associated runs")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
@@ -131,16 +133,22 @@ def main() -> None:
         rows.append(r)
         print(json.dumps(r), flush=True)
 
-    for c in CAMERAS:
-        run(c, [c], "alone")
+    alone_file = a.out / f"alone-{a.input}-{seed}.json"
+    if a.skip_alone and alone_file.exists():
+        rows += json.loads(alone_file.read_text())
+    else:
+        for c in CAMERAS:
+            run(c, [c], "alone")
+        alone_file.write_text(json.dumps(rows, indent=1))
     if not a.skip_before:
         for name, cams in MULTI.items():
             run(name, cams, "unassociated", "--fuse-unassociated")
     sets = [x for kv in a.set for x in ("--set", kv)]
     print(s2p("associate", str(work), "--force", *sets).strip(), flush=True)
+    conf = () if a.confirm is None else ("--confirm", str(a.confirm))
     for name, cams in MULTI.items():
-        run(name, cams, "associated")
-    tag = "-".join(x.replace("=", "") for x in a.set) or "default"
+        run(name, cams, "associated", *conf)
+    tag = "-".join(x.replace("=", "") for x in a.set + ([f"confirm{a.confirm}"] if conf else [])) or "default"
     (a.out / f"rows-{a.input}-{seed}-{tag}.json").write_text(json.dumps(rows, indent=1))
     for name, cams in MULTI.items():
         alone = [r for r in rows if r["stage"] == "alone" and r["config"] in cams]

@@ -4,17 +4,19 @@ stopping at the stop line, pedestrians on the crossings, bicyclists), analysed f
 the conflict table. The traffic is drawn in numpy (no rendering): only the analysis is timed.
 
     PYTHONPATH=. .venv/bin/python benches/bench_conflicts.py [--hours 1] [--fps 30] [--in-view 50]
-        [--seed 0] [--all-pairs]
+        [--seed 0] [--all-pairs] [--chunk 60] [--workers 2] [--profile N]
 
-Prints the rows, the time of each step and the total, as CPU seconds of this process (the
-analysis is single-threaded numpy, so on a shared machine CPU time is the figure that does not
-depend on the other users) and as wall-clock time; docs/BENCHMARKS.md ("Traffic conflicts")
-records it.
+Prints the rows, the time of each step and the total, as CPU seconds of this process and its
+worker processes (on a shared machine CPU time is the figure that does not depend on the other
+users) and as wall-clock time, and the peak RSS of this process and of the largest worker;
+docs/BENCHMARKS.md ("Traffic conflicts") records it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import time
 
 import numpy as np
@@ -92,6 +94,9 @@ def main() -> None:
     ap.add_argument("--in-view", type=float, default=50.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--all-pairs", action="store_true")
+    ap.add_argument("--chunk", type=float, default=60.0, help="seconds per chunk (0: whole recording)")
+    ap.add_argument("--workers", type=int, default=2, help="processes for the time chunks")
+    ap.add_argument("--profile", type=int, default=0, help="print the N functions of most CPU time (cProfile)")
     a = ap.parse_args()
     t0 = time.perf_counter()
     tr = junction_traffic(a.hours, a.fps, a.in_view, a.seed)
@@ -100,25 +105,42 @@ def main() -> None:
           f"{per_frame.mean():.1f} in view on average (max {per_frame.max()}); made in "
           f"{time.perf_counter() - t0:.1f} s")
     steps = {}
-    last = [time.process_time(), None]
+
+    def cpu():  # this process and its finished workers
+        t = os.times()
+        return t.user + t.system + t.children_user + t.children_system
+
+    last = [cpu(), None]
 
     def step(name):
-        now = time.process_time()
+        now = cpu()
         if last[1] is not None:
             steps[last[1]] = now - last[0]
         last[:] = [now, name]
 
-    w1, t1 = time.perf_counter(), time.process_time()
-    table = analyse(tr, ConflictOptions(all_pairs=a.all_pairs), progress=step)
+    w1, t1 = time.perf_counter(), cpu()
+    opts = ConflictOptions(all_pairs=a.all_pairs, chunk_s=a.chunk, workers=a.workers)
+    if a.profile:
+        import cProfile
+        import pstats
+
+        prof = cProfile.Profile()
+        table = prof.runcall(analyse, tr, opts, progress=step)
+    else:
+        table = analyse(tr, opts, progress=step)
     step(None)
-    total, wall = time.process_time() - t1, time.perf_counter() - w1
+    total, wall = cpu() - t1, time.perf_counter() - w1
     text = format_conflicts(table, a.fps)
-    t_fmt = time.process_time() - t1 - total
+    t_fmt = cpu() - t1 - total
     print("CPU: " + "  ".join(f"{k} {v:.1f} s" for k, v in steps.items()))
-    print(f"analysis {total:.1f} CPU s ({wall:.1f} s wall) for {a.hours:g} h at {a.fps:g} fps: "
+    print(f"analysis {total:.1f} CPU s ({wall:.1f} s wall, {a.workers} workers) for {a.hours:g} h at {a.fps:g} fps: "
           f"{len(table):,} rows "
-          f"({int(table.columns['conflict'].sum()):,} conflicts), {len(table.pairs.a):,} pair-frames "
-          f"compared for TTC; CSV text {t_fmt:.1f} s ({len(text) / 1e6:.1f} MB)")
+          f"({int(table.columns['conflict'].sum()):,} conflicts), {table.compared:,} pair-frames "
+          f"compared for TTC; CSV text {t_fmt:.1f} s ({len(text) / 1e6:.1f} MB); peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.2f} GB (largest worker "
+          f"{resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6:.2f} GB)")
+    if a.profile:
+        pstats.Stats(prof).sort_stats("tottime").print_stats(a.profile)
 
 
 if __name__ == "__main__":

@@ -10,12 +10,17 @@ the truth's track ids, so encounters pair up by their two ids. Reported:
   pair is none in the truth;
 - indicator errors: median and 90th percentile of |run - truth| of min TTC and PET over the
   pairs where both have the indicator (and the truth's is at or below the threshold);
+- Time-to-Accident and conflicting speed: over the truth's TTC conflicts with a TA (an evasive
+  action on a collision course), how many also have one in the run, whether it is the same
+  road user that evades, and the median / 90th percentile of |run - truth| of TA and of the
+  conflicting speed;
 - coverage: the share of those truth values inside the run's 90 % interval (sampling within
   r90, per class from ``--r90``: the run's poses carry no r90_m yet), and the intervals'
   median width.
 
     PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN [--pair ...]
         --r90 car=0.93,pedestrian=0.39,bicyclist=0.79 [--draws 200] [--window 1.0] [--corr 3.0]
+        [--heading90 car=40,pedestrian=61,bicyclist=16]
 
 Prints one line per run and the pooled figures.
 """
@@ -44,7 +49,7 @@ def table_of(tracks, opts):
 
 
 def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
-            window_s: float = 1.0, corr_s: float = 3.0) -> dict:
+            window_s: float = 1.0, corr_s: float = 3.0, heading90: dict | None = None) -> dict:
     est, _ = load_tracks(run)
     fps = est.fps
     gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
@@ -55,7 +60,9 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
     if r90 is not None:
         est.r90 = np.array([r90[str(c)] for c in est.cls], float)
         conf = et.take(et.columns["conflict"].astype(bool))
-        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s))
+        h90 = None if heading90 is None else np.radians([heading90[str(c)] for c in est.cls])
+        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s),
+                                heading90=h90)
         pos = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(conf.columns["track_a"],
                                                                   conf.columns["track_b"]))}
     out = {"scene": scene.name, "run": run.name, "method": json.loads((run / "run.json").read_text()).get("method")}
@@ -78,7 +85,24 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                     width.append(iv[hi][pos[k]] - iv[lo][pos[k]])
             out[name]["inside"] = np.array(inside, bool)
             out[name]["width"] = np.array(width)
+    ta = [k for k, i in ti.items() if tc["min_ttc_s"][i] <= TTC and np.isfinite(tc["ta_s"][i])]
+    both = [k for k in ta if k in ei and np.isfinite(ec["ta_s"][ei[k]])]
+    out["ta"] = {"truth": len(ta), "found": len(both),
+                 "same": sum(ec["evasive_track"][ei[k]] == tc["evasive_track"][ti[k]] for k in both),
+                 "err": np.array([abs(ec["ta_s"][ei[k]] - tc["ta_s"][ti[k]]) for k in both]),
+                 "speed_err": np.array([abs(ec["conflicting_speed_mps"][ei[k]]
+                                            - tc["conflicting_speed_mps"][ti[k]]) for k in both])}
     return out
+
+
+def ta_line(m: dict) -> str:
+    def q(x, p):
+        return np.percentile(x, p) if len(x) else float("nan")
+
+    return (f"ta: truth's TTC conflicts with a TA {m['truth']}, with a TA in the run too "
+            f"{m['found']} (same evasive road user {m['same']}); |TA error| median "
+            f"{q(m['err'], 50):.2f} s, p90 {q(m['err'], 90):.2f} s; |conflicting speed error| "
+            f"median {q(m['speed_err'], 50):.2f} m/s, p90 {q(m['speed_err'], 90):.2f} m/s")
 
 
 def line(name: str, m: dict) -> str:
@@ -102,20 +126,25 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--window", type=float, default=1.0, help="velocity window, s (--window of s2p conflicts)")
     ap.add_argument("--corr", type=float, default=3.0, help="error correlation time, s (--error-corr)")
+    ap.add_argument("--heading90", default=None, help="class=degrees,... (90 %% heading error per class; "
+                    "intervals then also perturb headings)")
     a = ap.parse_args()
+    h90 = None if a.heading90 is None else {k: float(v) for k, v in (x.split("=") for x in a.heading90.split(","))}
     r90 = None if a.r90 is None else {k: float(v) for k, v in (x.split("=") for x in a.r90.split(","))}
     pooled = {}
     for scene, run in a.pair:
-        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr)
+        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90)
         print(f"{m['scene']} {m['run']} ({m['method']})")
-        for name in ("ttc", "pet"):
-            print("  " + line(name, m[name]))
+        print("  " + ta_line(m["ta"]))
+        for name in ("ttc", "pet", "ta"):
+            if name != "ta":
+                print("  " + line(name, m[name]))
             p = pooled.setdefault((m["method"], name), {})
             for k, v in m[name].items():
                 p[k] = (np.r_[p[k], v] if isinstance(v, np.ndarray) else p.get(k, 0) + v) if k in p else v
     print("pooled")
     for (method, name), m in pooled.items():
-        print(f"  {method}: " + line(name, m))
+        print(f"  {method}: " + (ta_line(m) if name == "ta" else line(name, m)))
 
 
 if __name__ == "__main__":

@@ -178,8 +178,9 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
 
     sel = select(scene, [run] if run is not None else [], frames, cameras, masks=masks,
                  video=video)
+    # masks as outlines only: every frame at a few kB, where fills cost 0.9 MB a frame each
     stats = log_all(rec, scene, sel, scene_timebase(scene), LogStyle(masks=masks, video=video,
-                                                                     gt=False))
+                                                                     gt=False, mask_fills=False))
     bp = L.blueprint(sel.cameras, [r.name for r in sel.runs], with_metrics=False,
                      eye=L.default_eye(scene), fps=scene.fps)
     return bp, sel.cameras, (sel.first, sel.last), list(stats.notes), stats.video_frames

@@ -9,6 +9,7 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import temp_sibling_dir
@@ -108,10 +109,13 @@ def _check_restored(run_dir: Path, path: Path) -> None:
                                  file=path) from None
 
 
-def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
+def import_mcap(path: Path, out_dir: Path, force: bool = False,
+                check_annotations: Callable[[Path, Path], None] | None = None) -> Path:
     """Restore an ``s2p export`` file as a scene folder: OUT/scene.json and the ground points
     (bytes as exported), OUT/out/<run>/run.json, poses.csv (the exact pose table) and
-    views.csv, and an annotation journal when the export carries one (OUT/annotations/). Refuses a non-empty ``out_dir`` unless ``force``. Returns the run folder."""
+    views.csv, and an annotation journal when the export carries one (OUT/annotations/). Refuses a non-empty ``out_dir`` unless ``force``. ``check_annotations(folder, path)``, when
+    given, is called on the restored folder before it is moved into place (it raises for a
+    journal that does not open). Returns the run folder."""
     path, out_dir = Path(path), Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not force:
         raise S2PError(f"{out_dir} exists and is not empty; pass --force to write into it")
@@ -148,7 +152,10 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False) -> Path:
                  if meta.get("has_views") == "true" or rec.views else None)
         write_run_folder(tmp / "out" / run_name, table, views, run_meta)
         _check_restored(tmp / "out" / run_name, path)
-        restore_annotation_files(att, tmp, path)
+        restored = restore_annotation_files(att, tmp, path)
+        if restored and check_annotations is not None:
+            # the command layer opens the restored project (s2p_review cannot import annotate)
+            check_annotations(tmp, path)
         _move_into(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -1,8 +1,9 @@
 """The lossless s2p channels of an MCAP export (JSON, one message per frame) and their
 inverse, so that ``mcap_import`` restores the run exactly what ``mcap_export`` wrote:
 
-    /s2p/poses   {"frame", "rows": [{frame, track_id, class, x, y, z, heading, l, w, h[, source]}]}
-    /s2p/views   {"frame", "columns": ["row", *VIEW_COLUMNS], "rows": [[row, ...], ...]}
+    /s2p/poses   {"frame", "rows": [{frame, track_id, class, x, y, z, heading, l, w, h[, source]
+                 [, r90_m]}]}   (r90_m: the pose's error bar, metres; null for NaN)
+    /s2p/views   {"frame", "columns": ["row", *VIEW_COLUMNS[, *CUE_COLUMNS]], "rows": [[row, ...], ...]}
 
 Floats are written with Python's shortest exact repr; JSON has no NaN, so null stands for it.
 """
@@ -15,7 +16,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.io.poses import PoseTable
-from seg2pose.io.run import VIEW_COLUMNS, ViewTable
+from seg2pose.io.run import CUE_COLUMNS, VIEW_COLUMNS, ViewTable
 
 POSES_TOPIC = "/s2p/poses"
 VIEWS_TOPIC = "/s2p/views"
@@ -28,7 +29,7 @@ POSE_SCHEMA = {
             "class": {"type": "string"}, "x": {"type": "number"}, "y": {"type": "number"},
             "z": {"type": "number"}, "heading": {"type": ["number", "null"]},
             "l": {"type": ["number", "null"]}, "w": {"type": ["number", "null"]},
-            "h": {"type": ["number", "null"]}}}}}}
+            "h": {"type": ["number", "null"]}, "r90_m": {"type": ["number", "null"]}}}}}}
 VIEW_SCHEMA = {"title": "s2p.ViewFrame", "type": "object",
                "properties": {"frame": {"type": "integer"},
                               "columns": {"type": "array", "items": {"type": "string"}},
@@ -66,6 +67,8 @@ def pose_messages(table: PoseTable) -> Iterator[tuple[int, dict]]:
                 r.update(l=num(table.size[i, 0]), w=num(table.size[i, 1]), h=num(table.size[i, 2]))
             if table.source is not None:  # annotated poses: keyframe / interpolated / occluded
                 r["source"] = str(table.source[i])
+            if table.r90 is not None:
+                r["r90_m"] = num(table.r90[i])
             rows.append(r)
         yield f, {"frame": f, "rows": rows}
 
@@ -80,17 +83,21 @@ def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
     return PoseTable([r["frame"] for r in rows], [r["track_id"] for r in rows],
                      np.array([r["class"] for r in rows], dtype=object),
                      [[r["x"], r["y"], r["z"]] for r in rows], [unnum(r["heading"]) for r in rows],
-                     size, [r["source"] for r in rows] if all("source" in r for r in rows) else None)
+                     size, [r["source"] for r in rows] if all("source" in r for r in rows) else None,
+                     [unnum(r["r90_m"]) for r in rows] if all("r90_m" in r for r in rows) else None)
 
 
 def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:
     """(frame, /s2p/views message) per frame; each row carries its row number in the table so
     the import restores the file's order."""
+    cues = v.cues is not None
     for idx in split_by_frame(v.frame):
         f = int(v.frame[idx[0]])
         rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
-                 *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i])]] for i in idx]
-        yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS, "rows": rows}
+                 *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i],
+                                    *((*v.cues[i], v.r90[i]) if cues else ()))]] for i in idx]
+        yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS + (CUE_COLUMNS if cues else []),
+                  "rows": rows}
 
 
 def views_table(messages: list[dict]) -> ViewTable:
@@ -99,6 +106,9 @@ def views_table(messages: list[dict]) -> ViewTable:
     rows = sorted((r for m in messages for r in m["rows"]), key=lambda r: r[0])
     if not rows:
         return ViewTable.empty()
-    nums = np.array([[unnum(x) for x in r[5:12]] for r in rows], float)
+    cues = all(len(m.get("columns", ())) == 1 + len(VIEW_COLUMNS) + len(CUE_COLUMNS)
+               for m in messages)
+    nums = np.array([[unnum(x) for x in r[5:16 if cues else 12]] for r in rows], float)
     return ViewTable([r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
-                     [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7])
+                     [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7],
+                     nums[:, 7:10] if cues else None, nums[:, 10] if cues else None)

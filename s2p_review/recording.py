@@ -13,8 +13,10 @@ import numpy as np
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import Scene
 from s2p_review import columns as C
+from s2p_review.error_discs import log_error_discs
 from s2p_review import imagery
 from s2p_review import layout as L
+from s2p_review.association import log_association
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
@@ -30,8 +32,9 @@ class LogStyle:
     "asset" (every frame, one H.264 video per camera decoded by the viewer: video_asset.py) or
     "jpeg" (JPEG images on the video cadence); jpeg_quality and image_scale: how video frames
     are stored (shrunk to image_scale of the camera's size and shown at full size again);
-    mask_outlines: every frame's masks as outlines (besides the filled masks on the mask
-    cadence, which are blank on the frames between)."""
+    mask_outlines: every frame's masks as outlines; mask_fills: the filled masks on the mask
+    cadence, blank on the frames between (off in the annotation app: a 1280x720 fill is 0.9 MB
+    a frame, outlines a few kB)."""
 
     masks: bool = True
     video: bool = True
@@ -42,6 +45,7 @@ class LogStyle:
     jpeg_quality: int = 75
     image_scale: float = 1.0
     mask_outlines: bool = True
+    mask_fills: bool = True  # the filled masks on the cadence (the annotation app: outlines only)
 
 
 @dataclass(frozen=True)
@@ -147,18 +151,20 @@ def log_masks(ctx: LogContext, cam: str, every: int) -> int:
     path = scene.masks_path(cam)
     if not path.exists():
         return 0
-    ctx.static(ent, rr.SegmentationImage.from_fields(
-        format=rr.components.ImageFormat(width=camera.width, height=camera.height,
-                                         channel_datatype="U8"), opacity=0.6, draw_order=5.0))
+    sent = 0
+    if ctx.style.mask_fills:
+        ctx.static(ent, rr.SegmentationImage.from_fields(
+            format=rr.components.ImageFormat(width=camera.width, height=camera.height,
+                                             channel_datatype="U8"), opacity=0.6, draw_order=5.0))
 
-    def send(batch):
-        imgs = imagery.paint([t for _, t in batch], [t.class_id for _, t in batch], path)
-        ctx.send(ent, [f for f, _ in batch],
-                 rr.SegmentationImage.columns(buffer=imgs.reshape(len(batch), -1)))
+        def send(batch):
+            imgs = imagery.paint([t for _, t in batch], [t.class_id for _, t in batch], path)
+            ctx.send(ent, [f for f, _ in batch],
+                     rr.SegmentationImage.columns(buffer=imgs.reshape(len(batch), -1)))
 
-    sent = _batched(imagery.mask_frames(scene, cam, ctx.first, ctx.last, every), send)
-    if every > 1:
-        _clear_frames(ctx, ent, [f for f in ctx.frames if (f - ctx.first) % every])
+        sent = _batched(imagery.mask_frames(scene, cam, ctx.first, ctx.last, every), send)
+        if every > 1:
+            _clear_frames(ctx, ent, [f for f in ctx.frames if (f - ctx.first) % every])
     if ctx.style.mask_outlines:
         log_mask_outlines(ctx, cam)
     return sent
@@ -428,11 +434,13 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
         log_boxes(ctx, f"world/road_users/{run.name}", poses, sz, look=look)
         if style.trail > 1:
             log_trails(ctx, f"world/road_users/{run.name}/trails", poses, style.trail)
+        log_error_discs(ctx, f"world/road_users/{run.name}/r90", poses)
         run_cams = [c for c in cameras if c in (run.cameras or cameras)]
         for cam in run_cams:
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, look=look)
         log_views(ctx, run, run_cams)
+        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, style.masks)
         if gt is not None:
             metrics |= log_errors(ctx, run, gt)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes), video_frames)

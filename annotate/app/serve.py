@@ -1,14 +1,15 @@
 """Serve the annotation page: the server process (server.py: marimo behind the Guard) as a
 child on a loopback port, with a random token per start.
 
-The child gets its arguments in S2P_ANNOTATE_ARGS (JSON), the token in S2P_ANNOTATE_TOKEN, and
-RERUN_NOTEBOOK_ASSET=serve-local (the viewer's JavaScript and Wasm come from the installed
-rerun-notebook package, never the internet). ``Server`` starts it in its own process group and
-stops the whole group. Its log goes to SCENE/annotations/server.log (else a private temporary
+The child gets its arguments in S2P_ANNOTATE_ARGS (JSON) and the token in S2P_ANNOTATE_TOKEN;
+the page loads the viewer widget from the same server (server.ViewerAssets: the JavaScript and
+Wasm of the installed rerun-notebook package, never the internet). ``Server`` starts it in its
+own process group and stops the whole group. Its log goes to SCENE/annotations/server.log (else a private temporary
 folder), opened without following links.
 
 From another machine, reach the app through an SSH tunnel (never by binding another address):
-``ssh -N -L 8765:127.0.0.1:PORT user@host``, then open the printed URL with 127.0.0.1:8765.
+``ssh -N -L PORT:127.0.0.1:PORT user@host`` (the same port on both ends: the page names it),
+then open the printed URL.
 """
 
 from __future__ import annotations
@@ -159,6 +160,9 @@ def run_app(scene: Path, run: Path | None = None, cameras: list[str] | None = No
     import webbrowser
 
     check_scene(scene, run, cameras)
+    from annotate.app.session import prepare_viewer
+
+    prepare_viewer(scene, run, cameras)  # videos encoded once, here with a progress bar
     # the server runs in its own process group (so that stopping it stops all it started):
     # SIGINT and SIGTERM to this process stop it (SIGINT too where a shell started us in the
     # background with SIGINT ignored)

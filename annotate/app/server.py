@@ -21,15 +21,92 @@ NOTEBOOK = Path(__file__).with_name("notebook.py")
 SESSION_TTL = 5  # seconds marimo keeps a page's session after its tab is gone
 
 
+ASSET_PREFIX = "/s2p-viewer/"  # + the rerun-notebook version + /widget.js, /re_viewer_bg.wasm
+
+
+def asset_url(port: int) -> str:
+    """Where the page loads the viewer widget from: this server (behind the same Guard), so
+    an SSH tunnel of this one port carries everything, and no second server listens."""
+    from importlib.metadata import version
+
+    return f"http://127.0.0.1:{port}{ASSET_PREFIX}{version('rerun-notebook')}/widget.js"
+
+
+class ViewerAssets:
+    """ASGI app: rerun-notebook's widget.js and re_viewer_bg.wasm under ASSET_PREFIX (the Wasm
+    gzipped once into the viewer cache by ``prepare``, served plain until then); everything
+    else goes to ``app``. (rerun-notebook's own "serve-local" server gzips the 50 MB Wasm at
+    level 9 in every server process: 25 s of the first page load on a loaded machine.)"""
+
+    def __init__(self, app):
+        self.app = app
+
+    @staticmethod
+    def _files() -> dict[str, tuple]:
+        import rerun_notebook
+
+        return {"widget.js": (rerun_notebook.WIDGET_PATH, "text/javascript"),
+                "re_viewer_bg.wasm": (rerun_notebook.WASM_PATH, "application/wasm")}
+
+    async def __call__(self, scope, receive, send):
+        path = scope.get("path", "")
+        if scope["type"] != "http" or not path.startswith(ASSET_PREFIX):
+            return await self.app(scope, receive, send)
+        name = path.rsplit("/", 1)[-1]
+        files = self._files()
+        if name not in files:
+            body = b"not found\n"
+            await send({"type": "http.response.start", "status": 404,
+                        "headers": [(b"content-length", str(len(body)).encode())]})
+            await send({"type": "http.response.body", "body": body})
+            return
+        src, kind = files[name]
+        gz = gz_path(src)
+        headers = [(b"content-type", kind.encode()), (b"cache-control", b"max-age=86400")]
+        if gz.exists():
+            data = gz.read_bytes()
+            headers.append((b"content-encoding", b"gzip"))
+        else:
+            data = src.read_bytes()
+        headers.append((b"content-length", str(len(data)).encode()))
+        await send({"type": "http.response.start", "status": 200, "headers": headers})
+        await send({"type": "http.response.body", "body": data})
+
+
+def gz_path(src: Path) -> Path:
+    """The gzipped copy of a viewer asset in the cache (named by its size and mtime)."""
+    import os
+
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    st = src.stat()
+    return Path(base) / "s2p" / "viewer-assets" / f"{src.name}-{st.st_size}-{st.st_mtime_ns}.gz"
+
+
+def prepare_assets() -> None:
+    """Gzip the Wasm into the cache once (level 6: a few seconds, once per installation)."""
+    import gzip
+    import os
+
+    for src, _ in ViewerAssets._files().values():
+        gz = gz_path(src)
+        if gz.exists() or src.suffix != ".wasm":
+            continue
+        gz.parent.mkdir(parents=True, exist_ok=True)
+        tmp = gz.with_name(gz.name + f".tmp{os.getpid()}")
+        tmp.write_bytes(gzip.compress(src.read_bytes(), compresslevel=6))
+        os.replace(tmp, gz)
+
+
 def build_app(port: int, token: str):
-    """marimo's app for notebook.py (with its own token check too) behind the Guard."""
+    """marimo's app for notebook.py (with its own token check too) and the viewer's assets,
+    behind the Guard."""
     import marimo
 
     from annotate.app.guard import Guard
 
     inner = (marimo.create_asgi_app(quiet=True, token=token, session_ttl=SESSION_TTL)
              .with_app(path="", root=str(NOTEBOOK)).build())
-    return Guard(inner, port, token)
+    return Guard(ViewerAssets(inner), port, token)
 
 
 def main() -> None:
@@ -40,7 +117,11 @@ def main() -> None:
     if "port" not in args or not token:
         sys.exit(f"{ARGS_ENV} (with a port) and {TOKEN_ENV} must be set: start the app with "
                  "`s2p annotate SCENE`")
-    os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")
+    # the viewer widget comes from this server (before anything imports rerun_notebook)
+    os.environ["RERUN_NOTEBOOK_ASSET"] = asset_url(int(args["port"]))
+    import threading
+
+    threading.Thread(target=prepare_assets, daemon=True).start()
     server = uvicorn.Server(uvicorn.Config(
         build_app(int(args["port"]), token), host="127.0.0.1", port=int(args["port"]),
         log_level="warning", timeout_keep_alive=300, ws_ping_interval=1, ws_ping_timeout=60,

@@ -222,6 +222,28 @@ class Session:
             self._apply_click(*self._last_click)
 
 
+def prepare_viewer(scene_dir, run=None, cameras=None) -> None:
+    """Encode the cameras' videos and mask outlines for the viewer before a page asks for them
+    (cached: s2p_review.video_asset), with a progress bar here, so that the first page load
+    does not wait silently. The same frames and cameras as a page's (``log_scene``)."""
+    from tqdm import tqdm
+
+    from annotate.estimates import scene_frames
+    from s2p_review.recording import outline_table
+    from s2p_review.selection import select
+    from s2p_review.video_asset import video_asset
+    from seg2pose.io.scene import load_scene
+
+    scene = load_scene(scene_dir)
+    frames = scene_frames(scene) or (0, 0)
+    sel = select(scene, [run] if run is not None else [], frames, cameras)
+    for cam in tqdm(sel.cameras, desc="camera views for the viewer (first time only)",
+                    unit="camera", leave=False):
+        video_asset(scene, cam, sel.first, sel.last)
+        if scene.masks_path(cam).exists():
+            outline_table(scene, cam, sel.first, sel.last)
+
+
 def session_from_env() -> Session:
     """The Session that ``s2p annotate`` asked for (its arguments travel in S2P_ANNOTATE_ARGS)."""
     args = json.loads(os.environ.get(ARGS_ENV) or "{}")

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 from collections import defaultdict
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -45,8 +44,7 @@ from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.digest import file_fingerprint, file_sha256
 from seg2pose.core.errors import InputError
-from seg2pose.core.locks import pid_alive
-from seg2pose.io.atomic import atomic_path, atomic_write_text, check_writable
+from seg2pose.io.atomic import atomic_write_text, check_writable, outputs, replacing
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.video import image_files
@@ -166,21 +164,6 @@ def segment_done(scene_dir: str | Path, seg: Segment, inputs: dict | None = None
     return d.get("info") or {}
 
 
-def clean_killed(out: Path) -> list[Path]:
-    """Remove the temporary files a killed segment task left beside ``out``:
-    ``.NAME.partial-PID...`` and the libraries' own temporaries inside those
-    (``..NAME.partial-PID...``), when process PID no longer runs."""
-    gone = []
-    pat = re.compile(rf"^\.+{re.escape(out.name)}\.partial-(\d+)")
-    if out.parent.is_dir():
-        for p in out.parent.iterdir():
-            m = pat.match(p.name)
-            if m and not pid_alive(int(m.group(1))):
-                p.unlink(missing_ok=True)
-                gone.append(p)
-    return gone
-
-
 def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] = lambda s: None
                 ) -> dict:
     """Masks and tracks of one segment (module docstring), unless its record says it is done.
@@ -193,8 +176,9 @@ def run_segment(scene_dir: str | Path, seg: Segment, log: Callable[[str], None] 
         return {**done, "status": "skipped"}
     reader = camera_reader(scene, seg.camera)
     out = segment_path(scene.root, seg)
-    clean_killed(out)
-    with atomic_path(out) as tmp:  # masks, then tracks, in one temporary file: all or nothing
+    # masks, then tracks, in a partial folder of its own (a killed task's is removed by the
+    # next), swapped in when both are done: all or nothing
+    with replacing(out, force=True, folder=False) as tmp:
         res = masks_from_video(reader.path, tmp, bg, camera=scene.cameras[seg.camera],
                                first_frame=reader.first, frame_step=reader.step,
                                frames=(seg.read_from, seg.last), log=log,
@@ -351,28 +335,33 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
     camera: frames, masks, tracks, segments, seams."""
     scene = load_scene(scene_dir)
     plans = plan_scene(scene.root, segment_frames, overlap)
-    for c in plans:
-        check_writable(scene.masks_path(c), force)
     _, tcfg = settings(scene)
     out = {}
-    for c, segs in plans.items():
-        if len(segs) <= 1:
-            r = scene_masks_from_video(scene.root, [c], force=force, progress=progress,
-                                       associate=False, log=log)[c]
+    whole = [c for c, segs in plans.items() if len(segs) <= 1]
+    cut = [c for c in plans if c not in whole]
+    for c in plans:  # every camera refused up front, before any work
+        check_writable(scene.masks_path(c), force)
+    if whole:
+        res = scene_masks_from_video(scene.root, whole, force=force, progress=progress,
+                                     associate=False, log=log)
+        for c, r in res.items():
             out[c] = {"frames": r.n_frames, "masks": r.n_masks, "segments": 1, "seams": []}
-            continue
-        list((map_segments or map)(lambda s: run_segment(scene.root, s, log), segs))
-        dst = scene.masks_path(c)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        info = stitch_camera(scene, segs, dst, tcfg, log=log)
-        classify_mots(dst, dst, scene.cameras[c], scene.ground,
-                      size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE),
-                      fps=scene.fps, log=log)
-        log(f"{c}: {info['frames']} frames in {info['segments']} segments -> {info['tracks']} "
-            f"tracks ({info['masks']} masks); at the seams: "
-            f"{sum(x['id_changes'] for x in info['seams'])} id changes, "
-            f"{sum(x['unlinked'] for x in info['seams'])} tracks not continued")
-        out[c] = info
-    associate_step(scene, [c for c, segs in plans.items() if len(segs) > 1], False, log)
+    with outputs([scene.masks_path(c) for c in cut], force) as files:
+        for c in cut:
+            segs = plans[c]
+            list((map_segments or map)(lambda s: run_segment(scene.root, s, log), segs))
+            dst = scene.masks_path(c)
+            tmp = files.file(dst)  # stitched, then classified, then swapped in
+            info = stitch_camera(scene, segs, tmp, tcfg, log=log)
+            classify_mots(tmp, tmp, scene.cameras[c], scene.ground,
+                          size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE),
+                          fps=scene.fps, log=log)
+            files.commit(dst)
+            log(f"{c}: {info['frames']} frames in {info['segments']} segments -> {info['tracks']} "
+                f"tracks ({info['masks']} masks); at the seams: "
+                f"{sum(x['id_changes'] for x in info['seams'])} id changes, "
+                f"{sum(x['unlinked'] for x in info['seams'])} tracks not continued")
+            out[c] = info
+    associate_step(scene, cut, False, log)
     associate_step(scene, [], True, log)
     return out

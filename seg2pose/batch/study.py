@@ -125,9 +125,25 @@ def _write_record(step: Step, scene_dir: Path, opts: BatchOptions, inputs: dict,
     atomic_write_text(rec, json.dumps({"inputs": inputs, "outputs": outs, "info": info}, indent=1))
 
 
+def _started_path(scene_dir: Path, step: str) -> Path:
+    return scene_dir / BATCH_DIR / ".done" / f"{step}.started"
+
+
 def _may_replace(step: Step, scene_dir: Path, opts: BatchOptions) -> bool:
-    # our own earlier output (record present) may be replaced; anything else needs force
-    return step.owns_outputs or opts.force or _record_path(scene_dir, step.name).exists()
+    """Our own earlier output (record present, or a start mark written when none of the
+    step's outputs existed: a killed attempt's) may be replaced; anything else needs force."""
+    if step.owns_outputs or opts.force or _record_path(scene_dir, step.name).exists():
+        return True
+    mark = _started_path(scene_dir, step.name)
+    if mark.exists():
+        return True
+    if not any(_files(Path(o)) for o in step.outputs(scene_dir, opts)):
+        # nothing there yet: whatever appears from now on is this step's, also when a kill
+        # stops it before its record (the re-run then redoes it instead of refusing)
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(mark, time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()) + "\n")
+        return True
+    return False
 
 
 def _failure(e: Exception) -> str:
@@ -165,6 +181,9 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
         res["status"] = "failed"
         res["error"] = _failure(e)
+        if not any(_files(Path(o)) for o in step.outputs(scene_dir, opts)):
+            # failed before writing anything: what appears later is not this step's
+            _started_path(scene_dir, step.name).unlink(missing_ok=True)
     res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
     return res
 

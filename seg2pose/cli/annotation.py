@@ -21,7 +21,7 @@ from typer.core import TyperGroup
 
 from seg2pose.cli.common import ANNOTATION, speaks_flags
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import check_writable, outputs, replacing
 
 OPEN = "open"
 
@@ -165,9 +165,9 @@ def _export_tanalyst(p, out: Path, start: str, fps, keyframes_only: bool, decima
 
     if decimal not in (",", "."):
         raise InputError(f"expected ',' or '.', got {decimal!r}", field="--decimal")
-    check_writable(out, force)
-    t = annotations_to_tanalyst(p, fps, _parse_start(start), keyframes_only, decimal)
-    write_tanalyst(out, t)
+    with replacing(out, force, folder=False) as tmp:
+        t = annotations_to_tanalyst(p, fps, _parse_start(start), keyframes_only, decimal)
+        write_tanalyst(tmp, t)
     typer.echo(f"wrote {out}: {len(t)} detections of {len(set(t.road_user_id.tolist()))} road users")
     return out
 
@@ -214,33 +214,62 @@ def export_cmd(
     Ground truth for `s2p train`, an MCAP set that `s2p import-mcap` turns back into a working
     annotation project, and T-Analyst's tracks CSV."""
     from annotate import Project
-    from annotate.export import export_gt
 
     out = Path(out) if out is not None else Path(scene) / "export"
     with Project.open(scene, read_only=True) as p:
-        if gt:
-            path = export_gt(p, force=force)
-            typer.echo(f"wrote {path}")
-        if mcap:
-            _export_mcap(p, out / "annotations.mcap", force)
-        if tanalyst:
-            out.mkdir(parents=True, exist_ok=True)
-            _export_tanalyst(p, out / "tanalyst.csv", start, None, False, ",", force)
+        export_set(p, out, gt=gt, mcap=mcap, tanalyst=tanalyst, start=start, force=force)
 
 
-def _export_mcap(p, path: Path, force: bool) -> None:
+def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str,
+               force: bool) -> None:
+    """gt/poses.csv, OUT/annotations.mcap (+ its layout) and OUT/tanalyst.csv as one set:
+    every output checked and locked before anything is written, each built beside its final
+    name, all swapped in together at the end (atomic.outputs)."""
     import tempfile
 
-    from annotate.export import journal_files, write_annotation_run
+    from annotate.export import gt_replaceable, gt_table, journal_files, write_annotation_run
+    from annotate.tanalyst_io import annotations_to_tanalyst
     from s2p_review.annotated_mcap import export_annotated_mcap
+    from s2p_review.foxglove_layout import layout_path
 
-    with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as tmp:
-        run = write_annotation_run(p, Path(tmp) / "annotations")
-        res = export_annotated_mcap(p.scene, run, path, journal_files(p), force=force)
-    for note in res.notes:
-        typer.echo(f"note: {note}")
-    typer.echo(f"wrote {res.path} ({res.path.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "
-               "restores the scene with its annotation project")
+    from seg2pose.io.poses import write_poses
+    from seg2pose.io.tanalyst import write_tanalyst
+
+    paths, forced = [], set()
+    if gt:
+        paths.append(p.scene.gt_path)
+        if gt_replaceable(p.scene.gt_path, force):
+            forced.add(p.scene.gt_path)
+    if mcap:
+        paths += [out / "annotations.mcap", layout_path(out / "annotations.mcap")]
+    if tanalyst:
+        paths.append(out / "tanalyst.csv")
+    for q in paths:  # refused up front: nothing is written when one output may not be replaced
+        if q not in forced:
+            check_writable(q, force)
+    t_start = _parse_start(start)
+    said = []
+    with outputs(paths, force=True) as files:
+        if gt:
+            write_poses(files.file(p.scene.gt_path), gt_table(p))
+            said.append(f"wrote {p.scene.gt_path}")
+        if mcap:
+            dst = out / "annotations.mcap"
+            tmp = files.file(dst)
+            with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as d:
+                run = write_annotation_run(p, Path(d) / "annotations")
+                res = export_annotated_mcap(p.scene, run, tmp, journal_files(p), force=True)
+            files.adopt(layout_path(dst), res.layout or layout_path(tmp))
+            said += [f"note: {n}" for n in res.notes]
+            said.append(f"wrote {dst} ({tmp.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "
+                        "restores the scene with its annotation project")
+        if tanalyst:
+            t = annotations_to_tanalyst(p, None, t_start, False, ",")
+            write_tanalyst(files.file(out / "tanalyst.csv"), t)
+            said.append(f"wrote {out / 'tanalyst.csv'}: {len(t)} detections of "
+                        f"{len(set(t.road_user_id.tolist()))} road users")
+    for line in said:
+        typer.echo(line)
 
 
 def register(app: typer.Typer) -> None:

@@ -111,7 +111,10 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         frames = (first, first + SAMPLE_FRAMES - 1)  # keeps each sample file a few MB
         _step(f"writing the Rerun recording {rrd} (test frames {frames[0]}..{frames[1]})")
         img = SAMPLE_IMAGES
-        style = LogStyle(image_scale=img["image_scale"], jpeg_quality=img["jpeg_quality"])
+        # the sample keeps JPEG images every few frames (its documented size and its tests);
+        # `s2p review` defaults to the video asset of every frame
+        style = LogStyle(image_scale=img["image_scale"], jpeg_quality=img["jpeg_quality"],
+                         video_format="jpeg")
         record_rrd(scene, tri, Targets(rrd=rrd, force=True),
                    RecordOptions(frames=frames, mask_every=img["mask_every"],
                                  video_every=img["video_every"], style=style))

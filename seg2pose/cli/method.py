@@ -19,6 +19,7 @@ def register(app: typer.Typer) -> None:
     app.command("run", rich_help_panel=METHOD)(speaks_flags(run_cmd))
     app.command("train", rich_help_panel=METHOD)(speaks_flags(train_cmd))
     app.command("eval", rich_help_panel=METHOD)(speaks_flags(eval_cmd))
+    app.command("calibrate", rich_help_panel=METHOD)(speaks_flags(calibrate_cmd))
     app.command("paper-table", rich_help_panel=METHOD)(speaks_flags(paper_table_cmd))
     app.command("bench-accuracy", rich_help_panel=METHOD)(speaks_flags(bench_accuracy_cmd))
 
@@ -45,6 +46,7 @@ def run_cmd(
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
     allow_incomplete: bool = typer.Option(False, "--allow-incomplete/--no-allow-incomplete", help="use models whose training was interrupted (refused otherwise)"),
     far_residuals: Literal["warn", "fallback", "off"] = typer.Option("warn", "--far-residuals", help="when the network moves a position further than it ever did in training (99th percentile of its training residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for them) or off"),
+    r90: Optional[Path] = typer.Option(None, "--r90", help="calibration of the error bars r90_m (made by s2p calibrate; default: MODELS/r90.json, or SCENE/r90-baseline.json for --baseline, where it exists; without one r90_m is nan)"),
     force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
     confirm: Optional[float] = typer.Option(None, "--confirm", min=0.0, max=1.0, help="keep a fused pose only when at least this share of the configuration's cameras that see its place report it (default 0.5 for associated ids, else 0: off)"),
     fuse_unassociated: bool = typer.Option(False, "--fuse-unassociated", help="fuse cameras whose track ids are each camera's own tracker's (refused otherwise: run s2p associate first)"),
@@ -63,10 +65,13 @@ def run_cmd(
     d = run_scene(load_scene(scene), out, RunOptions(config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
                   allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals,
-                  fuse_unassociated=fuse_unassociated, confirm=confirm))
+                  fuse_unassociated=fuse_unassociated, confirm=confirm, r90=r90))
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
+    if not (meta.get("r90") or {}).get("calibration"):
+        typer.echo("note: no r90 calibration, so r90_m (the error bars) is nan; fit one on a run "
+                   "of the validation split with s2p calibrate", err=True)
     far = meta.get("far_residuals") or {}
     if far.get("flagged_views"):
         what = "kept at their normal positions" if far["policy"] == "fallback" else "listed"
@@ -90,6 +95,7 @@ def train_cmd(
     rough: Optional[int] = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
     rough_video: Optional[bool] = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: off; on synthetic video it measured worse than clean rough models, docs/RESULTS.md)"),
     rough_occlusion: Optional[float] = typer.Option(None, "--rough-occlusion", help="share of rough-model examples partly hidden by a rough car or pedestrian in front"),
+    rough_random: Optional[bool] = typer.Option(None, "--rough-random/--no-rough-random", help="randomised rough models: each one's length, width and height drawn from ranges per class (cars 3.5-6 m long, 1.35-2.4 m high; pedestrians 1.1-2.0 m; bicyclists 1.5-2.3 m long), not one box per class (not measured yet on this CPU, docs/RESULTS.md)"),
     rough_every: Optional[int] = typer.Option(None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)"),
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)"),
@@ -115,6 +121,7 @@ def train_cmd(
     cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
                 rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
+                rough_random=rough_random,
                 share_classes=share_classes, share_cameras=share_cameras,
                 rough_detector_noise=rough_noise, rough_video=rough_video, geometry=geometry, augment=augment,
                 seed=seed)
@@ -141,7 +148,7 @@ def eval_cmd(
     Overall, per class and per 5 m of distance from the cameras."""
     import json
 
-    from seg2pose.eval.evaluate import format_table
+    from seg2pose.eval.evaluate import format_r90_table, format_table
     from seg2pose.eval.paper_table import evaluate_run
     from seg2pose.io.scene import load_scene
 
@@ -152,6 +159,32 @@ def eval_cmd(
         typer.echo(json.dumps(res.to_dict(), indent=1))
     else:
         typer.echo(format_table({Path(run).name: res}))
+        r90 = format_r90_table({Path(run).name: res})
+        if r90:
+            typer.echo("error bars r90_m (coverage: share of poses within r90_m; the aim is 0.90)")
+            typer.echo(r90)
+
+
+def calibrate_cmd(
+    scene: Path = typer.Argument(..., help="scene folder with ground truth"),
+    run: Path = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate"),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="calibration file (default: MODELS/r90.json beside the run's models, or SCENE/r90-baseline.json for a baseline run: where s2p run looks)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing calibration"),
+) -> None:
+    """Fit the error bars r90_m on a run whose truth is known.
+
+    Per class, the 90th percentile of the error given what the method knows (distance,
+    viewing angle, mask cut by the image border, far residual, ensemble spread, views fused,
+    their disagreement): a quantile regression. Runs made afterwards carry r90_m in poses.csv
+    and views.csv; s2p eval reports its coverage."""
+    from seg2pose.io.scene import load_scene
+    from seg2pose.method.r90_calibrate import calibrate_run
+
+    path, cal = calibrate_run(load_scene(scene), run, out, force)
+    cov = cal.meta["coverage_on_fit"]
+    typer.echo(f"r90 calibration ({cal.meta.get('method')}, --smooth {cal.meta.get('smooth_frames')}, "
+               f"classes {', '.join(k for k in cal.pose.coef if k != '*')}) in {path}; coverage on "
+               f"the fitted rows: views {cov['views']:.3f}, poses {cov['poses']:.3f}")
 
 
 def paper_table_cmd(

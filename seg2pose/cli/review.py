@@ -131,7 +131,7 @@ def import_mcap_cmd(
     """Restore a scene folder and its run from an MCAP file written by s2p export."""
     from s2p_review.mcap_import import import_mcap
 
-    run_dir = import_mcap(file, out, force=force)
+    run_dir = import_mcap(file, out, force=force, check_annotations=_check_restored_journal)
     typer.echo(f"restored {out}/scene.json and the run {run_dir} (poses.csv, views.csv, run.json)")
 
 
@@ -148,3 +148,26 @@ def screenshot_cmd(
     from s2p_review.viewer import take_screenshot
 
     typer.echo(f"wrote {take_screenshot(rrd, out, frame=frame, force=force)}")
+
+
+def _check_restored_journal(folder: Path, mcap: Path) -> None:
+    """Open the annotation project restored into ``folder`` (read-only): a journal that does
+    not replay is an error naming the MCAP file's attachment, before anything is moved into
+    place."""
+    from annotate import Project
+    from seg2pose.core.errors import InputError, S2PError
+
+    try:
+        with Project.open(folder, read_only=True) as p:
+            torn = [n for n in p.notes if "torn" in n]
+    except S2PError as e:
+        raise InputError(f"the annotation journal attachment does not open: "
+                         f"{_final_note(e, folder)}", file=mcap, field="attachments annotations/") from None
+    if torn:
+        raise InputError(f"the annotation journal attachment is damaged: {torn[0]}", file=mcap,
+                         field="attachments annotations/")
+
+
+def _final_note(e: Exception, folder: Path) -> str:
+    """The error's text with the temporary folder's path left out."""
+    return str(e).replace(str(folder) + "/", "").replace(str(folder), "")

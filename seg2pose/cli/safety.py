@@ -7,12 +7,13 @@ from pathlib import Path
 
 import typer
 
-from seg2pose.cli.common import SAFETY, speaks_flags
+from seg2pose.cli.common import SAFETY, parse_frames, speaks_flags
 from seg2pose.core.errors import InputError, S2PError
 
 
-def parse_r90(text: str | None) -> dict[str, float] | None:
-    """``car=1.2,pedestrian=0.6`` -> {class: metres}."""
+def parse_r90(text: str | None, field: str = "--r90", unit: str = "METRES",
+              hi: float = 1000.0) -> dict[str, float] | None:
+    """``car=1.2,pedestrian=0.6`` -> {class: value} (values in 0..``hi``)."""
     if text is None:
         return None
     out = {}
@@ -20,11 +21,11 @@ def parse_r90(text: str | None) -> dict[str, float] | None:
         name, sep, val = item.partition("=")
         try:
             v = float(val)
-            if not sep or not name.strip() or not (0 <= v <= 1000):
+            if not sep or not name.strip() or not (0 <= v <= hi):
                 raise ValueError
         except ValueError:
-            raise InputError(f"expected CLASS=METRES[,CLASS=METRES...], got {text!r}",
-                             field="--r90") from None
+            raise InputError(f"expected CLASS={unit}[,CLASS={unit}...], got {text!r}",
+                             field=field) from None
         out[name.strip()] = v
     return out
 
@@ -60,6 +61,7 @@ def conflicts(
     tracks: Path = typer.Argument(..., help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a T-Analyst tracks CSV"),
     out: Path = typer.Option(..., "-o", "--out", help="output conflicts.csv"),
     fps: float | None = typer.Option(None, "--fps", help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)"),
+    frames: str | None = typer.Option(None, "--frames", help="only frames A:B (inclusive); default: all"),
     start: str | None = typer.Option(None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)"),
     ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
     pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
@@ -72,8 +74,11 @@ def conflicts(
     pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
     draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
     r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 percent of the positions lie; say where the figures come from)"),
+    heading90: str | None = typer.Option(None, "--heading90", help="heading error per class for the intervals, e.g. car=40,pedestrian=61,bicyclist=16 (degrees within which 90 percent of the headings lie; the baseline's on synthetic seed 201); default: headings not perturbed"),
     corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
     seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
+    workers: int = typer.Option(2, "--workers", min=1, help="processes the time chunks are analysed in (the result does not depend on it)"),
+    chunk_s: float = typer.Option(60.0, "--chunk", min=1.0, help="seconds of recording whose pair frames are held at once (memory then grows only with the poses themselves; the result does not depend on it)"),
     review: Path | None = typer.Option(None, "--review", help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder of a scene)"),
     force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
 ) -> None:
@@ -99,8 +104,12 @@ def conflicts(
         check_writable(review, force)
         scene_dir = _scene_of(tracks)
     table_r90 = parse_r90(r90)
+    table_h90 = parse_r90(heading90, "--heading90", "DEGREES", 180.0)
     t0 = time.perf_counter()
+    frame_range = parse_frames(frames)
     tr, notes = load_tracks(tracks, fps, parse_clock(start))
+    if frame_range is not None:
+        tr = tr.take((tr.frame >= frame_range[0]) & (tr.frame <= frame_range[1]))
     for n in notes:
         say(n, "note")
     if len(tr) == 0:
@@ -111,18 +120,26 @@ def conflicts(
             raise InputError(f"no error radius for classes {', '.join(missing)}", field="--r90")
         per_class = np.array([table_r90[str(c)] for c in tr.cls], float)
         tr.r90 = per_class if tr.r90 is None else np.where(np.isfinite(tr.r90), tr.r90, per_class)
+    h90 = None
+    if table_h90 is not None:
+        missing = sorted(set(tr.cls.astype(str)) - set(table_h90))
+        if missing:
+            raise InputError(f"no heading error for classes {', '.join(missing)}",
+                             field="--heading90")
+        h90 = np.radians([table_h90[str(c)] for c in tr.cls])
     say(f"{len(tr):,} poses of {len(np.unique(tr.track_id)):,} road users, "
         f"{(tr.frame.max() - tr.frame.min() + 1) / tr.fps if len(tr) else 0:.0f} s at {tr.fps:g} fps")
     opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, near_m=near_m, brake_mps2=brake,
                            swerve_mps2=swerve, all_pairs=all_pairs,
-                           pedestrian_pairs=pedestrian_pairs,
-                           motion=MotionOptions(window_s=window_s, centred=centred))
+                           pedestrian_pairs=pedestrian_pairs, chunk_s=chunk_s,
+                           workers=workers, motion=MotionOptions(window_s=window_s, centred=centred))
     table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
     n_conf = int(table.columns["conflict"].sum())
     if draws > 0 and tr.r90 is not None and len(table):
         from tqdm import tqdm
 
         iv = conflict_intervals(tr, table, opts, IntervalOptions(draws=draws, corr_s=corr_s, seed=seed),
+                                heading90=h90,
                                 progress=lambda it: tqdm(it, desc="intervals", unit="pair"))
         table.columns.update({k: iv[k] for k in INTERVAL_COLUMNS})
     elif draws > 0 and tr.r90 is None:

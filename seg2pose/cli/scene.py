@@ -70,10 +70,10 @@ def info(scene: Path = typer.Argument(..., help="scene folder")) -> None:
 
 def synth(
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
-    preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds; tests and the demo), bench (3 x 960 frames, about a minute; the accuracy benchmark) or paper (3 x 7,000 frames, as in the paper's section 4.1)"),
+    preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds; tests and the demo), bench (3 x 960 frames, about a minute; the accuracy benchmark), wide (bench's length with road users of many kinds and sizes -- small cars to buses, motorcycles, children to tall adults, bags, strollers -- and the pole 6-15 m high, drawn from the seed) or paper (3 x 7,000 frames, as in the paper's section 4.1)"),
     frames: Optional[int] = typer.Option(None, "--frames", help="frames per split (train, val and test each); default from the preset"),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives byte-identical files"),
-    rig: str = typer.Option("device", "--rig", help="camera device: device (10 m pole), device-8m, device-12m, or a rig JSON file"),
+    rig: Optional[str] = typer.Option(None, "--rig", help="camera device: device (10 m pole; the default), device-8m, device-12m, or a rig JSON file (default for --preset wide: the device on a pole 6-15 m high, drawn from the seed)"),
     video: bool = typer.Option(False, "--video/--no-video", help="also render RGB video of every camera"),
     detector_noise: bool = typer.Option(True, "--detector-noise/--no-detector-noise", help="masks like a Mask R-CNN detector's (misses, merges, coarse outlines), or perfect silhouettes"),
     noise: list[str] = typer.Option([], "--noise", help="set one detector-noise knob, KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
@@ -135,7 +135,7 @@ def import_tacal_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
     fps: float = typer.Option(..., "--fps", help="the videos' frame rate (frames per second)"),
     size: Optional[str] = typer.Option(None, "--size", help="image size WIDTHxHEIGHT of every camera, e.g. 1280x720 (default: twice the principal point Cx, Cy of each file)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene.json"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete)"),
 ) -> None:
     """Make a scene from T-Analyst .tacal calibrations and ground points.
 
@@ -149,8 +149,11 @@ def import_tacal_cmd(
             w, h = (int(v) for v in size.lower().split("x"))
         except ValueError:
             raise InputError(f"expected WIDTHxHEIGHT, got {size!r}", field="--size") from None
-        if w <= 0 or h <= 0:
-            raise InputError(f"image size must be positive, got {size!r}", field="--size")
+        from seg2pose.core.validate import MAX_IMAGE_SIDE
+
+        if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+            raise InputError(f"expected WIDTHxHEIGHT, each in 1..{MAX_IMAGE_SIDE} pixels, got "
+                             f"{size!r}", field="--size")
         wh = (w, h)
     s = scene_from_tacals(files, ground, out, fps, wh, force)
     for c in s.cameras.values():

@@ -52,7 +52,7 @@ def new_scene_cmd(
                                           "12 numbers (one camera's 3x4 P, row by row)"),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene.json in OUT"),
+    force: bool = typer.Option(False, "--force", help="replace an existing scene folder OUT entirely (built beside it, swapped in when complete)"),
 ) -> None:
     """Make a scene folder from video, calibration and ground points.
 

@@ -118,6 +118,8 @@ class EvalResult:
     bin_size: float = BIN_SIZE
     # absolute heading differences (K,) radians in [0, pi], NaN where either heading is unknown
     heading_errors: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    # the matched estimates' error bars (K,) metres (NaN: the run has none; r90_m of poses.csv)
+    r90: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     match: str = "ids"        # how estimates were paired with the truth: ids | nearest
     match_note: str = ""      # why, when "auto" chose
     # cross-camera id consistency (``id_consistency``): share of a road user's views in one frame
@@ -140,12 +142,30 @@ class EvalResult:
     def median_error(self) -> float:
         return float(np.median(self.errors)) if len(self.errors) else float("nan")
 
+    def r90_scores(self) -> dict | None:
+        """How good the run's error bars are (``seg2pose.method.uncertainty.r90_scores``: coverage,
+        mean r90, sharpness = mean r90 / mean error, Spearman), overall and per class ("per_class");
+        None when the run has no r90_m."""
+        from seg2pose.method.uncertainty import r90_scores
+
+        if len(self.r90) != len(self.errors) or not np.isfinite(self.r90).any():
+            return None
+        out = r90_scores(self.errors, self.r90)
+        out["per_class"] = {str(c): r90_scores(self.errors[self.classes == c], self.r90[self.classes == c])
+                            for c in sorted(set(self.classes.tolist()))}
+        return out
+
     def to_dict(self) -> dict:
         """JSON-ready summary (no arrays; NaN becomes null)."""
         def num(v: float):
             return None if v is None or not math.isfinite(v) else float(v)
 
-        return {
+        def nums(d: dict) -> dict:
+            return {k: nums(v) if isinstance(v, dict) else v if isinstance(v, int) else num(v)
+                    for k, v in d.items()}
+
+        r90 = self.r90_scores()
+        return {**({"r90": nums(r90)} if r90 else {}),
             "n_est": int(self.n_est), "n_gt": int(self.n_gt), "n_matched": int(self.n_matched),
             "recall": num(self.recall),
             "mean_error": num(self.mean_error), "median_error": num(self.median_error),
@@ -220,7 +240,8 @@ def evaluate(est: PoseTable, gt: PoseTable, origin_xy, bin_size: float = BIN_SIZ
                       mean_error=_nan_mean(errors), per_class=per_class,
                       bins=_distance_bins(errors, distances, bin_size), errors=errors,
                       distances=distances, classes=classes, frames=gt.frame[ig],
-                      bin_size=float(bin_size), heading_errors=dh, match=match, match_note=note)
+                      bin_size=float(bin_size), heading_errors=dh, match=match, match_note=note,
+                      r90=est.r90[ie] if est.r90 is not None else np.full(len(ie), np.nan))
 
 
 def id_consistency(frame: np.ndarray, camera: np.ndarray, track_id: np.ndarray, xy: np.ndarray,
@@ -309,6 +330,32 @@ def format_table(results: dict[str, EvalResult]) -> str:
             out.append(f"{name}: cross-camera id consistency {_fmt(r.id_consistency)} "
                        f"({r.n_multi_view} road-user frames seen by 2+ cameras)")
     return "\n".join(out) + "\n"
+
+
+def format_r90_table(results: dict[str, EvalResult]) -> str:
+    """The error bars of the runs that have them: per run and class, coverage (share of poses
+    whose error is at most r90_m; 0.9 is the aim), mean r90_m, mean error, their ratio and the
+    Spearman correlation of r90_m with the error. Empty when no run has r90_m."""
+    head = ["run", "class", "poses", "coverage", "mean r90 m", "mean err m", "r90/err", "spearman"]
+    rows = []
+    for name, r in results.items():
+        sc = r.r90_scores()
+        if sc is None:
+            continue
+        for cls, d in [("all", sc)] + sorted(sc["per_class"].items()):
+            if d.get("n"):
+                rows.append([name, cls, str(d["n"]), f"{d['coverage']:.3f}", _fmt(d["mean_r90"]),
+                             _fmt(d["mean_error"]), f"{d['sharpness']:.2f}",
+                             "-" if not math.isfinite(d["spearman"]) else f"{d['spearman']:.2f}"])
+    if not rows:
+        return ""
+    widths = [max(len(head[j]), *(len(row[j]) for row in rows)) for j in range(len(head))]
+
+    def line(cells):
+        return "  ".join(c.ljust(widths[j]) if j < 2 else c.rjust(widths[j])
+                         for j, c in enumerate(cells)).rstrip()
+
+    return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]) + "\n"
 
 
 def plot_error_vs_distance(results: dict[str, EvalResult], path: str | Path,

@@ -115,8 +115,10 @@ def headings_from_tracks(track_id: np.ndarray, frame: np.ndarray, xy: np.ndarray
     track_id = np.asarray(track_id)
     frame = np.asarray(frame)
     xy = np.asarray(xy, dtype=np.float64)
-    order = np.lexsort((frame, track_id))
     heading = np.full(len(track_id), np.nan)
+    if not len(track_id):
+        return heading
+    order = np.lexsort((frame, track_id))
     tid, p = track_id[order], xy[order]
     # the recursion is sequential in time; it runs over tracks in parallel, one step per frame
     starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]])

@@ -12,6 +12,12 @@ one writer at a time, and the leftovers of killed writers cleaned up.
 - Temporary siblings are named ``.NAME.partial-PID-...``: ``clean_stale_partials`` removes
   those of processes that no longer run (a killed writer's leftovers), every time a new
   output of that name is started.
+- ``outputs(paths, force)``: the outputs of one command as a set (``OutputSet``): every one
+  locked and checked before anything is written, each built beside its final name (a file in
+  a partial folder of its own, so that a library's own temporaries and a multi-stage build's
+  intermediate results stay there too), swapped in at the end; a set swapped in together
+  records its swaps first (``.NAME.commit-PID.json``), so that a writer killed between two
+  renames is finished by the next writer of that output.
 - ``os_errors(path)``: disk full, a file where a folder should be, a read-only folder: an
   S2PError naming the output and the cause (one line in the CLI) instead of a traceback.
 """
@@ -21,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import errno
+import json
 import os
 import re
 import shutil
@@ -33,6 +40,20 @@ from seg2pose.core.locks import ExclusiveLock, LockHolder, pid_alive
 from seg2pose.core.say import say
 
 _PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:[-.].*)?$")
+_COMMIT = re.compile(r"^\.(?P<name>.+)\.commit-(?P<pid>\d+)\.json$")
+
+
+def _owner(name: str) -> tuple[str, list[int]] | None:
+    """The final name a temporary sibling belongs to and the pids in its name, also for the
+    temporaries of temporaries (``..NAME.partial-1-x.partial-1-y.tmp``: a library's atomic
+    write of a file that is itself being built); None for other names."""
+    pids = []
+    m = _PARTIAL.match(name)
+    while m:
+        name = m.group("name")
+        pids.append(int(m.group("pid")))
+        m = _PARTIAL.match(name)
+    return (name, pids) if pids else None
 
 
 def _umask() -> int:
@@ -63,8 +84,8 @@ def clean_stale_partials(path: str | Path) -> list[Path]:
     except OSError:
         return removed
     for e in entries:
-        m = _PARTIAL.match(e.name)
-        if not m or m.group("name") != path.name or pid_alive(int(m.group("pid"))):
+        own = _owner(e.name)
+        if own is None or own[0] != path.name or any(pid_alive(p) for p in own[1]):
             continue
         p = Path(e.path)
         with contextlib.suppress(OSError):
@@ -133,8 +154,16 @@ _OS_CAUSES = {
 def final_name(path: str | Path) -> str:
     """``path`` with temporary siblings (``.NAME.partial-PID-...``) named by their final
     name: what the user asked for, not where it was being built."""
-    parts = Path(path).parts
-    return str(Path(*[(m.group("name") if (m := _PARTIAL.match(p)) else p) for p in parts])) if parts else str(path)
+    out: list[str] = []
+    in_partial = False
+    for p in Path(path).parts:
+        own = _owner(p)
+        if own is None and in_partial and out[-1] == p:
+            in_partial = False
+            continue  # NAME built as .NAME.partial-PID-x/NAME (OutputSet.file): the output itself
+        in_partial = own is not None
+        out.append(own[0] if own else p)
+    return str(Path(*out)) if out else str(path)
 
 
 def os_error_message(e: OSError, path: str | Path | None = None) -> str:
@@ -296,25 +325,190 @@ def swap_in(tmp: Path, path: Path) -> None:
 
 @contextlib.contextmanager
 def replacing(path: str | Path, force: bool = False, folder: bool = True) -> Iterator[Path]:
-    """Build the output ``path`` (a folder, or a file when ``folder`` is False) in a
-    temporary sibling that this yields, then swap it in as a unit (``swap_in``). Holds the
-    output's lock meanwhile; refuses an existing ``path`` unless ``force``; on any error or
-    interruption the temporary sibling is removed and ``path`` is as it was."""
+    """Build the single output ``path`` (a folder, or a file when ``folder`` is False) where
+    this yields, then swap it in as a unit (``outputs`` with one output: locked, refused when
+    it exists unless ``force``; on any error or interruption ``path`` is as it was)."""
+    with outputs([path], force) as out:
+        yield out.folder(path) if folder else out.file(path)
+
+
+# ----------------------------------------------------------------------------------------------
+# the outputs of one command, as a set
+
+
+def _commit_path(path: Path) -> Path:
+    return path.parent / f".{path.name}.commit-{os.getpid()}.json"
+
+
+def finish_commits(path: str | Path) -> list[Path]:
+    """Finish the swaps a writer of ``path`` killed in the middle of a set's commit recorded
+    (``.NAME.commit-PID.json``): every built output it lists that is still there is swapped
+    in, so the set is the new one as a whole. Returns the outputs swapped in now."""
     path = Path(path)
-    with output_lock(path):
-        check_writable(path, force)
-        if folder:
-            tmp = temp_sibling_dir(path)
-        else:
-            with os_errors(path):
-                clean_stale_partials(path)
-                fd, name = _temp_sibling(path, path.suffix or ".tmp")
-                os.close(fd)
-                tmp = Path(name)
+    done = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return done
+    for e in entries:
+        m = _COMMIT.match(e.name)
+        if not m or m.group("name") != path.name or pid_alive(int(m.group("pid"))):
+            continue
         try:
-            with os_errors(path):
-                yield tmp
-                swap_in(tmp, path)
-        except BaseException:
+            pairs = json.loads(Path(e.path).read_text(encoding="utf-8"))
+            pairs = [(Path(a), Path(b)) for a, b in pairs]
+        except (OSError, ValueError, TypeError):
+            pairs = []  # torn: written before any swap, so nothing was swapped yet
+        olds = []
+        for tmp, final in pairs:
+            if tmp.exists() or tmp.is_symlink():  # not renamed in yet
+                olds.append(_rename_in(tmp, final))
+                done.append(final)
+        for d in dict.fromkeys(final.parent for _, final in pairs):
+            fsync_dir(d)
+        for old in olds:
+            if old is not None:
+                _remove(old)
+        for tmp, _ in pairs:
+            _remove_partial_folder(tmp)
+        with contextlib.suppress(OSError):
+            os.unlink(e.path)
+    return done
+
+
+def _rename_in(tmp: Path, path: Path) -> Path | None:
+    """Move an existing ``path`` aside (``.NAME.old-PID``) and ``tmp`` to ``path``: two
+    renames, no fsync between. Returns where the old output now is (None: there was none)."""
+    old = None
+    if path.exists() or path.is_symlink():
+        old = path.parent / f".{path.name}.old-{os.getpid()}-{os.urandom(3).hex()}"
+        os.replace(path, old)
+    os.replace(tmp, path)
+    return old
+
+
+def _remove_partial_folder(tmp: Path) -> None:
+    # OutputSet.file builds NAME in .NAME.partial-PID-x/: that folder goes once NAME is in place
+    own = _owner(tmp.parent.name)
+    if own is not None and tmp.parent.exists() and (own[0] == tmp.name or not tmp.exists()):
+        _remove(tmp.parent)
+
+
+class OutputSet:
+    """The outputs of one command (``outputs``): ``file(path)`` / ``folder(path)`` give where
+    to build each one; ``commit(path)`` swaps one in as soon as it is complete, and leaving
+    the ``with`` block swaps in all the rest together. Anything not committed when an error
+    or interruption ends the block is removed; the old outputs are then as they were."""
+
+    def __init__(self, paths: list[Path]):
+        self.paths = paths
+        self.built: dict[Path, Path] = {}  # final -> where it is being built
+        self.parts: list[Path] = []        # temporary siblings to remove on failure
+
+    def _check(self, path) -> Path:
+        path = Path(path)
+        if path not in self.paths:
+            raise ValueError(f"{path} is not one of this command's outputs {self.paths}")
+        return path
+
+    def file(self, path: str | Path) -> Path:
+        """A path named like ``path`` inside a new partial folder beside it: stages and
+        libraries may write and rewrite it (their own temporaries stay in that folder)."""
+        path = self._check(path)
+        with os_errors(path):
+            tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), dir=path.parent))
+            os.chmod(tmp, 0o777 & ~_umask())
+        self.parts.append(tmp)
+        self.built[path] = tmp / path.name
+        return self.built[path]
+
+    def folder(self, path: str | Path) -> Path:
+        """A new empty folder beside ``path`` to build the output folder in."""
+        path = self._check(path)
+        tmp = temp_sibling_dir(path)
+        self.parts.append(tmp)
+        self.built[path] = tmp
+        return tmp
+
+    def adopt(self, path: str | Path, built: str | Path) -> None:
+        """Take ``built`` (a file a library wrote inside one of this set's partial folders,
+        e.g. a layout beside an export) as the build of the output ``path``."""
+        path, built = self._check(path), Path(built)
+        if not any(t in built.parents for t in self.parts):
+            raise ValueError(f"{built} is not inside a partial folder of this set")
+        self.built[path] = built
+
+    def commit(self, *paths: str | Path) -> None:
+        """Swap in ``paths`` (default: every output built and not yet swapped in). One output
+        is exchanged with the old one in one step (``swap_in``). Several are made durable
+        first, then recorded, then renamed in one after another with nothing else between
+        (microseconds); a writer killed among those renames is finished by the next writer
+        of the set (``finish_commits``)."""
+        todo = [self._check(p) for p in paths] if paths else list(self.built)
+        todo = [p for p in todo if p in self.built]
+        if not todo:
+            return
+        with os_errors(todo[0]):
+            for p in todo:
+                tmp = self.built[p]
+                if not (tmp.exists() or tmp.is_symlink()):
+                    raise S2PError(f"{p} was not written")
+                if tmp.is_file():
+                    with open(tmp, "rb") as f:
+                        os.fsync(f.fileno())
+                fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+            if len(todo) == 1:
+                tmp = self.built.pop(todo[0])
+                swap_in(tmp, todo[0])
+                _remove_partial_folder(tmp)
+                return
+            # written in place: a torn record was cut before any rename, so means none
+            record = _commit_path(todo[0])
+            with open(record, "w", encoding="utf-8") as f:
+                f.write(json.dumps([[str(self.built[p]), str(p)] for p in todo]))
+                f.flush()
+                os.fsync(f.fileno())
+            fsync_dir(record.parent)
+            builds = [self.built.pop(p) for p in todo]
+            # the old outputs are moved aside (not exchanged): a build still under its partial
+            # name is then exactly one not yet renamed in, which is what finish_commits redoes
+            olds = [_rename_in(tmp, p) for tmp, p in zip(builds, todo)]
+            for d in dict.fromkeys(p.parent for p in todo):
+                fsync_dir(d)
+            os.unlink(record)
+            fsync_dir(record.parent)
+            for old in olds:
+                if old is not None:
+                    _remove(old)
+            for tmp in builds:  # after all renames: a build may lie in another one's folder
+                _remove_partial_folder(tmp)
+
+    def discard(self) -> None:
+        for tmp in self.parts:
             _remove(tmp)
+
+
+@contextlib.contextmanager
+def outputs(paths, force: bool = False) -> Iterator[OutputSet]:
+    """The outputs ``paths`` (files or folders) of one command: each locked (``output_lock``)
+    and checked (``check_writable``) before anything is written, a killed writer's set
+    finished and its partial builds removed; yields an ``OutputSet`` to build them in, swapped
+    in as a set when the block ends (those not committed earlier)."""
+    paths = list(dict.fromkeys(Path(p) for p in paths))
+    with contextlib.ExitStack() as stack:
+        for p in paths:
+            stack.enter_context(output_lock(p))
+        for p in paths:
+            finish_commits(p)
+        for p in paths:
+            check_writable(p, force)
+        for p in paths:
+            clean_stale_partials(p)
+        out = OutputSet(paths)
+        try:
+            yield out
+            out.commit()
+            out.discard()  # partial folders of outputs swapped in: empty by now
+        except BaseException:
+            out.discard()
             raise

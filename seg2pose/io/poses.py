@@ -1,11 +1,13 @@
 """Pose tables: ground truth (``gt/poses.csv``) and estimated pose tracks (``RUN/poses.csv``).
 
-CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h][,source]`` — metres, heading in
-radians counter-clockwise from +x; x, y, z is the road user's ground contact point (bottom
-centre). Floats are written with ``repr`` so that a round trip is exact. ``source`` (annotated
-ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
+CSV with a header: ``frame,track_id,class,x,y,z,heading[,l,w,h][,source][,r90_m]`` — metres,
+heading in radians counter-clockwise from +x; x, y, z is the road user's ground contact point
+(bottom centre). ``r90_m`` (estimated poses of ``s2p run``) is the pose's error bar: the radius,
+metres on the ground, around x, y that holds the true position with 90 % probability
+(``seg2pose.method.uncertainty``; NaN where the run had no calibration). Floats are written
+with ``repr`` so that a round trip is exact. ``source`` (annotated ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
 ``interpolated`` between keyframes, or ``occluded`` (inside a span marked occluded: training
-skips these). Files without it stay valid.
+skips these). Files without ``source`` or ``r90_m`` stay valid.
 """
 
 from __future__ import annotations
@@ -30,13 +32,15 @@ SIZE_COLUMNS = ["l", "w", "h"]
 _INT = re.compile(r"^[+-]?[0-9]{1,19}$")
 SOURCE_COLUMN = "source"
 SOURCES = ("keyframe", "interpolated", "occluded")
+R90_COLUMN = "r90_m"
 
 
 @dataclass
 class PoseTable:
     """Columns of N poses. frame, track_id: (N,) int64; cls: (N,) str; xyz: (N, 3) metres;
     heading: (N,) radians (NaN = unknown); size: (N, 3) l, w, h metres or None; source: (N,)
-    str, one of SOURCES, or None (not annotated ground truth)."""
+    str, one of SOURCES, or None (not annotated ground truth); r90: (N,) metres, the radius
+    holding the true position with 90 % probability, or None (a file without the column)."""
 
     frame: np.ndarray
     track_id: np.ndarray
@@ -45,6 +49,7 @@ class PoseTable:
     heading: np.ndarray
     size: np.ndarray | None = None
     source: np.ndarray | None = None
+    r90: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
@@ -56,10 +61,13 @@ class PoseTable:
             self.size = np.asarray(self.size, dtype=np.float64).reshape(-1, 3)
         if self.source is not None:
             self.source = np.asarray(self.source, dtype=object).reshape(-1)
+        if self.r90 is not None:
+            self.r90 = np.asarray(self.r90, dtype=np.float64).reshape(-1)
         n = len(self.frame)
         if not (len(self.track_id) == len(self.cls) == len(self.xyz) == len(self.heading) == n) or (
                 self.size is not None and len(self.size) != n) or (
-                self.source is not None and len(self.source) != n):
+                self.source is not None and len(self.source) != n) or (
+                self.r90 is not None and len(self.r90) != n):
             raise ValueError("PoseTable columns differ in length")
 
     def __len__(self) -> int:
@@ -68,7 +76,8 @@ class PoseTable:
     def take(self, idx) -> "PoseTable":
         return PoseTable(self.frame[idx], self.track_id[idx], self.cls[idx], self.xyz[idx],
                          self.heading[idx], None if self.size is None else self.size[idx],
-                         None if self.source is None else self.source[idx])
+                         None if self.source is None else self.source[idx],
+                         None if self.r90 is None else self.r90[idx])
 
     def sorted(self) -> "PoseTable":
         return self.take(np.lexsort((self.track_id, self.frame)))
@@ -90,13 +99,15 @@ class PoseTable:
             return cls.empty()
         with_size = all(t.size is not None for t in tables)
         with_source = all(t.source is not None for t in tables)
+        with_r90 = all(t.r90 is not None for t in tables)
         return cls(np.concatenate([t.frame for t in tables]),
                    np.concatenate([t.track_id for t in tables]),
                    np.concatenate([t.cls for t in tables]),
                    np.concatenate([t.xyz for t in tables]),
                    np.concatenate([t.heading for t in tables]),
                    np.concatenate([t.size for t in tables]) if with_size else None,
-                   np.concatenate([t.source for t in tables]) if with_source else None)
+                   np.concatenate([t.source for t in tables]) if with_source else None,
+                   np.concatenate([t.r90 for t in tables]) if with_r90 else None)
 
 
 def _f(v: float) -> str:
@@ -106,7 +117,8 @@ def _f(v: float) -> str:
 def format_poses(table: PoseTable) -> str:
     buf = io.StringIO()
     cols = BASE_COLUMNS + (SIZE_COLUMNS if table.size is not None else []) + (
-        [SOURCE_COLUMN] if table.source is not None else [])
+        [SOURCE_COLUMN] if table.source is not None else []) + (
+        [R90_COLUMN] if table.r90 is not None else [])
     buf.write(",".join(cols) + "\n")
     for i in range(len(table)):
         row = [str(table.frame[i]), str(table.track_id[i]), str(table.cls[i]),
@@ -115,6 +127,8 @@ def format_poses(table: PoseTable) -> str:
             row += [_f(v) for v in table.size[i]]
         if table.source is not None:
             row.append(str(table.source[i]))
+        if table.r90 is not None:
+            row.append(_f(table.r90[i]))
         buf.write(",".join(row) + "\n")
     return buf.getvalue()
 
@@ -142,23 +156,29 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
     if header is None:
         raise InputError(f"empty file; expected a header {','.join(BASE_COLUMNS)}", file=path, line=1)
     header = [h.strip() for h in header]
+    with_r90 = header[-1:] == [R90_COLUMN]
+    if with_r90:
+        header = header[:-1]
     with_source = header[-1:] == [SOURCE_COLUMN]
     if with_source:
         header = header[:-1]
     if header[:7] != BASE_COLUMNS or header[7:] not in ([], SIZE_COLUMNS):
-        raise InputError(f"expected header {','.join(BASE_COLUMNS)}[,l,w,h][,source], got "
-                         f"{','.join(header)}{',source' if with_source else ''}", file=path, line=1)
+        raise InputError(f"expected header {','.join(BASE_COLUMNS)}[,l,w,h][,source][,r90_m], got "
+                         f"{','.join(header)}{',source' if with_source else ''}"
+                         f"{',r90_m' if with_r90 else ''}", file=path, line=1)
     ncol = len(header)
-    frames, tids, classes, nums, sources = [], [], [], [], []
+    frames, tids, classes, nums, sources, r90s = [], [], [], [], [], []
     last_frame = -1
     seen: dict[tuple[int, int], int] = {}  # (frame, track id) -> line
     for row in reader:
         lineno = reader.line_num
         if not row:
             continue
-        if len(row) != ncol + with_source:
-            raise InputError(f"expected {ncol + with_source} fields, got {len(row)}", file=path,
-                             line=lineno)
+        if len(row) != ncol + with_source + with_r90:
+            raise InputError(f"expected {ncol + with_source + with_r90} fields, got {len(row)}",
+                             file=path, line=lineno)
+        if with_r90:
+            r90s.append(_parse_r90(row.pop(), path, lineno))
         if with_source:
             src = row.pop().strip()
             if src not in SOURCES:
@@ -207,4 +227,17 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
     a = np.array(nums, dtype=np.float64).reshape(-1, ncol - 3)
     return PoseTable(frames, tids, np.array(classes, dtype=object), a[:, :3], a[:, 3],
                      a[:, 4:7] if ncol == 10 else None,
-                     np.array(sources, dtype=object) if with_source else None)
+                     np.array(sources, dtype=object) if with_source else None,
+                     np.array(r90s, dtype=np.float64) if with_r90 else None)
+
+
+def _parse_r90(text: str, path: Path, lineno: int) -> float:
+    """An r90_m cell: a radius in [0, MAX_COORD] metres, or nan (no calibration)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not (math.isnan(v) or 0.0 <= v <= MAX_COORD):
+        raise InputError(f"r90_m must be a radius in metres (>= 0, or nan), got {text.strip()!r}",
+                         file=path, line=lineno, field=R90_COLUMN)
+    return v

@@ -10,7 +10,11 @@ A run folder is the contract between ``s2p run`` (pipeline), evaluation, review 
     RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
     RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
                     (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
-                    Seg2PoseNet residual, metres, 0 for the baseline)
+                    Seg2PoseNet residual, metres, 0 for the baseline), then (runs since r90_m)
+                    cut,far,spread_m,r90_m: the mask touches the image border (0/1), the
+                    residual was flagged far (0/1), the spread of an ensemble's residuals
+                    (metres, 0 for one model) and the view's error bar (metres, 90 %; NaN
+                    without a calibration; ``seg2pose.method.uncertainty``)
 
 The folder is written as a unit (``write_run_folder``): the files go into a temporary sibling
 folder, are flushed to disk, and the folder is renamed into place, so a reader never sees a mix
@@ -39,6 +43,7 @@ RUN_FILE = "run.json"
 POSES_FILE = "poses.csv"
 VIEWS_FILE = "views.csv"
 VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
+CUE_COLUMNS = ["cut", "far", "spread_m", "r90_m"]  # optional: files without them stay valid
 
 
 # ----------------------------------------------------------------------------------------------
@@ -49,7 +54,10 @@ VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "z
 class ViewTable:
     """Per-view rows of a run, column-wise. frame, track_id: (N,) int64; camera, cls: (N,) str;
     uv: (N, 2) mask centres, pixels; normal: (N, 3) normal positions, metres (NaN where the ray
-    missed the ground); residual: (N, 2) Seg2PoseNet residuals, metres (0 for the baseline)."""
+    missed the ground); residual: (N, 2) Seg2PoseNet residuals, metres (0 for the baseline);
+    cues: (N, 3) what the error bar is estimated from -- mask cut by the image border (0/1),
+    residual flagged far (0/1), ensemble spread (metres) -- and r90: (N,) the view's error bar,
+    metres; both None for a views.csv without them."""
 
     frame: np.ndarray
     track_id: np.ndarray
@@ -58,9 +66,17 @@ class ViewTable:
     uv: np.ndarray
     normal: np.ndarray
     residual: np.ndarray
+    cues: np.ndarray | None = None
+    r90: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
+        if self.cues is not None:
+            self.cues = np.asarray(self.cues, dtype=np.float64).reshape(-1, 3)
+            self.r90 = (np.full(len(self.cues), np.nan) if self.r90 is None
+                        else np.asarray(self.r90, dtype=np.float64).reshape(-1))
+        elif self.r90 is not None:
+            raise ValueError("ViewTable: r90 needs the cues it was estimated from")
         self.track_id = np.asarray(self.track_id, dtype=np.int64).reshape(-1)
         self.camera = np.asarray(self.camera, dtype=object).reshape(-1)
         self.cls = np.asarray(self.cls, dtype=object).reshape(-1)
@@ -69,7 +85,8 @@ class ViewTable:
         self.residual = np.asarray(self.residual, dtype=np.float64).reshape(-1, 2)
         n = len(self.frame)
         if not all(len(c) == n for c in (self.track_id, self.camera, self.cls, self.uv,
-                                         self.normal, self.residual)):
+                                         self.normal, self.residual)) or (
+                self.cues is not None and not len(self.cues) == len(self.r90) == n):
             raise ValueError("ViewTable columns differ in length")
 
     def __len__(self) -> int:
@@ -77,7 +94,9 @@ class ViewTable:
 
     def take(self, idx) -> "ViewTable":
         return ViewTable(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
-                         self.uv[idx], self.normal[idx], self.residual[idx])
+                         self.uv[idx], self.normal[idx], self.residual[idx],
+                         None if self.cues is None else self.cues[idx],
+                         None if self.cues is None else self.r90[idx])
 
     def sorted(self) -> "ViewTable":
         """Rows by frame, track id, camera (the order ``s2p run`` writes)."""
@@ -97,15 +116,20 @@ class ViewTable:
         tables = list(tables)
         if not tables:
             return cls.empty()
-        return cls(*(np.concatenate([getattr(t, k) for t in tables])
-                     for k in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual")))
+        cols = [np.concatenate([getattr(t, k) for t in tables])
+                for k in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual")]
+        if all(t.cues is not None for t in tables):
+            cols += [np.concatenate([t.cues for t in tables]), np.concatenate([t.r90 for t in tables])]
+        return cls(*cols)
 
 
 def format_views(table: ViewTable) -> str:
     """views.csv text, rows in the table's order; floats with ``repr`` (exact round trip)."""
     buf = io.StringIO()
-    buf.write(",".join(VIEW_COLUMNS) + "\n")
-    num = np.column_stack([table.uv, table.normal, table.residual])
+    cues = table.cues is not None
+    buf.write(",".join(VIEW_COLUMNS + (CUE_COLUMNS if cues else [])) + "\n")
+    num = np.column_stack([table.uv, table.normal, table.residual]
+                          + ([table.cues, table.r90] if cues else []))
     for i in range(len(table)):
         buf.write(f"{table.frame[i]},{table.track_id[i]},{table.camera[i]},{table.cls[i]},"
                   + ",".join(repr(float(x)) for x in num[i]) + "\n")
@@ -118,16 +142,16 @@ def read_views(path: str | Path) -> ViewTable:
     if not path.exists():
         raise InputError("views file not found", file=path)
     with open(path, encoding="utf-8") as f:
-        header = f.readline().strip().split(",")
-        if [h.strip() for h in header] != VIEW_COLUMNS:
-            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}, got {','.join(header)}",
-                             file=path, line=1)
+        header = [h.strip() for h in f.readline().strip().split(",")]
+        if header not in (VIEW_COLUMNS, VIEW_COLUMNS + CUE_COLUMNS):
+            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}[,{','.join(CUE_COLUMNS)}], "
+                             f"got {','.join(header)}", file=path, line=1)
         lines = f.read().splitlines()
     rows = [ln.split(",") for ln in lines if ln.strip()]
     linenos = [i + 2 for i, ln in enumerate(lines) if ln.strip()]
     for r, ln in zip(rows, linenos):
-        if len(r) != len(VIEW_COLUMNS):
-            raise InputError(f"expected {len(VIEW_COLUMNS)} fields, got {len(r)}", file=path, line=ln)
+        if len(r) != len(header):
+            raise InputError(f"expected {len(header)} fields, got {len(r)}", file=path, line=ln)
     if not rows:
         return ViewTable.empty()
     a = np.array(rows, dtype=object)
@@ -144,11 +168,19 @@ def read_views(path: str | Path) -> ViewTable:
             try:
                 [float(x) for x in r[4:]]
             except ValueError:
-                raise InputError("expected numbers in u,v,xn,yn,zn,dx,dy", file=path, line=ln) from None
+                raise InputError(f"expected numbers in {','.join(header[4:])}", file=path,
+                                 line=ln) from None
         raise
+    cues = nums.shape[1] > 7
+    if cues:
+        bad = ~(np.isin(nums[:, 7:9], (0.0, 1.0)).all(axis=1) & (nums[:, 9] >= 0)
+                & ~(nums[:, 10] < 0))
+        if bad.any():
+            raise InputError("cut and far must be 0 or 1, spread_m and r90_m metres >= 0 (r90_m "
+                             "may be nan)", file=path, line=linenos[int(np.argmax(bad))])
     return ViewTable(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
                      np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
-                     nums[:, 5:7])
+                     nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None)
 
 
 # ----------------------------------------------------------------------------------------------

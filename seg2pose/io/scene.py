@@ -75,6 +75,7 @@ class Scene:
     extra: dict = field(default_factory=dict)
     ground_file: str = "ground_points.csv"
     start_time: str | None = None  # ISO 8601 time of frame 0 with its zone (see parse_start_time)
+    videos: dict = field(default_factory=dict)  # camera -> its video file or image folder, relative
 
     def __post_init__(self) -> None:
         self.ground = GroundSurface(self.ground_points, file=self.root / self.ground_file)
@@ -135,7 +136,12 @@ class Scene:
         return MaskTable.concat(tables)
 
     def video_path(self, camera: str) -> Path | None:
-        """The camera's video file or image folder, when present."""
+        """The camera's video file or image folder, when present: the one scene.json names
+        (``videos``), else (older scenes) video/<camera>.mp4, an image folder video/<camera>,
+        .avi, .mkv, .mov in that order."""
+        if camera in self.videos:
+            p = self.root / self.videos[camera]
+            return p if p.exists() else None
         for cand in (self.root / "video" / f"{camera}.mp4", self.root / "video" / camera,
                      *(self.root / "video" / f"{camera}{e}" for e in (".avi", ".mkv", ".mov"))):
             if cand.exists():
@@ -180,6 +186,8 @@ class Scene:
             d["splits"] = {k: list(v) for k, v in self.splits.items()}
         if self.start_time is not None:
             d["start_time"] = self.start_time
+        if self.videos:
+            d["videos"] = dict(self.videos)
         if self.extra:
             d["extra"] = self.extra
         return d
@@ -328,10 +336,17 @@ def load_scene(root: str | Path) -> Scene:
     start = d.get("start_time")
     if start is not None:
         parse_start_time(start, file=path, field="start_time")
+    videos = d.get("videos") or {}
+    if not isinstance(videos, dict):
+        raise InputError("expected an object of camera name -> video file", file=path, field="videos")
+    for k, v in videos.items():
+        if k not in cameras:
+            raise InputError(f"no camera {k!r} in the scene", file=path, field=f"videos.{k}")
+        inside(root, v, file=path, field=f"videos.{k}", what="video file")
     pts = read_ground_points(gpath)
     return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
                  ground_points=pts, classes=classes, splits=splits,
-                 extra=extra, ground_file=gfile, start_time=start)
+                 extra=extra, ground_file=gfile, start_time=start, videos=dict(videos))
 
 
 def parse_start_time(text, file: str | Path | None = None, field: str | None = None) -> int:

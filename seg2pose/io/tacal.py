@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import safe_name
-from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig, TsaiDistortion
-from seg2pose.io.atomic import atomic_write_text, check_writable
-from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, read_ground_points
+from seg2pose.core.validate import FPS_RANGE, MAX_IMAGE_SIDE, safe_name
+from seg2pose.geometry.camera import MAX_DISTORTION, Camera, OpenCVDistortion, Rig, TsaiDistortion
+from seg2pose.io.atomic import atomic_write_text, outputs
+from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, read_ground_points
 from seg2pose.io.text import read_text
 
 TACAL_FIELDS = ("dx", "dy", "Cx", "Cy", "Sx", "f", "k", "Tx", "Ty", "Tz",
@@ -148,19 +148,44 @@ def tacal_to_camera(cal: Tacal, name: str, width: int | None = None, height: int
     rotation when it is off by less than R_TOLERANCE (files round r1…r9; the change moves
     pixels by ~f·1e-6); further off is an error. width/height default to 2 Cx x 2 Cy."""
     R = cal.R
+    if np.abs(R).max() > 2:  # not a rotation, and R Rᵀ would overflow for absurd entries
+        raise InputError(f"r1…r9 are not a rotation matrix (an entry is {np.abs(R).max():g})",
+                         file=file, field="r1")
     err = float(np.abs(R @ R.T - np.eye(3)).max())
     if err > R_TOLERANCE or np.linalg.det(R) <= 0:
         raise InputError(f"r1…r9 are not a rotation matrix (R Rᵀ is off the identity by {err:.2g}"
                          f"{', det < 0' if np.linalg.det(R) <= 0 else ''})", file=file, field="r1")
-    K = np.array([[cal.Sx * cal.f / cal.dx, 0.0, cal.Cx], [0.0, cal.f / cal.dy, cal.Cy],
-                  [0.0, 0.0, 1.0]])
+    # the limits scene.json's reader applies: a camera it would refuse is refused here
+    for key in ("k", "f"):
+        v = getattr(cal, key)
+        if not abs(v) <= MAX_DISTORTION:
+            raise InputError(f"'{key}' must be within +-{MAX_DISTORTION:g} (what a scene holds), "
+                             f"got {v!r}", file=file, field=key)
+    with np.errstate(all="ignore"):
+        K = np.array([[cal.Sx * cal.f / cal.dx, 0.0, cal.Cx], [0.0, cal.f / cal.dy, cal.Cy],
+                      [0.0, 0.0, 1.0]])
+    if not abs(2 * cal.Cx) < 2 * MAX_IMAGE_SIDE or not abs(2 * cal.Cy) < 2 * MAX_IMAGE_SIDE:
+        raise InputError(f"Cx, Cy = {cal.Cx:g}, {cal.Cy:g} put the image centre more than "
+                         f"{MAX_IMAGE_SIDE} pixels out", file=file, field="Cx")
     w = int(round(2 * cal.Cx)) if width is None else int(width)
     h = int(round(2 * cal.Cy)) if height is None else int(height)
     if w <= 0 or h <= 0:
         raise InputError(f"cannot take the image size from Cx, Cy = {cal.Cx}, {cal.Cy}; give it",
                          file=file, field="Cx")
-    return Camera(name=name, K=K, R=nearest_rotation(R), t=cal.T, width=w, height=h,
-                  distortion=TsaiDistortion(k=cal.k, f=cal.f))
+    if w > MAX_IMAGE_SIDE or h > MAX_IMAGE_SIDE:
+        raise InputError(f"image size {w}x{h} is more than {MAX_IMAGE_SIDE} pixels a side",
+                         file=file, field="size")
+    fields_of = {"K": "f", "R": "r1", "t": "Tx"}
+    try:
+        cam = Camera(name=name, K=K, R=nearest_rotation(R), t=cal.T, width=w, height=h,
+                     distortion=TsaiDistortion(k=cal.k, f=cal.f))
+        Camera.from_dict(cam.to_dict(), file=file)  # exactly as a scene.json is read
+    except InputError as e:
+        field = fields_of.get(e.field or "", e.field)
+        if field and "." in field:  # the reader's name: cameras[c0].K -> the .tacal's
+            field = fields_of.get(field.rsplit(".", 1)[-1], field)
+        raise InputError(e.message, file=file, field=field) from None
+    return cam
 
 
 def camera_to_tacal(cam: Camera) -> Tacal:
@@ -192,31 +217,34 @@ def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: s
     """A new scene folder ``out`` from ``.tacal`` files (camera names from the file names'
     stems), a ground points CSV and the video's frame rate. Configurations: one per camera
     (named as the camera) and ``all``. size: (width, height) pixels of every camera; default
-    2 Cx x 2 Cy of each file. Returns the saved Scene."""
+    2 Cx x 2 Cy of each file. The folder is built beside ``out`` and swapped in whole (with
+    ``force`` nothing of an old one is kept). Returns the saved Scene."""
     out = Path(out)
-    check_writable(out / SCENE_FILE, force)
     if not files:
         raise InputError("no .tacal files given")
-    if not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"the frame rate must be a positive number, got {fps!r}", field="fps")
-    cameras: dict[str, Camera] = {}
-    sources: dict[str, str] = {}
-    for path in map(Path, files):
-        name = safe_name(path.stem, file=path, what="camera name (from the file name)")
-        if name == "all":
-            raise InputError("a camera cannot be named 'all' (the configuration of every "
-                             "camera); rename the file", file=path)
-        if name in cameras:
-            raise InputError(f"two files give camera {name!r} ({sources[name]} and {path}); "
-                             "camera names come from the file names", file=path)
-        w, h = size if size is not None else (None, None)
-        cameras[name] = tacal_to_camera(read_tacal(path), name, w, h, file=path)
-        sources[name] = str(path)
-    pts = read_ground_points(ground_points)
-    configs = {n: [n] for n in cameras}
-    configs["all"] = list(cameras)
-    scene = Scene(root=out, name=out.name, fps=float(fps), rig=Rig(cameras, configs, name="tacal"),
-                  ground_points=pts, classes=[ClassSpec(**c) for c in DEFAULT_CLASSES],
-                  extra={"imported_from": {"tacal": sources, "ground_points": str(ground_points)}})
-    scene.save(out)
+    if not (np.isfinite(fps) and FPS_RANGE[0] <= fps <= FPS_RANGE[1]):
+        raise InputError(f"the frame rate must be a number in [{FPS_RANGE[0]:g}, "
+                         f"{FPS_RANGE[1]:g}], got {fps!r}", field="fps")
+    with outputs([out], force) as built:
+        cameras: dict[str, Camera] = {}
+        sources: dict[str, str] = {}
+        for path in map(Path, files):
+            name = safe_name(path.stem, file=path, what="camera name (from the file name)")
+            if name == "all":
+                raise InputError("a camera cannot be named 'all' (the configuration of every "
+                                 "camera); rename the file", file=path)
+            if name in cameras:
+                raise InputError(f"two files give camera {name!r} ({sources[name]} and {path}); "
+                                 "camera names come from the file names", file=path)
+            w, h = size if size is not None else (None, None)
+            cameras[name] = tacal_to_camera(read_tacal(path), name, w, h, file=path)
+            sources[name] = str(path.resolve())
+        pts = read_ground_points(ground_points)
+        configs = {n: [n] for n in cameras}
+        configs["all"] = list(cameras)
+        scene = Scene(root=out, name=out.name, fps=float(fps), rig=Rig(cameras, configs, name="tacal"),
+                      ground_points=pts, classes=[ClassSpec(**c) for c in DEFAULT_CLASSES],
+                      extra={"imported_from": {"tacal": sources,
+                                               "ground_points": str(Path(ground_points).resolve())}})
+        scene.save(built.folder(out))
     return scene

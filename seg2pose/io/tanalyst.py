@@ -23,6 +23,7 @@ import numpy as np
 from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.text import read_text
+from seg2pose.core.validate import MAX_COORD, MAX_ID, int_text, number
 
 COLUMNS = ["Detection ID", "Type of road user", "Road user ID", "X (m)", "Y (m)", "Time Stamp"]
 _TIME = re.compile(r"^(\d{1,3}):([0-5]\d):([0-5]\d)[.,](\d{3})$")
@@ -146,11 +147,8 @@ def parse_tanalyst(text: str, file: str | Path = "<csv>") -> TAnalystTable:
         if len(cells) != len(COLUMNS):
             raise InputError(f"expected {len(COLUMNS)} ';'-separated fields, got {len(cells)}",
                              file=file, line=lineno)
-        try:
-            d, r = int(cells[0]), int(cells[2])
-        except ValueError:
-            raise InputError(f"Detection ID and Road user ID must be integers, got "
-                             f"{cells[0]!r}, {cells[2]!r}", file=file, line=lineno) from None
+        d, r = (int_text(cells[k], file=file, line=lineno, field=COLUMNS[k], lo=0, hi=MAX_ID)
+                for k in (0, 2))
         if not cells[1]:
             raise InputError("empty Type of road user", file=file, line=lineno,
                              field="Type of road user")
@@ -166,7 +164,8 @@ def parse_tanalyst(text: str, file: str | Path = "<csv>") -> TAnalystTable:
                     raise InputError(f"decimal {sep!r} in {c!r}, but line {decimal_line} uses "
                                      f"{decimal!r}: mixed decimal separators", file=file,
                                      line=lineno, field=col)
-            v.append(float(c.replace(",", ".")))
+            v.append(number(float(c.replace(",", ".")), file=file, line=lineno, field=col,
+                            lo=-MAX_COORD, hi=MAX_COORD))
         if d in seen_det:
             raise InputError(f"Detection ID {d} also on line {seen_det[d]}", file=file, line=lineno,
                              field="Detection ID")

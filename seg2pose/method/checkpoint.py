@@ -262,6 +262,21 @@ def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int
     return out
 
 
+def predict_with_spread(scene: Scene, cam: str, ck, rles: list[bytes], height: int, width: int,
+                        uv: np.ndarray, normal_xy: np.ndarray, names: np.ndarray, batch: int = 64
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """``predict_residuals`` and the spread of an Ensemble's members about their mean (N,)
+    metres (root mean square distance; zeros for one checkpoint): a variance signal for the
+    error bar (``seg2pose.method.uncertainty``)."""
+    if not isinstance(ck, Ensemble):
+        return (predict_residuals(scene, cam, ck, rles, height, width, uv, normal_xy, names, batch),
+                np.zeros(len(rles)))
+    each = np.stack([predict_residuals(scene, cam, m, rles, height, width, uv, normal_xy, names,
+                                       batch) for m in ck.members])
+    mean = each.mean(axis=0)
+    return mean, np.sqrt(((each - mean) ** 2).sum(axis=2).mean(axis=0))
+
+
 def model_dirs(scene: Scene, models_dir) -> list[Path]:
     """The model folder(s) a run uses: one path, a list of them (averaged), or None for
     SCENE/models."""

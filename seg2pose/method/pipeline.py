@@ -28,7 +28,7 @@ from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
-from seg2pose.method.checkpoint import load_models, predict_residuals
+from seg2pose.method.checkpoint import load_models, predict_with_spread
 from seg2pose.method.ood import POLICIES, flag_far, flagged_poses, format_flagged
 from seg2pose.structures.masks import CROP_SIZE, mask_centers, rle_stats
 
@@ -71,12 +71,13 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
                    models: ModelSet | None, said: set[str], batch: int = 64,
                    far: FarResiduals | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
-    (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground) and
-    residuals (N, 2) metres (zeros for the baseline or a missed ray). ``far``: residuals
-    longer than the model learned (``seg2pose.method.ood``) are recorded there, and dropped with its
-    fallback policy."""
+    (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground),
+    residuals (N, 2) metres (zeros for the baseline or a missed ray) and the error bar's cues
+    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres).
+    ``far``: residuals longer than the model learned (``seg2pose.method.ood``) are recorded there,
+    and dropped with its fallback policy."""
     camera = scene.cameras[cam]
     by_id = scene.class_by_id()
     n = len(table)
@@ -90,9 +91,13 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     if ok.any():
         normal[ok], _ = normal_positions(camera, scene.ground, uv[ok], heights[ok])
     residual = np.zeros((n, 2))
-    if models is None or n == 0:
-        return names, uv, normal, residual
+    cues = np.zeros((n, 3))
     _, _, box = rle_stats(table.rles, table.height, table.width)
+    with np.errstate(invalid="ignore"):
+        cues[:, 0] = ((box[:, 0] <= 0) | (box[:, 1] <= 0) | (box[:, 2] >= table.width)
+                      | (box[:, 3] >= table.height))
+    if models is None or n == 0:
+        return names, uv, normal, residual, cues
     big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
     if big.any():
         warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
@@ -105,12 +110,12 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
     for ck, cls_of_model in groups.values():
         sel = np.flatnonzero(usable & np.isin(names, cls_of_model))
 
-        residual[sel] = predict_residuals(scene, cam, ck, [table.rles[i] for i in sel],
-                                          table.height, table.width, uv[sel], normal[sel, :2],
-                                          names[sel], batch)
+        residual[sel], cues[sel, 2] = predict_with_spread(
+            scene, cam, ck, [table.rles[i] for i in sel], table.height, table.width, uv[sel],
+            normal[sel, :2], names[sel], batch)
         if far is not None:
-            far.check(table, cam, sel, residual, names, ck.info.get("residual_limit"))
-    return names, uv, normal, residual
+            cues[far.check(table, cam, sel, residual, names, ck.info.get("residual_limit")), 1] = 1
+    return names, uv, normal, residual, cues
 
 
 @dataclass
@@ -128,17 +133,19 @@ class FarResiduals:
                              f"{', '.join(POLICIES)}", field="far_residuals")
 
     def check(self, table: MaskTable, cam: str, sel: np.ndarray, residual: np.ndarray,
-              names: np.ndarray, limits: dict | None) -> None:
+              names: np.ndarray, limits: dict | None) -> np.ndarray:
+        """The flagged rows among ``sel`` (indices)."""
         if self.policy == "off" or not len(sel):
-            return
+            return np.zeros(0, np.int64)
         flag, lim = flag_far(residual[sel], names[sel], limits)
         i = sel[flag]
         if not len(i):
-            return
+            return i
         self.rows.append((table.frame[i], table.track_id[i], np.full(len(i), cam, object),
                           names[i], residual[i].copy(), lim[flag]))
         if self.policy == "fallback":
             residual[i] = 0.0
+        return i
 
     def summary(self) -> tuple[dict, str | None]:
         """(run.json entry, flagged.csv text or None)."""
@@ -155,8 +162,46 @@ class FarResiduals:
 # fusion and the run folder
 
 
+@dataclass
+class ViewGroups:
+    """Views grouped into fused poses (one per frame and track id; an untracked view, id -1,
+    is a pose of its own). keep: (N,) the views that take part (finite estimate, a class);
+    keys: (P, 2) frame and grouping id, in np.unique order; first: (P,) a kept view of each
+    pose; inv: (K,) pose of each kept view; cam_idx: (K,) its camera; n_cams."""
+
+    keep: np.ndarray
+    keys: np.ndarray
+    first: np.ndarray
+    inv: np.ndarray
+    cam_idx: np.ndarray
+    n_cams: int
+
+    @classmethod
+    def of(cls, views: ViewTable) -> "ViewGroups":
+        est = views.normal[:, :2] + views.residual
+        keep = np.isfinite(est).all(axis=1) & (views.cls != "")
+        key_tid = views.track_id[keep].copy()
+        lone = key_tid < 0  # untracked detections get unique negative keys: they stay alone
+        key_tid[lone] = -1 - np.arange(int(lone.sum()))
+        keys = np.stack([views.frame[keep], key_tid], axis=1)
+        ukeys, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        cams, cam_idx = np.unique(views.camera[keep], return_inverse=True)
+        return cls(keep, ukeys, first, inv.reshape(-1), cam_idx, len(cams))
+
+    def stack(self, values: np.ndarray) -> np.ndarray:
+        """(n_cams, P, ...) the kept views' ``values`` (K, ...) by camera and pose; NaN where a
+        camera did not see the pose's road user."""
+        out = np.full((self.n_cams, len(self.keys)) + values.shape[1:], np.nan)
+        out[self.cam_idx, self.inv] = values  # one detection per (camera, road user, frame)
+        return out
+
+    @property
+    def track_id(self) -> np.ndarray:
+        return np.where(self.keys[:, 1] < 0, -1, self.keys[:, 1])
+
+
 def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
-         config_cameras: list[str] | None = None) -> PoseTable:
+         config_cameras: list[str] | None = None, r90=None) -> PoseTable:
     """Late fusion: per (frame, track_id), the mean over views of normal position + residual;
     z from the ground surface at the fused (x, y); headings from the fused tracks (eq. 2);
     sizes from the class. Detections without a track id (-1) are not fused with anything.
@@ -168,30 +213,23 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
 
     ``smooth`` > 0: each tracked road user's fused (x, y) replaced by a line fitted to its
     positions within ``smooth`` frames either side (``seg2pose.geometry.smoothing``; centred, so no lag
-    on steady motion), before z and the headings."""
-    frame, tid = views.frame, views.track_id
-    est = views.normal[:, :2] + views.residual
-    keep = np.isfinite(est).all(axis=1) & (views.cls != "")
-    frame, tid, est = frame[keep], tid[keep], est[keep]
-    cam, cls = views.camera[keep], views.cls[keep]
-    if len(frame) == 0:
+    on steady motion), before z and the headings.
+
+    ``r90``: a ``seg2pose.method.uncertainty.Calibration``; with it (and views that carry their r90),
+    each pose gets its error bar (PoseTable.r90)."""
+    g = ViewGroups.of(views)
+    if not g.keep.any():
         return PoseTable.empty(with_size=True)
-    # untracked detections get unique negative keys so that they stay alone
-    key_tid = tid.copy()
-    lone = tid < 0
-    key_tid[lone] = -1 - np.arange(int(lone.sum()))
-    keys = np.stack([frame, key_tid], axis=1)
-    ukeys, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inv = inv.reshape(-1)
-    cams, cam_idx = np.unique(cam, return_inverse=True)
-    stack = np.full((len(cams), len(ukeys), 2), np.nan)
-    stack[cam_idx, inv] = est       # one detection per (camera, road user, frame)
+    ukeys, first = g.keys, g.first
+    stack = g.stack((views.normal[:, :2] + views.residual)[g.keep])
+    cls = views.cls[g.keep]
     xy = fuse_views(stack)
     out_cls = cls[first]
+    kept = np.ones(len(ukeys), bool)
     if confirm > 0 and config_cameras and len(config_cameras) > 1:
-        n_views = np.bincount(inv, minlength=len(ukeys))
-        ok = n_views >= confirm * seen_by(scene, config_cameras, xy, out_cls)
-        ukeys, xy, out_cls = ukeys[ok], xy[ok], out_cls[ok]
+        n_views = np.bincount(g.inv, minlength=len(ukeys))
+        kept = n_views >= confirm * seen_by(scene, config_cameras, xy, out_cls)
+        ukeys, xy, out_cls = ukeys[kept], xy[kept], out_cls[kept]
     out_tid = np.where(ukeys[:, 1] < 0, -1, ukeys[:, 1])
     if smooth > 0:
         xy = smooth_along_tracks(out_tid, ukeys[:, 0], xy, smooth, degree=1)
@@ -201,7 +239,14 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
     heading[tracked] = headings_from_tracks(out_tid[tracked], ukeys[tracked, 0], xy[tracked])
     sizes = scene.class_sizes()
     size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
-    table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size)
+    pose_r90 = None
+    if r90 is not None and views.r90 is not None:
+        from seg2pose.method.uncertainty import pose_features
+
+        pose_r90 = r90.pose.predict(out_cls, pose_features(stack[:, kept],
+                                                           g.stack(views.r90[g.keep])[:, kept]))
+    table = PoseTable(ukeys[:, 0], out_tid, out_cls, np.column_stack([xy, z]), heading, size,
+                      r90=pose_r90)
     return table.sorted()
 
 
@@ -239,10 +284,10 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual = view_estimates(scene, cam, t, center_method, models, said,
-                                                         far=far)
+            names, uv, normal, residual, cues = view_estimates(scene, cam, t, center_method,
+                                                               models, said, far=far)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
-                                  uv, normal, residual))
+                                  uv, normal, residual, cues))
 
     chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
     nframes = 0
@@ -294,25 +339,68 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 
 def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], models: ModelSet | None,
               n_frames: int, opts: RunOptions, far: FarResiduals | None = None,
-              track_ids: dict | None = None) -> Path:
+              track_ids: dict | None = None, r90_path: Path | None = None) -> Path:
     """Fuse per-view estimates (``opts.smooth``, ``opts.confirm``: see ``fuse``; a confirm of
     None counts as 0) and write the run folder (poses.csv, views.csv, run.json, and flagged.csv
     when the residuals were checked). ``track_ids``: how the ids were made
-    (``check_track_ids``), recorded in run.json."""
+    (``check_track_ids``), recorded in run.json; ``r90_path``: the error bars' calibration
+    (``seg2pose.method.uncertainty``; None: r90_m stays NaN)."""
     run_dir = Path(run_dir)
     confirm = opts.confirm or 0.0
-    poses = fuse(views, scene, opts.smooth, confirm, cams)
+    smooth = opts.smooth
+    cal, r90_meta = None, {"calibration": None}
+    if r90_path is not None and views.cues is not None:
+        from seg2pose.method.uncertainty import read_calibration, view_r90
+
+        cal = read_calibration(r90_path)
+        method = "baseline" if models is None else "seg2posenet"
+        if cal.meta.get("method") not in (None, method):
+            raise InputError(f"this r90 calibration was fitted on a {cal.meta['method']} run; "
+                             f"this is a {method} run (fit one with s2p calibrate)", file=r90_path)
+        if int(cal.meta.get("smooth_frames") or 0) != smooth:
+            warn_once(set(), "r90smooth", f"the r90 calibration {r90_path} was fitted on a run "
+                      f"with --smooth {cal.meta.get('smooth_frames') or 0}, this one has --smooth "
+                      f"{smooth}: its coverage may differ from 90 %")
+        views.r90 = view_r90(cal, scene, views)
+        r90_meta = {"calibration": relative_path(r90_path, run_dir),
+                    "sha256": file_sha256(r90_path)}
+    poses = fuse(views, scene, smooth, confirm, cams, r90=cal)
+    if poses.r90 is None and views.cues is not None:
+        poses.r90 = np.full(len(poses), np.nan)  # the column is always there; NaN: no calibration
     meta = {**run_meta(scene, run_dir, cams, opts.config, models, opts.split, opts.center_method,
-                       opts.smooth),
+                       smooth),
             **({"track_ids": track_ids} if track_ids else {}),
             **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
-            "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses)}
+            "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses), "r90": r90_meta}
     extra = {}
     if far is not None and models is not None:
         meta["far_residuals"], text = far.summary()
         if text is not None:
             extra["flagged.csv"] = text
     return write_run_folder(run_dir, poses, views, meta, force=opts.force, extra_files=extra)
+
+
+def check_tracked(scene: Scene, cameras: list[str]) -> None:
+    """Refuse masks files none of whose masks has a track id (``masks-from-video --no-track``,
+    a detector without a tracker): headings and the fusion of views need tracks. Reads up to
+    the first tracked mask (the first line, usually)."""
+    for c in cameras:
+        path = scene.masks_path(c)
+        if not path.exists():
+            continue
+        n = 0
+        with open(path, "rb") as f:
+            for line in f:
+                parts = line.split(None, 2)
+                if len(parts) < 2:
+                    continue
+                if parts[1] != b"-1":
+                    break
+                n += 1
+            else:
+                if n:
+                    raise InputError(f"none of its {n} masks has a track id (all -1); give "
+                                     f"them ids first: s2p track {scene.root}", file=path)
 
 
 # share of the cameras seeing a road user's place that must report it (runs of associated ids);
@@ -363,6 +451,8 @@ class RunOptions:
     fuse_unassociated: bool = False
     # see ``fuse``; None: ``CONFIRM_SHARE`` for cameras whose ids were associated, else 0 (off)
     confirm: float | None = None
+    # the error bars' calibration (None: the default one, ``default_r90_path``, where it exists)
+    r90: str | Path | None = None
 
 
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:
@@ -370,6 +460,7 @@ def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()
     run_dir = Path(run_dir)
     check_run_writable(run_dir, opts.force)  # before the work, not only after it
     cams = [c.name for c in scene.rig.select(opts.config)]
+    check_tracked(scene, cams)
     track_ids = check_track_ids(scene, cams, opts.fuse_unassociated)
     if opts.confirm is None:
         opts = replace(opts, confirm=CONFIRM_SHARE if track_ids["ids"] == "associated" else 0.0)
@@ -378,6 +469,26 @@ def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()
     if not opts.baseline:
         models = load_models(scene, cams, opts.models_dir, opts.arch, opts.device, opts.allow_incomplete)
     far = None if models is None else FarResiduals(opts.far_residuals)
+    r90_path = Path(opts.r90) if opts.r90 is not None else default_r90_path(scene, opts.models_dir,
+                                                                            opts.baseline)
+    if opts.r90 is not None and not r90_path.is_file():
+        raise InputError("r90 calibration not found (make one with s2p calibrate)", file=r90_path)
     views, nframes = compute_views(scene, cams, frame_range, models, opts.center_method,
                                    opts.chunk_frames, opts.progress, far=far)
-    return write_run(scene, run_dir, views, cams, models, nframes, opts, far, track_ids)
+    return write_run(scene, run_dir, views, cams, models, nframes, opts, far, track_ids,
+                     r90_path=r90_path if r90_path.is_file() else None)
+
+
+R90_FILE = "r90.json"
+R90_BASELINE_FILE = "r90-baseline.json"
+
+
+def default_r90_path(scene: Scene, models_dir=None, baseline: bool = False) -> Path:
+    """Where a run looks for its error bars' calibration when none is named (and where ``s2p
+    calibrate`` writes it): beside the models (the first folder's r90.json) for Seg2PoseNet,
+    SCENE/r90-baseline.json for the baseline."""
+    if baseline:
+        return scene.root / R90_BASELINE_FILE
+    from seg2pose.method.checkpoint import model_dirs
+
+    return model_dirs(scene, models_dir)[0] / R90_FILE

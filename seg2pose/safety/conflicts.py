@@ -20,6 +20,17 @@ that meets twice gets the extremes of both meetings). Per encounter:
   "pedestrian" or "bicyclist" when one of the two is one (the road-user type a researcher sorts
   by first);
 - whether it passes the thresholds: min TTC <= ``ttc_s`` or PET <= ``pet_s``.
+
+Streaming: a long recording is analysed in time chunks of ``chunk_s`` seconds so that memory
+does not grow with its length. Velocities and accelerations are computed once for all rows
+(O(rows), exact at every chunk border: the fits see the whole track); the pair frames (TTC and
+distance at every frame two road users are near) are same-frame quantities, so each belongs
+to exactly one chunk; of a chunk's pair frames only the few that can decide a row of the table
+are kept (per pair: the first and last frame, the first minimum of TTC and of distance, the
+frames of the largest speed and decelerations, the first evasive frame on a collision course):
+every column is a first/last, minimum or maximum over frames, so the table made from the kept
+frames is the same, bit for bit, as from all of them. PET's search is chunked on its own with
+``window_s`` of overlap (``pet.overlapping_rows``).
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ from seg2pose.safety.kinematics import Motion, MotionOptions, motion
 from seg2pose.safety.pet import PetOptions, PetResult, pet
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
+from seg2pose.safety.workers import map_chunks
 
 VULNERABLE = ("pedestrian", "bicyclist")
 TTC_BLOCK = 1 << 20  # pair-frames per block of the TTC computation
@@ -56,6 +68,8 @@ class ConflictOptions:
     swerve_mps2: float = 3.0
     all_pairs: bool = False
     pedestrian_pairs: bool = False
+    chunk_s: float = 60.0
+    workers: int = 2
     motion: MotionOptions = field(default_factory=MotionOptions)
 
     def pet_options(self) -> PetOptions:
@@ -117,18 +131,21 @@ INTERVAL_COLUMNS = ["min_ttc_lo_s", "min_ttc_hi_s", "pet_lo_s", "pet_hi_s", "ttc
 @dataclass
 class ConflictTable:
     """One row per encounter (``columns``: name -> (K,) array, COLUMNS in order, plus
-    INTERVAL_COLUMNS when intervals were sampled); ``pairs``: the pair frames behind it (for
-    review); ``pets``: the PET of every pair."""
+    INTERVAL_COLUMNS when intervals were sampled); ``pairs``: the pair frames that decide its
+    indicators; ``pets``: the PET of every pair; ``compared``: how many pair frames were
+    compared for TTC."""
 
     columns: dict
     pairs: PairFrames | None = None
     pets: PetResult | None = None
+    compared: int = 0
 
     def __len__(self) -> int:
         return len(self.columns["track_a"])
 
     def take(self, idx) -> "ConflictTable":
-        return ConflictTable({k: v[idx] for k, v in self.columns.items()}, self.pairs, self.pets)
+        return ConflictTable({k: v[idx] for k, v in self.columns.items()}, self.pairs, self.pets,
+                             self.compared)
 
 
 def _group_starts(keys: np.ndarray) -> np.ndarray:
@@ -154,20 +171,83 @@ def classify(cls_a, cls_b, angle_deg) -> np.ndarray:
     return out
 
 
+def _deciding(tracks: Tracks, mot: Motion, pf: PairFrames, opts: ConflictOptions) -> np.ndarray:
+    """(P,) which of the pair frames ``pf`` (sorted by pair, then frame) can decide a row of
+    the table (see the module's doc): per pair the first and last frame, the first minimum of
+    TTC and of distance, the first frame of the largest of each maximum, the first evasive
+    frame on a collision course. The table from these alone equals the table from all."""
+    P = len(pf.a)
+    keep = np.zeros(P, bool)
+    if P == 0:
+        return keep
+    tid = tracks.track_id
+    code = tid[pf.a].astype(np.int64)
+    new = np.r_[True, (code[1:] != code[:-1]) | (tid[pf.b][1:] != tid[pf.b][:-1])]
+    st = np.flatnonzero(new)
+    cnt = np.diff(np.r_[st, P])
+    idx = np.arange(P)
+
+    def first_min(x):
+        m = np.minimum.reduceat(x, st)
+        hit = (x == np.repeat(m, cnt)) | (np.isnan(x) & np.isnan(np.repeat(m, cnt)))
+        keep[np.minimum.reduceat(np.where(hit, idx, P), st)] = True
+
+    keep[st] = True
+    keep[np.r_[st[1:], P] - 1] = True
+    first_min(np.where(np.isfinite(pf.ttc), pf.ttc, np.inf))
+    first_min(pf.distance)
+    first_min(-np.maximum(mot.speed[pf.a], mot.speed[pf.b]))
+    first_min(mot.along[pf.a])
+    first_min(mot.along[pf.b])
+    ev = ((mot.along[pf.a] <= -opts.brake_mps2) | (np.abs(mot.lateral[pf.a]) >= opts.swerve_mps2)
+          | (mot.along[pf.b] <= -opts.brake_mps2) | (np.abs(mot.lateral[pf.b]) >= opts.swerve_mps2))
+    first_ev = np.minimum.reduceat(np.where(np.isfinite(pf.ttc) & ev, idx, P), st)
+    keep[first_ev[first_ev < P]] = True
+    return keep
+
+
+def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions) -> tuple[PairFrames, int]:
+    """The deciding pair frames of the whole recording (sorted by pair, then frame), found
+    chunk by chunk of ``opts.chunk_s`` seconds; and how many pair frames were compared."""
+    t = tracks.t
+    if len(t) == 0:
+        e = np.zeros(0, np.int64)
+        return PairFrames(e, e, np.zeros(0), np.zeros(0)), 0
+    chunk = opts.chunk_s if opts.chunk_s > 0 else np.inf
+    k = np.floor((t - t.min()) / chunk).astype(np.int64) if np.isfinite(chunk) else np.zeros(len(t), np.int64)
+    order = np.argsort(k, kind="stable")
+    bounds = np.r_[0, np.flatnonzero(np.diff(k[order])) + 1, len(k)]
+
+    def chunk(i: int) -> tuple[PairFrames, int]:
+        pf = pair_frames(tracks, mot, opts, np.sort(order[bounds[i]:bounds[i + 1]]))
+        keep = _deciding(tracks, mot, pf, opts)
+        return PairFrames(pf.a[keep], pf.b[keep], pf.ttc[keep], pf.distance[keep]), len(pf.a)
+
+    res = map_chunks(chunk, range(len(bounds) - 1), opts.workers)
+    parts = [r[0] for r in res]
+    compared = sum(r[1] for r in res)
+    a = np.concatenate([p.a for p in parts])
+    b = np.concatenate([p.b for p in parts])
+    o = np.lexsort((tracks.frame[a], tracks.track_id[b], tracks.track_id[a]))
+    return PairFrames(a[o], b[o], np.concatenate([p.ttc for p in parts])[o],
+                      np.concatenate([p.distance for p in parts])[o]), compared
+
+
 def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Motion | None = None,
             progress=None) -> ConflictTable:
     """All encounters of ``tracks`` with their indicators (conflicts only unless
-    ``opts.all_pairs``). ``progress(step)``: called with the name of each step."""
+    ``opts.all_pairs``), streamed over chunks of ``opts.chunk_s`` seconds (the result does not
+    depend on the chunks). ``progress(step)``: called with the name of each step."""
     say = progress or (lambda step: None)
     say("motion")
     mot = motion(tracks, opts.motion) if mot is None else mot
     say("TTC")
-    pf = pair_frames(tracks, mot, opts)
+    pf, compared = streamed_pair_frames(tracks, mot, opts)
     say("PET")
     touch = pf.ttc == 0  # footprints overlapping at a frame: PET 0 there
-    pr = pet(tracks, mot, opts.pet_options(), touching=np.c_[pf.a[touch], pf.b[touch]])
+    pr = pet(tracks, mot, opts.pet_options(), workers=opts.workers, touching=np.c_[pf.a[touch], pf.b[touch]])
     say("table")
-    table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr)
+    table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr, compared)
     c = table.columns
     keep = np.ones(len(table), bool) if opts.all_pairs else c["conflict"].astype(bool)
     if not opts.pedestrian_pairs:

@@ -29,6 +29,7 @@ from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
 
 SIGMA_PER_R90 = 1.0 / np.sqrt(2.0 * np.log(10.0))
+SIGMA_PER_HEADING90 = 1.0 / 1.6449  # |N(0, sigma)| is below 1.645 sigma 90 % of the time
 
 
 @dataclass(frozen=True)
@@ -57,10 +58,14 @@ def _rows_of(tracks: Tracks, track: int, f0: int, f1: int) -> np.ndarray:
 
 
 def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = IntervalOptions(),
-                       r90: np.ndarray | None = None, progress=None) -> dict:
+                       r90: np.ndarray | None = None, progress=None,
+                       heading90: np.ndarray | None = None) -> dict:
     """INTERVAL_COLUMNS for each row of ``table`` (a ConflictTable of ``tracks``), (K,) arrays.
     ``r90``: (N,) metres per row of ``tracks`` (default ``tracks.r90``); rows with NaN get no
-    noise. ``opts``: the ConflictOptions the table was made with."""
+    noise. ``heading90``: (N,) radians per row, the heading error 90 % of the poses stay
+    within (None: headings not perturbed; drawn after the positions, with the same
+    correlation, so the position draws do not change). ``opts``: the ConflictOptions the
+    table was made with."""
     r90 = tracks.r90 if r90 is None else r90
     K = len(table)
     out = {k: np.full(K, np.nan) for k in ("min_ttc_lo_s", "min_ttc_hi_s", "pet_lo_s",
@@ -85,10 +90,15 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         noise = np.concatenate([ar1_noise(int((sub.track_id == tr).sum()), D, rho, rng)
                                 for tr in np.unique(sub.track_id)], axis=1)
         xy = sub.xy[None] + noise * sig[None, :, None]
+        heading = np.tile(sub.heading, D)
+        if heading90 is not None:
+            hn = np.concatenate([ar1_noise(int((sub.track_id == tr).sum()), D, rho, rng)[..., 0]
+                                 for tr in np.unique(sub.track_id)], axis=1)
+            heading = (sub.heading[None] + hn * np.nan_to_num(heading90[rows] * SIGMA_PER_HEADING90)[None]).ravel()
         off = (np.arange(D) * 4)[:, None]
         tid = np.where(sub.track_id == c["track_a"][k], 0, 1)[None, :] + off
         big = Tracks(np.tile(sub.frame, D), tid.ravel(), np.tile(sub.cls, D), xy.reshape(-1, 2),
-                     np.tile(sub.heading, D), np.tile(sub.size, (D, 1)), fps)
+                     heading, np.tile(sub.size, (D, 1)), fps)
         mot = motion(big, opts.motion)
         ia = np.flatnonzero(big.track_id % 4 == 0)
         ib = np.flatnonzero(big.track_id % 4 == 1)

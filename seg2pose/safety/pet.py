@@ -23,6 +23,7 @@ from seg2pose.safety.encounters import near_pairs, pair_codes
 from seg2pose.safety.footprints import overlap_interval, overlaps, reach
 from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
+from seg2pose.safety.workers import map_chunks
 
 
 SIZE_GROUPS = np.array([1.0, 2.0, 3.0, 4.5])  # metres of reach + travel: the search's groups
@@ -65,10 +66,12 @@ def _pair_in(a: np.ndarray, b: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 
 def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
-                     exclude: np.ndarray | None = None, chunk_s: float = 60.0) -> np.ndarray:
+                     exclude: np.ndarray | None = None, chunk_s: float = 60.0,
+                     workers: int = 1) -> np.ndarray:
     """(K, 2) for each pair of road users whose footprints overlapped at two frames at most
     ``window_s`` apart: the pair of rows closest in time (first column the lower track id).
-    ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0).
+    ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0); the
+    chunks of ``chunk_s`` seconds are searched in ``workers`` processes.
 
     Coarse to fine: rows every ``sample_s`` (moving ones only) are paired by the k-d tree with
     footprints grown by the travel to the frames in between; then, per pair of road users,
@@ -83,19 +86,21 @@ def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
     travel = mot.speed * h / fps
     span = reach(tracks.size) + travel
     t = tracks.t
-    best = []
     if len(sampled) < 2:
         return np.zeros((0, 2), np.int64)
     ts = t[sampled]
     t0 = float(ts.min())
     k = np.floor((ts - t0) / chunk_s).astype(np.int64)
-    for c in np.unique(k):
+
+    def chunk(c: int) -> np.ndarray:
         # this chunk, and the next one's first window_s seconds (pairs reaching across)
         mine = k == c
         rows = sampled[mine | ((k == c + 1) & (ts - t0 - (c + 1) * chunk_s <= opts.window_s + s / fps))]
         cand = _candidates(tracks, mot, rows, span, travel, opts.window_s + 2 * h / fps, exclude)
         in_chunk = np.isin(cand, sampled[mine]).any(axis=1)
-        best.append(_closest_overlaps(tracks, mot, cand[in_chunk], s, h, opts.window_s))
+        return _closest_overlaps(tracks, mot, cand[in_chunk], s, h, opts.window_s)
+
+    best = map_chunks(chunk, np.unique(k), workers)
     return closest_in_time(tracks, np.concatenate(best))
 
 
@@ -230,7 +235,8 @@ def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
 
 
 def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
-        rows: np.ndarray | None = None, touching: np.ndarray | None = None) -> PetResult:
+        rows: np.ndarray | None = None, touching: np.ndarray | None = None,
+        workers: int = 1) -> PetResult:
     """PET of every pair of road users that occupied a common spot within ``window_s``;
     ``rows``: the overlapping pairs of rows to use (default: found by ``overlapping_rows``);
     ``touching``: (K, 2) rows (lower track id first) of pairs already known to overlap at
@@ -239,7 +245,7 @@ def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
     if rows is None:
         excl = None if touching is None else np.c_[tracks.track_id[touching[:, 0]],
                                                    tracks.track_id[touching[:, 1]]]
-        rows = overlapping_rows(tracks, mot, opts, excl)
+        rows = overlapping_rows(tracks, mot, opts, excl, workers=workers)
     if touching is not None and len(touching):
         rows = np.r_[rows, touching]
     best = closest_in_time(tracks, rows)

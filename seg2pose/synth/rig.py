@@ -56,6 +56,20 @@ DEVICES = {
 }
 
 
+HEIGHT_RANGE = (6.0, 15.0)  # metres: the pole heights of ``device_at``
+
+
+def device_at(height: float, *, distortion: tuple[float, float] | None = None) -> Rig:
+    """The five-lens device on the usual pole at ``height`` metres (HEIGHT_RANGE), tilted as
+    the named devices are (the target moves 1 m along the diagonal per metre of height, so
+    that the top of the image still sees about 50-60 m far). Named ``device-<h>m``."""
+    if not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
+        raise InputError(f"camera height must be within {HEIGHT_RANGE[0]:g}-{HEIGHT_RANGE[1]:g} m, "
+                         f"got {height}", field="camera_height")
+    spec = dict(pole=(-12.0, -12.0), height=float(height), target=(height - 11.0, height - 11.0, 0.0))
+    return build_device(f"device-{height:g}m", spec, distortion=distortion)
+
+
 def make_device(name: str = "device", *, focal: float = FOCAL, width: int = WIDTH,
                 height: int = HEIGHT, distortion: tuple[float, float] | None = None) -> Rig:
     """The five-lens device ``name`` (see DEVICES) as a Rig with the paper's configurations.
@@ -64,7 +78,13 @@ def make_device(name: str = "device", *, focal: float = FOCAL, width: int = WIDT
     if name not in DEVICES:
         raise InputError(f"unknown rig {name!r}; known: {', '.join(DEVICES)} or a rig JSON file",
                          field="rig")
-    spec = DEVICES[name]
+    return build_device(name, DEVICES[name], focal=focal, width=width, height=height,
+                        distortion=distortion)
+
+
+def build_device(name: str, spec: dict, *, focal: float = FOCAL, width: int = WIDTH,
+                 height: int = HEIGHT, distortion: tuple[float, float] | None = None) -> Rig:
+    """The five-lens device of ``spec`` (pole (x, y), height, look-at target; see DEVICES)."""
     centre = np.array([spec["pole"][0], spec["pole"][1], spec["height"]])
     dist = OpenCVDistortion(k1=distortion[0], k2=distortion[1]) if distortion else None
     ref = Camera.look_at("ref", centre, np.asarray(spec["target"], float), focal, width, height)

@@ -21,6 +21,14 @@ from seg2pose.synth.raster import fill_parts, project_parts, rle_from_crop_t
 from seg2pose.synth.shapes import hexa
 
 MAX_DISTANCE = 60.0  # m: default region = ground the camera sees up to this far away
+# randomised rough models (``--rough-random``): length, width, height ranges per class, metres,
+# drawn independently per example -- a prior of how road users of a class vary, not one box
+RANDOM_SIZES = {
+    "car": ((3.5, 6.0), (1.6, 2.1), (1.35, 2.4)),
+    "pedestrian": ((0.22, 0.45), (0.36, 0.6), (1.1, 2.0)),
+    "bicyclist": ((1.5, 2.3), (0.4, 0.8), (1.3, 1.95)),
+}
+BASE_SIZES = {"car": (4.5, 1.8, 1.5), "pedestrian": (0.3, 0.44, 1.75), "bicyclist": (1.8, 0.4, 1.75)}
 
 
 def rough_model(cls: str, scale: float = 1.0) -> np.ndarray:
@@ -103,7 +111,8 @@ def occluder_parts(camera: Camera, ground: GroundSurface, target_xy: np.ndarray,
 
 def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: int,
                           rng: np.random.Generator, region_xy=None, scale_jitter: float = 0.08,
-                          max_distance: float = MAX_DISTANCE, occlusion: float = 0.0
+                          max_distance: float = MAX_DISTANCE, occlusion: float = 0.0,
+                          random_sizes: bool = False
                           ) -> tuple[list[bytes], np.ndarray, np.ndarray]:
     """``n`` rough-model examples of class ``cls`` seen by ``camera``.
 
@@ -114,6 +123,8 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
     inside the image. Each example is drawn alone, except that with probability ``occlusion``
     a rough car or pedestrian in front of it (``occluder_parts``) hides part of it, as road
     users hide each other at a junction (the truth stays the hidden road user's position).
+    ``random_sizes``: each example's length, width and height drawn from the class's
+    RANDOM_SIZES (independently) instead of the one box times ``scale_jitter``.
     """
     if n < 0:
         raise InputError(f"n must be >= 0, got {n}", field="n")
@@ -141,7 +152,11 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
         m = max(2 * (n - len(rles)), 16)
         xy = np.column_stack([rng.uniform(x0r, x1r, m), rng.uniform(y0r, y1r, m)])
         hd = rng.uniform(-np.pi, np.pi, m)
-        sc = 1.0 + rng.uniform(-scale_jitter, scale_jitter, m)
+        if random_sizes:  # per-axis scales (m, 3): l, w, h drawn from the class's ranges
+            lo, hi = np.array(RANDOM_SIZES[cls]).T
+            sc = rng.uniform(lo, hi, (m, 3)) / np.array(BASE_SIZES[cls])
+        else:
+            sc = np.repeat((1.0 + rng.uniform(-scale_jitter, scale_jitter, m))[:, None], 3, axis=1)
         z = ground.height(xy)
         xyz = np.column_stack([xy, z])
         # cheap reject first: the contact point must project into (a margin around) the image
@@ -153,7 +168,7 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
         if len(idx) == 0:
             continue
         k = len(idx)
-        world = place(base[None] * sc[idx, None, None, None], hd[idx], xyz[idx])  # (k, P, 8, 3)
+        world = place(base[None] * sc[idx, None, None, :], hd[idx], xyz[idx])  # (k, P, 8, 3)
         uv, ok = project_parts(camera, world.reshape(k * P, 8, 3))
         uv = uv.reshape(k, P, 8, 2)
         ok = ok.reshape(k, P).all(axis=1)

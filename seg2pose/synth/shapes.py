@@ -50,7 +50,7 @@ class Shape:
     size: np.ndarray
 
 
-def _shape(parts: list[tuple[np.ndarray, int, float]]) -> Shape:
+def make_shape(parts: list[tuple[np.ndarray, int, float]]) -> Shape:
     verts = np.stack([p[0] for p in parts])
     kind = np.array([p[1] for p in parts], np.int8)
     swing = np.array([p[2] for p in parts], float)
@@ -80,7 +80,7 @@ def car_parts(rng: np.random.Generator) -> Shape:
             x = sx * ax
             y = sy * (w / 2 - 0.13)
             parts.append((hexa(x - r, x + r, y - 0.11, y + 0.11, 0.0, 2 * r), WHEEL, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 def pedestrian_parts(rng: np.random.Generator) -> Shape:
@@ -100,7 +100,7 @@ def pedestrian_parts(rng: np.random.Generator) -> Shape:
     parts.append((hexa(-d / 2, d / 2, -0.17, 0.17, hip, sh,
                        top=(-d / 2, d / 2, -(w / 2 - 0.09), w / 2 - 0.09)), TOP, 0.0))
     parts.append((hexa(-0.1, 0.1, -0.085, 0.085, sh, h), SKIN, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 def bicyclist_parts(rng: np.random.Generator) -> Shape:
@@ -124,7 +124,7 @@ def bicyclist_parts(rng: np.random.Generator) -> Shape:
     parts.append((hexa(-0.3, -0.02, -0.18, 0.18, seat, hs,
                        top=(-0.3 + lean, -0.02 + lean, -0.2, 0.2)), TOP, 0.0))
     parts.append((hexa(-0.12 + lean, 0.08 + lean, -0.09, 0.09, hs, h), SKIN, 0.0))
-    return _shape(parts)
+    return make_shape(parts)
 
 
 MAKERS = {"pedestrian": pedestrian_parts, "bicyclist": bicyclist_parts, "car": car_parts}

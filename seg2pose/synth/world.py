@@ -74,13 +74,16 @@ PALETTE = {  # BGR
 }
 
 
-def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_user") -> World:
+def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_user",
+                makers: dict | None = None) -> World:
     """Shapes and the frame-sorted pose table.
 
     ids: "road_user" = one track id per population member, kept over all its visits (the
     paper's 83 road users; a re-entering road user has its old id and shape), or "visit" = a
     new id and shape for every visit (as a tracker would see re-entries). Ids are 1, 2, ...
-    in order of first appearance."""
+    in order of first appearance. makers: class -> shape maker (default ``shapes.MAKERS``;
+    the wide preset's ``shapes_wide.WIDE_MAKERS``)."""
+    makers = MAKERS if makers is None else makers
     if ids not in ("road_user", "visit"):
         raise ValueError(f"ids must be 'road_user' or 'visit', got {ids!r}")
     if not visits:
@@ -97,7 +100,7 @@ def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_
     for k in order_keys:
         # one random stream per road user: its shape does not depend on the others
         rng = np.random.default_rng([seed, 21, int(k) + 1, 0 if ids == "road_user" else 1])
-        sh = MAKERS[cls_of[k]](rng)
+        sh = makers[cls_of[k]](rng)
         verts.append(sh.verts)
         swing.append(sh.swing)
         kind.append(sh.kind)

@@ -49,6 +49,7 @@ class TrainConfig:
     radial_calibration: bool = True  # zero-annotation only: see calibrate_radial
     rough_detector_noise: bool = False  # make rough masks detector-like (examples.detector_like)
     rough_occlusion: float = 0.0     # share of rough examples partly hidden by a rough occluder
+    rough_random: bool = False       # rough models' sizes drawn per example from ranges per class
     # rough models filmed over the video's background and background-subtracted like its masks
     # (seg2pose.training.rough_video); off: measured worse than clean silhouettes (docs/RESULTS.md)
     rough_video: bool = False

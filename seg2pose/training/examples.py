@@ -250,11 +250,12 @@ def detector_like(rles: list[bytes], height: int, width: int, rng: np.random.Gen
 def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.Generator,
                    crop: int, factor: int, center_method: str = DEFAULT_CENTER_METHOD,
                    max_residual: float = 2.5, detector_noise: bool = False,
-                   occlusion: float = 0.0, look=None) -> ExampleSet:
+                   occlusion: float = 0.0, look=None, random_sizes: bool = False) -> ExampleSet:
     """``n`` rough-model examples (3.5) of class ``cls`` seen by ``camera``: random positions
     and headings on the ground, rasterised; target = true position - normal position.
     ``look`` (a ``seg2pose.training.rough_video.VideoLook``): film them over the video's background and
-    segment them as the video path does (``rough_video.render_video_examples``) instead."""
+    segment them as the video path does (``rough_video.render_video_examples``) instead;
+    ``random_sizes``: sizes drawn per example from ``rough.RANDOM_SIZES``."""
     try:
         from seg2pose.synth.rough import render_rough_examples  # lazy: loads OpenCV
     except ImportError as e:
@@ -264,7 +265,8 @@ def rough_examples(scene: Scene, camera: str, cls: str, n: int, rng: np.random.G
         rles, xyz, _, _ = render_video_examples(cam, scene.ground, cls, n, rng, look,
                                              occlusion=max(occlusion, 0.2))
     else:
-        rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion)
+        rles, xyz, _ = render_rough_examples(cam, scene.ground, cls, n, rng, occlusion=occlusion,
+                                             **({"random_sizes": True} if random_sizes else {}))
     if detector_noise and len(rles) and look is None:
         rles = detector_like(rles, cam.height, cam.width, rng)
     if len(rles) == 0:

@@ -151,7 +151,8 @@ def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, gr
         return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
                                                  cfg.center_method,
                                                  detector_noise=cfg.rough_detector_noise,
-                                                 occlusion=cfg.rough_occlusion, look=looks.get(cam))
+                                                 occlusion=cfg.rough_occlusion, look=looks.get(cam),
+                                                 random_sizes=cfg.rough_random)
                                   for cam in gcams for c in classes_])
 
     for k, path in todo:

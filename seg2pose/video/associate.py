@@ -289,11 +289,14 @@ def _cuts(runs: list[tuple[np.ndarray, ...]], spans: list[tuple[np.ndarray, np.n
         alive = (last[old] >= first[nw]) & (last[nw] >= first[old])
         change = change[alive]
         props += [(int(t[c]), int(f0[c]), k) for c in change]
+    by_track: dict[int, list[tuple[int, int]]] = {}
+    for track, f, k in props:
+        by_track.setdefault(track, []).append((f, k))
     out_t, out_f = [], []
     for track, f, k in sorted(props):
         if out_t and out_t[-1] == track and abs(out_f[-1] - f) <= min_run:
             continue  # one cut per change, however many cameras saw it
-        changed = {kk for tt, ff, kk in props if tt == track and abs(ff - f) <= min_run}
+        changed = {kk for ff, kk in by_track[track] if abs(ff - f) <= min_run}
         steady = 0
         for kk, (t, p, f0, f1) in enumerate(runs):
             if kk not in changed and np.any((t == track) & (f0 < f - min_run) & (f1 > f + min_run)):

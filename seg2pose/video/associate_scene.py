@@ -184,6 +184,13 @@ def _split(rle: bytes, height: int, width: int, cam, scene: Scene, xy: np.ndarra
     return parts
 
 
+def _link(src, dst) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
 def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
                     cfg: dict | AssociateConfig | None = None, force: bool = False,
                     log: Callable[[str], None] = print) -> Association | None:
@@ -223,12 +230,13 @@ def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
         blobs = BlobSplit()
     res.blobs = blobs
     with replacing(masks_dir, force=True) as tmp:
-        for p in sorted(masks_dir.iterdir()):
-            if p.is_file() and not p.name.startswith(".") and p.name not in {f"{c}.txt" for c in names}:
-                try:
-                    os.link(p, tmp / p.name)
-                except OSError:
-                    shutil.copy2(p, tmp / p.name)
+        for p in sorted(masks_dir.iterdir()):  # the rest of masks/ goes along, linked
+            if p.name.startswith(".") or p.name in {f"{c}.txt" for c in names}:
+                continue
+            if p.is_dir():
+                shutil.copytree(p, tmp / p.name, copy_function=_link)
+            elif p.is_file():
+                _link(p, tmp / p.name)
         for c in names:
             t = out[c]
             write_mots(tmp / f"{c}.txt", t.take(np.lexsort((t.track_id, t.frame))))

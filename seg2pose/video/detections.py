@@ -20,7 +20,7 @@ import numpy as np
 from seg2pose.core.errors import InputError
 from seg2pose.io.coco import coco_categories, read_coco
 from seg2pose.io.mots import MaskTable
-from seg2pose.structures.masks import iou, merge_bicyclists
+from seg2pose.structures.masks import iou, merge_bicyclists, rle_stats
 
 COCO_NAMES = {1: "person", 2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
 _TARGETS = {"person": ["pedestrian"], "car": ["car"], "truck": ["truck", "car"],
@@ -104,7 +104,8 @@ def import_detections(path: str | Path, scene_classes: dict[str, int], *,
     """Read a COCO results/dataset JSON of one camera into a MaskTable of the scene's classes
     (track ids as the file gives them, -1 otherwise), after threshold, NMS and the bicyclist
     merge. scene_classes: class name -> id. size: (height, width) of the camera (checked).
-    n_frames: frames in the camera's video, when known: a frame beyond it is an error.
+    n_frames: frames of the camera (its video, else the scene's splits), when known: a frame
+    beyond it is an error. Masks without a pixel inside the image are dropped (counted).
     frame_offset: added to every frame (for a file that numbers its images from 1, say -1)."""
     cfg = cfg or DetectionConfig()
     path = Path(path)
@@ -125,11 +126,17 @@ def import_detections(path: str | Path, scene_classes: dict[str, int], *,
         raise InputError(f"frame {bad} matches no video frame (the video has "
                          f"{n_frames if n_frames is not None else '?'} frames; are image ids "
                          "numbered from 1?)", file=path, field="image_id")
+    empty, n_read = 0, len(table)
+    if len(table):  # a polygon wholly outside the image leaves no pixel: nothing to track
+        area = rle_stats(table.rles, table.height, table.width)[0]
+        empty = int((area <= 0).sum())
+        table = table.take(area > 0)
     ped, bic = scene_classes.get("pedestrian", -99), scene_classes.get("bicyclist", -99)
     parts = [p for _, t in table.frames() if len(p := prepare_frame(t, cfg, ped, bic))]
     out = MaskTable.concat(parts) if parts else MaskTable.empty(table.height, table.width)
     dropped = int((table.class_id == 0).sum())
-    log(f"{path.name}: {len(table)} detections -> {len(out)} masks "
+    log(f"{path.name}: {n_read} detections -> {len(out)} masks "
         f"({int(np.sum(out.class_id == bic))} bicyclists; {dropped} of categories the scene "
-        "does not know)")
+        "does not know" + (f"; {empty} empty masks (no pixel inside the image) dropped"
+                           if empty else "") + ")")
     return out

@@ -15,7 +15,7 @@ import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.geometry.camera import Camera, Rig
-from seg2pose.io.atomic import check_writable
+from seg2pose.io.atomic import outputs
 from seg2pose.io.mots import write_mots
 from seg2pose.io.track_ids import mark_ids
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
@@ -68,29 +68,33 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
     tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})}, file=sj)
     rules = size_rules(scene.classes, scene.extra, file=sj) if classify else None
     names = _cameras(scene, cameras)
-    for c in names:
-        check_writable(scene.masks_path(c), force)
     out = {}
-    for c in names:
-        reader = camera_reader(scene, c)
-        dst = scene.masks_path(c)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        res = masks_from_video(reader.path, dst, cfg, camera=scene.cameras[c],
-                               first_frame=reader.first, frame_step=reader.step, frames=frames,
-                               progress=progress, log=log)
-        msg = f"{c}: {res.n_frames} frames -> {res.n_masks} masks"
-        if track:
-            n_tracks, n_kept = track_mots(dst, dst, scene.cameras[c], scene.ground, tcfg,
-                                          progress=progress, log=log)
-            msg += f" -> {n_tracks} tracks ({n_kept} masks)"
-        if rules is not None:
-            votes = classify_mots(dst, dst, scene.cameras[c], scene.ground, rules,
-                                  fps=scene.fps, log=log)
-            names_by_id = {k.id: k.name for k in scene.classes}
-            counts = np.unique(list(votes.values()), return_counts=True) if votes else ([], [])
-            msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}" for k, n in zip(*counts)) + ")"
-        log(msg)
-        out[c] = res
+    # every camera's masks checked and locked first; each built (all stages) in its partial
+    # folder and swapped in when complete, never an intermediate stage under the final name
+    with outputs([scene.masks_path(c) for c in names], force) as files:
+        for c in names:
+            reader = camera_reader(scene, c)
+            dst = scene.masks_path(c)
+            tmp = files.file(dst)
+            res = masks_from_video(reader.path, tmp, cfg, camera=scene.cameras[c],
+                                   first_frame=reader.first, frame_step=reader.step, frames=frames,
+                                   progress=progress, log=log)
+            msg = f"{c}: {res.n_frames} frames -> {res.n_masks} masks"
+            if track:
+                n_tracks, n_kept = track_mots(tmp, tmp, scene.cameras[c], scene.ground, tcfg,
+                                              progress=progress, log=log)
+                msg += f" -> {n_tracks} tracks ({n_kept} masks)"
+            if rules is not None:
+                votes = classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules,
+                                      fps=scene.fps, log=log)
+                names_by_id = {k.id: k.name for k in scene.classes}
+                if votes:  # untracked masks have no track votes to count
+                    counts = np.unique(list(votes.values()), return_counts=True)
+                    msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}"
+                                            for k, n in zip(*counts)) + ")"
+            files.commit(dst)
+            log(msg)
+            out[c] = res
     associate_step(scene, names if track else [], associate and track, log)
     return out
 
@@ -104,20 +108,40 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
     scene = load_scene(scene_dir)
     sj = scene.root / SCENE_FILE
     tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})}, file=sj)
+    names = _cameras(scene, cameras)
+    for c in names:
+        if not scene.masks_path(c).exists():
+            raise InputError("no masks for this camera", file=scene.masks_path(c))
+    rules = size_rules(scene.classes, scene.extra, file=sj) if classify else None
     out = {}
-    for c in _cameras(scene, cameras):
-        src = scene.masks_path(c)
-        if not src.exists():
-            raise InputError("no masks for this camera", file=src)
-        n, kept = track_mots(src, src, scene.cameras[c], scene.ground, tcfg,
-                             known_classes=[k.id for k in scene.classes], progress=progress, log=log)
-        if classify:
-            classify_mots(src, src, scene.cameras[c], scene.ground,
-                          size_rules(scene.classes, scene.extra, file=sj), fps=scene.fps, log=log)
-        log(f"{c}: {n} tracks, {kept} masks")
-        out[c] = n
+    with outputs([scene.masks_path(c) for c in names], force=True) as files:
+        for c in names:
+            src = scene.masks_path(c)
+            tmp = files.file(src)
+            n, kept = track_mots(src, tmp, scene.cameras[c], scene.ground, tcfg,
+                                 known_classes=[k.id for k in scene.classes], progress=progress,
+                                 log=log)
+            if rules is not None:
+                classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules, fps=scene.fps,
+                              log=log)
+            files.commit(src)
+            log(f"{c}: {n} tracks, {kept} masks")
+            out[c] = n
     associate_step(scene, list(out), associate, log)
     return out
+
+
+def scene_frame_count(scene: Scene, camera: str) -> int | None:
+    """Frames of a camera: from its video's header (first + step * count), else up to the
+    last frame of the scene's splits; None when neither says."""
+    if scene.video_path(camera) is not None:
+        reader = camera_reader(scene, camera)
+        _, _, n = reader.header()
+        if n:
+            return reader.first + reader.step * n
+    if scene.splits:
+        return max(b for _, b in scene.splits.values()) + 1
+    return None
 
 
 def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path, *,
@@ -129,29 +153,24 @@ def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path
     have masks too) one id per road user over the cameras. Returns the masks written."""
     scene = load_scene(scene_dir)
     _cameras(scene, [camera])
-    dst = check_writable(scene.masks_path(camera), force)
+    dst = scene.masks_path(camera)
     cam = scene.cameras[camera]
-    n_frames = None
-    if scene.video_path(camera) is not None:
-        reader = camera_reader(scene, camera)
-        _, _, n = reader.header()
-        if n:
-            n_frames = reader.first + reader.step * n
-    table = import_detections(coco, {k.name: k.id for k in scene.classes}, cfg=cfg,
-                              size=(cam.height, cam.width), n_frames=n_frames,
-                              frame_offset=frame_offset, log=log)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    write_mots(dst, table)
-    if len(table) and (table.track_id < 0).any():
-        tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})},
-                                     file=scene.root / SCENE_FILE)
-        n, kept = track_mots(dst, dst, cam, scene.ground, tcfg, log=log)
-        log(f"{camera}: tracked into {n} tracks ({kept} masks)")
-    else:
-        kept = len(table)
+    n_frames = scene_frame_count(scene, camera)
+    with outputs([dst], force) as files:
+        table = import_detections(coco, {k.name: k.id for k in scene.classes}, cfg=cfg,
+                                  size=(cam.height, cam.width), n_frames=n_frames,
+                                  frame_offset=frame_offset, log=log)
+        tmp = files.file(dst)
+        write_mots(tmp, table)
+        n = len(table)
+        if len(table) and (table.track_id < 0).any():
+            tcfg = TrackConfig.from_dict({**(scene.extra.get("tracker") or {}), **(tracker or {})},
+                                         file=scene.root / SCENE_FILE)
+            n_tracks, n = track_mots(tmp, tmp, cam, scene.ground, tcfg, log=log)
+            log(f"{camera}: tracked into {n_tracks} tracks ({n} masks)")
     # a detector's own track ids are per camera too
     associate_step(scene, [camera], associate, log)
-    return kept
+    return n
 
 
 # --- new scene ------------------------------------------------------------------------------------
@@ -197,68 +216,87 @@ def new_scene(out: str | Path, videos: dict[str, str | Path], calibration: str |
               ground_points: str | Path, *, fps: float | None = None, name: str | None = None,
               force: bool = False, log: Callable[[str], None] = print) -> Scene:
     """A scene folder from videos (camera name -> video file or image folder), a calibration
-    file (``read_calibration``) and ground points (x,y,z CSV, metres). Videos are linked (or
-    copied) to video/<camera>.<ext>; masks come next from ``masks-from-video`` or a detector."""
+    file (``read_calibration``) and ground points (x,y,z CSV, metres). Videos are copied
+    (reflinked where the file system can) to video/<camera>.<ext>, named in scene.json;
+    masks come next from ``masks-from-video`` or a detector. The folder is built beside
+    ``out`` and swapped in whole: with ``force`` nothing of an old scene there is kept."""
     out = Path(out)
-    check_writable(out / SCENE_FILE, force)
     if not videos:
         raise InputError("no video given", field="videos")
-    readers = {c: FrameReader(Path(v)) for c, v in videos.items()}
-    sizes, counts = {}, {}
-    for c, r in readers.items():
-        w, h, n = r.header()
-        sizes[c], counts[c] = (w, h), n
-    cams = read_calibration(calibration, sizes)
-    missing = [c for c in videos if c not in cams]
-    if missing:
-        raise InputError(f"the calibration has no camera {missing[0]!r} (it has {list(cams)})",
-                         file=calibration)
-    for c, r in readers.items():
-        r.check_size(cams[c].width, cams[c].height)
-    ground = read_ground_points(ground_points)
-    if fps is None:
-        import cv2
-        first = next(iter(readers.values()))
-        fps = 10.0
-        if not first.is_folder:
-            cap = cv2.VideoCapture(str(first.path))
-            fps = float(cap.get(cv2.CAP_PROP_FPS)) or 10.0
-            cap.release()
-    cams = {c: cams[c] for c in videos}
-    configs = {f"mono-{c}": [c] for c in cams}
-    if len(cams) > 1:
-        configs["all"] = list(cams)
-    scene = Scene(root=out, name=name or out.name, fps=float(fps),
-                  rig=Rig(cameras=cams, configs=configs, name="rig"), ground_points=ground,
-                  classes=[ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES],
-                  extra={"source": {"format": "video", "calibration": str(Path(calibration).resolve()),
-                                    "videos": {c: str(Path(v).resolve()) for c, v in videos.items()}}})
-    (out / "masks").mkdir(parents=True, exist_ok=True)
-    for c, r in readers.items():
-        dst = out / "video" / (c if r.is_folder else f"{c}{r.path.suffix.lower()}")
-        if r.path.suffix.lower() not in VIDEO_EXTS + ("",) and not r.is_folder:
-            raise InputError(f"expected a video ({', '.join(VIDEO_EXTS)}) or an image folder",
-                             file=r.path)
-        _link(r.path, dst)
-    scene.save(out)  # scene.json last: its presence marks a finished scene
+    for src in [*videos.values(), calibration, ground_points]:
+        if out.exists() and Path(src).resolve().is_relative_to(out.resolve()):
+            raise InputError(f"the input {src} lies inside the scene folder {out}, which is "
+                             "replaced as a whole; move the input out of it first", field="--out")
+    with outputs([out], force) as files:
+        readers = {c: FrameReader(Path(v)) for c, v in videos.items()}
+        sizes, counts = {}, {}
+        for c, r in readers.items():
+            if r.path.suffix.lower() not in VIDEO_EXTS + ("",) and not r.is_folder:
+                raise InputError(f"expected a video ({', '.join(VIDEO_EXTS)}) or an image folder",
+                                 file=r.path)
+            w, h, n = r.header()
+            sizes[c], counts[c] = (w, h), n
+        cams = read_calibration(calibration, sizes)
+        missing = [c for c in videos if c not in cams]
+        if missing:
+            raise InputError(f"the calibration has no camera {missing[0]!r} (it has {list(cams)})",
+                             file=calibration)
+        for c, r in readers.items():
+            r.check_size(cams[c].width, cams[c].height)
+        ground = read_ground_points(ground_points)
+        if fps is None:
+            fps = _video_fps(next(iter(readers.values())))
+        cams = {c: cams[c] for c in videos}
+        configs = {f"mono-{c}": [c] for c in cams}
+        if len(cams) > 1:
+            configs["all"] = list(cams)
+        names = {c: "video/" + (c if r.is_folder else f"{c}{r.path.suffix.lower()}")
+                 for c, r in readers.items()}
+        scene = Scene(root=out, name=name or out.name, fps=float(fps),
+                      rig=Rig(cameras=cams, configs=configs, name="rig"), ground_points=ground,
+                      classes=[ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES],
+                      videos=names,
+                      extra={"source": {"format": "video", "calibration": str(Path(calibration).resolve()),
+                                        "videos": {c: str(Path(v).resolve()) for c, v in videos.items()}}})
+        tmp = files.folder(out)
+        (tmp / "masks").mkdir()
+        for c, r in readers.items():
+            copy_video(r.path, tmp / names[c])
+        scene.save(tmp)
     log(f"new scene {out}: {len(cams)} cameras ({', '.join(f'{c} {sizes[c][0]}x{sizes[c][1]}, 'f'{counts[c]} frames' for c in cams)}), "
         f"{len(ground)} ground points, {fps:g} fps")
     return scene
 
 
-def _link(src: Path, dst: Path) -> None:
-    """Hard-link (or copy) a file or image folder to dst."""
+def _video_fps(reader: FrameReader) -> float:
+    """The container's frame rate (10 for image folders and files that do not say)."""
+    if reader.is_folder:
+        return 10.0
+    import cv2
+
+    cap = cv2.VideoCapture(str(reader.path))
+    fps = float(cap.get(cv2.CAP_PROP_FPS)) or 10.0
+    cap.release()
+    return fps
+
+
+def copy_video(src: Path, dst: Path) -> None:
+    """Copy a video file or image folder to ``dst``: a reflink (shared blocks, copy on write)
+    where the file system can, else a plain copy. Never a hard link: editing the scene's video
+    in place would edit the original."""
     dst.parent.mkdir(parents=True, exist_ok=True)
-    if dst.exists():
-        shutil.rmtree(dst) if dst.is_dir() else dst.unlink()
     if src.is_dir():
         dst.mkdir()
         for p in sorted(src.iterdir()):
             if p.is_file():
-                _link(p, dst / p.name)
+                copy_video(p, dst / p.name)
         return
-    try:
-        dst.hardlink_to(src)
-    except OSError:
-        shutil.copy2(src, dst)
+    with open(src, "rb") as a, open(dst, "wb") as b:
+        try:
+            import fcntl
 
+            fcntl.ioctl(b.fileno(), 0x40049409, a.fileno())  # FICLONE
+            return
+        except (OSError, ImportError):
+            pass
+        shutil.copyfileobj(a, b, 1 << 20)

@@ -241,3 +241,57 @@ def test_a_complete_last_record_without_its_newline_counts_as_torn(scene):
         f.write('{"seq":2,"kind":"note","text":"cut before its newline"}')
     with Project.open(scene) as p:
         assert p.seq == 1 and "journal-000000.jsonl:3: the last line is torn" in p.notes[0]
+
+
+def test_a_snapshot_that_cannot_be_written_is_a_note_and_the_edit_is_saved(scene, monkeypatch):
+    """Issue 24: a full disk when a snapshot is due. The edit was journalled, so it is
+    reported saved; subscribers hear every edit; the snapshot is tried again later and the
+    reopened project holds every edit."""
+    from seg2pose.core.errors import S2PError
+
+    real = J.atomic_write_text
+    full = {"on": True}
+
+    def write(path, text):
+        if full["on"] and "snapshot-" in str(path):
+            raise S2PError(f"cannot write {path}: the disk is full")
+        return real(path, text)
+
+    monkeypatch.setattr(J, "atomic_write_text", write)
+    heard = []
+    rng = random.Random(7)
+    with Project.open(scene, snapshot_every=5) as p:
+        p.subscribe(heard.append)
+        for k in range(30):
+            random_edit(p, rng, allow_undo=False)
+            if k == 20:
+                full["on"] = False  # space again: the next retry writes the snapshot
+        assert len(heard) == 30 and p.seq == 30
+        assert any("snapshot" in n and "saved in the journal" in n for n in p.notes)
+        live = digest(p)
+    names = sorted(f.name for f in (scene.root / "annotations").iterdir())
+    assert any(n.startswith("snapshot-") for n in names)
+    with Project.open(scene) as p:
+        assert digest(p) == live and p.seq == 30
+
+
+def test_a_snapshot_whose_new_segment_fails_is_taken_back(scene, monkeypatch):
+    """The snapshot is written but its journal segment cannot be: the snapshot is removed
+    (it would hide the records still appended to the old segment) and the edit stays saved."""
+    real = J.new_segment
+    calls = {"n": 0}
+
+    def failing(folder, after, header):
+        if after > 0 and calls["n"] == 0:
+            calls["n"] += 1
+            raise NotSavedError(f"{folder}: edit not saved: the disk is full")
+        return real(folder, after, header)
+
+    monkeypatch.setattr(J, "new_segment", failing)
+    rng = random.Random(3)
+    with Project.open(scene, snapshot_every=4) as p:
+        for _ in range(12):
+            random_edit(p, rng, allow_undo=False)
+        live = digest(p)
+    with Project.open(scene) as p:
+        assert digest(p) == live and p.seq == 12

@@ -121,7 +121,10 @@ def test_s2p_annotate_refuses_strangers_and_stops_on_a_signal(scene_dir, sig):
                             start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        line = proc.stdout.readline()
+        line = ""
+        while "annotation app for" not in line:  # after the progress bar of the first open
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "s2p annotate printed no URL"
         assert f"{base}/?access_token=" in line, line
         url = line.split(" at ")[1].split()[0]
 

@@ -77,6 +77,22 @@ def test_conflicts_without_fps_and_bad_r90_are_one_line(tmp_path, capsys):
     assert code == 2 and f"{p}:6" in se and "r90_m" in se and len(se.strip().splitlines()) == 1
 
 
+def test_conflicts_heading90(tmp_path, capsys):
+    """--heading90: intervals that also turn the footprints; a bad value or a class without
+    one is one line naming the option."""
+    p = tmp_path / "poses.csv"
+    write_with_r90(p, crossing_poses(), 0.3)
+    out = tmp_path / "c.csv"
+    for bad in ("car=400", "pedestrian=10"):
+        code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90", bad)
+        assert code == 2 and "--heading90" in se and len(se.strip().splitlines()) == 1, se
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90",
+                      "car=20", "--draws", "40")
+    assert code == 0, se
+    r = read_rows(out)[0]
+    assert float(r["pet_lo_s"]) <= float(r["pet_s"]) <= float(r["pet_hi_s"])
+
+
 def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     """T-Analyst tracks: positions and times only; headings from motion, sizes by class
     (cars 4.4 x 1.8 m), frames from the time stamps at --fps."""
@@ -95,3 +111,17 @@ def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     # enters at 5 - (2.2 + 0.9) / 10 s
     assert float(r["pet_s"]) == pytest.approx(2 - 0.62, abs=0.01)
     assert r["pet_lo_s"] != ""
+
+
+def test_conflicts_frames_range(tmp_path, capsys):
+    """--frames A:B: only those frames (the crossing's second car reaches the spot after
+    frame 120, so frames 0:120 hold no conflict); a reversed range is one line."""
+    p = tmp_path / "poses.csv"
+    write_poses(p, crossing_poses())
+    out = tmp_path / "c.csv"
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--frames", "0:120")
+    assert code == 0, se
+    assert read_rows(out) == []
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--frames", "9:3",
+                      "--force")
+    assert code == 2 and "--frames" in se

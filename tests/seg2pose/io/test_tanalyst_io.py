@@ -67,7 +67,7 @@ def test_table_text_table_round_trip_is_exact(rows, decimal, fps, start):
     ("5;Car;3;13,75;-4,5;1:23.6", 6, "expected a time stamp HH:MM:SS.mmm"),
     ("5;Car;3;13,75;x;00:01:24.000", 6, "expected a number, got 'x'"),
     ("5;Car;3;13,75;00:01:24.000", 6, "expected 6 ';'-separated fields, got 5"),
-    ("5;Car;three;1;1;00:01:24.000", 6, "must be integers"),
+    ("5;Car;three;1;1;00:01:24.000", 6, "field .Road user ID.: expected an integer"),
     ("2;Car;9;1;1;00:01:24.000", 6, "Detection ID 2 also on line 3"),
     ("5;Truck;3;1;1;00:01:24.000", 6, "road user 3 is 'Truck' here but 'Car' on line 2"),
 ])

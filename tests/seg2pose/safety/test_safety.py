@@ -245,3 +245,22 @@ def test_static_overlap_agrees_with_the_interval(a, b):
 
     enter, leave = overlap_interval(*a[:3], *b[:3], np.zeros((1, 2)))
     assert overlaps(*a[:3], *b[:3])[0] == bool(enter[0] <= leave[0])
+
+
+def test_interval_heading_noise():
+    """Perturbing headings (--heading90) widens the PET interval of the right-angle crossing
+    (the footprints turn); with a heading error of 0 the draws are those without it."""
+    from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+
+    tr = crossing()
+    table = analyse(tr, ConflictOptions())
+    r90 = np.full(len(tr), 0.3)
+    io_ = IntervalOptions(draws=100)
+    plain = conflict_intervals(tr, table, ConflictOptions(), io_, r90=r90)
+    zero = conflict_intervals(tr, table, ConflictOptions(), io_, r90=r90, heading90=np.zeros(len(tr)))
+    turned = conflict_intervals(tr, table, ConflictOptions(), io_, r90=r90,
+                                heading90=np.full(len(tr), np.radians(30)))
+    for k in plain:
+        np.testing.assert_array_equal(zero[k], plain[k])
+    assert plain["pet_lo_s"][0] <= 1.42 <= plain["pet_hi_s"][0]
+    assert (turned["pet_hi_s"][0] - turned["pet_lo_s"][0]) > (plain["pet_hi_s"][0] - plain["pet_lo_s"][0])

@@ -87,3 +87,22 @@ def test_rough_region_is_respected(clean_scene):
     assert (xyz[:, 0] >= 0).all() and (xyz[:, 0] <= 10).all() and (np.abs(xyz[:, 1]) <= 5).all()
     with pytest.raises(InputError, match="region_xy"):
         render_rough_examples(cam, s.ground, "car", 5, np.random.default_rng(0), region_xy=(1, 0, 0, 1))
+
+
+def test_randomised_rough_models_vary_in_size(clean_scene):
+    """--rough-random: at one place, pedestrians' mask heights spread far more than the one
+    box's (which varies by scale_jitter only); the default draws are unchanged by the option's
+    existence (same seed, same masks)."""
+    s = load_scene(clean_scene)
+    cam = s.cameras["c1"]
+    region = (9.0, 9.2, 1.0, 1.2)
+
+    def heights(random_sizes):
+        rles, _, _ = render_rough_examples(cam, s.ground, "pedestrian", 40, np.random.default_rng(2),
+                                           region_xy=region, random_sizes=random_sizes)
+        _, _, box = rle_stats(rles, cam.height, cam.width)
+        return rles, box[:, 3] - box[:, 1]
+    fixed_rles, fixed = heights(False)
+    assert heights(False)[0] == fixed_rles
+    _, rand = heights(True)
+    assert rand.max() / rand.min() > 1.5 > fixed.max() / fixed.min()

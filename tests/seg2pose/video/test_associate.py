@@ -151,3 +151,20 @@ def test_id_consistency_known_answer():
     xy = np.array([[0, 0], [10, 0], [0, 0], [0.1, 0], [10, 0], [0, 0.1], [10.1, 0]])
     share, n = id_consistency(frame, cams, tid, xy, gt)
     assert n == 2 and share == pytest.approx(5 / 6)  # road user 2: ids 8, 9, 8
+
+
+def test_with_three_cameras_only_the_swapped_tracker_is_cut():
+    r1, r2 = path(0, 0, 20, 0), path(0, 6, 20, 6)
+    lo, hi = F[F < 50], F[F >= 50]
+    a = cam([(1, 1, lo, r1[:50]), (1, 1, hi, r2[50:]), (2, 1, lo, r2[:50]), (2, 1, hi, r1[50:])],
+            (0.3, 0), 14)
+    b = cam([(5, 1, F, r1), (6, 1, F, r2)], (-0.3, 0), 15)
+    c = cam([(8, 1, F, r1), (9, 1, F, r2)], (0, 0.3), 16)
+    res = associate({"a": a, "b": b, "c": c})
+    assert res.cuts == 2  # a's two tracks, once each; b and c untouched
+    ib, ic, ia = res.ids["b"], res.ids["c"], res.ids["a"]
+    id1, id2 = ib[b.track == 5][0], ib[b.track == 6][0]
+    assert (ib[b.track == 5] == id1).all() and (ic[c.track == 8] == id1).all()
+    assert (ib[b.track == 6] == id2).all() and (ic[c.track == 9] == id2).all()
+    on_r1 = ((a.track == 1) & (a.frame < 50)) | ((a.track == 2) & (a.frame >= 50))
+    assert (ia[on_r1] == id1).all() and (ia[~on_r1] == id2).all()

@@ -155,3 +155,17 @@ def test_cli_associate_and_run_errors_are_one_line(tmp_path, monkeypatch, capsys
     assert r.exit_code == 0 and "associated a, b, c: 2 road users" in r.output
     r = CliRunner().invoke(app, ["run", str(tmp_path), "-o", str(tmp_path / "run"), "--baseline"])
     assert r.exit_code == 0, r.output
+
+
+def test_association_keeps_the_rest_of_the_masks_folder(tmp_path):
+    make_scene(tmp_path)
+    (tmp_path / "masks" / "notes.txt").write_text("mine\n")
+    (tmp_path / "masks" / "extra").mkdir()
+    (tmp_path / "masks" / "extra" / "x.json").write_text("{}")
+    associate_scene(tmp_path, ["a", "b"], log=lambda s: None)
+    assert (tmp_path / "masks" / "notes.txt").read_text() == "mine\n"
+    assert (tmp_path / "masks" / "extra" / "x.json").read_text() == "{}"
+    ids = read_ids(tmp_path / "masks")
+    assert ids["a"]["with"] == ["a", "b"] and ids["c"]["ids"] == "tracker"
+    assert ids_status(tmp_path / "masks", ["a", "b"])[0] == "associated"
+    assert ids_status(tmp_path / "masks", ["a", "b", "c"])[0] == "unassociated"
