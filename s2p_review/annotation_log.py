@@ -241,11 +241,7 @@ def send_timeline(rec, scene, frames: np.ndarray, distance: np.ndarray, keyframe
                                                           names=["keyframes"], marker_sizes=[5.0]),
             static=True)
     ok = np.isfinite(distance)
-    if ok.any():
-        rec.send_columns(f"{TIMELINE_PATH}/distance", indexes=tb.rerun_columns(frames[ok]),
-                         columns=rr.Scalars.columns(scalars=distance[ok]))
-    if len(keyframes):
-        rec.send_columns(f"{TIMELINE_PATH}/keyframes", indexes=tb.rerun_columns(keyframes),
-                         columns=rr.Scalars.columns(scalars=np.zeros(len(keyframes))))
+    C.send_scalars(rec, f"{TIMELINE_PATH}/distance", tb, frames, distance)
+    C.send_scalars(rec, f"{TIMELINE_PATH}/keyframes", tb, keyframes, np.zeros(len(keyframes)))
     span = [int(a) for a in (frames[ok] if ok.any() else keyframes)]
     return (min(span), max(span)) if span else None

@@ -27,6 +27,22 @@ EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4]
 PATH = np.array([0, 1, 2, 3, 0, 4, 5, 1, 5, 6, 2, 6, 7, 3, 7, 4])
 
 
+def send_scalars(rec, entity: str, tb, frames: np.ndarray, values: np.ndarray) -> bool:
+    """One ``send_columns`` of a scalar series: ``values`` (N,) at ``frames`` (N,) on the
+    scene's timelines (``tb``: a ``Timebase``). Frames whose value is not finite (no value
+    there) are left out, so the plot shows a gap; nothing is sent when none is. Returns
+    whether anything was sent."""
+    import rerun as rr
+
+    values = np.asarray(values, float)
+    ok = np.isfinite(values)
+    if not ok.any():
+        return False
+    rec.send_columns(entity, indexes=tb.rerun_columns(np.asarray(frames)[ok]),
+                     columns=rr.Scalars.columns(scalars=values[ok]))
+    return True
+
+
 def frame_lengths(frame: np.ndarray, first: int, last: int) -> np.ndarray:
     """Rows per frame (last - first + 1,) for rows already sorted by frame within [first, last]."""
     return np.bincount(np.asarray(frame, np.int64) - first, minlength=last - first + 1)

@@ -33,6 +33,7 @@ import numpy as np
 from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.text import read_text
+from s2p_review.columns import send_scalars
 from s2p_review import layout as L
 
 EVENTS = "conflicts/events"
@@ -161,13 +162,8 @@ def log_conflicts(rec, conflicts: Conflicts, poses: PoseTable, fps: float, tb, f
         fr, x, d, sub, mot = pair_series(tracks, conflicts, k)
         near = (fr >= frames[k] - BEFORE_S * fps) & (fr <= f_end)
         fr, x, d = fr[near], x[near], d[near]
-        ok = np.isfinite(x)
-        if ok.any():
-            rec.send_columns(f"conflicts/ttc/c{k}", indexes=tb.rerun_columns(fr[ok]),
-                             columns=rr.Scalars.columns(scalars=x[ok]))
-        if len(fr):
-            rec.send_columns(f"conflicts/distance/c{k}", indexes=tb.rerun_columns(fr),
-                             columns=rr.Scalars.columns(scalars=d))
+        send_scalars(rec, f"conflicts/ttc/c{k}", tb, fr, x)
+        send_scalars(rec, f"conflicts/distance/c{k}", tb, fr, d)
         ent = f"world/conflicts/c{k}"
         if math.isfinite(c["min_ttc_frame"][k]):
             f = int(c["min_ttc_frame"][k])
