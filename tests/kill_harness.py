@@ -212,7 +212,7 @@ class Case:
     new: object = None
     seconds: float = 1.0
     counts: dict = field(default_factory=lambda: {"absent": 0, "old": 0, "new": 0, "between": 0,
-                                                  "mixed": 0})
+                                                  "mixed": 0, "finished": 0})
     mixed: list = field(default_factory=list)  # per mixed kill: each output's state, leftovers
 
     def __post_init__(self) -> None:
@@ -267,7 +267,9 @@ class Case:
         """Put the old outputs back, start the command, SIGKILL it after a random part of its
         usual duration (sometimes after it finished), classify the outputs. With ``resume``
         the command is then run again (without --force, as after a crash) and a re-run that
-        fails or does not end with the uninterrupted run's outputs counts as ``mixed``."""
+        fails or does not end with the uninterrupted run's outputs counts as ``mixed``. Then
+        what the next writer does first is done (``finish_commits``); a mixed set that this
+        makes the new one is also counted as ``finished``."""
         self.old_state()
         self.put_old()
         z = zygote()
@@ -283,6 +285,14 @@ class Case:
             self.mixed.append(([("new" if x == n else "old" if x == o else "absent" if x is None
                                  else "other") for x, o, n in zip(st, self._old, self.new)],
                                self.leftovers()))
+        # what the next writer of any output does first: finish a set commit the killed one
+        # recorded (so the old outputs put back for the next kill are not mixed with its builds)
+        from seg2pose.io.atomic import finish_commits
+
+        for o in self.outs:
+            finish_commits(o)
+        if kind == "mixed" and self.classify() == "new":
+            self.counts["finished"] += 1
         if self.resume and kind != "mixed":
             z.start([a for a in self.argv if a != "--force"])
             if z.wait(600) != 0 or self.snap() != self.new:
