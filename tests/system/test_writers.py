@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -321,6 +322,37 @@ def test_annotate_export_mcap_holds_the_sets_gt_not_the_one_it_replaces(annotate
         assert code == 0, err
         runs.append(mcap.read_bytes())
     assert runs[0] == runs[1]
+
+
+def test_import_mcap_force_replaces_its_outputs_as_one_set(annotated, tmp_path, monkeypatch,
+                                                            capsys):
+    """import-mcap --force into an existing scene folder: scene.json, the ground points, the
+    run and the journal folder are swapped in as one set (the old journal's files do not stay
+    beside the restored ones; a refusal midway leaves every old file); other files stay."""
+    import s2p_review.mcap_import as MI
+
+    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", annotated, "--force")
+    assert code == 0, err
+    mcap, out = annotated / "export" / "annotations.mcap", tmp_path / "restored"
+    code, _, err = s2p(monkeypatch, capsys, "import-mcap", mcap, "-o", out)
+    assert code == 0, err
+    first = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    (out / "annotations" / "segment-999999.jsonl").write_text("an older journal's file\n")
+    (out / "keep.txt").write_text("not the import's\n")
+    (out / "scene.json").write_text("{}")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def refuse(*a, **k):
+        raise S2PError("refused midway")
+    monkeypatch.setattr(MI, "_check_restored", refuse)
+    code, _, err = s2p(monkeypatch, capsys, "import-mcap", mcap, "-o", out, "--force")
+    assert code != 0 and "refused midway" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    monkeypatch.undo()
+    code, _, err = s2p(monkeypatch, capsys, "import-mcap", mcap, "-o", out, "--force")
+    assert code == 0, err
+    now = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert now == first | {Path("keep.txt"): b"not the import's\n"}
 
 
 # --- batch --------------------------------------------------------------------------------------
