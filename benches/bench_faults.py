@@ -33,6 +33,15 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in 
 from kill_harness import build_cases, build_writer_cases  # noqa: E402
 
 
+def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:
+    """Ray's session folders on this machine and their bytes."""
+    if not root.is_dir():
+        return 0, 0
+    dirs = [d for d in root.iterdir() if d.name.startswith("session_2") and d.is_dir()]
+    size = sum(f.stat().st_size for d in dirs for f in d.rglob("*") if f.is_file() and not f.is_symlink())
+    return len(dirs), size
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=100, help="kills per command")
@@ -54,6 +63,7 @@ def main() -> None:
               f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
         total_mixed = total_left = 0
         for c in cases:
+            sessions = _ray_sessions()
             c.run_fully()
             t = time.perf_counter()
             for k in range(1, args.kills + 1):
@@ -68,6 +78,10 @@ def main() -> None:
             print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
                   f"{n['between']:>8} {n['mixed']:>6} {n['finished']:>9} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
+            if c.tree:  # Ray: what the killed drivers' clusters left running or on disk
+                print(f"    {c.stray} processes of the killed commands still running 120 s after "
+                      f"their kill; {_ray_sessions()[0] - sessions[0]} Ray session folders "
+                      f"added ({(_ray_sessions()[1] - sessions[1]) / 1e6:.1f} MB)", flush=True)
             for states, beside in c.mixed:
                 print(f"    mixed: outputs {states}, beside them {beside}", flush=True)
         print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}")

@@ -180,6 +180,43 @@ def zygote() -> Zygote:
     return _zygote
 
 
+def descendants(pid: int) -> list[int]:
+    """The processes started by ``pid``, and by those, and so on (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                stat = Path(f"/proc/{d}/stat").read_text()
+            except OSError:
+                continue
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            children.setdefault(ppid, []).append(int(d))
+    out, todo = [], [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except OSError:
+        return False
+
+
+def wait_gone(pids: list[int], timeout: float = 120.0) -> list[int]:
+    """Wait until the processes ``pids`` have ended (zombies count as ended); those still
+    running after ``timeout`` seconds."""
+    end = time.perf_counter() + timeout
+    while True:
+        left = [p for p in pids if _running(p)]
+        if not left or time.perf_counter() > end:
+            return left
+        time.sleep(0.1)
+
+
 def _copy(src: Path | None, dst: Path) -> None:
     """Put ``src`` (a file, a folder, or None: nothing) at ``dst``."""
     if dst.is_dir() and not dst.is_symlink():
@@ -209,6 +246,9 @@ class Case:
     olds: list
     state: Callable | None = None
     resume: bool = False
+    rerun: list | None = None  # the re-run after a kill (default: argv without --force)
+    tree: bool = False  # wait for the killed command's other processes (Ray's) to end
+    stray: int = 0  # of those, still running 120 s after the kill
     new: object = None
     seconds: float = 1.0
     counts: dict = field(default_factory=lambda: {"absent": 0, "old": 0, "new": 0, "between": 0,
@@ -276,9 +316,13 @@ class Case:
         pid = z.start(self.argv)
         code = z.wait(rng.uniform(0.15, 1.05) * self.seconds)
         if code is None:
+            tree = descendants(pid) if self.tree else []
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(pid, signal.SIGKILL)
             z.wait()
+            # Ray's processes (own process groups) end when the driver's raylet does; a task
+            # may still finish its write meanwhile: the outputs are what they leave
+            self.stray += len(wait_gone(tree))
         kind = self.classify()
         if kind == "mixed":  # which outputs were what, and what lay beside them
             st = self.snap()
@@ -294,7 +338,7 @@ class Case:
         if kind == "mixed" and self.classify() == "new":
             self.counts["finished"] += 1
         if self.resume and kind != "mixed":
-            z.start([a for a in self.argv if a != "--force"])
+            z.start(self.rerun or [a for a in self.argv if a != "--force"])
             if z.wait(600) != 0 or self.snap() != self.new:
                 kind = "mixed"
         self.counts[kind] = self.counts.get(kind, 0) + 1
@@ -493,6 +537,9 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     s1 = load_scene(study / "s1")
     s1.extra["video_masks"] = bgd
     s1.save()
+    # batch on a local Ray of its own (one CPU), its driver killed: the same study
+    shutil.copytree(study, root / "study-ray")
+    sray = root / "study-ray"
     exp = ann / "export"
     return [
         Case("masks-from-video", ["masks-from-video", mfv, "--no-progress", "--force", *bg],
@@ -526,5 +573,13 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
              [None, None, None],
              state=_state_of(study / "s1" / "masks" / "c0.txt", study / "s1" / "batch" / "baseline"),
              resume=True),
+        Case("batch-ray", ["batch", sray, "masks-from-video", "run", "--baseline", "--cpus", "1",
+                           "--no-progress"],
+             [sray / "s1" / "masks" / "c0.txt", sray / "s1" / "batch", sray / "summary.json"],
+             [None, None, None],
+             state=_state_of(sray / "s1" / "masks" / "c0.txt", sray / "s1" / "batch" / "baseline"),
+             resume=True, tree=True,
+             rerun=["batch", sray, "masks-from-video", "run", "--baseline", "--serial",
+                    "--no-progress"]),
     ]
 

@@ -280,11 +280,13 @@ def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
 
 def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
               use_ray: bool = True, address: str | None = None, max_parallel: int | None = None,
-              progress: bool = True, log: Callable[[str], None] = print) -> StudyResult:
+              cpus: int | None = None, progress: bool = True,
+              log: Callable[[str], None] = print) -> StudyResult:
     """Run ``steps`` in order over every scene of ``study``: each step is one wave of tasks
     (one per scene still without a failure; a step with parts, e.g. long videos in segments,
-    first runs its parts as tasks of their own), on Ray (``ray.init(address)``; a running Ray
-    session is reused) or serially in-process. Writes STUDY/summary.json."""
+    first runs its parts as tasks of their own), on Ray (the cluster at ``address``, else a
+    local Ray of this process's own with ``cpus`` CPUs (default: all); a Ray session this
+    process started already is reused) or serially in-process. Writes STUDY/summary.json."""
     from tqdm import tqdm
 
     scenes = find_scenes(study)
@@ -296,7 +298,10 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
     remote = remote_part = None
     if ray is not None:
         if not ray.is_initialized():
-            ctx = ray.init(address=address, include_dashboard=None, log_to_driver=False)
+            # no address: a Ray of this command's own ("local"), never a cluster that another
+            # command or user started on this machine; it ends with this command
+            ctx = ray.init(address=address or "local", num_cpus=None if address else cpus,
+                           include_dashboard=None, log_to_driver=False)
             out.dashboard = getattr(ctx, "dashboard_url", None) or None
         out.backend = "ray"
         if out.dashboard:
