@@ -3,19 +3,21 @@
 Every writing command on small inputs (tests/kill_harness.py): ``s2p run``, ``synth``,
 ``convert-masks``, ``import-utocs``, ``export`` (issue 10) and ``masks-from-video``,
 ``import-detections``, ``track``, ``new-scene``, ``import-tacal``, ``annotate export`` (gt +
-MCAP + layout + CSV as one set), ``annotate import-tanalyst``, ``associate`` and
-``batch --serial`` (issues 23 and 24).
+MCAP + layout + CSV as one set), ``import-mcap --force`` (into an existing scene folder),
+``annotate import-tanalyst``, ``associate``, ``batch --serial`` and ``batch`` on a local Ray of
+its own (``batch-ray``: the driver killed; about 35 s a run, most of it Ray's start) (issues 23
+and 24).
 Put complete old outputs in place, start the command (with --force where it replaces them),
-SIGKILL it after a random share (0.15-1.05) of its usual duration, and classify the outputs:
-absent, the complete old ones, the complete new ones, or mixed (anything else, also a set of
-which some outputs are old and some new: counted as the outputs are the moment after the
-kill; "finished" says how many of those the next writer's first step, ``finish_commits``,
-made the new set). ``batch`` is then run again without --force, as a
-user would after a crash: "between" counts kills that left some steps done (each output whole)
-and a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
+SIGKILL it after a random share (0.15-1.05, ``--share``) of its usual duration, and classify
+the outputs: absent, the complete old ones, the complete new ones, or mixed (anything else,
+also a set of which some outputs are old and some new: counted as the outputs are the moment
+after the kill; "finished" says how many of those the next writer's first step,
+``finish_commits``, made the new set). ``batch`` is then run again without --force, as a user
+would after a crash: "between" counts kills that left some steps done (each output whole) and
+a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
 promise is 0 mixed. Then one full run checks that the dead writers' leftovers are removed.
 
-    python benches/bench_faults.py [--kills 100] [--seed 0] [--only run,synth]
+    python benches/bench_faults.py [--kills 100] [--seed 0] [--only run,synth] [--share 0.15,1.05]
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ def main() -> None:
     ap.add_argument("--kills", type=int, default=100, help="kills per command")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", default="", help="comma-separated commands (default: all)")
+    ap.add_argument("--share", default="0.15,1.05", help="kill after a random share in this "
+                    "range of the command's duration (e.g. 0.3,0.8: fewer kills after the end)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         only = args.only.split(",") if args.only else None
@@ -59,6 +63,7 @@ def main() -> None:
         if only:
             cases = [c for c in cases if c.name in only]
         rng = np.random.default_rng(args.seed)
+        share = tuple(float(x) for x in args.share.split(","))
         print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
               f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
         total_mixed = total_left = 0
@@ -67,7 +72,7 @@ def main() -> None:
             c.run_fully()
             t = time.perf_counter()
             for k in range(1, args.kills + 1):
-                c.kill_once(rng)
+                c.kill_once(rng, share)
                 if k % 50 == 0 and k < args.kills:
                     print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
             c.run_fully()  # the next writer takes over and cleans up

@@ -303,9 +303,9 @@ class Case:
             return "between"  # some outputs done, each one whole: the re-run goes on from there
         return "mixed"
 
-    def kill_once(self, rng: np.random.Generator) -> str:
-        """Put the old outputs back, start the command, SIGKILL it after a random part of its
-        usual duration (sometimes after it finished), classify the outputs. With ``resume``
+    def kill_once(self, rng: np.random.Generator, share: tuple[float, float] = (0.15, 1.05)) -> str:
+        """Put the old outputs back, start the command, SIGKILL it after a random ``share`` of
+        its usual duration (sometimes after it finished), classify the outputs. With ``resume``
         the command is then run again (without --force, as after a crash) and a re-run that
         fails or does not end with the uninterrupted run's outputs counts as ``mixed``. Then
         what the next writer does first is done (``finish_commits``); a mixed set that this
@@ -314,7 +314,7 @@ class Case:
         self.put_old()
         z = zygote()
         pid = z.start(self.argv)
-        code = z.wait(rng.uniform(0.15, 1.05) * self.seconds)
+        code = z.wait(rng.uniform(*share) * self.seconds)
         if code is None:
             tree = descendants(pid) if self.tree else []
             with contextlib.suppress(ProcessLookupError):
@@ -339,8 +339,11 @@ class Case:
             self.counts["finished"] += 1
         if self.resume and kind != "mixed":
             z.start(self.rerun or [a for a in self.argv if a != "--force"])
-            if z.wait(600) != 0 or self.snap() != self.new:
+            code = z.wait(600)
+            if code != 0 or self.snap() != self.new:
                 kind = "mixed"
+                self.mixed.append(([f"the re-run after a {kind} kill: exit {code}",
+                                    z.error_text()[-400:]], self.leftovers()))
         self.counts[kind] = self.counts.get(kind, 0) + 1
         return kind
 

@@ -28,7 +28,9 @@ from seg2pose.core.clock import utc_now
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this machine."""
+    """Whether a process ``pid`` runs on this machine. A zombie (ended, not yet collected by
+    its parent: e.g. a killed Ray worker whose new parent, a container's first process, is
+    slow to collect it) does not run: it holds nothing any more."""
     if pid <= 0:
         return False
     try:
@@ -36,10 +38,19 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, another user's
-        return True
+        return not _zombie(pid)
     except OverflowError:
         return False
-    return True
+    return not _zombie(pid)
+
+
+def _zombie(pid: int) -> bool:
+    """Linux: the process has ended and waits to be collected (state Z or X in /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X")
+    except (OSError, IndexError):
+        return False
 
 
 @dataclass(frozen=True)

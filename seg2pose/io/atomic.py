@@ -416,7 +416,10 @@ def finish_commits(path: str | Path) -> list[Path]:
             except OSError:
                 continue  # swapped in, and its old output removed
             if built:  # not swapped in yet
-                olds.append(_swap(tmp, final))
+                try:
+                    olds.append(_swap(tmp, final))
+                except FileNotFoundError:
+                    continue  # another writer of the set finished it meanwhile
                 done.append(final)
             else:  # swapped in: what is under the build's name is the old output
                 olds.append(tmp)

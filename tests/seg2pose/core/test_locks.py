@@ -43,6 +43,28 @@ def test_alive_check():
     assert not LockHolder(dead_pid(), "another-host").gone  # cannot tell: not taken over
 
 
+def test_a_zombie_holds_nothing(tmp_path):
+    """A process that has ended but was not collected yet (a zombie: a killed Ray worker
+    whose new parent is slow to collect it) is not alive: its output lock is taken over."""
+    import time
+
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    try:
+        for _ in range(500):  # until it has ended (not collected: a zombie of this process)
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                if f.read().rsplit(b")", 1)[1].split()[0] == b"Z":
+                    break
+            time.sleep(0.01)
+        assert not pid_alive(pid)
+        path = tmp_path / ".out.lock"
+        path.write_text(LockHolder(pid, socket.gethostname(), "T0").to_json())
+        assert ExclusiveLock(path, Busy).acquire()
+    finally:
+        os.waitpid(pid, 0)
+
+
 def test_exclusive_lock_refuses_a_live_holder_and_takes_over_a_gone_one(tmp_path):
     path = tmp_path / ".out.lock"
     seen = []
