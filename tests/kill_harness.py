@@ -199,6 +199,21 @@ def descendants(pid: int) -> list[int]:
     return out
 
 
+def ray_workers_of(pids: list[int]) -> list[int]:
+    """Processes whose environment names one of ``pids`` as their raylet (Ray's workers)."""
+    want = {f"RAY_RAYLET_PID={p}".encode() for p in pids}
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                env = Path(f"/proc/{d}/environ").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if want.intersection(env):
+                out.append(int(d))
+    return out
+
+
 def _running(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
@@ -321,7 +336,10 @@ class Case:
                 os.killpg(pid, signal.SIGKILL)
             z.wait()
             # Ray's processes (own process groups) end when the driver's raylet does; a task
-            # may still finish its write meanwhile: the outputs are what they leave
+            # may still finish its write meanwhile: the outputs are what they leave (a worker
+            # forked just after the list was taken is found by its raylet's pid)
+            if tree:
+                tree += [p for p in ray_workers_of(tree) if p not in tree]
             self.stray += len(wait_gone(tree))
         kind = self.classify()
         if kind == "mixed":  # which outputs were what, and what lay beside them
