@@ -78,7 +78,14 @@ function render({ model, el }) {
     tab = (crypto.randomUUID ? crypto.randomUUID() : String(Math.random()).slice(2));
     sessionStorage.setItem('s2p-annotate-tab', tab);
   }
-  model.send({hello: tab});
+  // the WebGL renderer: in software (SwiftShader, llvmpipe) the 3D viewer starts hidden
+  let renderer = '';
+  try {
+    const g = document.createElement('canvas').getContext('webgl2') || document.createElement('canvas').getContext('webgl');
+    const d = g && g.getExtension('WEBGL_debug_renderer_info');
+    renderer = g ? String(g.getParameter(d ? d.UNMASKED_RENDERER_WEBGL : g.RENDERER)) : 'none';
+  } catch (err) { renderer = 'unknown'; }
+  model.send({hello: tab, renderer: renderer});
   const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
   return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat);
                  window.removeEventListener('pointerdown', ondown, true);
