@@ -76,15 +76,22 @@ class Tracks:
         return len(self.frame)
 
     def starts(self) -> np.ndarray:
-        """(N,) index of the first row of each row's track."""
-        new = np.r_[True, self.track_id[1:] != self.track_id[:-1]]
-        return np.maximum.accumulate(np.where(new, np.arange(len(self)), 0))
+        """(N,) index of the first row of each row's track (kept once computed: chunked
+        searches ask for it once per chunk; treat it as read-only)."""
+        c = self.__dict__.get("_starts")
+        if c is None or len(c) != len(self):
+            new = np.r_[True, self.track_id[1:] != self.track_id[:-1]]
+            c = self.__dict__["_starts"] = np.maximum.accumulate(np.where(new, np.arange(len(self)), 0))
+        return c
 
     def ends(self) -> np.ndarray:
-        """(N,) index of the last row of each row's track."""
-        n = len(self)
-        last = np.r_[self.track_id[1:] != self.track_id[:-1], True]
-        return np.minimum.accumulate(np.where(last, np.arange(n), n)[::-1])[::-1]
+        """(N,) index of the last row of each row's track (kept, as ``starts``)."""
+        c = self.__dict__.get("_ends")
+        if c is None or len(c) != len(self):
+            n = len(self)
+            last = np.r_[self.track_id[1:] != self.track_id[:-1], True]
+            c = self.__dict__["_ends"] = np.minimum.accumulate(np.where(last, np.arange(n), n)[::-1])[::-1]
+        return c
 
     def take(self, idx) -> "Tracks":
         return Tracks(self.frame[idx], self.track_id[idx], self.cls[idx], self.xy[idx],
