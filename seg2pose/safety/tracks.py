@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import FPS_RANGE
-from seg2pose.core.validate import MAX_COORD
+from seg2pose.core.validate import FPS_RANGE, MAX_COORD
 from seg2pose.io.poses import BASE_COLUMNS, R90_COLUMN as POSE_R90, SIZE_COLUMNS, PoseTable, read_poses
 from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
+from seg2pose.safety.workers import map_chunks
 
 R90_COLUMN = "r90_m"
 # typical footprints (length, width, metres) where a row gives none: a mid-size car, an adult
@@ -145,11 +145,12 @@ def check_fps(fps) -> float:
     return float(fps)
 
 
-def read_poses_r90(path: Path) -> tuple[PoseTable, np.ndarray | None]:
+def read_poses_r90(path: Path, workers: int = 1) -> tuple[PoseTable, np.ndarray | None]:
     """A pose CSV (``seg2pose.io.poses``, with an optional last column ``r90_m``): the table
-    and its r90_m (None: no such column). Read by ``read_poses_fast`` where it can vouch for
-    the file, else (and for every error message) by ``seg2pose.io.poses.read_poses``."""
-    poses = read_poses_fast(path)
+    and its r90_m (None: no such column). Read by ``read_poses_fast`` (in ``workers``
+    processes) where it can vouch for the file, else (and for every error message) by
+    ``seg2pose.io.poses.read_poses``."""
+    poses = read_poses_fast(path, workers)
     if poses is None:
         poses = read_poses(path)
     return poses, poses.r90
@@ -160,17 +161,18 @@ _HEADERS = {tuple(BASE_COLUMNS + s + r): (bool(s), bool(r))
             for s in ([], SIZE_COLUMNS) for r in ([], [POSE_R90])}
 
 
-def read_poses_fast(path: Path) -> PoseTable | None:
+def read_poses_fast(path: Path, workers: int = 1) -> PoseTable | None:
     """The pose table of ``path`` as ``seg2pose.io.poses.read_poses`` gives it, parsed by
-    numpy's C reader in blocks of ``FAST_LINES`` lines (an hour of traffic has millions of
-    rows: the per-row reader takes minutes and gigabytes); None where this reader cannot
-    vouch for the result (a ``source`` column, quoting, a value or a row the file checks
-    would reject, ...): the caller then reads it with ``read_poses``, which gives the table
-    or the error naming the line. Every check of ``read_poses`` is made here too, on whole
-    columns."""
+    numpy's C reader in blocks of about ``FAST_LINES`` lines, in ``workers`` processes (an
+    hour of traffic has millions of rows: the per-row reader takes minutes and gigabytes);
+    None where this reader cannot vouch for the result (a ``source`` column, quoting, a value
+    or a row the file checks would reject, ...): the caller then reads it with
+    ``read_poses``, which gives the table or the error naming the line. Every check of
+    ``read_poses`` is made here too, on whole columns."""
     path = Path(path)
     if not path.is_file():
         return None
+    size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.readline()
         try:
@@ -179,27 +181,33 @@ def read_poses_fast(path: Path) -> PoseTable | None:
             return None
         if header not in _HEADERS:
             return None
-        with_size, with_r90 = _HEADERS[header]
-        nnum = len(header) - 3
-        cols = {"frame": [], "tid": [], "cls": [], "num": []}
+        # the blocks: byte ranges of whole lines
+        bounds = [f.tell()]
         while True:
-            lines = f.readlines(FAST_LINES * 64)
-            if not lines:
+            nxt = bounds[-1] + FAST_LINES * 64
+            if nxt >= size:
+                if bounds[-1] < size:
+                    bounds.append(size)
                 break
-            block = b"".join(lines)
-            if b'"' in block or b"\r" in block:
-                return None  # quoting, old line ends: the csv module's business
-            part = _parse_block(block, nnum)
-            if part is None:
-                return None
-            for k, v in zip(("frame", "tid", "cls", "num"), part):
-                cols[k].append(v)
-    if not cols["frame"]:
-        return None  # no rows: let the reader say what it says of that
-    frame = np.concatenate(cols["frame"])
-    tid = np.concatenate(cols["tid"])
-    num = np.concatenate(cols["num"])
-    cls = np.concatenate(cols["cls"])
+            f.seek(nxt)
+            f.readline()  # to the end of the line holding byte nxt
+            bounds.append(f.tell())
+    with_size, with_r90 = _HEADERS[header]
+    nnum = len(header) - 3
+
+    def block(i: int):
+        with open(path, "rb") as g:
+            g.seek(bounds[i])
+            data = g.read(bounds[i + 1] - bounds[i])
+        if b'"' in data or b"\r" in data:
+            return None  # quoting, old line ends: the csv module's business
+        return _parse_block(data, nnum)
+
+    parts = map_chunks(block, range(len(bounds) - 1), workers)
+    if not parts or any(p is None for p in parts):
+        return None  # (no rows: let the reader say what it says of that)
+    frame, tid, cls, num = (np.concatenate([p[k] for p in parts]) for k in range(4))
+    del parts
     if not _rows_valid(frame, tid, num, with_size, with_r90):
         return None
     return PoseTable(frame, tid, cls, num[:, :3], num[:, 3],
@@ -315,11 +323,13 @@ def is_tanalyst(path: Path) -> bool:
     return head.startswith("Detection ID;")
 
 
-def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0) -> tuple[Tracks, list[str]]:
+def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0,
+                workers: int = 1) -> tuple[Tracks, list[str]]:
     """Tracks from ``path``: a run folder (RUN/poses.csv), a pose CSV (optionally with r90_m)
     or a T-Analyst tracks CSV (positions only: headings from motion, sizes by class). ``fps``:
     needed where no scene says it (a pose CSV outside a run or scene, a T-Analyst file);
-    ``start_ms``: a T-Analyst file's time of frame 0. Returns the tracks and notes."""
+    ``start_ms``: a T-Analyst file's time of frame 0; ``workers``: processes a long pose CSV
+    is parsed in. Returns the tracks and notes."""
     path = Path(path)
     if not path.exists():
         raise InputError("tracks not found (expected a run folder, a poses.csv or a T-Analyst CSV)",
@@ -343,5 +353,5 @@ def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0) -
         fps = found
     if fps is None:
         raise InputError("no scene gives the frame rate of these poses: pass --fps", file=pose_file)
-    poses, r90 = read_poses_r90(pose_file)
+    poses, r90 = read_poses_r90(pose_file, workers)
     return from_poses(poses, fps, r90)

@@ -58,6 +58,7 @@ def test_same_table_as_read_poses(tmp_path, monkeypatch, sizes, r90, seed):
     fast = read_poses_fast(p)
     assert fast is not None
     same_table(fast, read_poses(p))
+    same_table(read_poses_fast(p, workers=2), fast)  # blocks parsed in two processes
 
 
 BAD = {  # a row read_poses rejects, and what it says
@@ -108,3 +109,11 @@ def test_source_column_left_to_read_poses(tmp_path):
               ["0,1,car,0,0,0,0,4,2,1.5,keyframe"])
     assert read_poses_fast(p) is None
     assert len(load_tracks(p, fps=30)[0]) == 1
+
+
+@pytest.mark.parametrize("body", ["", "0,1,car,0,0,0,0\n\n1,1,car,0,0,0,0\n"])
+def test_no_rows_or_blank_lines_left_to_read_poses(tmp_path, body):
+    p = tmp_path / "poses.csv"
+    p.write_text("frame,track_id,class,x,y,z,heading\n" + body)
+    assert read_poses_fast(p) is None
+    assert len(load_tracks(p, fps=30)[0]) == len(read_poses(p))
