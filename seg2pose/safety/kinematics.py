@@ -115,8 +115,9 @@ def _slope_rows(tracks: Tracks, values: np.ndarray, n: int, centred: bool,
         s1 += w
         st += tau
         stt += tau * tau
-        sv += values[j] * w[:, None]
-        stv += values[j] * tau[:, None]
+        vj = np.take(values, j, axis=0)
+        sv += vj * w[:, None]
+        stv += vj * tau[:, None]
     den = s1 * stt - st * st
     num = s1[:, None] * stv - st[:, None] * sv
     out = np.zeros((R, values.shape[1]))

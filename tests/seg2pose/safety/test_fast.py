@@ -202,3 +202,23 @@ def test_pet_frames_are_the_closest_in_time_earliest(seed):
                 found[(ta, tb)] = (frame[A[i]], frame[B[i]])
     mine = {(tid[a], tid[b]): (frame[a], frame[b]) for a, b in got}
     assert mine == found
+
+
+@pytest.mark.parametrize("case", ["follower", "crossing", "turning"])
+def test_pet_interval_without_noise_is_the_tables_pet(case):
+    """The draws' PET is searched over the whole encounter as the table's is: with no pose
+    error (r90 = 0) every draw is the tracks themselves, so the interval is the table's PET."""
+    from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+
+    from tests.seg2pose.safety.test_safety import crossing, follower, turning_car_and_pedestrian
+
+    tr = {"follower": follower, "crossing": crossing,
+          "turning": lambda: turning_car_and_pedestrian()[0]}[case]()
+    table = analyse(tr, ConflictOptions())
+    pet = table.columns["pet_s"][0]
+    assert np.isfinite(pet)
+    iv = conflict_intervals(tr, table, ConflictOptions(), IntervalOptions(draws=5),
+                            r90=np.zeros(len(tr)))
+    assert iv["pet_found_share"][0] == 1.0
+    assert iv["pet_lo_s"][0] == pytest.approx(pet, abs=1e-9)
+    assert iv["pet_hi_s"][0] == pytest.approx(pet, abs=1e-9)
