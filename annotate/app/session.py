@@ -80,6 +80,7 @@ class Session:
         self.frame_view = FrameView()
         self._shown = None
         self._cols_version = 0
+        self._unsent, self._unsent_timeline = {}, False
         self.cols = {tid: track_columns(p, tid) for tid in p.tracks}
         self._eye = L.default_eye(p.scene)
         self._send_layout(self.ctl.large_camera)
@@ -107,17 +108,28 @@ class Session:
 
     # --- controller -> viewer / panel ---------------------------------------------------------------
     def _resend(self, ids: set[int], selected: int | None) -> None:
-        t0 = time.perf_counter()
+        """Tracks changed: their columns now (the picture draws them); the viewer gets them
+        after the picture (``_send_tracks``), so that the page shows the edit first."""
         for tid in sorted(ids):
             cols = track_columns(self.ctl.project, tid)
             if len(cols.frame):
                 self.cols[tid] = cols
             else:
                 self.cols.pop(tid, None)
-            self.logger.send_track(cols, selected=tid == selected)
+            self._unsent[tid] = cols
         self._cols_version += 1
-        if selected in ids or selected is None:
+        self._unsent_timeline |= selected in ids or selected is None
+
+    def _send_tracks(self) -> None:
+        """Send the changed tracks (and the selected one's timeline) to the viewer."""
+        if not self._unsent and not self._unsent_timeline:
+            return
+        t0 = time.perf_counter()
+        for tid, cols in sorted(self._unsent.items()):
+            self.logger.send_track(cols, selected=tid == self.ctl.selected)
+        if self._unsent_timeline:
             self._send_timeline()
+        self._unsent, self._unsent_timeline = {}, False
         self.target.flush()
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
 
@@ -158,8 +170,12 @@ class Session:
         self.viewer.set_time_ctrl(sequence=int(frame), timeline="frame")
 
     def refresh_panel(self) -> None:
+        """After anything the page did: the panel, the large camera's picture, then the
+        viewer's data (in this order: the websocket delivers them in order, and the viewer's
+        data keeps the browser busy for a while)."""
         self.panel.html = render(self.ctl.panel())
         self.show_frame()
+        self._send_tracks()
 
     def show_frame(self) -> None:
         """Send the large camera's picture of the current frame, unless it is already shown."""
