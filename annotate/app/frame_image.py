@@ -51,6 +51,7 @@ class _Reader:
         self.index = {int(f): i for i, f in enumerate(asset.frames)}
         self.cap = cv2.VideoCapture(str(asset.path))
         self.pos = 0  # the index of the frame the next read returns
+        self.last = None  # (index, image) of the last frame read
 
     def read(self, frame: int) -> np.ndarray | None:
         import cv2
@@ -58,6 +59,8 @@ class _Reader:
         i = self.index.get(int(frame))
         if i is None or not self.cap.isOpened():
             return None
+        if self.last is not None and self.last[0] == i:  # redrawn after an edit: no seek back
+            return self.last[1].copy()
         if i != self.pos:
             if 0 < i - self.pos <= 12:  # a short step forward: decode on, no seek
                 for _ in range(i - self.pos):
@@ -66,7 +69,8 @@ class _Reader:
                 self.cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         ok, img = self.cap.read()
         self.pos = i + 1 if ok else -1
-        return img if ok else None
+        self.last = (i, img) if ok else None
+        return img.copy() if ok else None
 
     def close(self) -> None:
         self.cap.release()
