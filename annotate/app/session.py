@@ -61,9 +61,8 @@ class Session:
 
         self.ctl = Controller.open(scene, run=run, cameras=cameras)
         self.rec = new_recording()
-        # no height until the page says whether it renders in software (Controller.set_renderer)
-        self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT if self.ctl.viewer_shown else 0,
-                             recording=self.rec)
+        # hidden until the page says whether it renders in software (Controller.set_renderer)
+        self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT, recording=self.rec)
         target = self.rec
         if native:
             import rerun as rr
@@ -92,7 +91,7 @@ class Session:
             self.logger.send_track(self.cols[tid], selected=tid == self.ctl.selected)
         target.flush()
         self.timeline = "frame"
-        self.panel = Panel(shortcuts=SHORTCUTS)
+        self.panel = Panel(shortcuts=SHORTCUTS, hide_viewer=self.ctl.viewer_shown is not True)
         if self.notes:
             self.ctl.message = "; ".join(self.notes)
         self.ctl.on_tracks.append(self._resend)
@@ -134,7 +133,7 @@ class Session:
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
 
     def _show_viewer(self, shown: bool) -> None:
-        self.viewer._viewer._height = VIEWER_HEIGHT if shown else 0  # a hidden viewer paints nothing
+        self.panel.hide_viewer = not shown  # the panel's script hides the viewer's element
         if shown:
             self._move_cursor(self.ctl.frame)
 
