@@ -20,6 +20,17 @@ that frame), per frame one to one by ground distance (Hungarian) within 3 m (the
 mean error of the pairs; cross-camera id consistency as ``s2p eval`` reports it (views paired
 with the truth per camera and frame; share of a road user's views in a frame that carry its
 majority id).
+
+Each associated run is also compared with its cameras alone *on the same truth* (the rows its
+cameras see), in ``same_truth``: per camera alone its recall, precision and mean error against
+the configuration's truth (a lens scored on its own truth is not charged for road users only the
+other lenses see, so its recall there is not comparable with the configuration's), and the
+*common matched set* -- truth rows that the configuration's run and every one of its cameras
+alone matched -- with each run's mean error on it (the same poses for every run: by the triangle
+inequality the mean of views is no farther from the truth than their mean distance).
+
+``--rescore``: no s2p call; score the runs already in DIR/<input>-S/out again (the masks and runs
+of the last call) and write the rows file.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from seg2pose.eval.evaluate import id_consistency, match_nearest  # noqa: E402
 from seg2pose.io.mots import iter_mots  # noqa: E402
 from seg2pose.io.poses import read_poses  # noqa: E402
+from seg2pose.io.poses import PoseTable  # noqa: E402
 from seg2pose.io.run import read_run_poses, read_views  # noqa: E402
 from seg2pose.structures.masks import rle_stats  # noqa: E402
 from video_figures import coco_from_masks, fresh_scene, s2p  # noqa: E402
@@ -60,11 +72,42 @@ def visible(truth: Path) -> dict[str, set]:
     return out
 
 
-def score(scene: Path, run: Path, truth: Path, vis: dict, cams: list[str]) -> dict:
+def seen_rows(truth: Path, vis: dict, cams: list[str]) -> PoseTable:
+    """The rows of gt/poses.csv that one of ``cams`` sees (``visible``)."""
     gt = read_poses(truth / "gt" / "poses.csv")
     seen = set().union(*(vis[c] for c in cams))
-    keep = np.array([(int(f), int(i)) in seen for f, i in zip(gt.frame, gt.track_id)])
-    gtv = gt.take(keep) if hasattr(gt, "take") else gt.subset(keep)
+    keep = np.array([(int(f), int(i)) in seen for f, i in zip(gt.frame, gt.track_id)], bool)
+    return gt.take(np.flatnonzero(keep))
+
+
+def same_truth(fused: PoseTable, alone: dict[str, PoseTable], gtv: PoseTable,
+               gate: float = GATE) -> dict:
+    """A configuration's run ``fused`` and its cameras alone (``alone``: camera -> poses) on
+    the same truth ``gtv``: per camera its recall, precision and mean error there (``alone``);
+    the truth rows every one of the runs matched (``common``: n) with the mean error of each
+    run on them (``error_m`` the configuration's, ``alone_error_m`` per camera,
+    ``alone_mean_error_m`` their mean)."""
+    def pairs(est: PoseTable) -> dict[int, float]:
+        ie, ig = match_nearest(est, gtv, gate)
+        err = np.linalg.norm(est.xyz[ie, :2] - gtv.xyz[ig, :2], axis=1)
+        return dict(zip(ig.tolist(), err.tolist()))
+
+    pf = pairs(fused)
+    pa = {c: pairs(p) for c, p in alone.items()}
+    out = {c: {"recall": len(pa[c]) / max(len(gtv), 1),
+               "precision": len(pa[c]) / max(len(alone[c]), 1),
+               "error_m": float(np.mean(list(pa[c].values()))) if pa[c] else float("nan")}
+           for c in alone}
+    common = sorted(set(pf).intersection(*(set(d) for d in pa.values())))
+    mean = lambda d: float(np.mean([d[g] for g in common])) if common else float("nan")  # noqa: E731
+    per_cam = {c: mean(pa[c]) for c in alone}
+    return {"alone": out, "common": {"n": len(common), "error_m": mean(pf), "alone_error_m": per_cam,
+                                     "alone_mean_error_m": float(np.mean(list(per_cam.values())))}}
+
+
+def score(scene: Path, run: Path, truth: Path, vis: dict, cams: list[str]) -> dict:
+    gt = read_poses(truth / "gt" / "poses.csv")
+    gtv = seen_rows(truth, vis, cams)
     est = read_run_poses(run)
     ie, ig = match_nearest(est, gtv, GATE)
     err = np.linalg.norm(est.xyz[ie, :2] - gtv.xyz[ig, :2], axis=1)
@@ -117,24 +160,32 @@ def main() -> None:
     ap.add_argument("--skip-before", action="store_true", help="no runs before association")
     ap.add_argument("--skip-alone", action="store_true", help="no runs of the cameras alone (kept from an earlier call)")
     ap.add_argument("--confirm", type=float, default=None, help="s2p run --confirm for the associated runs")
+    ap.add_argument("--rescore", action="store_true", help="no s2p call: score the runs in DIR/<input>-S/out again")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     seed = json.loads((a.video_scene / "scene.json").read_text())["extra"]["generator"]["seed"]
-    work = prepare(a.video_scene, a.out, a.input, seed, a.reuse)
+    work = a.out / f"{a.input}-{seed}" if a.rescore else prepare(a.video_scene, a.out, a.input, seed, a.reuse)
     vis = visible(a.truth_scene)
     rows = []
 
     def run(name: str, cams: list[str], stage: str, *extra: str) -> None:
         d = work / "out" / f"{stage}-{name}"
-        s2p("run", str(work), "-o", str(d), "-c", name if name in MULTI else f"cam-{name}",
-            "--baseline", "--force", *extra)
+        if not a.rescore:
+            s2p("run", str(work), "-o", str(d), "-c", name if name in MULTI else f"cam-{name}",
+                "--baseline", "--force", *extra)
+        elif not d.exists():
+            return
         r = {"seed": seed, "input": a.input, "stage": stage, "config": name,
              **score(work, d, a.truth_scene, vis, cams)}
+        if stage == "associated":
+            r["same_truth"] = same_truth(read_run_poses(d), {c: read_run_poses(work / "out" / f"alone-{c}")
+                                                             for c in cams},
+                                         seen_rows(a.truth_scene, vis, cams))
         rows.append(r)
         print(json.dumps(r), flush=True)
 
     alone_file = a.out / f"alone-{a.input}-{seed}.json"
-    if a.skip_alone and alone_file.exists():
+    if a.skip_alone and alone_file.exists() and not a.rescore:
         rows += json.loads(alone_file.read_text())
     else:
         for c in CAMERAS:
@@ -144,7 +195,8 @@ def main() -> None:
         for name, cams in MULTI.items():
             run(name, cams, "unassociated", "--fuse-unassociated")
     sets = [x for kv in a.set for x in ("--set", kv)]
-    print(s2p("associate", str(work), "--force", *sets).strip(), flush=True)
+    if not a.rescore:
+        print(s2p("associate", str(work), "--force", *sets).strip(), flush=True)
     conf = () if a.confirm is None else ("--confirm", str(a.confirm))
     for name, cams in MULTI.items():
         run(name, cams, "associated", *conf)

@@ -8,7 +8,9 @@ MCAP + layout + CSV as one set), ``annotate import-tanalyst``, ``associate`` and
 Put complete old outputs in place, start the command (with --force where it replaces them),
 SIGKILL it after a random share (0.15-1.05) of its usual duration, and classify the outputs:
 absent, the complete old ones, the complete new ones, or mixed (anything else, also a set of
-which some outputs are old and some new). ``batch`` is then run again without --force, as a
+which some outputs are old and some new: counted as the outputs are the moment after the
+kill; "finished" says how many of those the next writer's first step, ``finish_commits``,
+made the new set). ``batch`` is then run again without --force, as a
 user would after a crash: "between" counts kills that left some steps done (each output whole)
 and a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
 promise is 0 mixed. Then one full run checks that the dead writers' leftovers are removed.
@@ -49,7 +51,7 @@ def main() -> None:
             cases = [c for c in cases if c.name in only]
         rng = np.random.default_rng(args.seed)
         print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
-              f"{'mixed':>6} {'leftovers':>10} {'s/run':>6}", flush=True)
+              f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
         total_mixed = total_left = 0
         for c in cases:
             c.run_fully()
@@ -64,7 +66,7 @@ def main() -> None:
             total_mixed += n["mixed"]
             total_left += left
             print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
-                  f"{n['between']:>8} {n['mixed']:>6} {left:>10} {c.seconds:>6.2f}   "
+                  f"{n['between']:>8} {n['mixed']:>6} {n['finished']:>9} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
             for states, beside in c.mixed:
                 print(f"    mixed: outputs {states}, beside them {beside}", flush=True)

@@ -77,7 +77,9 @@ class ExportOptions:
     and annotations follow; the mono16 masks stay full size); jpeg_quality: of video and
     display images; layout: write the Foxglove layout beside the file; attachments: more files
     to carry, name -> bytes (e.g. an annotation journal, see ``annotated_mcap``); conflicts:
-    a conflicts.csv (``s2p conflicts``) exported as events (``s2p_review.conflicts``)."""
+    a conflicts.csv (``s2p conflicts``) exported as events (``s2p_review.conflicts``); gt: the
+    ground truth to show (None: the scene's gt/poses.csv when it has one), e.g. the gt that
+    an annotation export writes in the same set (the file on disk is the one it replaces)."""
 
     frames: tuple[int, int] | None = None
     cameras: list[str] | None = None
@@ -90,6 +92,7 @@ class ExportOptions:
     layout: bool = True
     attachments: dict[str, bytes] | None = None
     conflicts: Path | None = None  # a conflicts.csv: its rows as events on /s2p/conflicts
+    gt: PoseTable | None = None
 
 
 @dataclass(frozen=True)
@@ -269,7 +272,8 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     tb = scene_timebase(scene, opts.start_ns)
     poses = run.poses.in_frames((sel.first, sel.last))
     psz = C.sizes_of(poses, scene)
-    gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last)) if scene.gt_path.exists() else None
+    gt = opts.gt if opts.gt is not None else read_poses(scene.gt_path) if scene.gt_path.exists() else None
+    gt = gt.in_frames((sel.first, sel.last)) if gt is not None else None
     t0 = tb.ns1(sel.first)
     events = []
     if opts.conflicts is not None:

@@ -6,18 +6,17 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 from seg2pose.core.errors import InputError, S2PError
-from seg2pose.io.atomic import temp_sibling_dir
+from seg2pose.io.atomic import os_errors, outputs, replacing
 from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
 from seg2pose.core.validate import inside, safe_name
 from s2p_review import mcap_records as R
-from s2p_review.annotated_mcap import restore_annotation_files
+from s2p_review.annotated_mcap import PREFIX, restore_annotation_files
 
 
 @dataclass
@@ -58,22 +57,6 @@ def read_mcap_records(path: Path) -> McapRecords:
     return res
 
 
-def _move_into(tmp: Path, out_dir: Path) -> None:
-    """Move the folder ``tmp`` to ``out_dir``: one rename when ``out_dir`` is new or empty, else
-    file by file (each rename atomic)."""
-    if not out_dir.exists() or not any(out_dir.iterdir()):
-        if out_dir.exists():
-            out_dir.rmdir()
-        os.replace(tmp, out_dir)
-        return
-    for p in sorted(tmp.rglob("*")):
-        if p.is_file():
-            dst = out_dir / p.relative_to(tmp)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(p, dst)
-    shutil.rmtree(tmp)
-
-
 _MALFORMED = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError)
 
 
@@ -109,13 +92,38 @@ def _check_restored(run_dir: Path, path: Path) -> None:
                                  file=path) from None
 
 
+def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRecords,
+             meta: dict, path: Path, check_annotations) -> None:
+    """Write the restored scene into the new folder ``tmp``: scene.json, the ground points,
+    the run folder ``run_rel`` and the annotation journal (checked by ``check_annotations``)."""
+    with os_errors(tmp):
+        (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
+        (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / gfile).write_bytes(att[gfile])
+    run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+    if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
+        run_meta["scene"] = "../.."
+    views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
+             if meta.get("has_views") == "true" or rec.views else None)
+    write_run_folder(tmp / run_rel, table, views, run_meta)
+    _check_restored(tmp / run_rel, path)
+    restored = restore_annotation_files(att, tmp, path)
+    if restored and check_annotations is not None:
+        # the command layer opens the restored project (s2p_review cannot import annotate)
+        check_annotations(tmp, path)
+
+
 def import_mcap(path: Path, out_dir: Path, force: bool = False,
                 check_annotations: Callable[[Path, Path], None] | None = None) -> Path:
     """Restore an ``s2p export`` file as a scene folder: OUT/scene.json and the ground points
     (bytes as exported), OUT/out/<run>/run.json, poses.csv (the exact pose table) and
-    views.csv, and an annotation journal when the export carries one (OUT/annotations/). Refuses a non-empty ``out_dir`` unless ``force``. ``check_annotations(folder, path)``, when
-    given, is called on the restored folder before it is moved into place (it raises for a
-    journal that does not open). Returns the run folder."""
+    views.csv, and an annotation journal when the export carries one (OUT/annotations/).
+    Refuses a non-empty ``out_dir`` unless ``force``; a new folder is renamed into place
+    whole, and into an existing one (``force``) those outputs are swapped in as one set
+    (``atomic.outputs``: the journal folder replaced whole, the folder's other files kept).
+    ``check_annotations(folder, path)``, when given, is called on the restored folder before
+    anything is moved into place (it raises for a journal that does not open). Returns the
+    run folder."""
     path, out_dir = Path(path), Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not force:
         raise S2PError(f"{out_dir} exists and is not empty; pass --force to write into it")
@@ -139,25 +147,23 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False,
     table = _parsed(R.pose_table, rec.poses, R.POSES_TOPIC, path,
                     meta.get("poses_with_size", "true") == "true")
 
-    # build in a temporary sibling folder, then move into place: nothing half-written
-    tmp = temp_sibling_dir(out_dir)
-    try:
-        (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
-        (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
-        (tmp / gfile).write_bytes(att[gfile])
-        run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
-        if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
-            run_meta["scene"] = "../.."
-        views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
-                 if meta.get("has_views") == "true" or rec.views else None)
-        write_run_folder(tmp / "out" / run_name, table, views, run_meta)
-        _check_restored(tmp / "out" / run_name, path)
-        restored = restore_annotation_files(att, tmp, path)
-        if restored and check_annotations is not None:
-            # the command layer opens the restored project (s2p_review cannot import annotate)
-            check_annotations(tmp, path)
-        _move_into(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    journal = any(a.startswith(PREFIX) for a in att)
+    run_rel = Path("out") / run_name
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        # a new scene folder: built beside it and renamed into place as a whole
+        with replacing(out_dir, force=True) as tmp:
+            _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations)
+        return out_dir / run_rel
+    # into an existing folder (--force): what the import writes (scene.json, the ground points,
+    # the run folder and the annotation journal) as one set of outputs, each locked and
+    # checked first, all built in one partial folder and swapped in together; the folder's
+    # other files stay
+    finals = [out_dir / SCENE_FILE, out_dir / gfile, out_dir / run_rel]
+    if journal:
+        finals.append(out_dir / PREFIX.rstrip("/"))
+    with outputs(finals, force=True) as files:
+        tmp = files.file(out_dir / SCENE_FILE).parent
+        _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations)
+        for final in finals[1:]:
+            files.adopt(final, tmp / final.relative_to(out_dir))
     return out_dir / "out" / run_name

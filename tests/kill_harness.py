@@ -212,7 +212,7 @@ class Case:
     new: object = None
     seconds: float = 1.0
     counts: dict = field(default_factory=lambda: {"absent": 0, "old": 0, "new": 0, "between": 0,
-                                                  "mixed": 0})
+                                                  "mixed": 0, "finished": 0})
     mixed: list = field(default_factory=list)  # per mixed kill: each output's state, leftovers
 
     def __post_init__(self) -> None:
@@ -267,7 +267,9 @@ class Case:
         """Put the old outputs back, start the command, SIGKILL it after a random part of its
         usual duration (sometimes after it finished), classify the outputs. With ``resume``
         the command is then run again (without --force, as after a crash) and a re-run that
-        fails or does not end with the uninterrupted run's outputs counts as ``mixed``."""
+        fails or does not end with the uninterrupted run's outputs counts as ``mixed``. Then
+        what the next writer does first is done (``finish_commits``); a mixed set that this
+        makes the new one is also counted as ``finished``."""
         self.old_state()
         self.put_old()
         z = zygote()
@@ -283,6 +285,14 @@ class Case:
             self.mixed.append(([("new" if x == n else "old" if x == o else "absent" if x is None
                                  else "other") for x, o, n in zip(st, self._old, self.new)],
                                self.leftovers()))
+        # what the next writer of any output does first: finish a set commit the killed one
+        # recorded (so the old outputs put back for the next kill are not mixed with its builds)
+        from seg2pose.io.atomic import finish_commits
+
+        for o in self.outs:
+            finish_commits(o)
+        if kind == "mixed" and self.classify() == "new":
+            self.counts["finished"] += 1
         if self.resume and kind != "mixed":
             z.start([a for a in self.argv if a != "--force"])
             if z.wait(600) != 0 or self.snap() != self.new:
@@ -384,8 +394,9 @@ def _project_state(scene_root: Path) -> Callable:
 def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     """The writing commands of issue 24 on tiny inputs under ``root``: masks-from-video,
     import-detections, track, new-scene, import-tacal, annotate export (gt + MCAP + layout +
-    CSV as one set), annotate import-tanalyst, associate (masks/ as a unit) and batch --serial
-    (killed, then re-run)."""
+    CSV as one set), annotate import-tanalyst, associate (masks/ as a unit), import-mcap --force
+    into an existing scene folder (scene.json, ground points, run and journal as one set) and
+    batch --serial (killed, then re-run)."""
     import contextlib as _cl
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -448,6 +459,19 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
         p.create_track("pedestrian")
         p.set_keyframe(2, 2, 1.0, 2.0, heading=1.0)
         p.set_keyframe(2, 12, 1.0, 4.0)
+        with _cl.redirect_stdout(None):  # import-mcap --force: this set over the older one's
+            export_set(p, root / "mcap-new", gt=False, mcap=True, tanalyst=False,
+                       start="00:00:00.000", force=True)
+    from s2p_review.mcap_import import import_mcap
+    from seg2pose.cli.review import _check_restored_journal
+
+    import_mcap(old / "ann-export" / "annotations.mcap", old / "restored",
+                check_annotations=_check_restored_journal)
+    restored = [old / "restored" / n for n in ("scene.json", load_scene(ann).ground_file,
+                                               "out/annotations", "annotations")]
+    imp = out / "restored"
+    (old / "video").mkdir()  # a file of the scene folder that the import does not write
+    (old / "video" / "keep.txt").write_text("not an output of import-mcap\n")
     # import-tanalyst: into a project with one track
     tan = make_scene(root / "tan", n_frames=30).root
     with Project.open(tan) as p:
@@ -492,6 +516,10 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
                                  "12:00:00.000"], [tan / "annotations"],
              [old / "tan-annotations"], state=_project_state(tan)),
         Case("associate", ["associate", aso, "--force"], [aso / "masks"], [old / "aso-masks"]),
+        Case("import-mcap", ["import-mcap", root / "mcap-new" / "annotations.mcap", "-o", imp,
+                             "--force"],
+             [imp / r.relative_to(old / "restored") for r in restored] + [imp / "video"],
+             restored + [old / "video"]),
         Case("batch-serial", ["batch", study, "masks-from-video", "run", "--baseline", "--serial",
                               "--no-progress"],
              [study / "s1" / "masks" / "c0.txt", study / "s1" / "batch", study / "summary.json"],

@@ -231,6 +231,7 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     from annotate.tanalyst_io import annotations_to_tanalyst
     from s2p_review.annotated_mcap import export_annotated_mcap
     from s2p_review.foxglove_layout import layout_path
+    from s2p_review.mcap_export import ExportOptions
 
     from seg2pose.io.poses import write_poses
     from seg2pose.io.tanalyst import write_tanalyst
@@ -250,15 +251,19 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     t_start = _parse_start(start)
     said = []
     with outputs(paths, force=True) as files:
+        truth = None
         if gt:
-            write_poses(files.file(p.scene.gt_path), gt_table(p))
+            truth = gt_table(p)
+            write_poses(files.file(p.scene.gt_path), truth)
             said.append(f"wrote {p.scene.gt_path}")
         if mcap:
             dst = out / "annotations.mcap"
             tmp = files.file(dst)
             with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as d:
                 run = write_annotation_run(p, Path(d) / "annotations")
-                res = export_annotated_mcap(p.scene, run, tmp, journal_files(p), force=True)
+                # the MCAP shows the set's own gt, not the gt/poses.csv this set replaces
+                res = export_annotated_mcap(p.scene, run, tmp, journal_files(p),
+                                            ExportOptions(gt=truth), force=True)
             files.adopt(layout_path(dst), res.layout or layout_path(tmp))
             said += [f"note: {n}" for n in res.notes]
             said.append(f"wrote {dst} ({tmp.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "

@@ -16,8 +16,8 @@ one writer at a time, and the leftovers of killed writers cleaned up.
   locked and checked before anything is written, each built beside its final name (a file in
   a partial folder of its own, so that a library's own temporaries and a multi-stage build's
   intermediate results stay there too), swapped in at the end; a set swapped in together
-  records its swaps first (``.NAME.commit-PID.json``), so that a writer killed between two
-  renames is finished by the next writer of that output.
+  records its swaps first (``.NAME.commit-PID.json`` in every folder of the set), so that a
+  writer killed between two swaps is finished by the next writer of any of its outputs.
 - ``os_errors(path)``: disk full, a file where a folder should be, a read-only folder: an
   S2PError naming the output and the cause (one line in the CLI) instead of a traceback.
 """
@@ -336,14 +336,53 @@ def replacing(path: str | Path, force: bool = False, folder: bool = True) -> Ite
 # the outputs of one command, as a set
 
 
-def _commit_path(path: Path) -> Path:
-    return path.parent / f".{path.name}.commit-{os.getpid()}.json"
+def _commit_path(path: Path, pid: int | None = None) -> Path:
+    return path.parent / f".{path.name}.commit-{os.getpid() if pid is None else pid}.json"
+
+
+def _record_paths(finals: list[Path], pid: int | None = None) -> list[Path]:
+    """Where a set's commit record lies: one copy in every folder of the set's outputs, named
+    after the first output in that folder, so that a writer of any one output finds it."""
+    first = {}
+    for p in finals:
+        first.setdefault(p.parent, p)
+    return [_commit_path(p, pid) for p in first.values()]
+
+
+def _swap(tmp: Path, path: Path) -> Path | None:
+    """Put the build ``tmp`` at ``path``: an existing output is exchanged with it in one step
+    (the old one is then under ``tmp``'s name; ``path`` is never absent), else moved aside
+    (``.NAME.old-PID-x``) where the system cannot exchange. Returns where the old output now
+    is (None: there was none)."""
+    if path.exists() or path.is_symlink():
+        if _exchange(tmp, path):
+            return tmp
+        old = path.parent / f".{path.name}.old-{os.getpid()}-{os.urandom(3).hex()}"
+        os.replace(path, old)
+        os.replace(tmp, path)
+        return old
+    os.replace(tmp, path)
+    return None
+
+
+def _read_record(path: Path) -> list[tuple[Path, Path, int | None]] | None:
+    """A commit record's (build, output, build's inode) triples; None when torn (cut by a kill
+    while it was written: before any swap, so none was done)."""
+    try:
+        rows = json.loads(path.read_text(encoding="utf-8"))
+        return [(Path(r[0]), Path(r[1]), int(r[2]) if len(r) > 2 else None) for r in rows]
+    except (OSError, ValueError, TypeError, IndexError):
+        return None
 
 
 def finish_commits(path: str | Path) -> list[Path]:
-    """Finish the swaps a writer of ``path`` killed in the middle of a set's commit recorded
-    (``.NAME.commit-PID.json``): every built output it lists that is still there is swapped
-    in, so the set is the new one as a whole. Returns the outputs swapped in now."""
+    """Finish the set commits that writers killed among their swaps recorded
+    (``.NAME.commit-PID.json`` beside ``path``, of any set that ``path`` is an output of):
+    every build still under its partial name (the inode the record names) is swapped in, so
+    the set is the new one as a whole; the old outputs and the records are removed. A set
+    whose records are not all there and whole was killed before its first swap or after its
+    last: its records are removed (its builds are dead partials). Returns the outputs
+    swapped in now."""
     path = Path(path)
     done = []
     try:
@@ -352,39 +391,46 @@ def finish_commits(path: str | Path) -> list[Path]:
         return done
     for e in entries:
         m = _COMMIT.match(e.name)
-        if not m or m.group("name") != path.name or pid_alive(int(m.group("pid"))):
+        if not m or pid_alive(int(m.group("pid"))):
             continue
-        try:
-            pairs = json.loads(Path(e.path).read_text(encoding="utf-8"))
-            pairs = [(Path(a), Path(b)) for a, b in pairs]
-        except (OSError, ValueError, TypeError):
-            pairs = []  # torn: written before any swap, so nothing was swapped yet
+        rows = _read_record(Path(e.path))
+        if rows is None:
+            with contextlib.suppress(OSError):
+                os.unlink(e.path)
+            continue
+        finals = [final for _, final, _ in rows]
+        if path not in finals:
+            continue  # another set's, finished by a writer of its outputs
+        records = _record_paths(finals, int(m.group("pid")))
+        if rows[0][2] is not None and any(_read_record(r) != rows for r in records):
+            # a copy missing or torn: the writer died while recording (no swap was done yet)
+            # or after its swaps, while removing the records: nothing to finish either way
+            for r in records:
+                with contextlib.suppress(OSError):
+                    os.unlink(r)
+            continue
         olds = []
-        for tmp, final in pairs:
-            if tmp.exists() or tmp.is_symlink():  # not renamed in yet
-                olds.append(_rename_in(tmp, final))
+        for tmp, final, ino in rows:
+            try:
+                built = os.lstat(tmp).st_ino == ino or ino is None
+            except OSError:
+                continue  # swapped in, and its old output removed
+            if built:  # not swapped in yet
+                olds.append(_swap(tmp, final))
                 done.append(final)
-        for d in dict.fromkeys(final.parent for _, final in pairs):
+            else:  # swapped in: what is under the build's name is the old output
+                olds.append(tmp)
+        for d in dict.fromkeys(final.parent for _, final, _ in rows):
             fsync_dir(d)
+        for r in records:
+            with contextlib.suppress(OSError):
+                os.unlink(r)
         for old in olds:
             if old is not None:
                 _remove(old)
-        for tmp, _ in pairs:
+        for tmp, _, _ in rows:
             _remove_partial_folder(tmp)
-        with contextlib.suppress(OSError):
-            os.unlink(e.path)
     return done
-
-
-def _rename_in(tmp: Path, path: Path) -> Path | None:
-    """Move an existing ``path`` aside (``.NAME.old-PID``) and ``tmp`` to ``path``: two
-    renames, no fsync between. Returns where the old output now is (None: there was none)."""
-    old = None
-    if path.exists() or path.is_symlink():
-        old = path.parent / f".{path.name}.old-{os.getpid()}-{os.urandom(3).hex()}"
-        os.replace(path, old)
-    os.replace(tmp, path)
-    return old
 
 
 def _remove_partial_folder(tmp: Path) -> None:
@@ -441,9 +487,10 @@ class OutputSet:
     def commit(self, *paths: str | Path) -> None:
         """Swap in ``paths`` (default: every output built and not yet swapped in). One output
         is exchanged with the old one in one step (``swap_in``). Several are made durable
-        first, then recorded, then renamed in one after another with nothing else between
-        (microseconds); a writer killed among those renames is finished by the next writer
-        of the set (``finish_commits``)."""
+        first, then recorded (a record in each of their folders), then each exchanged with its
+        old output one after another with nothing else between (microseconds: the only time
+        the set is part old, part new, each output whole); a writer killed among those swaps
+        is finished by the next writer of any output of the set (``finish_commits``)."""
         todo = [self._check(p) for p in paths] if paths else list(self.built)
         todo = [p for p in todo if p in self.built]
         if not todo:
@@ -462,25 +509,32 @@ class OutputSet:
                 swap_in(tmp, todo[0])
                 _remove_partial_folder(tmp)
                 return
-            # written in place: a torn record was cut before any rename, so means none
-            record = _commit_path(todo[0])
-            with open(record, "w", encoding="utf-8") as f:
-                f.write(json.dumps([[str(self.built[p]), str(p)] for p in todo]))
-                f.flush()
-                os.fsync(f.fileno())
-            fsync_dir(record.parent)
+            # the record, beside every output's folder (written in place: a torn one was cut
+            # before any swap, so means none), made durable before the first swap
             builds = [self.built.pop(p) for p in todo]
-            # the old outputs are moved aside (not exchanged): a build still under its partial
-            # name is then exactly one not yet renamed in, which is what finish_commits redoes
-            olds = [_rename_in(tmp, p) for tmp, p in zip(builds, todo)]
+            rows = json.dumps([[str(t), str(p), os.lstat(t).st_ino] for t, p in zip(builds, todo)])
+            records = _record_paths(todo)
+            for record in records:
+                with open(record, "w", encoding="utf-8") as f:
+                    f.write(rows)
+                    f.flush()
+                    os.fsync(f.fileno())
+            for record in records:
+                fsync_dir(record.parent)
+            # each output exchanged with its build, one after another with nothing between:
+            # every output stays whole (old or new); a writer killed among these swaps is
+            # finished by the next writer of any output of the set (finish_commits)
+            olds = [_swap(tmp, p) for tmp, p in zip(builds, todo)]
             for d in dict.fromkeys(p.parent for p in todo):
                 fsync_dir(d)
-            os.unlink(record)
-            fsync_dir(record.parent)
+            for record in records:
+                os.unlink(record)
+            for record in records:
+                fsync_dir(record.parent)
             for old in olds:
                 if old is not None:
                     _remove(old)
-            for tmp in builds:  # after all renames: a build may lie in another one's folder
+            for tmp in builds:  # after all swaps: a build may lie in another one's folder
                 _remove_partial_folder(tmp)
 
     def discard(self) -> None:

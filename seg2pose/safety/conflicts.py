@@ -40,12 +40,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seg2pose.safety.encounters import near_pairs, pair_codes
-from seg2pose.safety.footprints import reach
+from seg2pose.safety.encounters import class_rows, frame_pairs, pair_codes
+from seg2pose.safety.footprints import Footprints
 from seg2pose.safety.kinematics import Motion, MotionOptions, motion
 from seg2pose.safety.pet import PetOptions, PetResult, pet
 from seg2pose.safety.tracks import Tracks
-from seg2pose.safety.ttc import ttc
+from seg2pose.safety.ttc import ttc_rows
 from seg2pose.safety.workers import map_chunks
 
 VULNERABLE = ("pedestrian", "bicyclist")
@@ -88,34 +88,62 @@ class PairFrames:
     distance: np.ndarray
 
 
+class RowData:
+    """What ``pair_frames`` gathers per pair, made once per row for all chunks: the
+    footprints (``footprints.Footprints``), the velocity's components, and each row's track
+    ordinal (rows are sorted by track, so it orders the track ids)."""
+
+    def __init__(self, tracks: Tracks, mot: Motion, fp: Footprints | None = None):
+        self.fp = Footprints(tracks.xy, mot.heading, tracks.size) if fp is None else fp
+        self.vx, self.vy = mot.vel[:, 0], mot.vel[:, 1]  # views
+        tid = tracks.track_id
+        self.track = np.cumsum(np.r_[True, tid[1:] != tid[:-1]]) - 1 if len(tid) else np.zeros(0, np.int64)
+
+
 def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
-                rows: np.ndarray | None = None) -> PairFrames:
+                rows: np.ndarray | None = None, apart: np.ndarray | None = None,
+                data: RowData | None = None) -> PairFrames:
     """TTC and distance at every frame two road users are within ``near_m`` (``rows``: only
-    these rows of ``tracks``; default all)."""
+    these rows of ``tracks``; default all; ``apart``: (N,) bool, rows not paired with each
+    other, see ``apart_rows``; ``data``: ``RowData(tracks, mot)`` when made already)."""
     rows = np.arange(len(tracks)) if rows is None else rows
-    p = near_pairs(tracks, rows, opts.near_m, 0.0)
+    data = RowData(tracks, mot) if data is None else data
+    fp, vx, vy = data.fp, data.vx, data.vy
+    p = frame_pairs(tracks, rows, opts.near_m, apart)
     a, b = p[:, 0], p[:, 1]
-    d = np.hypot(*(tracks.xy[a] - tracks.xy[b]).T)
+    d = np.hypot(fp.x[a] - fp.x[b], fp.y[a] - fp.y[b])
     keep = d <= opts.near_m
     a, b, d = a[keep], b[keep], d[keep]
-    order = np.lexsort((tracks.frame[a], tracks.track_id[b], tracks.track_id[a]))
+    order = _pair_frame_order(tracks, data, a, b)
     a, b, d = a[order], b[order], d[order]
     # exact shortcut: apart (farther than their reaches) and not closing in, or too far to
     # meet within the horizon: no collision course (the centre distance of two bodies at
     # constant velocity is convex in time)
-    rel = tracks.xy[b] - tracks.xy[a]
-    vrel = mot.vel[b] - mot.vel[a]
-    gap = d - reach(tracks.size[a]) - reach(tracks.size[b])
-    speed = np.hypot(vrel[:, 0], vrel[:, 1])
-    maybe = ~((gap > 0) & ((rel[:, 0] * vrel[:, 0] + rel[:, 1] * vrel[:, 1] >= 0) | (gap > speed * opts.horizon_s)))
+    rx, ry = fp.x[b] - fp.x[a], fp.y[b] - fp.y[a]
+    wx, wy = vx[b] - vx[a], vy[b] - vy[a]
+    gap = d - fp.reach[a] - fp.reach[b]
+    speed = np.hypot(wx, wy)
+    maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap > speed * opts.horizon_s)))
     x = np.full(len(a), np.nan)
     idx = np.flatnonzero(maybe)
     for i in range(0, len(idx), TTC_BLOCK):  # in blocks: the temporaries stay small
         sl = idx[i:i + TTC_BLOCK]
-        j, k = a[sl], b[sl]
-        x[sl] = ttc(tracks.xy[j], mot.heading[j], tracks.size[j], mot.vel[j],
-                    tracks.xy[k], mot.heading[k], tracks.size[k], mot.vel[k], opts.horizon_s)
+        x[sl] = ttc_rows(fp, vx, vy, a[sl], b[sl], opts.horizon_s)
     return PairFrames(a, b, x, d)
+
+
+def _pair_frame_order(tracks: Tracks, data: RowData, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The order of pair frames (a, b) by (track a, track b, frame): one integer key (unique:
+    a track is in a frame once) where it fits in 62 bits, else three sort keys."""
+    if len(a) == 0:
+        return np.zeros(0, np.int64)
+    fr = tracks.frame[a]
+    f0 = int(fr.min())
+    F = int(fr.max()) - f0 + 1
+    U = int(data.track[-1]) + 1
+    if U * U * F < 2 ** 62:
+        return np.argsort((data.track[a] * U + data.track[b]) * F + (fr - f0))
+    return np.lexsort((fr, tracks.track_id[b], tracks.track_id[a]))
 
 
 COLUMNS = ["track_a", "class_a", "track_b", "class_b", "type", "conflict", "first_frame",
@@ -206,9 +234,21 @@ def _deciding(tracks: Tracks, mot: Motion, pf: PairFrames, opts: ConflictOptions
     return keep
 
 
-def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions) -> tuple[PairFrames, int]:
+def apart_rows(tracks: Tracks, opts: ConflictOptions) -> np.ndarray | None:
+    """(N,) bool: the rows whose pairs among themselves the table leaves out (pedestrians,
+    unless ``opts.pedestrian_pairs``), so they are not searched at all; None: none."""
+    if opts.pedestrian_pairs:
+        return None
+    ped = class_rows(tracks.cls, "pedestrian")
+    return ped if ped.any() else None
+
+
+def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
+                         apart: np.ndarray | None = None,
+                         fp: Footprints | None = None) -> tuple[PairFrames, int]:
     """The deciding pair frames of the whole recording (sorted by pair, then frame), found
-    chunk by chunk of ``opts.chunk_s`` seconds; and how many pair frames were compared."""
+    chunk by chunk of ``opts.chunk_s`` seconds; and how many pair frames were compared
+    (``apart``: see ``pair_frames``; ``fp``: the rows' footprints when made already)."""
     t = tracks.t
     if len(t) == 0:
         e = np.zeros(0, np.int64)
@@ -218,8 +258,10 @@ def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions) -> 
     order = np.argsort(k, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(k[order])) + 1, len(k)]
 
+    data = RowData(tracks, mot, fp)  # once, shared by the forked workers
+
     def chunk(i: int) -> tuple[PairFrames, int]:
-        pf = pair_frames(tracks, mot, opts, np.sort(order[bounds[i]:bounds[i + 1]]))
+        pf = pair_frames(tracks, mot, opts, np.sort(order[bounds[i]:bounds[i + 1]]), apart, data)
         keep = _deciding(tracks, mot, pf, opts)
         return PairFrames(pf.a[keep], pf.b[keep], pf.ttc[keep], pf.distance[keep]), len(pf.a)
 
@@ -242,10 +284,16 @@ def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Moti
     say("motion")
     mot = motion(tracks, opts.motion) if mot is None else mot
     say("TTC")
-    pf, compared = streamed_pair_frames(tracks, mot, opts)
+    # pairs the table leaves out (two pedestrians, by default) are not searched: every row
+    # of the table is one pair's, so the others' rows do not change
+    apart = apart_rows(tracks, opts)
+    fp = Footprints(tracks.xy, mot.heading, tracks.size)  # per row, for TTC and PET
+    pf, compared = streamed_pair_frames(tracks, mot, opts, apart, fp)
     say("PET")
     touch = pf.ttc == 0  # footprints overlapping at a frame: PET 0 there
-    pr = pet(tracks, mot, opts.pet_options(), workers=opts.workers, touching=np.c_[pf.a[touch], pf.b[touch]])
+    pr = pet(tracks, mot, opts.pet_options(), workers=opts.workers, touching=np.c_[pf.a[touch], pf.b[touch]],
+             apart=apart, fp=fp)
+    del fp
     say("table")
     table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr, compared)
     c = table.columns

@@ -10,7 +10,8 @@ window). ``centred`` takes the window around the frame instead (no lag, but it s
 future: a braking shows before it starts).
 
 All functions work on ``Tracks`` rows (sorted by track, then frame) and are vectorised over
-rows: one pass per frame of the window.
+rows: a correlation with fixed weights where the frames of the window are consecutive, one
+pass per frame of the window elsewhere.
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.tracks import Tracks
+
+
+BACKWARDS_MPS = 1e-6  # slower than this along the heading: not moving backwards
 
 
 @dataclass(frozen=True)
@@ -56,32 +60,70 @@ def window_frames(fps: float, opts: MotionOptions) -> int:
 def slope(tracks: Tracks, values: np.ndarray, n: int, centred: bool = False) -> np.ndarray:
     """(N, k) least-squares slope per second of ``values`` (N, k) over the ``n`` rows ending at
     each row (``centred``: around it) within its track, using the rows' times (gaps are
-    fine). A row alone in its track gets 0."""
+    fine). A row alone in its track gets 0.
+
+    Where the window is whole and its frames consecutive (all but a track's first frames and
+    the frames next to a gap), the times are k / fps for fixed k, so the slope is a fixed
+    weighting of the values, fps * sum((k - mean k) v_k) / sum((k - mean k)^2): one
+    correlation per column (``np.correlate``) instead of a pass per frame of the window. The
+    other rows are fitted from their own times (``_slope_rows``). Both are the same least-
+    squares slope; they differ by rounding (below 1e-9 m/s, tests/seg2pose/safety)."""
     values = np.asarray(values, np.float64).reshape(len(tracks), -1)
     N = len(tracks)
-    t = tracks.t
-    lo_row, hi_row = tracks.starts(), tracks.ends()
+    lo_k, hi_k = (-(n // 2), n - n // 2 - 1) if centred else (-(n - 1), 0)
     idx = np.arange(N)
+    out = np.zeros_like(values)
+    if N == 0:
+        return out
+    starts, ends = tracks.starts(), tracks.ends()
+    jl, jh = idx + lo_k, idx + hi_k
+    regular = (jl >= starts) & (jh <= ends)
+    f = tracks.frame
+    regular &= (f[np.clip(jh, 0, N - 1)] - f[np.clip(jl, 0, N - 1)]) == hi_k - lo_k
+    reg = np.flatnonzero(regular)
+    if len(reg):
+        k = np.arange(lo_k, hi_k + 1, dtype=np.float64)
+        kc = k - k.mean()
+        w = kc * (tracks.fps / float(kc @ kc))
+        for c in range(values.shape[1]):
+            # full[p] = sum_m w[m] values[p + m]: the window of rows p .. p + n - 1, row p - lo_k
+            full = np.correlate(values[:, c], w, "valid")
+            out[reg, c] = full[reg + lo_k]
+    irr = np.flatnonzero(~regular)
+    if len(irr):
+        out[irr] = _slope_rows(tracks, values, n, centred, irr)
+    return out
+
+
+def _slope_rows(tracks: Tracks, values: np.ndarray, n: int, centred: bool,
+                rows: np.ndarray) -> np.ndarray:
+    """(R, k) the slope of ``slope`` at ``rows`` (R,), fitted from the rows' own times: one
+    pass per frame of the window."""
+    t = tracks.t
+    lo_row, hi_row = tracks.starts()[rows], tracks.ends()[rows]
+    R = len(rows)
+    t_r = t[rows]
     offs = range(-(n // 2), n - n // 2) if centred else range(-(n - 1), 1)
-    s1 = np.zeros(N)
-    st = np.zeros(N)
-    stt = np.zeros(N)
-    sv = np.zeros_like(values)
-    stv = np.zeros_like(values)
+    s1 = np.zeros(R)
+    st = np.zeros(R)
+    stt = np.zeros(R)
+    sv = np.zeros((R, values.shape[1]))
+    stv = np.zeros((R, values.shape[1]))
     for k in offs:
-        j = idx + k
+        j = rows + k
         ok = (j >= lo_row) & (j <= hi_row)
-        j = np.where(ok, j, idx)
+        j = np.where(ok, j, rows)
         w = ok.astype(np.float64)
-        tau = (t[j] - t) * w  # times relative to the row: no loss of precision late in a video
+        tau = (t[j] - t_r) * w  # times relative to the row: no loss of precision late in a video
         s1 += w
         st += tau
         stt += tau * tau
-        sv += values[j] * w[:, None]
-        stv += values[j] * tau[:, None]
+        vj = np.take(values, j, axis=0)
+        sv += vj * w[:, None]
+        stv += vj * tau[:, None]
     den = s1 * stt - st * st
     num = s1[:, None] * stv - st[:, None] * sv
-    out = np.zeros_like(values)
+    out = np.zeros((R, values.shape[1]))
     good = den > 1e-12
     out[good] = num[good] / den[good][:, None]
     return out
@@ -123,7 +165,8 @@ def motion(tracks: Tracks, opts: MotionOptions = MotionOptions()) -> Motion:
     along = (acc * d).sum(axis=1)
     lateral = acc[:, 1] * d[:, 0] - acc[:, 0] * d[:, 1]
     # moving backwards (a reversing car, or a heading 180 degrees off): braking is against the
-    # direction of motion, not the heading
-    backwards = (vel * d).sum(axis=1) < 0
+    # direction of motion, not the heading. Standing still (exact tracks: a velocity of 0 up to
+    # rounding, whose sign the fit's rounding would decide) counts as forward
+    backwards = (vel * d).sum(axis=1) < -BACKWARDS_MPS
     along = np.where(backwards, -along, along)
     return Motion(vel, speed, acc, along, lateral, heading)

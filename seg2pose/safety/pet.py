@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.encounters import near_pairs, pair_codes
-from seg2pose.safety.footprints import overlap_interval, overlaps, reach
+from seg2pose.safety.footprints import Footprints, overlap_interval, reach
 from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.workers import map_chunks
@@ -67,11 +67,14 @@ def _pair_in(a: np.ndarray, b: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
                      exclude: np.ndarray | None = None, chunk_s: float = 60.0,
-                     workers: int = 1) -> np.ndarray:
+                     workers: int = 1, apart: np.ndarray | None = None,
+                     fp: Footprints | None = None) -> np.ndarray:
     """(K, 2) for each pair of road users whose footprints overlapped at two frames at most
     ``window_s`` apart: the pair of rows closest in time (first column the lower track id).
     ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0); the
-    chunks of ``chunk_s`` seconds are searched in ``workers`` processes.
+    chunks of ``chunk_s`` seconds are searched in ``workers`` processes; ``apart``: (N,) bool,
+    rows not paired with each other (``encounters.near_pairs``); ``fp``: the rows'
+    footprints (``Footprints(tracks.xy, mot.heading, tracks.size)``) when made already.
 
     Coarse to fine: rows every ``sample_s`` (moving ones only) are paired by the k-d tree with
     footprints grown by the travel to the frames in between; then, per pair of road users,
@@ -91,20 +94,37 @@ def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
     ts = t[sampled]
     t0 = float(ts.min())
     k = np.floor((ts - t0) / chunk_s).astype(np.int64)
+    geo = _Geometry(tracks, mot, travel, fp)  # once, shared by the forked workers
 
     def chunk(c: int) -> np.ndarray:
         # this chunk, and the next one's first window_s seconds (pairs reaching across)
         mine = k == c
         rows = sampled[mine | ((k == c + 1) & (ts - t0 - (c + 1) * chunk_s <= opts.window_s + s / fps))]
-        cand = _candidates(tracks, mot, rows, span, travel, opts.window_s + 2 * h / fps, exclude)
-        in_chunk = np.isin(cand, sampled[mine]).any(axis=1)
-        return _closest_overlaps(tracks, mot, cand[in_chunk], s, h, opts.window_s)
+        cand = _candidates(tracks, geo, rows, span, opts.window_s + 2 * h / fps, exclude, apart)
+        is_mine = np.zeros(len(tracks), bool)
+        is_mine[sampled[mine]] = True
+        in_chunk = is_mine[cand].any(axis=1)
+        return _closest_overlaps(tracks, geo, cand[in_chunk], s, h, opts.window_s)
 
     best = map_chunks(chunk, np.unique(k), workers)
     return closest_in_time(tracks, np.concatenate(best))
 
 
-def _candidates(tracks, mot, rows, span, travel, dt, exclude) -> np.ndarray:
+class _Geometry:
+    """The rows' footprints (``footprints.Footprints``), as they are and grown by the travel
+    to the neighbouring frames: made once, gathered per pair."""
+
+    def __init__(self, tracks: Tracks, mot: Motion, travel: np.ndarray, fp: Footprints | None = None):
+        self.exact = Footprints(tracks.xy, mot.heading, tracks.size) if fp is None else fp
+        self.grown = self.exact.grown(2 * travel)
+
+    def overlap(self, a: np.ndarray, b: np.ndarray, grown: bool = False) -> np.ndarray:
+        """(M,) bool: footprints of rows a (M,) and b (M,) overlap (``grown``: the grown
+        ones)."""
+        return (self.grown if grown else self.exact).overlap(a, b)
+
+
+def _candidates(tracks, geo: _Geometry, rows, span, dt, exclude, apart=None) -> np.ndarray:
     """(C, 2) pairs of ``rows`` of two road users within ``dt`` seconds whose footprints,
     grown by their travel, overlap."""
     # the search box must hold the pair's largest reach: search road users by size group
@@ -118,25 +138,29 @@ def _candidates(tracks, mot, rows, span, travel, dt, exclude) -> np.ndarray:
             r1, r2 = rows[groups == g1], rows[groups == g2]
             r = float(span[r1].max() + span[r2].max())
             cand.append(near_pairs(tracks, r1, r, dt, chunk_s=np.inf,
-                                   other=None if g1 == g2 else r2))
+                                   other=None if g1 == g2 else r2, apart=apart))
     cand = np.concatenate(cand)
     a, b = cand[:, 0], cand[:, 1]
+    hit = geo.overlap(a, b, grown=True)
+    a, b = a[hit], b[hit]
     if exclude is not None and len(exclude):
         keep = ~_pair_in(tracks.track_id[a], tracks.track_id[b], exclude)
         a, b = a[keep], b[keep]
-    grow_a = np.c_[2 * travel[a], 2 * travel[a]]
-    grow_b = np.c_[2 * travel[b], 2 * travel[b]]
-    hit = overlaps(tracks.xy[a], mot.heading[a], tracks.size[a] + grow_a,
-                   tracks.xy[b], mot.heading[b], tracks.size[b] + grow_b)
-    return np.c_[a[hit], b[hit]]
+    return np.c_[a, b]
 
 
-def _closest_overlaps(tracks, mot, cand, s: int, h: int, window_s: float) -> np.ndarray:
+def _closest_overlaps(tracks, geo: _Geometry, cand, s: int, h: int, window_s: float) -> np.ndarray:
     """(K, 2) per pair of road users in ``cand`` (coarse pairs of sample rows), the pair of
-    frames closest in time whose footprints overlap. A coarse pair's gap is within 2h frames
-    of the gaps of the frames around it, so candidates are expanded in bands of gap: first
-    those within a few samples of the pair's smallest gap, then on until the best overlap
-    found leaves no candidate that could beat it."""
+    frames closest in time whose footprints overlap (ties: the earliest, then the one whose
+    first column is the earlier frame). A coarse pair's gap is within 2h frames of the gaps
+    of the frames around it, so the candidates are taken in rounds: first each pair's
+    closest coarse pair (earliest among equals), then those that could still beat (or tie
+    with an earlier frame) the best overlap found (while none is found, a band of a few
+    samples beyond the pair's closest candidate not yet looked at: every candidate is looked
+    at before a pair is given up); candidates and frame pairs that cannot beat the best are
+    not tested. Two cars following each other overlap at hundreds of pairs of frames at
+    nearly the same gap: the first round finds the earliest, the next tests only the few
+    frame pairs closer in time."""
     if len(cand) == 0:
         return np.zeros((0, 2), np.int64)
     fps = tracks.fps
@@ -144,53 +168,66 @@ def _closest_overlaps(tracks, mot, cand, s: int, h: int, window_s: float) -> np.
     ids = np.unique(tid[cand.ravel()])
     _, key = np.unique(pair_codes(tid[cand[:, 0]], tid[cand[:, 1]], ids), return_inverse=True)
     key = key.reshape(-1)
-    gap = np.abs(frame[cand[:, 0]] - frame[cand[:, 1]])
-    order = np.lexsort((gap, key))
+    fa_c, fb_c = frame[cand[:, 0]], frame[cand[:, 1]]
+    gap = np.abs(fa_c - fb_c)
+    order = np.lexsort((np.minimum(fa_c, fb_c), gap, key))
     cand, key, gap = cand[order], key[order], gap[order]
     npair = int(key.max()) + 1
     first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     band = 3 * s
-    limit = np.full(npair, 0, np.int64)
-    limit[key[first]] = gap[first] + band
-    best_gap = np.full(npair, np.iinfo(np.int64).max)
+    # the order of frame pairs as one integer: gap, then the earlier frame, then which of the
+    # two is earlier (a frame pair and its mirror image tie otherwise)
+    f0 = int(min(fa_c.min(), fb_c.min())) - h
+    span_f = int(max(fa_c.max(), fb_c.max())) - f0 + h + 1
+    BIG = np.iinfo(np.int64).max
+    best_score = np.full(npair, BIG)
     best = np.full((npair, 2), -1, np.int64)
     done = np.zeros(len(cand), bool)
+    todo = np.zeros(len(cand), bool)
+    todo[first] = True
     starts, ends = tracks.starts(), tracks.ends()
     offs = np.arange(-h, h + 1)
     max_gap = int(np.floor(window_s * fps + 1e-9))
-    while True:
-        todo = ~done & (gap <= limit[key])
-        if not todo.any():
-            break
+    n = len(offs)
+    mf = np.minimum(frame[cand[:, 0]], frame[cand[:, 1]])
+    while todo.any():
         done |= todo
-        a, b, kk = cand[todo, 0], cand[todo, 1], key[todo]
+        # the least score any frame pair around a candidate can have: skip those that
+        # cannot beat the best
+        lb = (np.maximum(gap - 2 * h, 0) * span_f + (mf - h - f0)) * 2
+        sel = np.flatnonzero(todo & (lb < best_score[key]))
+        a, b, kk = cand[sel, 0], cand[sel, 1], key[sel]
         ra = a[:, None] + offs[None, :]
         rb = b[:, None] + offs[None, :]
         ra = np.where((ra >= starts[a][:, None]) & (ra <= ends[a][:, None]), ra, -1)
         rb = np.where((rb >= starts[b][:, None]) & (rb <= ends[b][:, None]), rb, -1)
-        n = len(offs)
         fa = np.repeat(ra, n, axis=1).ravel()
         fb = np.tile(rb, (1, n)).ravel()
         kf = np.repeat(kk, n * n)
         ok = (fa >= 0) & (fb >= 0)
         fa, fb, kf = fa[ok], fb[ok], kf[ok]
-        g = np.abs(frame[fa] - frame[fb])
-        ok = (g <= max_gap) & (g < best_gap[kf])
-        fa, fb, kf, g = fa[ok], fb[ok], kf[ok], g[ok]
-        hit = overlaps(tracks.xy[fa], mot.heading[fa], tracks.size[fa],
-                       tracks.xy[fb], mot.heading[fb], tracks.size[fb])
-        fa, fb, kf, g = fa[hit], fb[hit], kf[hit], g[hit]
-        o = np.lexsort((np.minimum(frame[fa], frame[fb]), g, kf))
-        fa, fb, kf, g = fa[o], fb[o], kf[o], g[o]
+        ga, gb = frame[fa], frame[fb]
+        g = np.abs(ga - gb)
+        score = (g * span_f + (np.minimum(ga, gb) - f0)) * 2 + (ga > gb)
+        ok = (g <= max_gap) & (score < best_score[kf])
+        fa, fb, kf, score = fa[ok], fb[ok], kf[ok], score[ok]
+        hit = geo.overlap(fa, fb)
+        fa, fb, kf, score = fa[hit], fb[hit], kf[hit], score[hit]
+        o = np.lexsort((score, kf))
+        fa, fb, kf, score = fa[o], fb[o], kf[o], score[o]
         new = np.r_[True, kf[1:] != kf[:-1]] if len(kf) else np.zeros(0, bool)
-        fa, fb, kf, g = fa[new], fb[new], kf[new], g[new]
-        better = g < best_gap[kf]
-        best_gap[kf[better]] = g[better]
+        fa, fb, kf, score = fa[new], fb[new], kf[new], score[new]
+        better = score < best_score[kf]
+        best_score[kf[better]] = score[better]
         best[kf[better]] = np.c_[fa[better], fb[better]]
-        # a candidate can beat the best only if its gap is below best + 2h; with none found
-        # yet, widen the band
-        found = best_gap < np.iinfo(np.int64).max
-        limit = np.where(found, best_gap + 2 * h, limit + band)
+        # a candidate can beat (or tie with) the best only if its gap is at most best + 2h;
+        # with none found yet, the band beyond the pair's closest candidate not yet looked at
+        found = best_score < BIG
+        best_gap = np.where(found, best_score // (2 * span_f), 0)
+        next_gap = np.full(npair, BIG)
+        next_gap[key[first]] = np.minimum.reduceat(np.where(done, BIG, gap), first)
+        limit = np.where(found, best_gap + 2 * h, np.minimum(next_gap, BIG - band) + band)
+        todo = ~done & (gap <= limit[key])
     return best[best[:, 0] >= 0]
 
 
@@ -236,16 +273,18 @@ def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
 
 def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
         rows: np.ndarray | None = None, touching: np.ndarray | None = None,
-        workers: int = 1) -> PetResult:
+        workers: int = 1, apart: np.ndarray | None = None,
+        fp: Footprints | None = None) -> PetResult:
     """PET of every pair of road users that occupied a common spot within ``window_s``;
     ``rows``: the overlapping pairs of rows to use (default: found by ``overlapping_rows``);
     ``touching``: (K, 2) rows (lower track id first) of pairs already known to overlap at
     one frame (PET 0 there; such pairs are not searched: groups walking together would
-    cost most of the search)."""
+    cost most of the search); ``apart``: (N,) bool, rows not paired with each other; ``fp``:
+    the rows' footprints when made already."""
     if rows is None:
         excl = None if touching is None else np.c_[tracks.track_id[touching[:, 0]],
                                                    tracks.track_id[touching[:, 1]]]
-        rows = overlapping_rows(tracks, mot, opts, excl, workers=workers)
+        rows = overlapping_rows(tracks, mot, opts, excl, workers=workers, apart=apart, fp=fp)
     if touching is not None and len(touching):
         rows = np.r_[rows, touching]
     best = closest_in_time(tracks, rows)

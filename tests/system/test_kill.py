@@ -17,7 +17,7 @@ KILLS_PER_COMMAND = 10
 KILLS_FIRST = 4  # issue 10's five: 200 each in benches/bench_faults.py, unchanged since
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
 WRITERS = ["masks-from-video", "import-detections", "track", "new-scene", "import-tacal",
-           "annotate-export", "import-tanalyst", "associate", "batch-serial"]
+           "import-mcap", "annotate-export", "import-tanalyst", "associate", "batch-serial"]
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,243 @@
+"""The fast paths of seg2pose.safety against the plain computations they replace: the same
+answers (bit for bit where the arithmetic is the same; to rounding where a method changed:
+the velocity fits), and known answers (constant velocity, PET by brute force)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from seg2pose.safety import encounters
+from seg2pose.safety.conflicts import ConflictOptions, RowData, analyse, apart_rows, pair_frames
+from seg2pose.safety.encounters import class_rows, frame_pairs, near_pairs
+from seg2pose.safety.footprints import Footprints, overlap_interval, overlaps
+from seg2pose.safety.kinematics import _slope_rows, motion, slope
+from seg2pose.safety.pet import PetOptions, overlapping_rows
+from seg2pose.safety.tracks import Tracks
+from seg2pose.safety.ttc import ttc, ttc_rows
+
+from tests.seg2pose.safety.test_safety import FPS, road_user
+from tests.seg2pose.safety.test_stream import traffic
+
+
+def gappy_tracks(seed: int) -> Tracks:
+    """Tracks of random lengths (1-40 frames) with dropped frames (gaps), at positions far
+    from the origin (late in a projected map), one track a single row."""
+    rng = np.random.default_rng(seed)
+    fr, tid, xy = [], [], []
+    for i in range(12):
+        n = int(rng.integers(1, 40)) if i else 1
+        f = np.sort(rng.choice(np.arange(1000, 1000 + 3 * n + 5), n, replace=False))
+        if rng.random() < 0.5:
+            f = 1000 + np.arange(n)  # no gap
+        fr.append(f)
+        tid.append(np.full(n, i))
+        xy.append(np.array([5e4, -3e4]) + np.cumsum(rng.normal(0, 0.5, (n, 2)), axis=0))
+    n = sum(len(f) for f in fr)
+    return Tracks(np.concatenate(fr), np.concatenate(tid), np.array(["car"] * n, object),
+                  np.concatenate(xy), np.full(n, np.nan), np.tile([4.0, 1.8], (n, 1)), FPS)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("n,centred", [(2, False), (5, False), (31, False), (3, True), (8, True)])
+def test_slope_by_correlation_equals_the_fit_per_row(seed, n, centred):
+    """Where the window's frames are consecutive the slope is a fixed weighting of the
+    values; elsewhere (track starts, gaps) each row's own fit. Both agree with the fit of
+    every row (``_slope_rows`` at all rows, the method before) to rounding."""
+    tr = gappy_tracks(seed)
+    fast = slope(tr, tr.xy, n, centred)
+    plain = _slope_rows(tr, tr.xy, n, centred, np.arange(len(tr)))
+    np.testing.assert_allclose(fast, plain, rtol=0, atol=1e-9)
+
+
+def test_slope_reproduces_a_constant_velocity():
+    """Positions along a line at (3, -4) m/s, some frames missing: every row's slope is the
+    velocity, from the track's second row on (the first, and a row alone in its track: 0)."""
+    f = np.r_[np.arange(0, 50), np.arange(53, 90)]
+    t = f / FPS
+    xy = np.c_[1e5 + 3 * t, 2e5 - 4 * t]
+    tr = Tracks(np.r_[f, 7], np.r_[np.zeros(len(f)), 1], np.array(["car"] * (len(f) + 1), object),
+                np.r_[xy, [[0.0, 0.0]]], np.full(len(f) + 1, np.nan), np.tile([4.0, 1.8], (len(f) + 1, 1)), FPS)
+    v = slope(tr, tr.xy, 31)
+    np.testing.assert_allclose(v[tr.track_id == 0][1:], np.tile([3.0, -4.0], (len(f) - 1, 1)), atol=1e-6)
+    np.testing.assert_array_equal(v[tr.track_id == 0][0], [0.0, 0.0])
+    np.testing.assert_array_equal(v[tr.track_id == 1], [[0.0, 0.0]])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(road_user(), min_size=2, max_size=6))
+def test_footprints_of_rows_equal_the_plain_tests(users):
+    """Footprints.overlap / interval and ttc_rows: the same values, bit for bit, as
+    overlaps, overlap_interval and ttc on the same rows."""
+    xy = np.concatenate([u[0] for u in users])
+    hd = np.concatenate([u[1] for u in users])
+    size = np.concatenate([u[2] for u in users])
+    vel = np.concatenate([u[3] for u in users])
+    a, b = (x.ravel() for x in np.meshgrid(np.arange(len(users)), np.arange(len(users))))
+    fp = Footprints(xy, hd, size)
+    np.testing.assert_array_equal(fp.overlap(a, b), overlaps(xy[a], hd[a], size[a], xy[b], hd[b], size[b]))
+    vx, vy = vel[:, 0].copy(), vel[:, 1].copy()
+    e1, l1 = fp.interval(a, b, vx[b] - vx[a], vy[b] - vy[a])
+    e2, l2 = overlap_interval(xy[a], hd[a], size[a], xy[b], hd[b], size[b], vel[b] - vel[a])
+    np.testing.assert_array_equal(e1, e2)
+    np.testing.assert_array_equal(l1, l2)
+    np.testing.assert_array_equal(ttc_rows(fp, vx, vy, a, b, 30.0),
+                                  ttc(xy[a], hd[a], size[a], vel[a], xy[b], hd[b], size[b], vel[b], 30.0))
+
+
+def as_set(p):
+    return set(map(tuple, np.asarray(p).tolist()))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pair_searches_with_rows_apart(seed, monkeypatch):
+    """Same-frame pairs listed frame by frame = the k-d tree's (forced either way); rows
+    ``apart`` (pedestrians): the same pairs less those of two pedestrians, in space-time
+    boxes too."""
+    tr = traffic(seed, n=20)
+    rows = np.arange(len(tr))
+    ped = class_rows(tr.cls, "pedestrian")
+    assert 0 < ped.sum() < len(tr)
+    both = lambda p: ped[p[:, 0]] & ped[p[:, 1]]
+    kd = near_pairs(tr, rows, 8.0, 0.0)
+    assert len(kd) > 100 and both(kd).any()
+    assert as_set(frame_pairs(tr, rows, 8.0)) == as_set(kd)
+    assert as_set(frame_pairs(tr, rows, 8.0, ped)) == as_set(kd[~both(kd)])
+    monkeypatch.setattr(encounters, "ENUMERATE_PER_ROW", 0)  # the k-d tree
+    assert as_set(frame_pairs(tr, rows, 8.0, ped)) == as_set(kd[~both(kd)])
+    for other in (None, rows[tr.track_id % 3 == 0]):
+        r1 = rows if other is None else rows[tr.track_id % 3 != 0]
+        box = near_pairs(tr, r1, 3.0, 2.0, other=other)
+        got = near_pairs(tr, r1, 3.0, 2.0, other=other, apart=ped)
+        assert len(got) == len(as_set(got))  # each pair once
+        assert as_set(got) == as_set(box[~both(box)])
+        assert (tr.track_id[got[:, 0]] < tr.track_id[got[:, 1]]).all()
+
+
+def test_class_rows_any_case():
+    cls = np.array(["car", "Pedestrian", "pedestrian", "pedestrian", "bicyclist", "PEDESTRIAN"], object)
+    np.testing.assert_array_equal(class_rows(cls, "pedestrian"), [0, 1, 1, 1, 0, 1])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pedestrian_pairs_left_out_early_change_no_row(seed):
+    """Not searching pairs of two pedestrians (the table's default) leaves every other row
+    as it is: the table with them searched and then dropped is the same."""
+    tr = traffic(seed, n=20)
+    fast = analyse(tr, ConflictOptions(all_pairs=True, workers=1))
+    full = analyse(tr, ConflictOptions(all_pairs=True, pedestrian_pairs=True, workers=1))
+    c = full.columns
+    keep = ~((c["class_a"] == "pedestrian") & (c["class_b"] == "pedestrian"))
+    assert (~keep).any()
+    for k, v in fast.columns.items():
+        np.testing.assert_array_equal(v, c[k][keep], err_msg=k)
+
+
+def test_pair_frames_sorted_by_pair_then_frame():
+    tr = traffic(4, n=20)
+    mot = motion(tr)
+    pf = pair_frames(tr, mot, ConflictOptions(), data=RowData(tr, mot))
+    tid = tr.track_id
+    keys = np.c_[tid[pf.a], tid[pf.b], tr.frame[pf.a]]
+    assert len(keys) > 100
+    np.testing.assert_array_equal(np.lexsort(keys.T[::-1]), np.arange(len(keys)))
+    assert (tid[pf.a] < tid[pf.b]).all()
+
+
+def straight_traffic(seed: int, n: int = 16) -> Tracks:
+    """Road users at constant velocity, straight (no noise): the search's footprints grown by
+    the travel to the next frame then hold every frame in between exactly."""
+    rng = np.random.default_rng(seed)
+    fr, tid, cls, xy, hd, size = [], [], [], [], [], []
+    kinds = [("car", (4.4, 1.8), 10.0), ("pedestrian", (0.6, 0.6), 1.4), ("bicyclist", (1.8, 0.6), 5.0)]
+    for i in range(n):
+        c, s, v = kinds[rng.integers(0, 3)]
+        f0, m = int(rng.integers(0, 60)), int(rng.integers(90, 240))
+        ang = rng.choice([0, np.pi / 2, np.pi, -np.pi / 2]) + rng.normal(0, 0.2)
+        u = np.array([np.cos(ang), np.sin(ang)])
+        t = np.arange(m) / FPS
+        p = rng.uniform(-6, 6, 2) - u * v * m / FPS / 2 + v * t[:, None] * u
+        fr.append(f0 + np.arange(m))
+        tid.append(np.full(m, i + 1))
+        cls += [c] * m
+        xy.append(p)
+        hd.append(np.full(m, ang))
+        size.append(np.tile(s, (m, 1)))
+    return Tracks(np.concatenate(fr), np.concatenate(tid), np.array(cls, object), np.concatenate(xy),
+                  np.concatenate(hd), np.concatenate(size), FPS)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pet_frames_are_the_closest_in_time_earliest(seed):
+    """Per pair of road users, the pair of frames PET's search returns is, among all pairs of
+    frames whose footprints overlap at most window_s apart (brute force), the closest in
+    time, and of those the earliest."""
+    tr = straight_traffic(seed)
+    mot = motion(tr)
+    opts = PetOptions()
+    got = overlapping_rows(tr, mot, opts)
+    assert len(got) >= 3
+    tid, frame = tr.track_id, tr.frame
+    # the frames the search covers: those whose nearest sample (every 3rd frame) is a moving
+    # row (a track's first row has no velocity yet)
+    s = int(round(opts.sample_s * FPS))
+    moving = {(t, f) for t, f, v in zip(tid, frame, mot.speed) if v >= opts.moving_mps}
+    covered = np.array([(t, s * round(f / s)) in moving for t, f in zip(tid, frame)])
+    max_gap = int(np.floor(opts.window_s * FPS + 1e-9))
+    found = {}
+    for ta in np.unique(tid):
+        for tb in np.unique(tid):
+            if tb <= ta:
+                continue
+            ra, rb = np.flatnonzero((tid == ta) & covered), np.flatnonzero((tid == tb) & covered)
+            A, B = (x.ravel() for x in np.meshgrid(ra, rb, indexing="ij"))
+            g = np.abs(frame[A] - frame[B])
+            ok = g <= max_gap
+            A, B, g = A[ok], B[ok], g[ok]
+            hit = overlaps(tr.xy[A], mot.heading[A], tr.size[A], tr.xy[B], mot.heading[B], tr.size[B])
+            if hit.any():
+                A, B, g = A[hit], B[hit], g[hit]
+                i = np.lexsort((frame[A] > frame[B], np.minimum(frame[A], frame[B]), g))[0]
+                found[(ta, tb)] = (frame[A[i]], frame[B[i]])
+    mine = {(tid[a], tid[b]): (frame[a], frame[b]) for a, b in got}
+    assert mine == found
+
+
+@pytest.mark.parametrize("case", ["follower", "crossing", "turning"])
+def test_pet_interval_without_noise_is_the_tables_pet(case):
+    """The draws' PET is searched over the whole encounter as the table's is: with no pose
+    error (r90 = 0) every draw is the tracks themselves, so the interval is the table's PET."""
+    from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+
+    from tests.seg2pose.safety.test_safety import crossing, follower, turning_car_and_pedestrian
+
+    tr = {"follower": follower, "crossing": crossing,
+          "turning": lambda: turning_car_and_pedestrian()[0]}[case]()
+    table = analyse(tr, ConflictOptions())
+    pet = table.columns["pet_s"][0]
+    assert np.isfinite(pet)
+    iv = conflict_intervals(tr, table, ConflictOptions(), IntervalOptions(draws=5),
+                            r90=np.zeros(len(tr)))
+    assert iv["pet_found_share"][0] == 1.0
+    assert iv["pet_lo_s"][0] == pytest.approx(pet, abs=1e-9)
+    assert iv["pet_hi_s"][0] == pytest.approx(pet, abs=1e-9)
+
+
+@pytest.mark.parametrize("origin", [0.0, 1e3, 1e5, -3.7e4])
+def test_braking_to_a_standstill_stays_braking(origin):
+    """A car braking at 4 m/s^2 to an exact stop, then standing (noise-free, as ground truth
+    is): just after the stop its velocity is 0 up to rounding, while the acceleration fitted
+    over the window is still the braking. That counts as braking (negative along the heading)
+    wherever the world's origin is: the sign of a zero velocity is not the rounding's."""
+    t = np.arange(0, 6, 1 / FPS)
+    s = np.where(t < 2.5, 10 * t - 2 * t * t, 12.5)
+    n = len(t)
+    tr = Tracks(np.arange(n), np.ones(n, int), np.array(["car"] * n, object),
+                np.c_[origin + s, np.full(n, origin)], np.zeros(n), np.tile([4.0, 1.8], (n, 1)), FPS)
+    m = motion(tr)
+    standing = (t > 2.5) & (m.speed < 1e-6)
+    braking = m.acc[:, 0] < -0.5
+    assert (standing & braking).sum() >= 10
+    assert (m.along[standing & braking] < 0).all()
+    np.testing.assert_allclose(m.along[braking], m.acc[braking, 0])
