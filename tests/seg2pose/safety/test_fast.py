@@ -222,3 +222,22 @@ def test_pet_interval_without_noise_is_the_tables_pet(case):
     assert iv["pet_found_share"][0] == 1.0
     assert iv["pet_lo_s"][0] == pytest.approx(pet, abs=1e-9)
     assert iv["pet_hi_s"][0] == pytest.approx(pet, abs=1e-9)
+
+
+@pytest.mark.parametrize("origin", [0.0, 1e3, 1e5, -3.7e4])
+def test_braking_to_a_standstill_stays_braking(origin):
+    """A car braking at 4 m/s^2 to an exact stop, then standing (noise-free, as ground truth
+    is): just after the stop its velocity is 0 up to rounding, while the acceleration fitted
+    over the window is still the braking. That counts as braking (negative along the heading)
+    wherever the world's origin is: the sign of a zero velocity is not the rounding's."""
+    t = np.arange(0, 6, 1 / FPS)
+    s = np.where(t < 2.5, 10 * t - 2 * t * t, 12.5)
+    n = len(t)
+    tr = Tracks(np.arange(n), np.ones(n, int), np.array(["car"] * n, object),
+                np.c_[origin + s, np.full(n, origin)], np.zeros(n), np.tile([4.0, 1.8], (n, 1)), FPS)
+    m = motion(tr)
+    standing = (t > 2.5) & (m.speed < 1e-6)
+    braking = m.acc[:, 0] < -0.5
+    assert (standing & braking).sum() >= 10
+    assert (m.along[standing & braking] < 0).all()
+    np.testing.assert_allclose(m.along[braking], m.acc[braking, 0])
