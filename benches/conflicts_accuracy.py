@@ -15,7 +15,7 @@ the truth's track ids, so encounters pair up by their two ids. Reported:
   road user that evades, and the median / 90th percentile of |run - truth| of TA and of the
   conflicting speed;
 - coverage: the share of those truth values inside the run's 90 % interval (sampling within
-  r90, per class from ``--r90``: the run's poses carry no r90_m yet), and the intervals'
+  r90, per class from ``--r90``: runs of uncalibrated scenes carry no r90_m), and the intervals'
   median width.
 
     PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN [--pair ...]

@@ -1,13 +1,14 @@
 """How good the error bars r90_m are on held-out scenes (issue 25): calibrated on the val split
-of a tuning scene, applied to the test split of held-out scenes, scored per class (coverage,
-mean r90_m / mean error, Spearman of r90_m with the error).
+of one or more tuning scenes, applied to the test split of held-out scenes, scored per class
+(coverage, mean r90_m / mean error, Spearman of r90_m with the error).
 
-    .venv/bin/python benches/r90_coverage.py OUT --tune SCENE --held SCENE [--held SCENE ...]
-        [--configs mono-1,tri-I] [--models DIR [--models DIR ...]] [--smooth N] [--own-val]
+    .venv/bin/python benches/r90_coverage.py OUT --tune SCENE [--tune SCENE ...]
+        --held SCENE [--held SCENE ...] [--configs mono-1,tri-I] [--models DIR [--models DIR ...]]
+        [--smooth N] [--own-val]
 
 Per configuration, every step is the ``s2p`` command a user types (printed as it runs):
-``s2p run --split val`` on the tuning scene, ``s2p calibrate``, then ``s2p run --split test
---r90`` and ``s2p eval --json`` on each held-out scene. Without ``--models`` the runs are the
+``s2p run --split val`` on each tuning scene, one ``s2p calibrate`` on all those runs, then
+``s2p run --split test --r90`` and ``s2p eval --json`` on each held-out scene. Without ``--models`` the runs are the
 baseline; ``--models`` repeated gives an ensemble (its spread is a cue). ``--own-val``: also
 calibrate on each held-out scene's own val split. Finished steps are kept (resumable).
 Writes OUT/r90.json and prints a table.
@@ -40,9 +41,9 @@ def run_once(scene: Path, out: Path, config: str, split: str, method: list[str],
     return out
 
 
-def calibrate(scene: Path, run: Path, path: Path) -> Path:
+def calibrate(scene: Path, runs: list[Path], path: Path) -> Path:
     if not path.exists():
-        sh("calibrate", scene, "--run", run, "-o", path)
+        sh("calibrate", scene, *[x for r in runs for x in ("--run", r)], "-o", path)
     return path
 
 
@@ -55,7 +56,7 @@ def evaluate(scene: Path, run: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
-    ap.add_argument("--tune", type=Path, required=True)
+    ap.add_argument("--tune", type=Path, action="append", required=True)
     ap.add_argument("--held", type=Path, action="append", required=True)
     ap.add_argument("--configs", default="mono-1,tri-I")
     ap.add_argument("--models", type=Path, action="append")
@@ -68,13 +69,15 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     results = {}
     for cfg in a.configs.split(","):
-        val = run_once(a.tune, out / f"{a.tune.name}-{cfg}-{name}-val", cfg, "val", method, a.smooth)
-        cal = calibrate(a.tune, val, out / f"r90-{a.tune.name}-{cfg}-{name}.json")
+        vals = [run_once(t, out / f"{t.name}-{cfg}-{name}-val", cfg, "val", method, a.smooth)
+                for t in a.tune]
+        tag = "+".join(t.name for t in a.tune)
+        cal = calibrate(a.tune[0], vals, out / f"r90-{tag}-{cfg}-{name}.json")
         for held in a.held:
             cals = {"tune": cal}
             if a.own_val:
                 hv = run_once(held, out / f"{held.name}-{cfg}-{name}-val", cfg, "val", method, a.smooth)
-                cals["own"] = calibrate(held, hv, out / f"r90-{held.name}-{cfg}-{name}.json")
+                cals["own"] = calibrate(held, [hv], out / f"r90-{held.name}-{cfg}-{name}.json")
             for which, c in cals.items():
                 run = run_once(held, out / f"{held.name}-{cfg}-{name}-test-{which}", cfg, "test",
                                method, a.smooth, c)

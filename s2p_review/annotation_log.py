@@ -190,9 +190,11 @@ TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (
 
 
 def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | None = None,
-                  timeline: str = L.TIMELINE):
+                  timeline: str = L.TIMELINE, large_in_page: bool = False):
     """The annotation app's layout: camera ``large`` big on the left over the selected track's
-    keyframe timeline; the 3D world and the other cameras small on the right."""
+    keyframe timeline; the 3D world and the other cameras small on the right.
+    ``large_in_page``: the page shows camera ``large`` itself (annotate.app.frame_view), so
+    the viewer shows the 3D world and the other cameras over the timeline."""
     import rerun.blueprint as rrb
 
     large = large if large in cameras else (cameras[0] if cameras else None)
@@ -206,7 +208,10 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
     plot = rrb.TimeSeriesView(origin=TIMELINE_PATH, name="selected track: keyframes, distance "
                               "to the estimates (m)",
                               plot_legend=rrb.PlotLegend(corner="lefttop", visible=True))
-    if large is None:
+    if large_in_page and large is not None:
+        top = [world] + ([rrb.Grid(*small, grid_columns=2)] if len(small) > 1 else small)
+        body = rrb.Vertical(rrb.Horizontal(*top), plot, row_shares=[2, 1])
+    elif large is None:
         body = rrb.Vertical(world, plot, row_shares=[4, 1])
     else:
         left = rrb.Vertical(rrb.Spatial2DView(origin=L.cam_path(large), name=f"{VIEW_PREFIX}{large}"),

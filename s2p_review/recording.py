@@ -404,7 +404,11 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
     ctx = LogContext(rec, scene, tb, first, last, style)
     log_static(ctx, cameras)
     mask_rows = video_rows = 0
-    notes = list(sel.cadence.notes())
+    # a kind shown on every frame anyway is not reduced: video as an asset, masks as outlines
+    reduced = [k for k in sel.cadence.reduced
+               if not (k == "video" and style.video_format != "jpeg")
+               and not (k == "masks" and style.mask_outlines and not style.mask_fills)]
+    notes = [n for k, n in zip(sel.cadence.reduced, sel.cadence.notes()) if k in reduced]
     video_frames = {}
     for cam in cameras:
         if style.video:

@@ -67,6 +67,7 @@ ACTIONS: list[Action] = [
     Action("click_mode", "click mode", "c", "track"),
     Action("large_camera", "next camera large", "k", "view"),
     Action("best_camera", "the selected track's best camera large", "Shift+k", "view"),
+    Action("toggle_viewer", "3D viewer and the other cameras on/off", "Shift+v", "view"),
     Action("accept_estimate", "accept estimate", "y", "track"),
     Action("accept_every", "accept estimates every N", "Shift+y", "track"),
     Action("preannotate", "pre-annotate every road user of the run", "Shift+p", "track"),
@@ -245,6 +246,11 @@ class Actions:
     def _a_delete_keyframe(self):
         self._edit(self.project.delete_keyframe, self._need_track(), self.frame)
         return f"keyframe {self.frame} deleted"
+
+    def _a_toggle_viewer(self):
+        self._set_viewer(not self.viewer_visible)
+        return ("3D viewer on (Shift+V hides it)" if self.viewer_visible else
+                "3D viewer off: the large camera and the panel only (Shift+V shows it)")
 
     def _a_large_camera(self):
         cams = self.cameras

@@ -71,6 +71,9 @@ class Controller(Actions):
     on_frame: list[Callable[[int], None]] = field(default_factory=list)
     on_layout: list[Callable[[str], None]] = field(default_factory=list)
     large_camera: str | None = None   # the camera shown large (remembered)
+    viewer_shown: bool | None = None  # the Rerun viewer on/off as the annotator chose (remembered); None: automatic
+    software_rendering: bool = False  # the browser renders WebGL in software (its hello says)
+    on_viewer: list[Callable[[bool], None]] = field(default_factory=list)
     lock: threading.RLock = field(default_factory=threading.RLock)
 
     # --- opening, closing, holding -------------------------------------------------------------
@@ -181,12 +184,15 @@ class Controller(Actions):
             self.new_class = d["new_class"]
         if d.get("large_camera") in self.cameras:
             self.large_camera = d["large_camera"]
+        if isinstance(d.get("viewer_shown"), bool):
+            self.viewer_shown = d["viewer_shown"]
 
     def _save(self) -> None:
         if self.read_only:
             return
         d = {"frame": self.frame, "selected": self.selected, "click_mode": self.click_mode,
-             "every": self.every, "new_class": self.new_class, "large_camera": self.large_camera}
+             "every": self.every, "new_class": self.new_class, "large_camera": self.large_camera,
+             "viewer_shown": self.viewer_shown}
         try:
             atomic_write_text(self.state_path, json.dumps(d))
         except OSError:
@@ -205,6 +211,30 @@ class Controller(Actions):
             self.previous = old
         self._save()
         self._tracks_changed({t for t in (old, tid) if t is not None})
+
+    @property
+    def viewer_visible(self) -> bool:
+        """Whether the page shows the Rerun viewer: the annotator's choice, else on unless the
+        browser renders in software (there one repaint of the viewer takes seconds and holds
+        up the page: docs/BENCHMARKS.md, "Annotation app")."""
+        return self.viewer_shown if self.viewer_shown is not None else not self.software_rendering
+
+    def _set_viewer(self, shown: bool) -> None:
+        self.viewer_shown = bool(shown)
+        self._save()
+        for cb in list(self.on_viewer):
+            cb(self.viewer_visible)
+
+    def set_renderer(self, renderer: str) -> None:
+        """The browser's WebGL renderer (from the page): software rendering hides the viewer
+        unless the annotator chose otherwise."""
+        r = str(renderer).lower()
+        self.software_rendering = any(k in r for k in ("swiftshader", "llvmpipe", "software", "lavapipe"))
+        if self.software_rendering and self.viewer_shown is None:
+            self.message = ("software rendering in this browser: the 3D viewer is off so that "
+                            "every step shows at once (Shift+V shows it)")
+        for cb in list(self.on_viewer):
+            cb(self.viewer_visible)
 
     def _show_large(self, cam: str) -> None:
         self.large_camera = cam

@@ -35,7 +35,8 @@ def _():
 def _(mo, problem, session):
     page = (mo.callout(mo.md(f"**cannot open the project**: {problem}"), kind="danger")
             if session is None else
-            mo.hstack([session.viewer, session.panel], widths=[3, 1], align="start"))
+            mo.hstack([mo.vstack([session.frame_view, session.viewer]), session.panel],
+                      widths=[3, 1], align="start"))
     page
     return
 

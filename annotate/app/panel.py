@@ -78,9 +78,36 @@ function render({ model, el }) {
     tab = (crypto.randomUUID ? crypto.randomUUID() : String(Math.random()).slice(2));
     sessionStorage.setItem('s2p-annotate-tab', tab);
   }
-  model.send({hello: tab});
+  // the WebGL renderer: in software (SwiftShader, llvmpipe) the 3D viewer starts hidden
+  let renderer = '';
+  try {
+    const g = document.createElement('canvas').getContext('webgl2') || document.createElement('canvas').getContext('webgl');
+    const d = g && g.getExtension('WEBGL_debug_renderer_info');
+    renderer = g ? String(g.getParameter(d ? d.UNMASKED_RENDERER_WEBGL : g.RENDERER)) : 'none';
+  } catch (err) { renderer = 'unknown'; }
+  model.send({hello: tab, renderer: renderer});
+  // the Rerun viewer on/off (Shift+V; off at first under software rendering): its element is
+  // hidden, since even a small viewer repaints for seconds there and holds up the page
+  const canvases = (root, out) => {
+    for (const e of root.querySelectorAll('*')) {
+      if (e.tagName === 'CANVAS') out.push(e);
+      if (e.shadowRoot) canvases(e.shadowRoot, out);
+    }
+    return out;
+  };
+  const applyViewer = () => {
+    const found = canvases(document, []);
+    for (const c of found) {
+      const host = c.getRootNode().host || c.parentElement;
+      if (host) host.style.display = model.get('hide_viewer') ? 'none' : '';
+    }
+    return found.length > 0;
+  };
+  model.on('change:hide_viewer', applyViewer);
+  let tries = 0;
+  const seek = setInterval(() => { if (applyViewer() || ++tries > 240) clearInterval(seek); }, 250);
   const beat = setInterval(() => model.send({heartbeat: 1}), 4000);
-  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat);
+  return () => { window.removeEventListener('keydown', onkey, true); clearInterval(beat); clearInterval(seek);
                  window.removeEventListener('pointerdown', ondown, true);
                  window.removeEventListener('pointerup', onup, true); };
 }
@@ -114,6 +141,7 @@ class Panel(anywidget.AnyWidget):
     _css = _CSS
     html = traitlets.Unicode("").tag(sync=True)
     shortcuts = traitlets.Dict({}).tag(sync=True)
+    hide_viewer = traitlets.Bool(True).tag(sync=True)  # until the page says it renders with a GPU
 
 
 def _e(x) -> str:

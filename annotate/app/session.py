@@ -2,11 +2,18 @@
 the wiring between them. The marimo app file (notebook.py) only builds a ``Session`` and lays
 out its two widgets.
 
+The large camera is a picture made here (frame_image.py) in the page's own image widget
+(frame_view.py): the exact frame the panel names, redrawn after every frame move and edit; a
+click on it places a keyframe at that pixel. The Rerun viewer shows the 3D world, the other
+cameras and the selected track's keyframe timeline.
+
+Frame view -> controller: a click (image pixel, camera, the frame the picture showed).
 Viewer -> controller: a click on a camera image (SelectionChangeEvent with a pixel position)
 places a keyframe; the time cursor (TimeUpdateEvent) sets the current frame.
 Panel -> controller: buttons, shortcut keys, heartbeats.
 Controller -> viewer: changed tracks are re-sent (``AnnotationLogger.send_track``), frame
-moves set the viewer's time cursor.
+moves set the viewer's time cursor; the frame view gets a new picture when the frame, the
+large camera, a track or the selection changed.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the w
 
 from annotate.app.actions import SHORTCUTS  # noqa: E402
 from annotate.app.controller import Controller  # noqa: E402
+from annotate.app.frame_image import FrameImages  # noqa: E402
+from annotate.app.frame_view import FrameView  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
 from s2p_review import layout as L  # noqa: E402
 from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
@@ -27,7 +36,7 @@ from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # n
                                        send_timeline)
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
-VIEWER_HEIGHT = 760
+VIEWER_HEIGHT = 400  # under the large camera picture: 3D world, the other cameras, the timeline
 PENDING_SECONDS = 30.0  # how long the viewer may take to show a frame the page moved it to (a loaded machine lags 20 s)
 REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat  # how long the viewer may take to show a frame the page moved it to
 
@@ -52,6 +61,7 @@ class Session:
 
         self.ctl = Controller.open(scene, run=run, cameras=cameras)
         self.rec = new_recording()
+        # hidden until the page says whether it renders in software (Controller.set_renderer)
         self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT, recording=self.rec)
         target = self.rec
         if native:
@@ -62,9 +72,15 @@ class Session:
             target = Tee(self.rec, other)
         self.target = target
         p = self.ctl.project
-        bp, cams, _, self.notes, video = log_scene(target, p.scene, run, self.ctl.cameras,
-                                                   frames=self.ctl.frame_range)
+        bp, cams, (first, last), self.notes, video = log_scene(target, p.scene, run, self.ctl.cameras,
+                                                               frames=self.ctl.frame_range)
         self.ctl.video_frames = {c: set(map(int, f)) for c, f in video.items()}
+        self.pictures = FrameImages(p.scene, cams, first, last)
+        self.frame_view = FrameView()
+        self._shown = None
+        self._cols_version = 0
+        self._unsent, self._unsent_timeline = {}, False
+        self.cols = {tid: track_columns(p, tid) for tid in p.tracks}
         self._eye = L.default_eye(p.scene)
         self._send_layout(self.ctl.large_camera)
         self._timeline_span = None
@@ -72,33 +88,58 @@ class Session:
         self.logger = AnnotationLogger(target, p.scene, cams)
         self.last_send_ms = 0.0
         for tid in p.tracks:
-            self.logger.send_track(track_columns(p, tid), selected=tid == self.ctl.selected)
+            self.logger.send_track(self.cols[tid], selected=tid == self.ctl.selected)
         target.flush()
         self.timeline = "frame"
-        self.panel = Panel(shortcuts=SHORTCUTS)
+        self.panel = Panel(shortcuts=SHORTCUTS, hide_viewer=self.ctl.viewer_shown is not True)
         if self.notes:
             self.ctl.message = "; ".join(self.notes)
         self.ctl.on_tracks.append(self._resend)
         self.ctl.on_frame.append(self._move_cursor)
         self.ctl.on_layout.append(self._send_layout)
+        self.ctl.on_viewer.append(self._show_viewer)
         self._send_timeline()
         self.viewer.on_event(self._on_viewer_event)
         self.panel.on_msg(self._on_panel_msg)
+        self.frame_view.on_msg(self._on_frame_msg)
         self.viewer.set_time_ctrl(sequence=self.ctl.frame, timeline="frame")
         self.refresh_panel()
 
     # --- controller -> viewer / panel ---------------------------------------------------------------
     def _resend(self, ids: set[int], selected: int | None) -> None:
-        t0 = time.perf_counter()
+        """Tracks changed: their columns now (the picture draws them); the viewer gets them
+        after the picture (``_send_tracks``), so that the page shows the edit first."""
         for tid in sorted(ids):
-            self.logger.send_track(track_columns(self.ctl.project, tid), selected=tid == selected)
-        if selected in ids or selected is None:
+            cols = track_columns(self.ctl.project, tid)
+            if len(cols.frame):
+                self.cols[tid] = cols
+            else:
+                self.cols.pop(tid, None)
+            self._unsent[tid] = cols
+        self._cols_version += 1
+        self._unsent_timeline |= selected in ids or selected is None
+
+    def _send_tracks(self) -> None:
+        """Send the changed tracks (and the selected one's timeline) to the viewer."""
+        if not self._unsent and not self._unsent_timeline:
+            return
+        t0 = time.perf_counter()
+        for tid, cols in sorted(self._unsent.items()):
+            self.logger.send_track(cols, selected=tid == self.ctl.selected)
+        if self._unsent_timeline:
             self._send_timeline()
+        self._unsent, self._unsent_timeline = {}, False
         self.target.flush()
         self.last_send_ms = (time.perf_counter() - t0) * 1e3
 
+    def _show_viewer(self, shown: bool) -> None:
+        self.panel.hide_viewer = not shown  # the panel's script hides the viewer's element
+        if shown:
+            self._move_cursor(self.ctl.frame)
+
     def _send_layout(self, large: str | None) -> None:
-        bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps)
+        bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps,
+                           large_in_page=True)
         for r in ([self.rec] if self.target is self.rec else self.target.recs):
             r.send_blueprint(bp, make_active=True, make_default=True)
 
@@ -123,27 +164,66 @@ class Session:
     def _move_cursor(self, frame: int) -> None:
         # until the viewer shows this frame, its reports of earlier cursor positions are stale
         self._pending = (int(frame), time.monotonic())
+        if not self.ctl.viewer_visible and self.ctl.viewer_state == "ready":
+            return  # a hidden viewer's cursor follows when it is shown (it would decode video)
         self.viewer.set_time_ctrl(sequence=int(frame), timeline="frame")
 
     def refresh_panel(self) -> None:
+        """After anything the page did: the panel, the large camera's picture, then the
+        viewer's data (in this order: the websocket delivers them in order, and the viewer's
+        data keeps the browser busy for a while)."""
         self.panel.html = render(self.ctl.panel())
+        self.show_frame()
+        self._send_tracks()
+
+    def show_frame(self) -> None:
+        """Send the large camera's picture of the current frame, unless it is already shown."""
+        cam = self.ctl.large_camera
+        key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version)
+        if cam is None or key == self._shown:
+            return
+        pic = self.pictures.render(cam, self.ctl.frame, list(self.cols.values()), self.ctl.selected)
+        self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note)
+        self._shown = key
 
     # --- events -----------------------------------------------------------------------------------
     def _on_panel_msg(self, _widget, content, _buffers) -> None:
         if not isinstance(content, dict):
             return
         if "action" in content:
+            t0 = time.perf_counter()
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
+            if os.environ.get("S2P_ANNOTATE_DEBUG"):
+                print(f"action {content['action']}: {1e3 * (time.perf_counter() - t0):.0f} ms", flush=True)
         elif "canvas_click" in content:
             self._on_canvas_click(content["canvas_click"], content.get("frame"))
         elif "hello" in content:
-            was = self.ctl.read_only
             self.ctl.hello(str(content["hello"]))
-            if was != self.ctl.read_only:
-                self.refresh_panel()
+            if "renderer" in content:
+                self.ctl.set_renderer(str(content["renderer"]))
+            self.refresh_panel()
         else:
             self.ctl.touch()
+
+    def _on_frame_msg(self, _widget, content, _buffers) -> None:
+        """A click on the large camera's picture: a keyframe at that pixel, if the picture
+        clicked was of the current frame."""
+        if not isinstance(content, dict) or "click" not in content:
+            return
+        try:
+            u, v = float(content["click"][0]), float(content["click"][1])
+            cam, frame = str(content["camera"]), int(content["frame"])
+        except (TypeError, ValueError, KeyError, IndexError):
+            return
+        if cam not in self.ctl.cameras:
+            return
+        if frame != self.ctl.frame:
+            self.ctl.message = (f"click ignored: it was made on the picture of frame {frame}, the "
+                                f"page is at frame {self.ctl.frame} now; click again")
+        else:
+            self.ctl.click(cam, (u, v))
+        self.refresh_panel()
 
     def _on_viewer_event(self, e) -> None:
         kind = getattr(e, "type", "")

@@ -104,10 +104,12 @@ def open_cmd(
 ) -> None:
     """Open the annotation app on a scene (also: `s2p annotate SCENE`).
 
-    A local web page (no internet, no account) with the Rerun viewer — cameras, the
-    annotation's boxes, the run's estimates — and a panel of tracks, keyframes and actions with
-    their keyboard shortcuts. Prints the URL; every edit is journalled at once; stop with
-    Ctrl-C (or SIGTERM).
+    A local web page (no internet, no account): one camera large (exactly the frame the panel
+    names, with mask outlines and every track's box; click it to place a keyframe; k: the next
+    camera), the Rerun viewer (3D world, the other cameras, the selected track's keyframe
+    timeline; hidden at first where the browser renders without a GPU, Shift+V shows it) and a
+    panel of tracks, keyframes and actions with their keyboard shortcuts. Prints the URL;
+    every edit is journalled at once; stop with Ctrl-C (or SIGTERM).
 
     The server listens on 127.0.0.1 only and needs the random token in the printed URL
     (page, websocket and API); requests naming another Host or Origin are refused. To annotate

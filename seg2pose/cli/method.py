@@ -167,7 +167,7 @@ def eval_cmd(
 
 def calibrate_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth"),
-    run: Path = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate"),
+    run: List[Path] = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate; repeat for more road users (other splits, or runs of other scenes: each is scored against the scene its run.json names)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="calibration file (default: MODELS/r90.json beside the run's models, or SCENE/r90-baseline.json for a baseline run: where s2p run looks)"),
     force: bool = typer.Option(False, "--force", help="replace an existing calibration"),
 ) -> None:
@@ -180,7 +180,7 @@ def calibrate_cmd(
     from seg2pose.io.scene import load_scene
     from seg2pose.method.r90_calibrate import calibrate_run
 
-    path, cal = calibrate_run(load_scene(scene), run, out, force)
+    path, cal = calibrate_run(load_scene(scene), list(run), out, force)
     cov = cal.meta["coverage_on_fit"]
     typer.echo(f"r90 calibration ({cal.meta.get('method')}, --smooth {cal.meta.get('smooth_frames')}, "
                f"classes {', '.join(k for k in cal.pose.coef if k != '*')}) in {path}; coverage on "

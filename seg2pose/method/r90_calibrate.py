@@ -12,33 +12,43 @@ from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_text, check_writable
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run, relative_path
+from seg2pose.io.scene import load_scene
 from seg2pose.method.pipeline import ViewGroups, default_r90_path, fuse
-from seg2pose.method.uncertainty import Calibration, fit_calibration, pose_features
+from seg2pose.method.uncertainty import Calibration, FitRun, fit_calibration, pose_features
 
 
 
-def calibrate_run(scene, run_dir: str | Path, out: str | Path | None = None,
-                  force: bool = False) -> tuple[Path, Calibration]:
-    """Fit the error bars on a run (of the validation split, say) against the scene's truth
-    and write the calibration JSON to ``out`` (default: where runs of that method look for it,
-    ``seg2pose.method.pipeline.default_r90_path``). Returns its path and the calibration."""
+def scene_of_run(scene, run_dir: Path, meta: dict):
+    """The scene a run was made on: ``scene`` when the fingerprints agree, else the scene its
+    run.json names (runs of several scenes, e.g. several sites or seeds, can be calibrated
+    together, each against its own truth)."""
+    fp = meta.get("scene_fingerprint")
+    if fp is None or fp == scene.fingerprint():
+        return scene
+    named = meta.get("scene")
+    if isinstance(named, str) and (Path(run_dir) / named / "scene.json").is_file():
+        other = load_scene(Path(run_dir) / named)
+        if other.fingerprint() == fp:
+            return other
+    raise InputError(f"this run was made on another scene (fingerprint {fp!r}; {scene.root} "
+                     f"has {scene.fingerprint()!r}) and the scene its run.json names is not "
+                     "found with that fingerprint", file=Path(run_dir) / "run.json",
+                     field="scene_fingerprint")
+
+
+def fit_run(scene, run_dir: str | Path) -> tuple[FitRun, dict]:
+    """A run (with cues) and its scene's truth as the fit needs them, and the run's run.json
+    (``scene``: the scene given; a run of another scene is read against the scene its run.json
+    names, ``scene_of_run``)."""
     run = read_run(run_dir)
     if run.views is None or run.views.cues is None:
         raise InputError("this run's views.csv has no cut,far,spread_m columns (made by an older "
                          "s2p): run it again", file=Path(run_dir) / "views.csv")
+    scene = scene_of_run(scene, Path(run_dir), run.meta)
     if not scene.gt_path.exists():
         raise InputError("the scene has no ground truth to calibrate on", file=scene.gt_path)
-    meta = run.meta
-    baseline = meta.get("method") == "baseline"
-    if out is None:
-        paths = [e.get("path") for e in (meta.get("models") or {}).values() if isinstance(e, dict)]
-        dirs = [Path(run_dir) / (p[0] if isinstance(p, list) else p) for p in paths if p]
-        out = default_r90_path(scene, [d.parent for d in dirs][:1] or None, baseline)
-    out = Path(out)
-    check_writable(out, force)
-    smooth = int(meta.get("smooth_frames") or 0)
+    smooth = int(run.meta.get("smooth_frames") or 0)
     views = run.views
-    gt = read_poses(scene.gt_path)
     poses = fuse(views, scene, smooth)  # the run's poses (sorted), recomputed from its views
     g = ViewGroups.of(views)
     order = np.lexsort((g.track_id, g.keys[:, 0]))  # PoseTable.sorted()'s order
@@ -47,12 +57,38 @@ def calibrate_run(scene, run_dir: str | Path, out: str | Path | None = None,
     def pose_X(r_view: np.ndarray) -> np.ndarray:
         return pose_features(est_stack[:, order], g.stack(r_view[g.keep])[:, order])
 
-    cal, cov = fit_calibration(
-        scene, views, np.column_stack([poses.frame, poses.track_id]), poses.xyz[:, :2], poses.cls,
-        pose_X, gt, {"method": meta.get("method"), "smooth_frames": smooth,
-                     "fitted_on": {"run": relative_path(run_dir, out.parent),
-                                   "split": meta.get("split"),
-                                   "scene_fingerprint": meta.get("scene_fingerprint"),
-                                   "poses_sha256": file_sha256(Path(run_dir) / "poses.csv")}})
+    return FitRun(scene, views, np.column_stack([poses.frame, poses.track_id]), poses.xyz[:, :2],
+                  poses.cls, pose_X, read_poses(scene.gt_path)), run.meta
+
+
+def calibrate_run(scene, run_dir: str | Path | list, out: str | Path | None = None,
+                  force: bool = False) -> tuple[Path, Calibration]:
+    """Fit the error bars on one run or several (of the validation split, say, or its train
+    and val splits: more road users give steadier bars) against the scene's truth and write
+    the calibration JSON to ``out`` (default: where runs of that method look for it,
+    ``seg2pose.method.pipeline.default_r90_path``). The runs must share the method and
+    ``--smooth``. Returns its path and the calibration."""
+    run_dirs = [Path(r) for r in (run_dir if isinstance(run_dir, (list, tuple)) else [run_dir])]
+    fits, metas = zip(*(fit_run(scene, r) for r in run_dirs))
+    meta = metas[0]
+    for r, m in zip(run_dirs[1:], metas[1:]):
+        for key in ("method", "smooth_frames", "models"):
+            if m.get(key) != meta.get(key):
+                raise InputError(f"this run's {key} ({m.get(key)!r}) differs from the first run's "
+                                 f"({meta.get(key)!r}): calibrate runs of one method",
+                                 file=r / "run.json", field=key)
+    baseline = meta.get("method") == "baseline"
+    if out is None:
+        paths = [e.get("path") for e in (meta.get("models") or {}).values() if isinstance(e, dict)]
+        dirs = [run_dirs[0] / (p[0] if isinstance(p, list) else p) for p in paths if p]
+        out = default_r90_path(scene, [d.parent for d in dirs][:1] or None, baseline)
+    out = Path(out)
+    check_writable(out, force)
+    smooth = int(meta.get("smooth_frames") or 0)
+    fitted_on = [{"run": relative_path(r, out.parent), "split": m.get("split"),
+                  "scene_fingerprint": m.get("scene_fingerprint"),
+                  "poses_sha256": file_sha256(r / "poses.csv")} for r, m in zip(run_dirs, metas)]
+    cal, _ = fit_calibration(list(fits), {"method": meta.get("method"), "smooth_frames": smooth,
+                                          "fitted_on": fitted_on})
     atomic_write_text(out, cal.to_json())
     return out, cal

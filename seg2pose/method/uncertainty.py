@@ -2,23 +2,27 @@
 
 ``r90_m`` is the radius, metres on the ground around the estimate's (x, y), that holds the true
 position with 90 % probability. It is estimated from what the method knows about a detection
-(the *cues*), not from the truth:
+(the *cues*, all in views.csv), not from the truth:
 
-- per view: the ground distance from the camera, how grazing the ray is (distance over the
-  camera's height above the ground point), a mask cut by the image border, a residual the
+- per view: how grazing the ray is (ground distance over the camera's height above the ground
+  point: a wrong height moves the estimate along the ray by that factor), a mask cut by the
+  image border and how close its box centre is to the border (the less of it is left, the
+  further its centre is off), crowding (its centre within the apparent size of a road user
+  nearer the camera in the same frame: it may be hidden behind it), a residual the
   far-residual check flagged (``seg2pose.ood``), the spread of an ensemble's residuals
   (repeated ``--models``) and the length of the network's residual;
 - per fused pose: the views' error bars combined as for a mean of independent errors
   (sqrt(sum r_i^2) / n), the number of views fused and how far the views' estimates disagree.
 
 Both stages are linear *quantile regressions* of log(error) per class (the 90th percentile of
-the log error is the log of the 90th percentile of the error): fitted on a run of the
-validation split whose truth is known (``fit_calibration``, ``s2p calibrate``), written as a
-JSON beside the models or the run, and applied to any run of the same method (``s2p run
---r90``). A class with too few validation rows falls back to the pooled model of all classes. A
-calibration does not extrapolate: each feature is clipped to the range it had in the fit, and
-the bar to twice the largest error fitted (a scene unlike the validation scene, e.g. another
-camera height, gets the bars of the nearest case seen, not a linear guess far outside it).
+the log error is the log of the 90th percentile of the error), shifted by a conformal step over
+whole road users: fitted on runs whose truth is known -- the validation split, of one scene or
+several (``fit_calibration``, ``s2p calibrate``) -- written as a JSON beside the models or the
+run, and applied to any run of the same method (``s2p run --r90``). A class with too few
+validation rows falls back to the pooled model of all classes. A calibration does not
+extrapolate: each feature is clipped to the range it had in the fit, and the bar to twice the
+largest error fitted (a scene unlike the validation scenes, e.g. another camera height, gets
+the bars of the nearest case seen, not a linear guess far outside it).
 """
 
 from __future__ import annotations
@@ -34,8 +38,8 @@ from seg2pose.core.errors import InputError
 
 QUANTILE = 0.9
 FORMAT = "s2p-r90"
-VERSION = 1
-VIEW_FEATURES = ["one", "log_distance", "log_grazing", "cut", "far", "log_spread", "log_residual"]
+VERSION = 2  # 2: views cut_edge and crowd, no log_distance (collinear with grazing on one pole)
+VIEW_FEATURES = ["one", "log_grazing", "cut", "cut_edge", "crowd", "far", "log_spread", "log_residual"]
 POSE_FEATURES = ["one", "log_r_views", "log_n_views", "log_disagreement"]
 MIN_ROWS = 200         # a class with fewer validation rows uses the pooled model
 MAX_FIT_ROWS = 3000    # rows per class in a fit (an even subsample; the LP stays < 1 s)
@@ -46,16 +50,31 @@ FLOOR_M = 0.02         # errors below this count as this (log of a near-zero err
 # cues -> feature matrices
 
 
-def view_features(cam_center: np.ndarray, normal: np.ndarray, residual: np.ndarray,
-                  cues: np.ndarray) -> np.ndarray:
-    """(N, len(VIEW_FEATURES)) for N views: cam_center (N, 3) metres of each view's camera,
-    normal (N, 3) normal positions, residual (N, 2) metres, cues (N, 3) cut, far, spread_m."""
-    d = np.linalg.norm(normal[:, :2] - cam_center[:, :2], axis=1)
-    above = np.maximum(cam_center[:, 2] - normal[:, 2], 0.5)
-    res = np.linalg.norm(residual, axis=1)
-    return np.column_stack([np.ones(len(d)), np.log(np.maximum(d, 1.0)),
-                            np.log(np.maximum(d / above, 0.05)), cues[:, 0], cues[:, 1],
-                            np.log(cues[:, 2] + 0.02), np.log(res + 0.05)])
+def crowding(frame: np.ndarray, camera: np.ndarray, uv: np.ndarray, rng: np.ndarray,
+             size_px: np.ndarray) -> np.ndarray:
+    """(N,) how far each view's mask may be hidden behind another road user's, 0 (no one
+    near) to 1 (centres coincide): per frame and camera, the largest 1 - |uv_i - uv_j| / s_j
+    over the views j nearer the camera (rng_j < rng_i) whose apparent size s_j (pixels) the
+    centre uv_i lies within. frame, camera (N,), uv (N, 2) pixels, rng (N,) metres from the
+    camera, size_px (N,) pixels."""
+    n = len(frame)
+    out = np.zeros(n)
+    if n < 2:
+        return out
+    cam_id = np.unique(camera, return_inverse=True)[1].reshape(-1)
+    order = np.lexsort((cam_id, frame))
+    f_s, c_s = frame[order], cam_id[order]
+    cut = np.flatnonzero((f_s[1:] != f_s[:-1]) | (c_s[1:] != c_s[:-1])) + 1
+    for idx in np.split(order, cut):
+        if len(idx) < 2:
+            continue
+        D = np.linalg.norm(uv[idx, None, :] - uv[None, idx, :], axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ov = 1.0 - D / size_px[idx][None, :]
+        r = rng[idx]
+        ov[~(r[None, :] < r[:, None])] = 0.0
+        out[idx] = np.clip(np.nan_to_num(ov, nan=0.0), 0.0, 1.0).max(axis=1)
+    return out
 
 
 def pose_features(est: np.ndarray, r_view: np.ndarray) -> np.ndarray:
@@ -268,10 +287,43 @@ def camera_centers(scene, cameras: np.ndarray) -> np.ndarray:
     return out
 
 
+def view_columns(scene, views) -> dict[str, np.ndarray]:
+    """The view features of a ViewTable with cues, by name (VIEW_FEATURES and
+    ``log_distance``, which was tried): grazing = ground distance / the camera's height above
+    the normal position; cut_edge = cut x log(1 + pixels from the box centre to the nearest
+    image border); crowd (``crowding``) with each road user's apparent size CROWD_SCALE x f x
+    the larger of its class's length and height / its range."""
+    cc = camera_centers(scene, views.camera)
+    normal = views.normal
+    d = np.linalg.norm(normal[:, :2] - cc[:, :2], axis=1)
+    above = np.maximum(cc[:, 2] - normal[:, 2], 0.5)
+    rng = np.linalg.norm(normal - cc, axis=1)
+    focal = np.array([scene.cameras[str(c)].K[0, 0] for c in views.camera]) if len(views) else np.zeros(0)
+    sizes = scene.class_sizes()
+    ext = np.array([max(sizes.get(str(c), (1.0, 1.0, 1.0))[0], sizes.get(str(c), (1.0, 1.0, 1.0))[2])
+                    for c in views.cls]) if len(views) else np.zeros(0)
+    size_px = CROWD_SCALE * focal * ext / np.maximum(rng, 1.0)
+    res = np.linalg.norm(views.residual, axis=1)
+    cues = views.cues
+    wh = np.array([(scene.cameras[str(c)].width, scene.cameras[str(c)].height) for c in views.camera],
+                  float).reshape(-1, 2)
+    u, v = views.uv[:, 0], views.uv[:, 1]
+    edge = np.minimum(np.minimum(u, wh[:, 0] - u), np.minimum(v, wh[:, 1] - v))
+    return {"cut_edge": cues[:, 0] * np.log1p(np.maximum(np.nan_to_num(edge, nan=0.0), 0.0)),
+            "one": np.ones(len(d)), "log_distance": np.log(np.maximum(d, 1.0)),
+            "log_grazing": np.log(np.maximum(d / above, 0.05)), "cut": cues[:, 0],
+            "crowd": crowding(views.frame, views.camera, views.uv, rng, size_px),
+            "far": cues[:, 1], "log_spread": np.log(cues[:, 2] + 0.02),
+            "log_residual": np.log(res + 0.05)}
+
+
+CROWD_SCALE = 1.0  # the whole apparent size (not tuned)
+
+
 def views_matrix(scene, views) -> np.ndarray:
     """VIEW_FEATURES of a ViewTable with cues."""
-    return view_features(camera_centers(scene, views.camera), views.normal, views.residual,
-                         views.cues)
+    cols = view_columns(scene, views)
+    return np.column_stack([cols[k] for k in VIEW_FEATURES]) if len(views) else np.zeros((0, len(VIEW_FEATURES)))
 
 
 def view_r90(cal: Calibration, scene, views) -> np.ndarray:
@@ -281,32 +333,78 @@ def view_r90(cal: Calibration, scene, views) -> np.ndarray:
     return r
 
 
-def fit_calibration(scene, views, pose_keys, pose_est, pose_cls, pose_X, gt, meta: dict
-                    ) -> tuple[Calibration, dict]:
-    """Fit both stages on a run whose truth is known.
+@dataclass
+class FitRun:
+    """One run whose truth is known, as the fit needs it: the scene, the run's ViewTable (with
+    cues), its fused poses -- keys (P, 2) frame and track id, est (P, 2), cls (P,) -- a function
+    ``pose_X(view_r90)`` -> (P, k) their POSE_FEATURES, and the truth's PoseTable."""
 
-    views: the run's ViewTable (with cues); pose_keys (P, 2) frame and track id, pose_est
-    (P, 2), pose_cls (P,) of the fused poses and a function ``pose_X(view_r90)`` -> (P, k)
-    their POSE_FEATURES; gt: the truth's PoseTable. Returns the calibration and its coverage
-    on the fitted rows (views and poses)."""
+    scene: object
+    views: object
+    pose_keys: np.ndarray
+    pose_est: np.ndarray
+    pose_cls: np.ndarray
+    pose_X: object
+    gt: object
+
+
+def _errors(keys: np.ndarray, est: np.ndarray, gt) -> np.ndarray:
+    """(N,) ground distance of est (N, 2) to the truth of the same (frame, track id) keys (N, 2),
+    NaN where the truth has none (or the id is -1, untracked)."""
     g_index = {(int(f), int(t)): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
-    vi = np.array([g_index.get((int(f), int(t)), -1) for f, t in zip(views.frame, views.track_id)])
-    est = views.normal[:, :2] + views.residual
-    v_err = np.full(len(views), np.nan)
-    hit = (vi >= 0) & (views.track_id >= 0)
-    v_err[hit] = np.linalg.norm(est[hit] - gt.xyz[vi[hit], :2], axis=1)
-    Xv = views_matrix(scene, views)
-    view = StageModel.fit(VIEW_FEATURES, views.cls, Xv, v_err, views.track_id)
-    r_v = view.predict(views.cls, Xv)
-    pi = np.array([g_index.get((int(f), int(t)), -1) if t >= 0 else -1 for f, t in pose_keys])
-    p_err = np.full(len(pi), np.nan)
-    p_err[pi >= 0] = np.linalg.norm(pose_est[pi >= 0] - gt.xyz[pi[pi >= 0], :2], axis=1)
-    Xp = pose_X(r_v)
-    pose = StageModel.fit(POSE_FEATURES, pose_cls, Xp, p_err, pose_keys[:, 1])
-    r_p = pose.predict(pose_cls, Xp)
-    fit_cov = {"views": float(np.mean(v_err[hit] <= r_v[hit])),
-               "poses": float(np.mean(p_err[pi >= 0] <= r_p[pi >= 0]))}
+    gi = np.array([g_index.get((int(f), int(t)), -1) if t >= 0 else -1 for f, t in keys], np.int64)
+    err = np.full(len(gi), np.nan)
+    hit = gi >= 0
+    err[hit] = np.linalg.norm(est[hit] - gt.xyz[gi[hit], :2], axis=1)
+    return err
+
+
+def fit_calibration(runs: list[FitRun], meta: dict) -> tuple[Calibration, dict]:
+    """Fit both stages on runs whose truth is known (e.g. the train and val splits of a
+    scene; more road users make steadier quantiles). Road users are told apart by run and
+    track id within a scene (the conformal folds keep each road user's rows together, across
+    runs of one scene too). Returns the
+    calibration and its coverage on the fitted rows (views and poses)."""
+    scene_no: dict = {}
+    Xv, v_err, v_cls, v_grp = [], [], [], []
+    for r in runs:
+        k = scene_no.setdefault(_scene_key(r.scene), len(scene_no))
+        v = r.views
+        Xv.append(views_matrix(r.scene, v))
+        v_err.append(_errors(np.column_stack([v.frame, v.track_id]), v.normal[:, :2] + v.residual,
+                             r.gt))
+        v_cls.append(v.cls)
+        v_grp.append(np.where(v.track_id >= 0, k * GROUP_STRIDE + v.track_id, -1))
+    Xv, v_err, v_cls, v_grp = (np.concatenate(a) for a in (Xv, v_err, v_cls, v_grp))
+    view = StageModel.fit(VIEW_FEATURES, v_cls, Xv, v_err, v_grp)
+    r_v = view.predict(v_cls, Xv)
+    Xp, p_err, p_cls, p_grp = [], [], [], []
+    start = 0
+    for r in runs:
+        k = scene_no[_scene_key(r.scene)]
+        n = len(r.views)
+        Xp.append(r.pose_X(r_v[start:start + n]))
+        start += n
+        p_err.append(_errors(r.pose_keys, r.pose_est, r.gt))
+        p_cls.append(r.pose_cls)
+        p_grp.append(np.where(r.pose_keys[:, 1] >= 0, k * GROUP_STRIDE + r.pose_keys[:, 1], -1))
+    Xp, p_err, p_cls, p_grp = (np.concatenate(a) for a in (Xp, p_err, p_cls, p_grp))
+    pose = StageModel.fit(POSE_FEATURES, p_cls, Xp, p_err, p_grp)
+    r_p = pose.predict(p_cls, Xp)
+    hv, hp = np.isfinite(v_err), np.isfinite(p_err)
+    fit_cov = {"views": float(np.mean(v_err[hv] <= r_v[hv])),
+               "poses": float(np.mean(p_err[hp] <= r_p[hp]))}
     return Calibration(view, pose, {**meta, "coverage_on_fit": fit_cov}), fit_cov
+
+
+GROUP_STRIDE = 10 ** 9  # road-user groups: scene index * GROUP_STRIDE + track id
+
+
+def _scene_key(scene) -> str:
+    """Runs of one scene share its road users (the splits of a synthetic scene hold the same
+    track ids): they are one group per track id."""
+    fp = getattr(scene, "fingerprint", None)
+    return fp() if callable(fp) else str(id(scene))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -93,10 +93,9 @@ class RowData:
     footprints (``footprints.Footprints``), the velocity's components, and each row's track
     ordinal (rows are sorted by track, so it orders the track ids)."""
 
-    def __init__(self, tracks: Tracks, mot: Motion):
-        self.fp = Footprints(tracks.xy, mot.heading, tracks.size)
-        self.vx = np.ascontiguousarray(mot.vel[:, 0])
-        self.vy = np.ascontiguousarray(mot.vel[:, 1])
+    def __init__(self, tracks: Tracks, mot: Motion, fp: Footprints | None = None):
+        self.fp = Footprints(tracks.xy, mot.heading, tracks.size) if fp is None else fp
+        self.vx, self.vy = mot.vel[:, 0], mot.vel[:, 1]  # views
         tid = tracks.track_id
         self.track = np.cumsum(np.r_[True, tid[1:] != tid[:-1]]) - 1 if len(tid) else np.zeros(0, np.int64)
 
@@ -245,10 +244,11 @@ def apart_rows(tracks: Tracks, opts: ConflictOptions) -> np.ndarray | None:
 
 
 def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
-                         apart: np.ndarray | None = None) -> tuple[PairFrames, int]:
+                         apart: np.ndarray | None = None,
+                         fp: Footprints | None = None) -> tuple[PairFrames, int]:
     """The deciding pair frames of the whole recording (sorted by pair, then frame), found
     chunk by chunk of ``opts.chunk_s`` seconds; and how many pair frames were compared
-    (``apart``: see ``pair_frames``)."""
+    (``apart``: see ``pair_frames``; ``fp``: the rows' footprints when made already)."""
     t = tracks.t
     if len(t) == 0:
         e = np.zeros(0, np.int64)
@@ -258,7 +258,7 @@ def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     order = np.argsort(k, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(k[order])) + 1, len(k)]
 
-    data = RowData(tracks, mot)  # once, shared by the forked workers
+    data = RowData(tracks, mot, fp)  # once, shared by the forked workers
 
     def chunk(i: int) -> tuple[PairFrames, int]:
         pf = pair_frames(tracks, mot, opts, np.sort(order[bounds[i]:bounds[i + 1]]), apart, data)
@@ -287,11 +287,13 @@ def analyse(tracks: Tracks, opts: ConflictOptions = ConflictOptions(), mot: Moti
     # pairs the table leaves out (two pedestrians, by default) are not searched: every row
     # of the table is one pair's, so the others' rows do not change
     apart = apart_rows(tracks, opts)
-    pf, compared = streamed_pair_frames(tracks, mot, opts, apart)
+    fp = Footprints(tracks.xy, mot.heading, tracks.size)  # per row, for TTC and PET
+    pf, compared = streamed_pair_frames(tracks, mot, opts, apart, fp)
     say("PET")
     touch = pf.ttc == 0  # footprints overlapping at a frame: PET 0 there
     pr = pet(tracks, mot, opts.pet_options(), workers=opts.workers, touching=np.c_[pf.a[touch], pf.b[touch]],
-             apart=apart)
+             apart=apart, fp=fp)
+    del fp
     say("table")
     table = ConflictTable(_table(tracks, mot, pf, pr, opts), pf, pr, compared)
     c = table.columns

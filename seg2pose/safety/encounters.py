@@ -59,11 +59,11 @@ def near_pairs(tracks: Tracks, rows: np.ndarray, r: float, dt: float = 0.0,
             parts = [near_pairs(tracks, a1, r, dt, chunk_s, other),
                      near_pairs(tracks, o1, r, dt, chunk_s, a2)]
         return np.concatenate(parts)
-    t = tracks.t[rows]
+    t = tracks.frame[rows] / tracks.fps  # tracks.t of these rows (not of all)
     out_a, out_b = [], []
     if other is not None:
         other = np.asarray(other, np.int64)
-        t2 = tracks.t[other]
+        t2 = tracks.frame[other] / tracks.fps
     if len(rows) and (other is None or len(other)):
         t0 = float(min(t.min(), t2.min())) if other is not None else float(t.min())
         k = np.floor((t - t0) / chunk_s).astype(np.int64)

@@ -99,10 +99,20 @@ class Footprints:
 
     def __init__(self, xy: np.ndarray, heading: np.ndarray, size: np.ndarray):
         xy, size = np.asarray(xy, np.float64), np.asarray(size, np.float64)
-        self.x, self.y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        self.x, self.y = xy[:, 0], xy[:, 1]  # views: gathers from them cost no more
         self.cos, self.sin = np.cos(heading), np.sin(heading)
         self.hl, self.hw = size[:, 0] / 2, size[:, 1] / 2
         self.reach = reach(size)
+
+    def grown(self, by: np.ndarray) -> "Footprints":
+        """The same rows with footprints ``by`` (N,) metres longer and wider (as if made
+        with size + by on both sides: the same values), sharing the centres and headings."""
+        out = Footprints.__new__(Footprints)
+        out.x, out.y, out.cos, out.sin = self.x, self.y, self.cos, self.sin
+        size = np.c_[self.hl * 2 + by, self.hw * 2 + by]
+        out.hl, out.hw = size[:, 0] / 2, size[:, 1] / 2
+        out.reach = reach(size)
+        return out
 
     def near(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(M,) bool: rows a and b (M,) no farther apart, centre to centre, than the sum of

@@ -12,7 +12,11 @@ at the 5th and 95th percentiles; ``*_found_share`` says in how many draws the in
 at all (a draw with no collision course has no TTC).
 
 Only the encounter's own frames (with a margin for the velocity window) are redrawn, so this
-costs little per conflict; PET is searched near the nominal pair of frames (+-``pet_search_s``).
+costs little per conflict. PET is searched in each draw as the table searches it, over the
+whole encounter (``pet.pet``; the draws set apart in time so that they never meet): where
+two road users share a path, the least PET may lie elsewhere in a draw than in the tracks
+(searching only near the nominal pair of frames, ``pet_search_s``, as before, made the
+intervals too narrow).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from scipy.signal import lfilter
 
 from seg2pose.safety.footprints import overlaps
 from seg2pose.safety.kinematics import motion
-from seg2pose.safety.pet import closest_in_time, refine
+from seg2pose.safety.pet import closest_in_time, pet, refine
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
 
@@ -36,13 +40,14 @@ SIGMA_PER_HEADING90 = 1.0 / 1.6449  # |N(0, sigma)| is below 1.645 sigma 90 % of
 class IntervalOptions:
     """draws: samples per conflict; corr_s: correlation time of pose errors, seconds; level:
     the interval's coverage (``corr_s`` 3 s covered best on the tuning scene, seed 201: 0.3,
-    1, 3, 10 s tried); pet_search_s: PET is searched this close to the nominal frames;
+    1, 3, 10 s tried); pet_search_s: None (the default): PET searched over the whole
+    encounter, as in the table; a number: only this close to the nominal frames (before);
     seed: of the draws (the same seed gives the same intervals)."""
 
     draws: int = 200
     corr_s: float = 3.0
     level: float = 0.9
-    pet_search_s: float = 0.5
+    pet_search_s: float | None = None
     seed: int = 0
 
 
@@ -77,7 +82,7 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
     margin = int(np.ceil(2 * opts.motion.window_s * fps)) + 2
     rho = float(np.exp(-1.0 / (fps * iopts.corr_s)))
     q = (100 * (1 - iopts.level) / 2, 100 * (1 + iopts.level) / 2)
-    search = int(round(iopts.pet_search_s * fps))
+    search = None if iopts.pet_search_s is None else int(round(iopts.pet_search_s * fps))
     it = range(K) if progress is None else progress(range(K))
     for k in it:
         rng = np.random.default_rng([iopts.seed, int(c["track_a"][k]), int(c["track_b"][k])])
@@ -119,11 +124,30 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         if found.any() and np.isfinite(c["min_ttc_s"][k]):
             out["min_ttc_lo_s"][k], out["min_ttc_hi_s"][k] = np.percentile(mins[found], q)
         if np.isfinite(c["pet_s"][k]):
-            pets = _pet_draws(big, mot, c, k, search, opts.pet_s, D)
+            pets = (_pet_draws_whole(big, mot, a, b, x, opts, D) if search is None
+                    else _pet_draws(big, mot, c, k, search, opts.pet_s, D))
             ok = np.isfinite(pets)
             out["pet_found_share"][k] = ok.mean()
             if ok.any():
                 out["pet_lo_s"][k], out["pet_hi_s"][k] = np.percentile(pets[ok], q)
+    return out
+
+
+def _pet_draws_whole(big: Tracks, mot, a: np.ndarray, b: np.ndarray, x: np.ndarray, opts,
+                     D: int) -> np.ndarray:
+    """(D,) PET of each draw, searched over the whole encounter as the table does: rows a, b
+    at the same frames with TTC x (0: the footprints overlap there, PET 0, as the table's
+    touching pairs). The draws are set apart in time (draw d's frames moved by d times the
+    encounter's length and more than the PET window: frames are integers, so the positions
+    and the frames' differences stay exactly those of the draw)."""
+    span = int(big.frame.max() - big.frame.min()) + 1 + int(np.ceil((opts.pet_s + 1.0) * big.fps))
+    apart = big.take(slice(None))
+    apart.frame = big.frame + (big.track_id // 4) * span  # rows keep their order (by draw)
+    touch = x == 0
+    pr = pet(apart, mot, opts.pet_options(), touching=np.c_[a[touch], b[touch]])
+    out = np.full(D, np.nan)
+    own = pr.track_a // 4 == pr.track_b // 4  # (pairs across draws cannot meet: too far apart)
+    out[pr.track_a[own] // 4] = pr.pet[own]
     return out
 
 

@@ -23,6 +23,9 @@ import numpy as np
 from seg2pose.safety.tracks import Tracks
 
 
+BACKWARDS_MPS = 1e-6  # slower than this along the heading: not moving backwards
+
+
 @dataclass(frozen=True)
 class MotionOptions:
     """window_s: seconds of track the slopes are fitted over (at least 2 frames); centred:
@@ -115,8 +118,9 @@ def _slope_rows(tracks: Tracks, values: np.ndarray, n: int, centred: bool,
         s1 += w
         st += tau
         stt += tau * tau
-        sv += values[j] * w[:, None]
-        stv += values[j] * tau[:, None]
+        vj = np.take(values, j, axis=0)
+        sv += vj * w[:, None]
+        stv += vj * tau[:, None]
     den = s1 * stt - st * st
     num = s1[:, None] * stv - st[:, None] * sv
     out = np.zeros((R, values.shape[1]))
@@ -161,7 +165,8 @@ def motion(tracks: Tracks, opts: MotionOptions = MotionOptions()) -> Motion:
     along = (acc * d).sum(axis=1)
     lateral = acc[:, 1] * d[:, 0] - acc[:, 0] * d[:, 1]
     # moving backwards (a reversing car, or a heading 180 degrees off): braking is against the
-    # direction of motion, not the heading
-    backwards = (vel * d).sum(axis=1) < 0
+    # direction of motion, not the heading. Standing still (exact tracks: a velocity of 0 up to
+    # rounding, whose sign the fit's rounding would decide) counts as forward
+    backwards = (vel * d).sum(axis=1) < -BACKWARDS_MPS
     along = np.where(backwards, -along, along)
     return Motion(vel, speed, acc, along, lateral, heading)

@@ -67,12 +67,14 @@ def _pair_in(a: np.ndarray, b: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
                      exclude: np.ndarray | None = None, chunk_s: float = 60.0,
-                     workers: int = 1, apart: np.ndarray | None = None) -> np.ndarray:
+                     workers: int = 1, apart: np.ndarray | None = None,
+                     fp: Footprints | None = None) -> np.ndarray:
     """(K, 2) for each pair of road users whose footprints overlapped at two frames at most
     ``window_s`` apart: the pair of rows closest in time (first column the lower track id).
     ``exclude``: (E, 2) pairs of track ids not to search (their PET is known: 0); the
     chunks of ``chunk_s`` seconds are searched in ``workers`` processes; ``apart``: (N,) bool,
-    rows not paired with each other (``encounters.near_pairs``).
+    rows not paired with each other (``encounters.near_pairs``); ``fp``: the rows'
+    footprints (``Footprints(tracks.xy, mot.heading, tracks.size)``) when made already.
 
     Coarse to fine: rows every ``sample_s`` (moving ones only) are paired by the k-d tree with
     footprints grown by the travel to the frames in between; then, per pair of road users,
@@ -92,7 +94,7 @@ def overlapping_rows(tracks: Tracks, mot: Motion, opts: PetOptions,
     ts = t[sampled]
     t0 = float(ts.min())
     k = np.floor((ts - t0) / chunk_s).astype(np.int64)
-    geo = _Geometry(tracks, mot, travel)  # once, shared by the forked workers
+    geo = _Geometry(tracks, mot, travel, fp)  # once, shared by the forked workers
 
     def chunk(c: int) -> np.ndarray:
         # this chunk, and the next one's first window_s seconds (pairs reaching across)
@@ -112,9 +114,9 @@ class _Geometry:
     """The rows' footprints (``footprints.Footprints``), as they are and grown by the travel
     to the neighbouring frames: made once, gathered per pair."""
 
-    def __init__(self, tracks: Tracks, mot: Motion, travel: np.ndarray):
-        self.exact = Footprints(tracks.xy, mot.heading, tracks.size)
-        self.grown = Footprints(tracks.xy, mot.heading, tracks.size + np.c_[2 * travel, 2 * travel])
+    def __init__(self, tracks: Tracks, mot: Motion, travel: np.ndarray, fp: Footprints | None = None):
+        self.exact = Footprints(tracks.xy, mot.heading, tracks.size) if fp is None else fp
+        self.grown = self.exact.grown(2 * travel)
 
     def overlap(self, a: np.ndarray, b: np.ndarray, grown: bool = False) -> np.ndarray:
         """(M,) bool: footprints of rows a (M,) and b (M,) overlap (``grown``: the grown
@@ -155,9 +157,10 @@ def _closest_overlaps(tracks, geo: _Geometry, cand, s: int, h: int, window_s: fl
     closest coarse pair (earliest among equals), then those that could still beat (or tie
     with an earlier frame) the best overlap found (while none is found, a band of a few
     samples beyond the pair's closest candidate not yet looked at: every candidate is looked
-    at before a pair is given up); frame pairs that cannot beat the best are not tested. Two cars following
-    each other overlap at hundreds of pairs of frames at nearly the same gap: the first
-    round finds the earliest, the next tests only the few frame pairs closer in time."""
+    at before a pair is given up); candidates and frame pairs that cannot beat the best are
+    not tested. Two cars following each other overlap at hundreds of pairs of frames at
+    nearly the same gap: the first round finds the earliest, the next tests only the few
+    frame pairs closer in time."""
     if len(cand) == 0:
         return np.zeros((0, 2), np.int64)
     fps = tracks.fps
@@ -174,8 +177,8 @@ def _closest_overlaps(tracks, geo: _Geometry, cand, s: int, h: int, window_s: fl
     band = 3 * s
     # the order of frame pairs as one integer: gap, then the earlier frame, then which of the
     # two is earlier (a frame pair and its mirror image tie otherwise)
-    f0 = int(frame.min()) - h
-    span_f = int(frame.max()) - f0 + h + 1
+    f0 = int(min(fa_c.min(), fb_c.min())) - h
+    span_f = int(max(fa_c.max(), fb_c.max())) - f0 + h + 1
     BIG = np.iinfo(np.int64).max
     best_score = np.full(npair, BIG)
     best = np.full((npair, 2), -1, np.int64)
@@ -186,9 +189,14 @@ def _closest_overlaps(tracks, geo: _Geometry, cand, s: int, h: int, window_s: fl
     offs = np.arange(-h, h + 1)
     max_gap = int(np.floor(window_s * fps + 1e-9))
     n = len(offs)
+    mf = np.minimum(frame[cand[:, 0]], frame[cand[:, 1]])
     while todo.any():
         done |= todo
-        a, b, kk = cand[todo, 0], cand[todo, 1], key[todo]
+        # the least score any frame pair around a candidate can have: skip those that
+        # cannot beat the best
+        lb = (np.maximum(gap - 2 * h, 0) * span_f + (mf - h - f0)) * 2
+        sel = np.flatnonzero(todo & (lb < best_score[key]))
+        a, b, kk = cand[sel, 0], cand[sel, 1], key[sel]
         ra = a[:, None] + offs[None, :]
         rb = b[:, None] + offs[None, :]
         ra = np.where((ra >= starts[a][:, None]) & (ra <= ends[a][:, None]), ra, -1)
@@ -265,16 +273,18 @@ def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
 
 def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
         rows: np.ndarray | None = None, touching: np.ndarray | None = None,
-        workers: int = 1, apart: np.ndarray | None = None) -> PetResult:
+        workers: int = 1, apart: np.ndarray | None = None,
+        fp: Footprints | None = None) -> PetResult:
     """PET of every pair of road users that occupied a common spot within ``window_s``;
     ``rows``: the overlapping pairs of rows to use (default: found by ``overlapping_rows``);
     ``touching``: (K, 2) rows (lower track id first) of pairs already known to overlap at
     one frame (PET 0 there; such pairs are not searched: groups walking together would
-    cost most of the search); ``apart``: (N,) bool, rows not paired with each other."""
+    cost most of the search); ``apart``: (N,) bool, rows not paired with each other; ``fp``:
+    the rows' footprints when made already."""
     if rows is None:
         excl = None if touching is None else np.c_[tracks.track_id[touching[:, 0]],
                                                    tracks.track_id[touching[:, 1]]]
-        rows = overlapping_rows(tracks, mot, opts, excl, workers=workers, apart=apart)
+        rows = overlapping_rows(tracks, mot, opts, excl, workers=workers, apart=apart, fp=fp)
     if touching is not None and len(touching):
         rows = np.r_[rows, touching]
     best = closest_in_time(tracks, rows)

@@ -7,15 +7,13 @@ length and width (metres) and, where the poses carry one, ``r90_m``: the radius 
 which the true position lies with 90 % probability.
 
 Input validation is the readers' (``seg2pose.io``): a bad row is one line naming the file and
-line. ``poses.csv`` may carry an extra last column ``r90_m`` (the reader of
-``seg2pose.io.poses`` knows the columns without it; this module takes it off and checks it).
+line. ``poses.csv`` may carry an extra last column ``r90_m`` (read by ``seg2pose.io.poses``).
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import FPS_RANGE
-from seg2pose.io.poses import PoseTable, parse_poses
+from seg2pose.core.validate import FPS_RANGE, MAX_COORD
+from seg2pose.io.poses import BASE_COLUMNS, R90_COLUMN as POSE_R90, SIZE_COLUMNS, PoseTable, read_poses
 from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
-from seg2pose.io.text import read_text
+from seg2pose.safety.workers import map_chunks
 
 R90_COLUMN = "r90_m"
 # typical footprints (length, width, metres) where a row gives none: a mid-size car, an adult
@@ -76,15 +74,22 @@ class Tracks:
         return len(self.frame)
 
     def starts(self) -> np.ndarray:
-        """(N,) index of the first row of each row's track."""
-        new = np.r_[True, self.track_id[1:] != self.track_id[:-1]]
-        return np.maximum.accumulate(np.where(new, np.arange(len(self)), 0))
+        """(N,) index of the first row of each row's track (kept once computed: chunked
+        searches ask for it once per chunk; treat it as read-only)."""
+        c = self.__dict__.get("_starts")
+        if c is None or len(c) != len(self):
+            new = np.r_[True, self.track_id[1:] != self.track_id[:-1]]
+            c = self.__dict__["_starts"] = np.maximum.accumulate(np.where(new, np.arange(len(self)), 0))
+        return c
 
     def ends(self) -> np.ndarray:
-        """(N,) index of the last row of each row's track."""
-        n = len(self)
-        last = np.r_[self.track_id[1:] != self.track_id[:-1], True]
-        return np.minimum.accumulate(np.where(last, np.arange(n), n)[::-1])[::-1]
+        """(N,) index of the last row of each row's track (kept, as ``starts``)."""
+        c = self.__dict__.get("_ends")
+        if c is None or len(c) != len(self):
+            n = len(self)
+            last = np.r_[self.track_id[1:] != self.track_id[:-1], True]
+            c = self.__dict__["_ends"] = np.minimum.accumulate(np.where(last, np.arange(n), n)[::-1])[::-1]
+        return c
 
     def take(self, idx) -> "Tracks":
         return Tracks(self.frame[idx], self.track_id[idx], self.cls[idx], self.xy[idx],
@@ -100,12 +105,17 @@ class Tracks:
 
 def class_sizes(cls: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """(N,) class names -> (N, 2) typical length, width; and the classes not known (sized as
-    cars)."""
-    names = np.unique(cls.astype(str)) if len(cls) else np.zeros(0, str)
-    table = {n: CLASS_SIZES.get(n.lower(), UNKNOWN_SIZE) for n in names}
-    unknown = [n for n in names if n.lower() not in CLASS_SIZES]
-    out = np.array([table[str(c)] for c in cls], np.float64).reshape(-1, 2)
-    return out, unknown
+    cars). Looked up once per run of equal names (rows come track by track or frame by
+    frame: millions of rows, a few runs each)."""
+    n = len(cls)
+    if n == 0:
+        return np.zeros((0, 2), np.float64), []
+    heads = np.flatnonzero(np.r_[True, cls[1:] != cls[:-1]])
+    names = sorted({str(c) for c in cls[heads]})
+    table = {n_: CLASS_SIZES.get(n_.lower(), UNKNOWN_SIZE) for n_ in names}
+    unknown = [n_ for n_ in names if n_.lower() not in CLASS_SIZES]
+    run = np.array([table[str(c)] for c in cls[heads]], np.float64).reshape(-1, 2)
+    return np.repeat(run, np.diff(np.r_[heads, n]), axis=0), unknown
 
 
 def from_poses(poses: PoseTable, fps: float, r90: np.ndarray | None = None) -> tuple[Tracks, list[str]]:
@@ -135,35 +145,147 @@ def check_fps(fps) -> float:
     return float(fps)
 
 
-def read_poses_r90(path: Path) -> tuple[PoseTable, np.ndarray | None]:
-    """A pose CSV with an optional last column ``r90_m`` (metres, >= 0, or nan for unknown)."""
-    text = read_text(path, "pose file")
-    rows = list(csv.reader(io.StringIO(text)))
-    header = [h.strip() for h in rows[0]] if rows else []
-    if header[-1:] != [R90_COLUMN]:
-        r = csv.reader(io.StringIO(text))
+def read_poses_r90(path: Path, workers: int = 1) -> tuple[PoseTable, np.ndarray | None]:
+    """A pose CSV (``seg2pose.io.poses``, with an optional last column ``r90_m``): the table
+    and its r90_m (None: no such column). Read by ``read_poses_fast`` (in ``workers``
+    processes) where it can vouch for the file, else (and for every error message) by
+    ``seg2pose.io.poses.read_poses``."""
+    poses = read_poses_fast(path, workers)
+    if poses is None:
+        poses = read_poses(path)
+    return poses, poses.r90
+
+
+FAST_LINES = 1 << 18  # lines of a pose file parsed at once by read_poses_fast
+_HEADERS = {tuple(BASE_COLUMNS + s + r): (bool(s), bool(r))
+            for s in ([], SIZE_COLUMNS) for r in ([], [POSE_R90])}
+
+
+def read_poses_fast(path: Path, workers: int = 1) -> PoseTable | None:
+    """The pose table of ``path`` as ``seg2pose.io.poses.read_poses`` gives it, parsed by
+    numpy's C reader in blocks of about ``FAST_LINES`` lines, in ``workers`` processes (an
+    hour of traffic has millions of rows: the per-row reader takes minutes and gigabytes);
+    None where this reader cannot vouch for the result (a ``source`` column, quoting, a value
+    or a row the file checks would reject, ...): the caller then reads it with
+    ``read_poses``, which gives the table or the error naming the line. Every check of
+    ``read_poses`` is made here too, on whole columns."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.readline()
         try:
-            return parse_poses(r, path, None), None
-        except csv.Error as e:
-            raise InputError(f"malformed CSV: {e}", file=path, line=r.line_num) from None
-    r90 = []
-    for lineno, row in enumerate(rows[1:], start=2):
-        if not row:
-            continue
-        if len(row) != len(header):
-            raise InputError(f"expected {len(header)} fields, got {len(row)}", file=path, line=lineno)
-        try:
-            v = float(row[-1])
-        except ValueError:
-            v = -1.0
-        if not (math.isnan(v) or 0 <= v <= 1000):
-            raise InputError(f"r90_m must be metres in [0, 1000] (or nan), got {row[-1]!r}",
-                             file=path, line=lineno, field=R90_COLUMN)
-        r90.append(v)
-    rest = io.StringIO()
-    csv.writer(rest, lineterminator="\n").writerows([r[:-1] for r in rows if r])
-    # line numbers stay right: blank lines were dropped only where the reader skips them anyway
-    return parse_poses(csv.reader(io.StringIO(rest.getvalue())), path, None), np.array(r90, float)
+            header = tuple(h.strip() for h in head.decode("utf-8").rstrip("\r\n").split(","))
+        except UnicodeDecodeError:
+            return None
+        if header not in _HEADERS:
+            return None
+        # the blocks: byte ranges of whole lines
+        bounds = [f.tell()]
+        while True:
+            nxt = bounds[-1] + FAST_LINES * 64
+            if nxt >= size:
+                if bounds[-1] < size:
+                    bounds.append(size)
+                break
+            f.seek(nxt)
+            f.readline()  # to the end of the line holding byte nxt
+            bounds.append(f.tell())
+    with_size, with_r90 = _HEADERS[header]
+    nnum = len(header) - 3
+
+    def block(i: int):
+        with open(path, "rb") as g:
+            g.seek(bounds[i])
+            data = g.read(bounds[i + 1] - bounds[i])
+        if b'"' in data or b"\r" in data:
+            return None  # quoting, old line ends: the csv module's business
+        return _parse_block(data, nnum)
+
+    parts = map_chunks(block, range(len(bounds) - 1), workers)
+    if not parts or any(p is None for p in parts):
+        return None  # (no rows: let the reader say what it says of that)
+    frame, tid, cls, num = (np.concatenate([p[k] for p in parts]) for k in range(4))
+    del parts
+    if not _rows_valid(frame, tid, num, with_size, with_r90):
+        return None
+    return PoseTable(frame, tid, cls, num[:, :3], num[:, 3],
+                     num[:, 4:7] if with_size else None, None,
+                     num[:, -1] if with_r90 else None)
+
+
+def _parse_block(block: bytes, nnum: int):
+    """(frame, track id, class, numbers (n, nnum)) of the rows of ``block`` (whole lines), or
+    None. The two integers must be plain digits with an optional sign (1-19 digits: the
+    pattern read_poses takes, without its surrounding spaces), checked on the bytes; the rest
+    is numpy's C parser (numbers correctly rounded, as Python's float)."""
+    if not block.endswith(b"\n"):
+        block += b"\n"
+    arr = np.frombuffer(block, np.uint8)
+    if (arr == 0).any():
+        return None  # NUL bytes: the fixed-width class names below would drop them
+    ends = np.flatnonzero(arr == 10)
+    starts = np.r_[0, ends[:-1] + 1]
+    if (ends == starts).any():
+        return None  # a blank line
+    commas = np.flatnonzero(arr == 44)
+    k = np.searchsorted(commas, starts)
+    if (k + 2 >= len(commas)).any():
+        return None
+    c1, c2, c3 = commas[k], commas[k + 1], commas[k + 2]  # after frame, track id, class
+    if (c3 > ends).any():
+        return None
+    digit = np.r_[0, np.cumsum((arr >= 48) & (arr <= 57), dtype=np.int32)]
+    for lo, hi in ((starts, c1), (c1 + 1, c2)):
+        n = digit[hi] - digit[lo]
+        signed = np.isin(arr[np.minimum(lo, len(arr) - 1)], (43, 45)) & (hi > lo)
+        if not ((n >= 1) & (n <= 19) & (n == hi - lo - signed)).all():
+            return None
+    # the class names: the bytes between the two commas, as fixed-width byte strings (few
+    # distinct ones, each decoded once)
+    width = int((c3 - c2 - 1).max())
+    if width == 0 or width > 255:
+        return None
+    j = c2[:, None] + 1 + np.arange(width)[None, :]
+    raw = np.where(j < c3[:, None], arr[np.minimum(j, len(arr) - 1)], 0).astype(np.uint8)
+    names, inv = np.unique(raw.view(f"S{width}").reshape(-1), return_inverse=True)
+    try:
+        cls = np.array([x.decode("utf-8").strip() for x in names], object)[inv.reshape(-1)]
+    except UnicodeDecodeError:
+        return None
+    dtype = [("frame", np.int64), ("tid", np.int64)] + [(f"v{i}", np.float64) for i in range(nnum)]
+    try:
+        rec = np.loadtxt(io.StringIO(block.decode("utf-8")), delimiter=",", dtype=dtype,
+                         comments=None, ndmin=1, quotechar=None, usecols=[0, 1] + list(range(3, 3 + nnum)))
+    except (ValueError, OverflowError, UnicodeDecodeError):
+        return None
+    if len(rec) != len(starts):
+        return None
+    nums = np.stack([rec[f"v{i}"] for i in range(nnum)], axis=1)
+    return rec["frame"], rec["tid"], cls, nums
+
+
+def _rows_valid(frame, tid, num, with_size: bool, with_r90: bool) -> bool:
+    """Whether every row passes read_poses' checks (ranges, order, no duplicate rows)."""
+    if not ((frame >= 0).all() and (frame < 2**62).all() and (tid > -2**62).all()
+            and (tid < 2**62).all() and (np.diff(frame) >= 0).all()):
+        return False
+    xyz = num[:, :3]
+    if not (np.isfinite(xyz).all() and (np.abs(xyz) <= MAX_COORD).all()) or np.isinf(num[:, 3]).any():
+        return False
+    if with_size:
+        sz = num[:, 4:7]
+        if not (np.isnan(sz) | ((sz > 0) & (sz <= 1000))).all():
+            return False
+    if with_r90:
+        r = num[:, -1]
+        if not (np.isnan(r) | ((r >= 0) & (r <= MAX_COORD))).all():
+            return False
+    tracked = tid >= 0  # frames are in order: a duplicate is a repeat within a frame
+    f, t = frame[tracked], tid[tracked]
+    o = np.lexsort((t, f))
+    return not ((np.diff(f[o]) == 0) & (np.diff(t[o]) == 0)).any()
 
 
 def _scene_fps(scene_dir: Path) -> float | None:
@@ -201,11 +323,13 @@ def is_tanalyst(path: Path) -> bool:
     return head.startswith("Detection ID;")
 
 
-def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0) -> tuple[Tracks, list[str]]:
+def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0,
+                workers: int = 1) -> tuple[Tracks, list[str]]:
     """Tracks from ``path``: a run folder (RUN/poses.csv), a pose CSV (optionally with r90_m)
     or a T-Analyst tracks CSV (positions only: headings from motion, sizes by class). ``fps``:
     needed where no scene says it (a pose CSV outside a run or scene, a T-Analyst file);
-    ``start_ms``: a T-Analyst file's time of frame 0. Returns the tracks and notes."""
+    ``start_ms``: a T-Analyst file's time of frame 0; ``workers``: processes a long pose CSV
+    is parsed in. Returns the tracks and notes."""
     path = Path(path)
     if not path.exists():
         raise InputError("tracks not found (expected a run folder, a poses.csv or a T-Analyst CSV)",
@@ -229,5 +353,5 @@ def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0) -
         fps = found
     if fps is None:
         raise InputError("no scene gives the frame rate of these poses: pass --fps", file=pose_file)
-    poses, r90 = read_poses_r90(pose_file)
+    poses, r90 = read_poses_r90(pose_file, workers)
     return from_poses(poses, fps, r90)

@@ -141,12 +141,20 @@ class Association:
 # 1. per frame, per camera pair
 
 
-def _best_of(group: np.ndarray, cost: np.ndarray, n: int) -> np.ndarray:
-    """(P,) whether each candidate is the least-cost one of its group (ties: the first)."""
-    o = np.lexsort((np.arange(len(cost)), cost, group))
-    first = np.r_[True, group[o][1:] != group[o][:-1]]
+def _best_of(group: np.ndarray, cost: np.ndarray) -> np.ndarray:
+    """(P,) whether each candidate is the least-cost one of its group (ties: the first).
+    ``cost`` is finite. Groups already in order (the pairs' first camera, as ``_near_pairs``
+    makes them) need no sort; otherwise one stable sort by group."""
     best = np.zeros(len(cost), bool)
-    best[o[first]] = True
+    if not len(cost):
+        return best
+    o = None if (group[1:] >= group[:-1]).all() else np.argsort(group, kind="stable")
+    g, c = (group, cost) if o is None else (group[o], cost[o])
+    start = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    low = np.repeat(np.minimum.reduceat(c, start), np.diff(np.r_[start, len(g)]))
+    at = np.flatnonzero(c == low)  # in group order, and within a group in the original order
+    first = at[np.r_[True, g[at][1:] != g[at][:-1]]]
+    best[first if o is None else o[first]] = True
     return best
 
 
@@ -164,7 +172,7 @@ def _one_to_one(frame: np.ndarray, i: np.ndarray, j: np.ndarray, cost: np.ndarra
     if not len(i):
         return keep
     ni, nj = int(i.max()) + 1, int(j.max()) + 1
-    mutual = _best_of(i, cost, ni) & _best_of(j, cost, nj)
+    mutual = _best_of(i, cost) & _best_of(j, cost)
     keep[mutual] = True
     taken_i = np.zeros(ni, bool)
     taken_j = np.zeros(nj, bool)
@@ -227,13 +235,21 @@ def _pair_cameras(a: CameraViews, b: CameraViews, ta: np.ndarray, tb: np.ndarray
     r = d / (cfg.gate_m + cfg.gate_sigmas * np.hypot(a.spread[i], b.spread[j]))
     # the tracks' mean gate-normalised distance (clipped at _FAR) over the frames they share;
     # frames where the two are not within reach count as _FAR
-    key = ta[i] * (int(tb.max(initial=0)) + 1) + tb[j]
-    uk, inv = np.unique(key, return_inverse=True)
-    near_sum = np.bincount(inv, weights=np.minimum(r, _FAR))
-    near_n = np.bincount(inv)
-    first_pair = np.zeros(len(uk), np.int64)
-    first_pair[inv] = np.arange(len(inv))
-    pa, pb = ta[i][first_pair], tb[j][first_pair]
+    na, nb = int(ta.max(initial=0)) + 1, int(tb.max(initial=0)) + 1
+    key = ta[i] * nb + tb[j]
+    if na * nb <= max(4 * len(key), 1 << 20):  # a table of every track pair: no sort
+        near_sum = np.bincount(key, weights=np.minimum(r, _FAR), minlength=na * nb)
+        near_n = np.bincount(key, minlength=na * nb)
+        uk = np.flatnonzero(near_n)
+        inv = np.zeros(na * nb, np.int64)
+        inv[uk] = np.arange(len(uk))
+        inv = inv[key]
+        near_sum, near_n = near_sum[uk], near_n[uk]
+    else:
+        uk, inv = np.unique(key, return_inverse=True)
+        near_sum = np.bincount(inv, weights=np.minimum(r, _FAR))
+        near_n = np.bincount(inv)
+    pa, pb = uk // nb, uk % nb
     shared = np.minimum(span_a[1][pa], span_b[1][pb]) - np.maximum(span_a[0][pa], span_b[0][pb]) + 1
     shared = np.maximum(shared, near_n)
     mean = (near_sum + _FAR * (shared - near_n)) / shared
@@ -392,7 +408,9 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
         n_cuts += len(ck)
         mk = t * (1 << 32) + v.frame
         rank = np.searchsorted(ck, mk, "right") - np.searchsorted(ck, t * (1 << 32), "left")
-        uk, inv = np.unique(np.stack([t, rank], axis=1), axis=0, return_inverse=True)
+        n_rank = int(rank.max(initial=0)) + 1  # pieces (track, rank) in that order, one int key
+        uk, inv = np.unique(t * n_rank + rank, return_inverse=True)
+        uk = np.stack([uk // n_rank, uk % n_rank], axis=1)
         inv = inv.reshape(-1)
         piece[c] = inv + n_pieces
         first, last = _track_spans(inv, v.frame, len(uk))

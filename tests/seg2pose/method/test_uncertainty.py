@@ -40,7 +40,7 @@ def test_heteroscedastic_errors_covered_on_fresh_draws():
         rng = np.random.default_rng(seed)
         d = rng.uniform(5, 60, n)
         err = np.linalg.norm(rng.normal(0, 1, (n, 2)), axis=1) * 0.02 * d
-        X = np.column_stack([np.ones(n), np.log(d), np.zeros((n, 5))])
+        X = np.column_stack([np.ones(n), np.log(d), np.zeros((n, len(VIEW_FEATURES) - 2))])
         return X, err
     X, err = draw(1)
     cls = np.array(["car"] * len(err), object)
@@ -97,8 +97,9 @@ def test_view_cue_columns_round_trip_and_old_files(tmp_path):
 
 
 def test_calibration_json_round_trip_and_bad_files(tmp_path):
-    view = StageModel(VIEW_FEATURES, {"*": [0.1] * 7, "car": [0.2] * 7}, {"*": 50, "car": 45},
-                      {"*": [0.0] * 7, "car": [0.0] * 7}, {"*": [1.0] * 7, "car": [1.0] * 7},
+    k = len(VIEW_FEATURES)
+    view = StageModel(VIEW_FEATURES, {"*": [0.1] * k, "car": [0.2] * k}, {"*": 50, "car": 45},
+                      {"*": [0.0] * k, "car": [0.0] * k}, {"*": [1.0] * k, "car": [1.0] * k},
                       {"*": 5.0, "car": 0.5})
     pose = StageModel(POSE_FEATURES, {"*": [0.0, 1.0, 0.0, 0.0]}, {"*": 50},
                       {"*": [0.0] * 4}, {"*": [9.0] * 4}, {"*": 5.0})
@@ -109,10 +110,10 @@ def test_calibration_json_round_trip_and_bad_files(tmp_path):
     assert back.view.coef == view.coef and back.pose.coef == pose.coef
     assert back.meta["method"] == "baseline"
     # unknown classes use the pooled model; features are clipped to the fit's range (here
-    # [0, 1]) and the bar to 2 x the largest fitted error (car: e^0.5 < e^1.4)
-    X = np.full((2, 7), 3.0)
+    # [0, 1]) and the bar to 2 x the largest fitted error (car: e^0.5 < e^(0.2 k))
+    X = np.full((2, k), 3.0)
     np.testing.assert_allclose(back.view.predict(np.array(["car", "bus"], object), X),
-                               [2 * np.exp(0.5), np.exp(0.7)])
+                               [2 * np.exp(0.5), np.exp(0.1 * k)])
     d = json.loads(p.read_text())
     d["pose"]["coef"]["*"] = [1.0, "x", 0, 0]
     p.write_text(json.dumps(d))
@@ -171,3 +172,129 @@ def test_run_calibrate_run_eval_on_a_tiny_scene(tmp_path):
     assert res.r90_scores()["n"] == res.n_matched
     with pytest.raises(Exception, match="exists"):
         calibrate_run(scene, tmp_path / "val")
+
+
+# ----------------------------------------------------------------------------------------------
+# the view cues computed from views.csv, and per-class calibration on a known error model
+
+
+def test_crowding_by_hand():
+    """A view whose centre lies within a nearer road user's apparent size is crowded by
+    1 - distance / size; the nearer one, views of other frames or cameras, and views beyond
+    the size are not."""
+    from seg2pose.method.uncertainty import crowding
+
+    frame = np.array([0, 0, 0, 1, 0])
+    camera = np.array(["c0", "c0", "c0", "c0", "c1"], object)
+    uv = np.array([[100.0, 100.0], [120.0, 100.0], [300.0, 100.0], [110.0, 100.0], [110.0, 100.0]])
+    rng = np.array([10.0, 20.0, 30.0, 25.0, 25.0])
+    size = np.array([50.0, 40.0, 10.0, 50.0, 50.0])
+    np.testing.assert_allclose(crowding(frame, camera, uv, rng, size), [0.0, 0.6, 0.0, 0.0, 0.0])
+    # two nearer road users: the larger overlap counts
+    np.testing.assert_allclose(
+        crowding(np.zeros(3), np.array(["c0"] * 3, object),
+                 np.array([[0.0, 0.0], [30.0, 0.0], [10.0, 0.0]]), np.array([5.0, 6.0, 9.0]),
+                 np.array([20.0, 40.0, 1.0])), [0.0, 0.0, 0.5])
+
+
+def test_view_columns_by_hand():
+    """Distance, grazing, the cut mask's distance to the border and crowding from a camera 10 m
+    above the ground: known answers."""
+    from types import SimpleNamespace
+
+    from seg2pose.geometry.camera import Camera
+    from seg2pose.io.run import ViewTable
+    from seg2pose.method.uncertainty import view_columns
+
+    cam = Camera.look_at("c0", np.array([0.0, 0.0, 10.0]), np.array([20.0, 0.0, 0.0]), f=500.0,
+                         width=640, height=480)
+    scene = SimpleNamespace(cameras={"c0": cam},
+                            class_sizes=lambda: {"car": (4.0, 1.8, 1.5), "pedestrian": (0.6, 0.6, 1.8)})
+    v = ViewTable([0, 0], [1, 2], ["c0", "c0"], ["car", "pedestrian"],
+                  [[320.0, 300.0], [330.0, 5.0]], [[20.0, 0.0, 0.0], [40.0, 0.0, 1.0]],
+                  np.zeros((2, 2)), [[0, 0, 0], [1, 0, 0]])
+    c = view_columns(scene, v)
+    np.testing.assert_allclose(np.exp(c["log_distance"]), [20.0, 40.0])
+    np.testing.assert_allclose(np.exp(c["log_grazing"]), [2.0, 40.0 / 9.0])
+    np.testing.assert_allclose(c["cut"], [0.0, 1.0])
+    np.testing.assert_allclose(c["cut_edge"], [0.0, np.log1p(5.0)])  # 5 px from the top
+    # the car (nearer, 500 * 4 / sqrt(500) px) holds the pedestrian's centre? 295 px apart: no
+    size_car = 500.0 * 4.0 / np.sqrt(500.0)
+    assert size_car < np.hypot(10.0, 295.0)
+    np.testing.assert_allclose(c["crowd"], [0.0, 0.0])
+
+
+def _draw_known(seed: int, n_users: int = 60, rows: int = 40):
+    """Errors of a known law per class: |N2(0, (s_class * g)^2 I)| with the grazing g of
+    each row, times a road user's own factor exp(0.15 z) (a road user's errors are alike);
+    a cut mask doubles the error. Returns cls, X (VIEW_FEATURES), err, groups and the true
+    r90 of each row: s times the 90th percentile of |N2(0, I)| exp(0.15 z) (Monte Carlo)."""
+    big = np.random.default_rng(99)
+    q90 = np.quantile(np.linalg.norm(big.normal(0, 1, (10 ** 6, 2)), axis=1)
+                      * np.exp(0.15 * big.normal(0, 1, 10 ** 6)), 0.9)
+    rng = np.random.default_rng(seed)
+    scale = {"car": 0.20, "pedestrian": 0.06, "bicyclist": 0.12}
+    cls, X, err, grp, true_r90 = [], [], [], [], []
+    names = list(scale)
+    for u in range(n_users):
+        c = names[u % 3]
+        own = np.exp(0.15 * rng.normal())
+        g = rng.uniform(1.0, 5.0, rows)
+        cut = (rng.uniform(size=rows) < 0.15).astype(float)
+        s = scale[c] * g * (1.0 + cut)
+        e = np.linalg.norm(rng.normal(0, 1, (rows, 2)), axis=1) * s * own
+        cols = {"one": np.ones(rows), "log_distance": np.log(g * 10), "log_grazing": np.log(g),
+                "cut": cut, "cut_edge": np.zeros(rows), "crowd": np.zeros(rows),
+                "far": np.zeros(rows), "log_spread": np.full(rows, np.log(0.02)),
+                "log_residual": np.full(rows, np.log(0.05))}
+        cls += [c] * rows
+        X.append(np.column_stack([cols[k] for k in VIEW_FEATURES]))
+        err.append(e)
+        grp += [u] * rows
+        true_r90.append(s * q90)
+    return (np.array(cls, object), np.vstack(X), np.concatenate(err), np.array(grp),
+            np.concatenate(true_r90))
+
+
+def test_per_class_bars_on_a_known_error_law_cover_90_percent_of_new_road_users():
+    """Per class, on fresh road users of the same law: coverage about 0.9 (the conformal step
+    aims at CONFORMAL_Q = 0.92 over 40 road users a class), the bar within 15 % of the law's
+    true 90 % radius, sharper than one radius per class, and ranking the errors."""
+    cls, X, err, grp, _ = _draw_known(1, n_users=120, rows=15)
+    m = StageModel.fit(VIEW_FEATURES, cls, X, err, grp)
+    cls2, X2, err2, _, true2 = _draw_known(2, n_users=300)
+    r = m.predict(cls2, X2)
+    for c in ("car", "pedestrian", "bicyclist"):
+        s = cls2 == c
+        sc = r90_scores(err2[s], r[s])
+        assert 0.87 <= sc["coverage"] <= 0.96, (c, sc)
+        assert np.median(r[s] / true2[s]) == pytest.approx(1.0, abs=0.15), c
+        # sharper than one radius per class of the same coverage, and ranking the errors
+        assert sc["mean_r90"] < np.quantile(err2[s], sc["coverage"]) and sc["spearman"] > 0.4
+
+
+def test_calibrate_on_several_runs_and_scenes(tmp_path):
+    """s2p calibrate --run A --run B: two splits of one scene and a run of another scene (read
+    against the truth its run.json names) make one calibration; its fitted_on lists the three;
+    a run of another method is refused."""
+    from tests.scene_fixtures import make_tiny_scene
+
+    from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.method.r90_calibrate import calibrate_run
+
+    a = make_tiny_scene(tmp_path / "a", frames=40, n_users=9)
+    b = make_tiny_scene(tmp_path / "b", frames=40, n_users=9, seed=1)
+    for scene, split in ((a, "val"), (a, "train"), (b, "val")):
+        run_scene(scene, tmp_path / f"{scene.root.name}-{split}",
+                  RunOptions(baseline=True, split=split, progress=False))
+    runs = [tmp_path / "a-val", tmp_path / "a-train", tmp_path / "b-val"]
+    path, cal = calibrate_run(a, runs, tmp_path / "r90.json")
+    fitted = json.loads(path.read_text())["fitted_on"]
+    assert [f["split"] for f in fitted] == ["val", "train", "val"]
+    assert [f["scene_fingerprint"] for f in fitted] == [a.fingerprint()] * 2 + [b.fingerprint()]
+    assert 0.8 <= cal.meta["coverage_on_fit"]["poses"] <= 1.0
+    meta = json.loads((tmp_path / "b-val" / "run.json").read_text())
+    meta["method"] = "s2pn"
+    (tmp_path / "b-val" / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="differs from the first run's"):
+        calibrate_run(a, runs, tmp_path / "r90-2.json")

@@ -202,3 +202,42 @@ def test_pet_frames_are_the_closest_in_time_earliest(seed):
                 found[(ta, tb)] = (frame[A[i]], frame[B[i]])
     mine = {(tid[a], tid[b]): (frame[a], frame[b]) for a, b in got}
     assert mine == found
+
+
+@pytest.mark.parametrize("case", ["follower", "crossing", "turning"])
+def test_pet_interval_without_noise_is_the_tables_pet(case):
+    """The draws' PET is searched over the whole encounter as the table's is: with no pose
+    error (r90 = 0) every draw is the tracks themselves, so the interval is the table's PET."""
+    from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+
+    from tests.seg2pose.safety.test_safety import crossing, follower, turning_car_and_pedestrian
+
+    tr = {"follower": follower, "crossing": crossing,
+          "turning": lambda: turning_car_and_pedestrian()[0]}[case]()
+    table = analyse(tr, ConflictOptions())
+    pet = table.columns["pet_s"][0]
+    assert np.isfinite(pet)
+    iv = conflict_intervals(tr, table, ConflictOptions(), IntervalOptions(draws=5),
+                            r90=np.zeros(len(tr)))
+    assert iv["pet_found_share"][0] == 1.0
+    assert iv["pet_lo_s"][0] == pytest.approx(pet, abs=1e-9)
+    assert iv["pet_hi_s"][0] == pytest.approx(pet, abs=1e-9)
+
+
+@pytest.mark.parametrize("origin", [0.0, 1e3, 1e5, -3.7e4])
+def test_braking_to_a_standstill_stays_braking(origin):
+    """A car braking at 4 m/s^2 to an exact stop, then standing (noise-free, as ground truth
+    is): just after the stop its velocity is 0 up to rounding, while the acceleration fitted
+    over the window is still the braking. That counts as braking (negative along the heading)
+    wherever the world's origin is: the sign of a zero velocity is not the rounding's."""
+    t = np.arange(0, 6, 1 / FPS)
+    s = np.where(t < 2.5, 10 * t - 2 * t * t, 12.5)
+    n = len(t)
+    tr = Tracks(np.arange(n), np.ones(n, int), np.array(["car"] * n, object),
+                np.c_[origin + s, np.full(n, origin)], np.zeros(n), np.tile([4.0, 1.8], (n, 1)), FPS)
+    m = motion(tr)
+    standing = (t > 2.5) & (m.speed < 1e-6)
+    braking = m.acc[:, 0] < -0.5
+    assert (standing & braking).sum() >= 10
+    assert (m.along[standing & braking] < 0).all()
+    np.testing.assert_allclose(m.along[braking], m.acc[braking, 0])

@@ -1,0 +1,177 @@
+"""The large camera's picture, made on the server: the exact video frame the panel names, with
+the mask outlines and every annotation track's box of that frame drawn on it, as a JPEG.
+
+Why on the server and not in the Rerun viewer: on a machine without a GPU the browser renders
+the viewer in software (SwiftShader), where one repaint of a 1176x760 viewer canvas took
+2-3 s on the 2-core development machine and a frame step needs three repaints (seek, decode,
+draw): 7-15 s before the new frame showed (docs/BENCHMARKS.md, "Annotation app"). A JPEG in
+an ``<img>`` is decoded and composited by the browser in milliseconds, and a click on it
+gives the image pixel exactly (no selection events to interpret). The Rerun viewer keeps the
+3D world, the other cameras and the keyframe timeline.
+
+Frames come from the viewer's cached H.264 asset of the camera (``s2p_review.video_asset``:
+a keyframe every 12 frames), decoded with OpenCV: a step to the next frame reads one frame,
+a jump seeks (at most 11 frames decoded after the keyframe). Tracks are drawn from the same
+columns the viewer gets (``TrackColumns``), projected with ``s2p_review.columns``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from s2p_review import columns as C
+from s2p_review import layout as L
+from s2p_review.annotation_log import SELECTED_COLOR, TrackColumns
+
+JPEG_QUALITY = 82
+THICKNESS = {"keyframe": 3, "interpolated": 1, "occluded": 1}
+NO_VIDEO_GREY = 90
+
+
+@dataclass
+class Picture:
+    """One rendered frame: ``jpeg`` bytes, the image size, and ``note`` (why the picture is
+    not the video frame, else "")."""
+
+    jpeg: bytes
+    width: int
+    height: int
+    note: str = ""
+
+
+class _Reader:
+    """Sequential-friendly random access to one camera's video asset (scene frame -> BGR)."""
+
+    def __init__(self, asset):
+        import cv2
+
+        self.asset = asset
+        self.index = {int(f): i for i, f in enumerate(asset.frames)}
+        self.cap = cv2.VideoCapture(str(asset.path))
+        self.pos = 0  # the index of the frame the next read returns
+        self.last = None  # (index, image) of the last frame read
+
+    def read(self, frame: int) -> np.ndarray | None:
+        import cv2
+
+        i = self.index.get(int(frame))
+        if i is None or not self.cap.isOpened():
+            return None
+        if self.last is not None and self.last[0] == i:  # redrawn after an edit: no seek back
+            return self.last[1].copy()
+        if i != self.pos:
+            if 0 < i - self.pos <= 12:  # a short step forward: decode on, no seek
+                for _ in range(i - self.pos):
+                    self.cap.grab()
+            else:
+                self.cap.set(cv2.CAP_PROP_POS_FRAMES, i)
+        ok, img = self.cap.read()
+        self.pos = i + 1 if ok else -1
+        self.last = (i, img) if ok else None
+        return img.copy() if ok else None
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+class FrameImages:
+    """Pictures of ``cameras`` over scene frames first..last (see the module docstring)."""
+
+    def __init__(self, scene, cameras: list[str], first: int, last: int):
+        self.scene, self.first, self.last = scene, int(first), int(last)
+        self.cameras = list(cameras)
+        self._readers: dict[str, _Reader | None] = {}
+        self._outlines: dict[str, tuple | None] = {}
+
+    def _reader(self, cam: str) -> _Reader | None:
+        if cam not in self._readers:
+            from s2p_review.video_asset import video_asset
+
+            asset = video_asset(self.scene, cam, self.first, self.last)  # cached by prepare_viewer
+            self._readers[cam] = _Reader(asset) if asset is not None else None
+        return self._readers[cam]
+
+    def _outline_index(self, cam: str):
+        if cam not in self._outlines:
+            from s2p_review.recording import outline_table
+
+            out = None
+            if self.scene.masks_path(cam).exists():
+                frames, per_frame, lengths, points, colors = outline_table(
+                    self.scene, cam, self.first, self.last)
+                strip0 = np.r_[0, np.cumsum(per_frame)]
+                pt0 = np.r_[0, np.cumsum(lengths)]
+                out = ({int(f): i for i, f in enumerate(frames)}, strip0, pt0, lengths, points, colors)
+            self._outlines[cam] = out
+        return self._outlines[cam]
+
+    def video_frame(self, cam: str, frame: int) -> np.ndarray | None:
+        """The camera's video frame (H, W, 3) BGR at scene frame ``frame``, None without one."""
+        r = self._reader(cam)
+        return None if r is None else r.read(frame)
+
+    def render(self, cam: str, frame: int, tracks: list[TrackColumns], selected: int | None
+               ) -> Picture:
+        """The picture of ``cam`` at ``frame``: the video frame (grey with a note where there
+        is none), mask outlines, each track's box at that frame (the selected one yellow,
+        keyframes thick) and its label."""
+        import cv2
+
+        camera = self.scene.cameras[cam]
+        img = self.video_frame(cam, frame)
+        note = ""
+        if img is None:
+            img = np.full((camera.height, camera.width, 3), NO_VIDEO_GREY, np.uint8)
+            note = f"no video for frame {frame} in camera {cam}"
+        elif img.shape[1] != camera.width or img.shape[0] != camera.height:
+            img = cv2.resize(img, (camera.width, camera.height), interpolation=cv2.INTER_LINEAR)
+        self._draw_outlines(img, cam, frame)
+        for t in sorted(tracks, key=lambda t: t.track_id == selected):  # the selected one on top
+            self._draw_track(img, camera, t, frame, t.track_id == selected)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        return Picture(buf.tobytes(), camera.width, camera.height, note)
+
+    def _draw_outlines(self, img: np.ndarray, cam: str, frame: int) -> None:
+        import cv2
+
+        o = self._outline_index(cam)
+        if o is None or int(frame) not in o[0]:
+            return
+        at, strip0, pt0, lengths, points, colors = o
+        i = at[int(frame)]
+        for s in range(strip0[i], strip0[i + 1]):
+            pts = np.round(points[pt0[s]:pt0[s + 1]]).astype(np.int32)
+            if len(pts) >= 2:
+                c = tuple(int(v) for v in colors[s][::-1])  # RGB -> BGR
+                cv2.polylines(img, [pts], True, c, 1, cv2.LINE_AA)
+
+    def _draw_track(self, img, camera, t: TrackColumns, frame: int, selected: bool) -> None:
+        import cv2
+
+        rows = np.flatnonzero(t.frame == int(frame))
+        if not len(rows):
+            return
+        r = rows[:1]
+        paths, idx = C.projected_paths(camera, t.xyz[r], t.heading[r], t.size[r])
+        if not len(idx):
+            return
+        source = str(t.source[r[0]])
+        rgb = SELECTED_COLOR if selected else L.class_colors(np.array([t.cls]), self.scene.classes)[0]
+        if source == "occluded":
+            rgb = tuple(int(v * 0.45) for v in rgb)
+        bgr = tuple(int(v) for v in rgb[::-1])
+        pts = np.round(paths[0]).astype(np.int32)
+        cv2.polylines(img, [pts], False, bgr, THICKNESS.get(source, 1) + (1 if selected else 0),
+                      cv2.LINE_AA)
+        top = pts[pts[:, 1].argmin()]
+        label = f"{t.cls[:1]}{t.track_id}" + (" key" if source == "keyframe" else "")
+        cv2.putText(img, label, (int(top[0]) + 4, max(12, int(top[1]) - 4)),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.5, bgr, 1, cv2.LINE_AA)
+
+    def close(self) -> None:
+        for r in self._readers.values():
+            if r is not None:
+                r.close()
+        self._readers.clear()
