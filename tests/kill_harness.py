@@ -94,8 +94,8 @@ for line in sys.stdin:
             os.setpgid(0, 0)
             null = os.open(os.devnull, os.O_RDWR)
             os.dup2(null, 0)
-            os.dup2(null, 1)
             os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644), 2)
+            os.dup2(2, 1)  # what it says too: batch reports a scene's failure in its table
             sys.argv = ["s2p", *argv]
             from seg2pose.cli import main
             main()

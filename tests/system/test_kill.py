@@ -36,7 +36,7 @@ def test_killed_command_leaves_old_or_new(cases, name):
     case.run_fully()
     rng = np.random.default_rng(sum(map(ord, name)))
     kinds = [case.kill_once(rng) for _ in range(KILLS_FIRST if name in FIRST else KILLS_PER_COMMAND)]
-    assert case.counts["mixed"] == 0, kinds
+    assert case.counts["mixed"] == 0, (kinds, case.mixed)
     assert case.new is not None and case.new != case.old_state()
     # what a killed writer leaves beside the outputs is only what the next writer removes (its
     # lock and partial builds; tests/system/test_atomic_outputs.py checks that removal)...
