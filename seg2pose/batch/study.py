@@ -39,7 +39,7 @@ from typing import Callable
 from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.core.ray import MAX_RETRIES, import_ray
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic import atomic_write_text, is_temporary
 
 SUMMARY = "summary.json"
 BATCH_DIR = "batch"
@@ -83,8 +83,12 @@ class Step:
 # --- fingerprints ---------------------------------------------------------------------------------
 
 def _files(p: Path) -> list[Path]:
+    """The files of an output (a file, or a folder walked), without the writers' hidden
+    temporaries (a killed writer's lock and partial builds are not outputs: counted as such,
+    a re-run took the output for someone else's and refused to replace it)."""
     if p.is_dir():
-        return sorted(q for q in p.rglob("*") if q.is_file() and ".partial" not in q.name)
+        return sorted(q for q in p.rglob("*") if q.is_file()
+                      and not any(is_temporary(n) for n in q.relative_to(p).parts))
     return [p] if p.exists() else []
 
 

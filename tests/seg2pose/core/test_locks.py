@@ -65,6 +65,23 @@ def test_a_zombie_holds_nothing(tmp_path):
         os.waitpid(pid, 0)
 
 
+def test_a_pid_reused_by_a_later_process_is_not_the_holder(tmp_path):
+    """pids are reused (32,768 on many machines): a process that started after the lock was
+    taken (or a partial file last written) is not its holder."""
+    import datetime as dt
+    import time
+
+    me = os.getpid()
+    assert pid_alive(me, time.time()) and pid_alive(me)
+    assert not pid_alive(me, time.time() - 10 * 86400)  # this process did not run then
+    old = (dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=10)).isoformat(timespec="seconds")
+    assert LockHolder(me, socket.gethostname(), old).gone
+    assert not LockHolder(me, socket.gethostname(), "?").gone  # no time: cannot tell
+    path = tmp_path / ".out.lock"
+    path.write_text(LockHolder(me, socket.gethostname(), old).to_json())
+    assert ExclusiveLock(path, Busy).acquire()
+
+
 def test_exclusive_lock_refuses_a_live_holder_and_takes_over_a_gone_one(tmp_path):
     path = tmp_path / ".out.lock"
     seen = []
