@@ -3,19 +3,21 @@
 Every writing command on small inputs (tests/kill_harness.py): ``s2p run``, ``synth``,
 ``convert-masks``, ``import-utocs``, ``export`` (issue 10) and ``masks-from-video``,
 ``import-detections``, ``track``, ``new-scene``, ``import-tacal``, ``annotate export`` (gt +
-MCAP + layout + CSV as one set), ``annotate import-tanalyst``, ``associate`` and
-``batch --serial`` (issues 23 and 24).
+MCAP + layout + CSV as one set), ``import-mcap --force`` (into an existing scene folder),
+``annotate import-tanalyst``, ``associate``, ``batch --serial`` and ``batch`` on a local Ray of
+its own (``batch-ray``: the driver killed; about 35 s a run, most of it Ray's start) (issues 23
+and 24).
 Put complete old outputs in place, start the command (with --force where it replaces them),
-SIGKILL it after a random share (0.15-1.05) of its usual duration, and classify the outputs:
-absent, the complete old ones, the complete new ones, or mixed (anything else, also a set of
-which some outputs are old and some new: counted as the outputs are the moment after the
-kill; "finished" says how many of those the next writer's first step, ``finish_commits``,
-made the new set). ``batch`` is then run again without --force, as a
-user would after a crash: "between" counts kills that left some steps done (each output whole)
-and a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
+SIGKILL it after a random share (0.15-1.05, ``--share``) of its usual duration, and classify
+the outputs: absent, the complete old ones, the complete new ones, or mixed (anything else,
+also a set of which some outputs are old and some new: counted as the outputs are the moment
+after the kill; "finished" says how many of those the next writer's first step,
+``finish_commits``, made the new set). ``batch`` is then run again without --force, as a user
+would after a crash: "between" counts kills that left some steps done (each output whole) and
+a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
 promise is 0 mixed. Then one full run checks that the dead writers' leftovers are removed.
 
-    python benches/bench_faults.py [--kills 100] [--seed 0] [--only run,synth]
+    python benches/bench_faults.py [--kills 100] [--seed 0] [--only run,synth] [--share 0.15,1.05]
 """
 
 from __future__ import annotations
@@ -33,11 +35,22 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in 
 from kill_harness import build_cases, build_writer_cases  # noqa: E402
 
 
+def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:
+    """Ray's session folders on this machine and their bytes."""
+    if not root.is_dir():
+        return 0, 0
+    dirs = [d for d in root.iterdir() if d.name.startswith("session_2") and d.is_dir()]
+    size = sum(f.stat().st_size for d in dirs for f in d.rglob("*") if f.is_file() and not f.is_symlink())
+    return len(dirs), size
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=100, help="kills per command")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", default="", help="comma-separated commands (default: all)")
+    ap.add_argument("--share", default="0.15,1.05", help="kill after a random share in this "
+                    "range of the command's duration (e.g. 0.3,0.8: fewer kills after the end)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         only = args.only.split(",") if args.only else None
@@ -50,14 +63,16 @@ def main() -> None:
         if only:
             cases = [c for c in cases if c.name in only]
         rng = np.random.default_rng(args.seed)
+        share = tuple(float(x) for x in args.share.split(","))
         print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
               f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
         total_mixed = total_left = 0
         for c in cases:
+            sessions = _ray_sessions()
             c.run_fully()
             t = time.perf_counter()
             for k in range(1, args.kills + 1):
-                c.kill_once(rng)
+                c.kill_once(rng, share)
                 if k % 50 == 0 and k < args.kills:
                     print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
             c.run_fully()  # the next writer takes over and cleans up
@@ -68,6 +83,10 @@ def main() -> None:
             print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
                   f"{n['between']:>8} {n['mixed']:>6} {n['finished']:>9} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
+            if c.tree:  # Ray: what the killed drivers' clusters left running or on disk
+                print(f"    {c.stray} processes of the killed commands still running 120 s after "
+                      f"their kill; {_ray_sessions()[0] - sessions[0]} Ray session folders "
+                      f"added ({(_ray_sessions()[1] - sessions[1]) / 1e6:.1f} MB)", flush=True)
             for states, beside in c.mixed:
                 print(f"    mixed: outputs {states}, beside them {beside}", flush=True)
         print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}")

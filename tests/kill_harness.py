@@ -94,8 +94,8 @@ for line in sys.stdin:
             os.setpgid(0, 0)
             null = os.open(os.devnull, os.O_RDWR)
             os.dup2(null, 0)
-            os.dup2(null, 1)
             os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644), 2)
+            os.dup2(2, 1)  # what it says too: batch reports a scene's failure in its table
             sys.argv = ["s2p", *argv]
             from seg2pose.cli import main
             main()
@@ -180,6 +180,58 @@ def zygote() -> Zygote:
     return _zygote
 
 
+def descendants(pid: int) -> list[int]:
+    """The processes started by ``pid``, and by those, and so on (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                stat = Path(f"/proc/{d}/stat").read_text()
+            except OSError:
+                continue
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            children.setdefault(ppid, []).append(int(d))
+    out, todo = [], [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def ray_workers_of(pids: list[int]) -> list[int]:
+    """Processes whose environment names one of ``pids`` as their raylet (Ray's workers)."""
+    want = {f"RAY_RAYLET_PID={p}".encode() for p in pids}
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                env = Path(f"/proc/{d}/environ").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if want.intersection(env):
+                out.append(int(d))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except OSError:
+        return False
+
+
+def wait_gone(pids: list[int], timeout: float = 120.0) -> list[int]:
+    """Wait until the processes ``pids`` have ended (zombies count as ended); those still
+    running after ``timeout`` seconds."""
+    end = time.perf_counter() + timeout
+    while True:
+        left = [p for p in pids if _running(p)]
+        if not left or time.perf_counter() > end:
+            return left
+        time.sleep(0.1)
+
+
 def _copy(src: Path | None, dst: Path) -> None:
     """Put ``src`` (a file, a folder, or None: nothing) at ``dst``."""
     if dst.is_dir() and not dst.is_symlink():
@@ -209,6 +261,9 @@ class Case:
     olds: list
     state: Callable | None = None
     resume: bool = False
+    rerun: list | None = None  # the re-run after a kill (default: argv without --force)
+    tree: bool = False  # wait for the killed command's other processes (Ray's) to end
+    stray: int = 0  # of those, still running 120 s after the kill
     new: object = None
     seconds: float = 1.0
     counts: dict = field(default_factory=lambda: {"absent": 0, "old": 0, "new": 0, "between": 0,
@@ -263,9 +318,9 @@ class Case:
             return "between"  # some outputs done, each one whole: the re-run goes on from there
         return "mixed"
 
-    def kill_once(self, rng: np.random.Generator) -> str:
-        """Put the old outputs back, start the command, SIGKILL it after a random part of its
-        usual duration (sometimes after it finished), classify the outputs. With ``resume``
+    def kill_once(self, rng: np.random.Generator, share: tuple[float, float] = (0.15, 1.05)) -> str:
+        """Put the old outputs back, start the command, SIGKILL it after a random ``share`` of
+        its usual duration (sometimes after it finished), classify the outputs. With ``resume``
         the command is then run again (without --force, as after a crash) and a re-run that
         fails or does not end with the uninterrupted run's outputs counts as ``mixed``. Then
         what the next writer does first is done (``finish_commits``); a mixed set that this
@@ -274,11 +329,18 @@ class Case:
         self.put_old()
         z = zygote()
         pid = z.start(self.argv)
-        code = z.wait(rng.uniform(0.15, 1.05) * self.seconds)
+        code = z.wait(rng.uniform(*share) * self.seconds)
         if code is None:
+            tree = descendants(pid) if self.tree else []
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(pid, signal.SIGKILL)
             z.wait()
+            # Ray's processes (own process groups) end when the driver's raylet does; a task
+            # may still finish its write meanwhile: the outputs are what they leave (a worker
+            # forked just after the list was taken is found by its raylet's pid)
+            if tree:
+                tree += [p for p in ray_workers_of(tree) if p not in tree]
+            self.stray += len(wait_gone(tree))
         kind = self.classify()
         if kind == "mixed":  # which outputs were what, and what lay beside them
             st = self.snap()
@@ -294,9 +356,12 @@ class Case:
         if kind == "mixed" and self.classify() == "new":
             self.counts["finished"] += 1
         if self.resume and kind != "mixed":
-            z.start([a for a in self.argv if a != "--force"])
-            if z.wait(600) != 0 or self.snap() != self.new:
+            z.start(self.rerun or [a for a in self.argv if a != "--force"])
+            code = z.wait(600)
+            if code != 0 or self.snap() != self.new:
                 kind = "mixed"
+                self.mixed.append(([f"the re-run after a {kind} kill: exit {code}",
+                                    z.error_text()[-400:]], self.leftovers()))
         self.counts[kind] = self.counts.get(kind, 0) + 1
         return kind
 
@@ -493,6 +558,9 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     s1 = load_scene(study / "s1")
     s1.extra["video_masks"] = bgd
     s1.save()
+    # batch on a local Ray of its own (one CPU), its driver killed: the same study
+    shutil.copytree(study, root / "study-ray")
+    sray = root / "study-ray"
     exp = ann / "export"
     return [
         Case("masks-from-video", ["masks-from-video", mfv, "--no-progress", "--force", *bg],
@@ -522,9 +590,17 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
              restored + [old / "video"]),
         Case("batch-serial", ["batch", study, "masks-from-video", "run", "--baseline", "--serial",
                               "--no-progress"],
-             [study / "s1" / "masks" / "c0.txt", study / "s1" / "batch", study / "summary.json"],
+             [study / "s1" / "masks", study / "s1" / "batch", study / "summary.json"],
              [None, None, None],
              state=_state_of(study / "s1" / "masks" / "c0.txt", study / "s1" / "batch" / "baseline"),
              resume=True),
+        Case("batch-ray", ["batch", sray, "masks-from-video", "run", "--baseline", "--cpus", "1",
+                           "--no-progress"],
+             [sray / "s1" / "masks", sray / "s1" / "batch", sray / "summary.json"],
+             [None, None, None],
+             state=_state_of(sray / "s1" / "masks" / "c0.txt", sray / "s1" / "batch" / "baseline"),
+             resume=True, tree=True,
+             rerun=["batch", sray, "masks-from-video", "run", "--baseline", "--serial",
+                    "--no-progress"]),
     ]
 

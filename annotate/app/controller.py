@@ -236,6 +236,13 @@ class Controller(Actions):
         for cb in list(self.on_viewer):
             cb(self.viewer_visible)
 
+    def show_large(self, cam: str) -> None:
+        """Show camera ``cam`` large (a click on its small picture)."""
+        with self.lock:
+            self.touch()
+            self._show_large(cam)
+            self.message = f"camera {cam} large (k: the next one)"
+
     def _show_large(self, cam: str) -> None:
         self.large_camera = cam
         self._save()

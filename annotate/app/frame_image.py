@@ -112,11 +112,12 @@ class FrameImages:
         r = self._reader(cam)
         return None if r is None else r.read(frame)
 
-    def render(self, cam: str, frame: int, tracks: list[TrackColumns], selected: int | None
-               ) -> Picture:
+    def render(self, cam: str, frame: int, tracks: list[TrackColumns], selected: int | None,
+               width: int | None = None) -> Picture:
         """The picture of ``cam`` at ``frame``: the video frame (grey with a note where there
         is none), mask outlines, each track's box at that frame (the selected one yellow,
-        keyframes thick) and its label."""
+        keyframes thick) and its label. ``width``: scaled down to this many pixels wide (the
+        small pictures of the other cameras); ``Picture.width``/``height`` stay the camera's."""
         import cv2
 
         camera = self.scene.cameras[cam]
@@ -130,6 +131,9 @@ class FrameImages:
         self._draw_outlines(img, cam, frame)
         for t in sorted(tracks, key=lambda t: t.track_id == selected):  # the selected one on top
             self._draw_track(img, camera, t, frame, t.track_id == selected)
+        if width is not None and width < img.shape[1]:
+            img = cv2.resize(img, (int(width), max(1, round(img.shape[0] * width / img.shape[1]))),
+                             interpolation=cv2.INTER_AREA)
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         return Picture(buf.tobytes(), camera.width, camera.height, note)
 

@@ -24,8 +24,22 @@ function render({ model, el }) {
   const img = document.createElement('img');
   img.dataset.testid = 'frame-image';
   img.draggable = false;
-  wrap.append(cap, img);
+  const strip = document.createElement('div');
+  strip.className = 's2p-thumbs';
+  wrap.append(cap, img, strip);
   el.appendChild(wrap);
+  const thumbs = (v) => {  // the other cameras, small: a click shows one large
+    strip.replaceChildren(...(v.thumbs || []).map((t) => {
+      const box = document.createElement('figure');
+      const im = document.createElement('img');
+      im.src = t.src; im.dataset.testid = 'thumb'; im.dataset.camera = t.camera; im.draggable = false;
+      im.title = `camera ${t.camera}: click to show it large (k: the next camera)`;
+      im.addEventListener('click', () => model.send({large: t.camera}));
+      const c = document.createElement('figcaption'); c.textContent = t.camera;
+      box.append(im, c);
+      return box;
+    }));
+  };
   const draw = () => {
     const v = model.get('view') || {};
     if (!v.src) { cap.textContent = 'loading the camera picture...'; return; }
@@ -34,6 +48,7 @@ function render({ model, el }) {
       img.dataset.width = v.width; img.dataset.height = v.height;
       cap.textContent = v.caption;
       cap.classList.toggle('warn', !!v.note);
+      thumbs(v);
       // when each frame's picture was shown (benches/bench_app.py reads it)
       (window.__s2p_shown = window.__s2p_shown || {})[v.frame] = performance.now();
     };
@@ -63,6 +78,10 @@ _CSS = """
 .s2p-frame-cap { font: 12px/1.4 system-ui, sans-serif; color: #333; height: 1.4em;
                  overflow: hidden; white-space: nowrap; text-overflow: ellipsis; }
 .s2p-frame-cap.warn { color: #b00; }
+.s2p-thumbs { display: flex; gap: 4px; margin-top: 4px; }
+.s2p-thumbs figure { margin: 0; flex: 1 1 0; max-width: 25%; }
+.s2p-thumbs img { width: 100%; display: block; cursor: pointer; }
+.s2p-thumbs figcaption { font: 11px system-ui, sans-serif; color: #555; }
 """
 
 
@@ -74,8 +93,14 @@ class FrameView(anywidget.AnyWidget):
     view = traitlets.Dict({}).tag(sync=True)
 
     def show(self, camera: str, frame: int, jpeg: bytes, width: int, height: int,
-             note: str = "") -> None:
+             note: str = "", thumbs: dict[str, bytes] | None = None) -> None:
+        """Show ``jpeg`` (camera ``camera``'s picture of ``frame``, ``width`` x ``height``
+        image pixels) with ``thumbs`` (camera -> small JPEG of the other cameras)."""
         caption = f"camera {camera} · frame {frame}" + (f" — {note}" if note else "")
-        self.view = {"src": "data:image/jpeg;base64," + base64.b64encode(jpeg).decode("ascii"),
-                     "camera": camera, "frame": int(frame), "width": int(width),
-                     "height": int(height), "caption": caption, "note": note}
+        self.view = {"src": _data_url(jpeg), "camera": camera, "frame": int(frame),
+                     "width": int(width), "height": int(height), "caption": caption, "note": note,
+                     "thumbs": [{"camera": c, "src": _data_url(j)} for c, j in (thumbs or {}).items()]}
+
+
+def _data_url(jpeg: bytes) -> str:
+    return "data:image/jpeg;base64," + base64.b64encode(jpeg).decode("ascii")

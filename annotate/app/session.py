@@ -38,7 +38,8 @@ from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # n
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 400  # under the large camera picture: 3D world, the other cameras, the timeline
 PENDING_SECONDS = 30.0  # how long the viewer may take to show a frame the page moved it to (a loaded machine lags 20 s)
-REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat  # how long the viewer may take to show a frame the page moved it to
+THUMB_WIDTH = 320  # pixels: the other cameras' small pictures (while the viewer is off)
+REPEAT_PX = 2.0  # page pixels: a click this close to the last one that selected is a repeat
 
 
 def track_columns(project, tid: int) -> TrackColumns:
@@ -179,11 +180,16 @@ class Session:
     def show_frame(self) -> None:
         """Send the large camera's picture of the current frame, unless it is already shown."""
         cam = self.ctl.large_camera
-        key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version)
+        key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version, self.ctl.viewer_visible)
         if cam is None or key == self._shown:
             return
-        pic = self.pictures.render(cam, self.ctl.frame, list(self.cols.values()), self.ctl.selected)
-        self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note)
+        tracks = list(self.cols.values())
+        pic = self.pictures.render(cam, self.ctl.frame, tracks, self.ctl.selected)
+        # the other cameras small, unless the viewer shows them
+        thumbs = {} if self.ctl.viewer_visible else {
+            c: self.pictures.render(c, self.ctl.frame, tracks, self.ctl.selected, width=THUMB_WIDTH).jpeg
+            for c in self.ctl.cameras if c != cam}
+        self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note, thumbs)
         self._shown = key
 
     # --- events -----------------------------------------------------------------------------------
@@ -209,6 +215,10 @@ class Session:
     def _on_frame_msg(self, _widget, content, _buffers) -> None:
         """A click on the large camera's picture: a keyframe at that pixel, if the picture
         clicked was of the current frame."""
+        if isinstance(content, dict) and content.get("large") in self.ctl.cameras:
+            self.ctl.show_large(str(content["large"]))  # a small picture clicked
+            self.refresh_panel()
+            return
         if not isinstance(content, dict) or "click" not in content:
             return
         try:

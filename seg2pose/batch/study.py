@@ -39,7 +39,7 @@ from typing import Callable
 from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.core.ray import MAX_RETRIES, import_ray
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic import atomic_write_text, is_temporary
 
 SUMMARY = "summary.json"
 BATCH_DIR = "batch"
@@ -83,8 +83,12 @@ class Step:
 # --- fingerprints ---------------------------------------------------------------------------------
 
 def _files(p: Path) -> list[Path]:
+    """The files of an output (a file, or a folder walked), without the writers' hidden
+    temporaries (a killed writer's lock and partial builds are not outputs: counted as such,
+    a re-run took the output for someone else's and refused to replace it)."""
     if p.is_dir():
-        return sorted(q for q in p.rglob("*") if q.is_file() and ".partial" not in q.name)
+        return sorted(q for q in p.rglob("*") if q.is_file()
+                      and not any(is_temporary(n) for n in q.relative_to(p).parts))
     return [p] if p.exists() else []
 
 
@@ -280,11 +284,13 @@ def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
 
 def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
               use_ray: bool = True, address: str | None = None, max_parallel: int | None = None,
-              progress: bool = True, log: Callable[[str], None] = print) -> StudyResult:
+              cpus: int | None = None, progress: bool = True,
+              log: Callable[[str], None] = print) -> StudyResult:
     """Run ``steps`` in order over every scene of ``study``: each step is one wave of tasks
     (one per scene still without a failure; a step with parts, e.g. long videos in segments,
-    first runs its parts as tasks of their own), on Ray (``ray.init(address)``; a running Ray
-    session is reused) or serially in-process. Writes STUDY/summary.json."""
+    first runs its parts as tasks of their own), on Ray (the cluster at ``address``, else a
+    local Ray of this process's own with ``cpus`` CPUs (default: all); a Ray session this
+    process started already is reused) or serially in-process. Writes STUDY/summary.json."""
     from tqdm import tqdm
 
     scenes = find_scenes(study)
@@ -296,7 +302,10 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
     remote = remote_part = None
     if ray is not None:
         if not ray.is_initialized():
-            ctx = ray.init(address=address, include_dashboard=None, log_to_driver=False)
+            # no address: a Ray of this command's own ("local"), never a cluster that another
+            # command or user started on this machine; it ends with this command
+            ctx = ray.init(address=address or "local", num_cpus=None if address else cpus,
+                           include_dashboard=None, log_to_driver=False)
             out.dashboard = getattr(ctx, "dashboard_url", None) or None
         out.backend = "ray"
         if out.dashboard:

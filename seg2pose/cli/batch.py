@@ -77,7 +77,8 @@ def batch_cmd(
                                                      "results in SCENE/batch/s2pn"),
     address: Optional[str] = typer.Option(None, "--address",
                                           help="a Ray cluster to run on, e.g. ray://head:10001 or auto "
-                                               "(default: a local Ray on this machine's cores)"),
+                                               "(default: a local Ray of this command's own, on this "
+                                               "machine's cores; it ends with the command)"),
     max_parallel: Optional[int] = typer.Option(None, "--max-parallel", min=1,
                                                help="at most this many tasks (scenes, video segments) at "
                                                     "once (default: all; Ray still runs one per free CPU)"),
@@ -86,6 +87,9 @@ def batch_cmd(
                                             "many frames into segments of about this length that run "
                                             "in parallel and are stitched back, track ids continued "
                                             "(36000 = 20 min at 30 fps; 0: never cut)"),
+    cpus: Optional[int] = typer.Option(None, "--cpus", min=1,
+                                       help="the local Ray's CPUs (default: all of this machine's; "
+                                            "not with --address)"),
     serial: bool = typer.Option(False, "--serial/--no-serial", help="no Ray: run the scenes one after another here"),
     force: bool = typer.Option(False, "--force", help="masks-from-video: also replace masks the "
                                                       "scenes had before the study ran"),
@@ -110,8 +114,11 @@ def batch_cmd(
     if not serial and not use_ray:
         typer.echo("note: Ray is not installed, running the scenes one after another; "
                    "for parallelism: pip install 's2p[scale]'")
+    if cpus is not None and address is not None:
+        raise InputError("--cpus is for the local Ray; a cluster at --address has its own",
+                         field="--cpus")
     res = run_study(study, [STEPS[s] for s in steps], opts, use_ray=use_ray, address=address,
-                    max_parallel=max_parallel, progress=progress, log=typer.echo)
+                    max_parallel=max_parallel, cpus=cpus, progress=progress, log=typer.echo)
     typer.echo(format_summary(res.rows))
     for r in res.rows:
         if r.get("seams"):

@@ -27,8 +27,13 @@ from typing import Callable
 from seg2pose.core.clock import utc_now
 
 
-def pid_alive(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this machine."""
+def pid_alive(pid: int, since: float | None = None) -> bool:
+    """Whether a process ``pid`` runs on this machine. A zombie (ended, not yet collected by
+    its parent: e.g. a killed Ray worker whose new parent, a container's first process, is
+    slow to collect it) does not run: it holds nothing any more. ``since``: when the process
+    was known to run (a lock's time, a file's modification time, seconds since the epoch); a
+    process with that pid that started later is another one (pids are reused: 32,768 of them
+    on many machines) and does not count."""
     if pid <= 0:
         return False
     try:
@@ -36,10 +41,52 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, another user's
-        return True
+        pass
     except OverflowError:
         return False
+    if _zombie(pid):
+        return False
+    if since is not None:
+        started = _start_time(pid)
+        if started is not None and started > since + _CLOCK_SLACK:
+            return False
     return True
+
+
+_CLOCK_SLACK = 2.0  # s: lock times are whole seconds, the boot time too
+
+
+def _start_time(pid: int) -> float | None:
+    """Linux: when process ``pid`` started, seconds since the epoch (None elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            ticks = int(f.read().rsplit(b")", 1)[1].split()[19])
+        with open("/proc/stat", "rb") as f:
+            boot = next(int(line.split()[1]) for line in f if line.startswith(b"btime "))
+        return boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def _zombie(pid: int) -> bool:
+    """Linux: the process has ended and waits to be collected (state Z or X in /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X")
+    except (OSError, IndexError):
+        return False
+
+
+def _epoch(iso: str) -> float | None:
+    """An ISO 8601 time (a holder's ``since``) in seconds since the epoch; None when it is not
+    one ('?', or without a zone)."""
+    import datetime as dt
+
+    try:
+        t = dt.datetime.fromisoformat(iso.replace("Z", "+00:00"))
+    except (ValueError, AttributeError):
+        return None
+    return t.timestamp() if t.tzinfo is not None else None
 
 
 @dataclass(frozen=True)
@@ -70,7 +117,7 @@ class LockHolder:
     @property
     def gone(self) -> bool:
         """A holder on this machine whose process no longer runs (its lock may be taken over)."""
-        return self.host == socket.gethostname() and not pid_alive(self.pid)
+        return self.host == socket.gethostname() and not pid_alive(self.pid, _epoch(self.since))
 
 
 class ExclusiveLock:

@@ -56,6 +56,14 @@ def _owner(name: str) -> tuple[str, list[int]] | None:
     return (name, pids) if pids else None
 
 
+def is_temporary(name: str) -> bool:
+    """Whether a file or folder name is one of the hidden things a writer keeps beside an
+    output while it writes (``.NAME.partial-PID-...``, ``.NAME.old-PID-...``, ``.NAME.lock``,
+    ``.NAME.commit-PID.json``): never part of an output."""
+    return (_owner(name) is not None or _COMMIT.match(name) is not None
+            or (name.startswith(".") and name.endswith(".lock")))
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -85,7 +93,13 @@ def clean_stale_partials(path: str | Path) -> list[Path]:
         return removed
     for e in entries:
         own = _owner(e.name)
-        if own is None or own[0] != path.name or any(pid_alive(p) for p in own[1]):
+        if own is None or own[0] != path.name:
+            continue
+        try:  # a process that started after this was last written is not its writer
+            written = e.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        if any(pid_alive(p, written) for p in own[1]):
             continue
         p = Path(e.path)
         with contextlib.suppress(OSError):
@@ -391,7 +405,13 @@ def finish_commits(path: str | Path) -> list[Path]:
         return done
     for e in entries:
         m = _COMMIT.match(e.name)
-        if not m or pid_alive(int(m.group("pid"))):
+        if not m:
+            continue
+        try:
+            written = e.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        if pid_alive(int(m.group("pid")), written):
             continue
         rows = _read_record(Path(e.path))
         if rows is None:
@@ -416,7 +436,10 @@ def finish_commits(path: str | Path) -> list[Path]:
             except OSError:
                 continue  # swapped in, and its old output removed
             if built:  # not swapped in yet
-                olds.append(_swap(tmp, final))
+                try:
+                    olds.append(_swap(tmp, final))
+                except FileNotFoundError:
+                    continue  # another writer of the set finished it meanwhile
                 done.append(final)
             else:  # swapped in: what is under the build's name is the old output
                 olds.append(tmp)

@@ -394,3 +394,41 @@ def test_a_reloaded_tab_keeps_the_edit_lock_another_tab_does_not(scene_dir):
     finally:
         for c in (reloaded, other, first):
             c.close()
+
+
+def test_large_camera_picture_its_clicks_and_the_small_ones(scene_dir):
+    """The large camera's picture follows the frame; a click on it places a keyframe at that
+    pixel unless the picture was of another frame; under software rendering the viewer is off
+    and the other cameras come as small pictures, a click on one shows it large; Shift+V
+    brings the viewer back (and the small pictures go)."""
+    import shutil
+
+    pytest.importorskip("rerun_notebook", reason="rerun-notebook is not installed (pip install -e '.[app]')")
+    from annotate.app.session import Session
+
+    shutil.rmtree(scene_dir / "annotations", ignore_errors=True)
+    s = Session(scene_dir, cameras=["c0", "c1"])
+    try:
+        s._on_panel_msg(None, {"hello": "tab", "renderer": "ANGLE (Google, Vulkan 1.3.0 (SwiftShader Device))"}, [])
+        assert s.ctl.software_rendering and not s.ctl.viewer_visible and s.panel.hide_viewer
+        v = s.frame_view.view
+        assert (v["camera"], v["frame"]) == ("c0", 0) and [t["camera"] for t in v["thumbs"]] == ["c1"]
+        s._on_frame_msg(None, {"large": "c1"}, [])
+        v = s.frame_view.view
+        assert v["camera"] == "c1" and [t["camera"] for t in v["thumbs"]] == ["c0"]
+        s._on_panel_msg(None, {"action": "next_frame"}, [])
+        assert s.frame_view.view["frame"] == 1
+        s._on_panel_msg(None, {"action": "new_track"}, [])
+        tid = s.ctl.selected
+        s.ctl.click_mode = "ground"
+        s._on_frame_msg(None, {"click": [640.0, 420.0], "camera": "c1", "frame": 0}, [])  # an old picture
+        assert "click ignored" in s.ctl.message and not s.ctl.project.track(tid).keyframes
+        s._on_frame_msg(None, {"click": [640.0, 420.0], "camera": "c1", "frame": 1}, [])
+        assert _pixel(s.ctl, (s.ctl.project.track(tid).keyframes[1].x,
+                              s.ctl.project.track(tid).keyframes[1].y), 0.0) == pytest.approx([640.0, 420.0], abs=1e-3)
+        s._on_frame_msg(None, {"click": [640.0, 420.0], "camera": "c1", "frame": 1}, [])  # again: an edit
+        assert s.ctl.project.seq == 3  # new track, two placements
+        s._on_panel_msg(None, {"action": "toggle_viewer"}, [])
+        assert s.ctl.viewer_visible and not s.panel.hide_viewer and s.frame_view.view["thumbs"] == []
+    finally:
+        s.ctl.close()

@@ -292,9 +292,9 @@ def test_annotate_a_car_over_five_keyframes(page, server, scene, tmp_path):
     j = _journal(scene)
     assert list(j) == [tid] and sorted(j[tid]) == list(KEYFRAMES)
 
-    # two more frames at random: the image is that frame
+    # five frames at random, reached by steps and jumps: the image is that frame
     rng = np.random.default_rng(7)
-    for f in rng.choice([g for g in range(100) if g not in KEYFRAMES], 2, replace=False):
+    for f in rng.choice([g for g in range(100) if g not in KEYFRAMES], 5, replace=False):
         t0 = time.monotonic()
         _goto(page, int(f))
         shown[int(f)] = _wait(lambda: _code_on_screen(page, o, k, s) == f and time.monotonic() - t0,

@@ -103,3 +103,14 @@ def test_selected_track_drawn_where_its_box_projects(scene, pictures):
     label = (ys < p[:, 1].min() + 2)  # the label is written above the box
     assert (near | label).mean() > 0.97
     assert yellow(other).sum() < 20 and yellow(none).sum() < 20
+
+
+def test_small_picture_keeps_the_camera_size_and_the_frame(scene, pictures):
+    import cv2
+
+    pic = pictures.render("c0", 7, [], None, width=320)
+    img = cv2.imdecode(np.frombuffer(pic.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    cam = pictures.scene.cameras["c0"]
+    assert img.shape[1] == 320 and abs(img.shape[0] - 320 * cam.height / cam.width) <= 1
+    assert (pic.width, pic.height) == (cam.width, cam.height)  # clicks map to camera pixels
+    assert _code(img) == 7

@@ -391,6 +391,40 @@ def test_batch_resumes_after_a_kill_while_the_masks_are_written(tmp_path):
     assert (study / "s1" / "batch" / "baseline" / "poses.csv").exists()
 
 
+def test_batch_starts_a_ray_of_its_own_unless_given_an_address(tmp_path, monkeypatch, capsys):
+    """Without --address, batch starts a local Ray of its own (address 'local': never a
+    cluster another command started on this machine, which a plain ray.init() would join),
+    sized by --cpus; --cpus with --address is refused in one line."""
+    import seg2pose.batch.study as ST
+
+    calls = []
+
+    class FakeRay:
+        @staticmethod
+        def is_initialized():
+            return False
+
+        @staticmethod
+        def init(**kw):
+            calls.append(kw)
+            raise S2PError("stop here")
+
+    monkeypatch.setattr(ST, "import_ray", lambda: FakeRay)
+    study = tmp_path / "study"
+    (study / "s1").mkdir(parents=True)
+    (study / "s1" / "scene.json").write_text("{}")
+    for extra, want in (([], {"address": "local", "num_cpus": None}),
+                        (["--cpus", "1"], {"address": "local", "num_cpus": 1}),
+                        (["--address", "auto"], {"address": "auto", "num_cpus": None})):
+        code, _, err = s2p(monkeypatch, capsys, "batch", study, "eval", *extra, "--no-progress")
+        assert code != 0 and "stop here" in err
+        assert {k: calls[-1][k] for k in want} == want
+    code, _, err = s2p(monkeypatch, capsys, "batch", study, "eval", "--cpus", "1", "--address",
+                       "auto")
+    assert code == 2 and err.count("\n") == 1 and "--cpus" in err
+    assert len(calls) == 3
+
+
 # --- importers: the readers' limits --------------------------------------------------------------
 
 def test_import_detections_drops_empty_masks_and_refuses_frames_past_the_scene(tmp_path):

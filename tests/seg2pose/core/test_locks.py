@@ -43,6 +43,45 @@ def test_alive_check():
     assert not LockHolder(dead_pid(), "another-host").gone  # cannot tell: not taken over
 
 
+def test_a_zombie_holds_nothing(tmp_path):
+    """A process that has ended but was not collected yet (a zombie: a killed Ray worker
+    whose new parent is slow to collect it) is not alive: its output lock is taken over."""
+    import time
+
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    try:
+        for _ in range(500):  # until it has ended (not collected: a zombie of this process)
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                if f.read().rsplit(b")", 1)[1].split()[0] == b"Z":
+                    break
+            time.sleep(0.01)
+        assert not pid_alive(pid)
+        path = tmp_path / ".out.lock"
+        path.write_text(LockHolder(pid, socket.gethostname(), "T0").to_json())
+        assert ExclusiveLock(path, Busy).acquire()
+    finally:
+        os.waitpid(pid, 0)
+
+
+def test_a_pid_reused_by_a_later_process_is_not_the_holder(tmp_path):
+    """pids are reused (32,768 on many machines): a process that started after the lock was
+    taken (or a partial file last written) is not its holder."""
+    import datetime as dt
+    import time
+
+    me = os.getpid()
+    assert pid_alive(me, time.time()) and pid_alive(me)
+    assert not pid_alive(me, time.time() - 10 * 86400)  # this process did not run then
+    old = (dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=10)).isoformat(timespec="seconds")
+    assert LockHolder(me, socket.gethostname(), old).gone
+    assert not LockHolder(me, socket.gethostname(), "?").gone  # no time: cannot tell
+    path = tmp_path / ".out.lock"
+    path.write_text(LockHolder(me, socket.gethostname(), old).to_json())
+    assert ExclusiveLock(path, Busy).acquire()
+
+
 def test_exclusive_lock_refuses_a_live_holder_and_takes_over_a_gone_one(tmp_path):
     path = tmp_path / ".out.lock"
     seen = []
