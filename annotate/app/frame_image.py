@@ -23,7 +23,8 @@ import numpy as np
 
 from s2p_review import columns as C
 from s2p_review import layout as L
-from s2p_review.annotation_log import SELECTED_COLOR, TrackColumns
+from s2p_review.annotation_log import OCCLUDED_SHADE, SELECTED_COLOR, TrackColumns
+from s2p_review.video_asset import GOP, video_asset
 
 JPEG_QUALITY = 82
 THICKNESS = {"keyframe": 3, "interpolated": 1, "occluded": 1}
@@ -62,7 +63,7 @@ class _Reader:
         if self.last is not None and self.last[0] == i:  # redrawn after an edit: no seek back
             return self.last[1].copy()
         if i != self.pos:
-            if 0 < i - self.pos <= 12:  # a short step forward: decode on, no seek
+            if 0 < i - self.pos < GOP:  # a short step forward: decode on, no seek
                 for _ in range(i - self.pos):
                     self.cap.grab()
             else:
@@ -87,8 +88,6 @@ class FrameImages:
 
     def _reader(self, cam: str) -> _Reader | None:
         if cam not in self._readers:
-            from s2p_review.video_asset import video_asset
-
             asset = video_asset(self.scene, cam, self.first, self.last)  # cached by prepare_viewer
             self._readers[cam] = _Reader(asset) if asset is not None else None
         return self._readers[cam]
@@ -164,7 +163,7 @@ class FrameImages:
         source = str(t.source[r[0]])
         rgb = SELECTED_COLOR if selected else L.class_colors(np.array([t.cls]), self.scene.classes)[0]
         if source == "occluded":
-            rgb = tuple(int(v * 0.45) for v in rgb)
+            rgb = tuple(int(v * OCCLUDED_SHADE) for v in rgb)
         bgr = tuple(int(v) for v in rgb[::-1])
         pts = np.round(paths[0]).astype(np.int32)
         cv2.polylines(img, [pts], False, bgr, THICKNESS.get(source, 1) + (1 if selected else 0),

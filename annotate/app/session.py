@@ -197,11 +197,8 @@ class Session:
         if not isinstance(content, dict):
             return
         if "action" in content:
-            t0 = time.perf_counter()
             self.ctl.do(str(content["action"]))
             self.refresh_panel()
-            if os.environ.get("S2P_ANNOTATE_DEBUG"):
-                print(f"action {content['action']}: {1e3 * (time.perf_counter() - t0):.0f} ms", flush=True)
         elif "canvas_click" in content:
             self._on_canvas_click(content["canvas_click"], content.get("frame"))
         elif "hello" in content:
