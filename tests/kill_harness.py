@@ -379,16 +379,16 @@ class Case:
         that still run, or anything not named like a partial output, a commit record or a
         lock."""
         from seg2pose.core.locks import pid_alive
-        from seg2pose.io.atomic import _COMMIT, _owner
+        from seg2pose.io.atomic_names import COMMIT_RECORD, owner
 
         out = []
         for n in self.leftovers():
             if n.endswith(".lock") and n[1:-5] in {o.name for o in self.outs}:
                 continue
-            own = _owner(n)
+            own = owner(n)
             if own is not None and not any(pid_alive(p) for p in own[1]):
                 continue
-            m = _COMMIT.match(n)
+            m = COMMIT_RECORD.match(n)
             if m and not pid_alive(int(m.group("pid"))):
                 continue
             out.append(n)

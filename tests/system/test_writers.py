@@ -251,6 +251,7 @@ def _kill_at_swap(n, outs, news):
     (os._exit, as SIGKILL: nothing cleaned up) just before the n-th rename or exchange of its
     commit. Returns the child's exit code (0: the commit had fewer than n renames)."""
     import seg2pose.io.atomic as A
+    import seg2pose.io.atomic_set as AS
 
     pid = os.fork()
     if pid == 0:
@@ -269,7 +270,7 @@ def _kill_at_swap(n, outs, news):
                         return f(*a, **k)
                     return g
                 os.replace, os.rename = counted(os.replace), counted(os.rename)
-                A._exchange = counted(A._exchange)
+                AS.exchange = counted(AS.exchange)
         except BaseException:
             code = 3
         finally:
