@@ -365,7 +365,7 @@ def test_import_mcap_force_replaces_its_outputs_as_one_set(annotated, tmp_path, 
 def test_batch_resumes_after_a_kill_while_the_masks_are_written(tmp_path):
     """SIGKILL the serial batch the moment masks/c0.txt appears (on the old code: a stage's
     file with class 0), then re-run without --force: it completes."""
-    from kill_harness import zygote
+    from command_zygote import zygote
     from seg2pose.io.scene import load_scene
     from seg2pose.video.video_scene import new_scene
 
