@@ -17,6 +17,7 @@ import os
 import re
 import shutil
 from pathlib import Path
+from typing import Callable, Iterator
 
 from seg2pose.core.locks import pid_alive
 
@@ -75,25 +76,39 @@ def final_name(path: str | Path) -> str:
     return str(Path(*out)) if out else str(path)
 
 
+def dead_writers_leftovers(path: Path,
+                           pids_of: Callable[[str], list[int] | None]) -> Iterator[os.DirEntry]:
+    """The entries beside ``path`` (in the folder's order, each checked just before it is
+    yielded) whose name ``pids_of`` gives the pids of their writers (None: not such a name)
+    and none of whose writers runs now: a process that started after the entry was last
+    written is not its writer (``pid_alive``)."""
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return
+    for e in entries:
+        pids = pids_of(e.name)
+        if pids is None:
+            continue
+        try:
+            written = e.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        if not any(pid_alive(p, written) for p in pids):
+            yield e
+
+
 def clean_stale_partials(path: str | Path) -> list[Path]:
     """Remove the temporary siblings ``.NAME.partial-PID...`` / ``.NAME.old-PID...`` of
     ``path`` left by processes that no longer run. Returns what was removed."""
     path = Path(path)
+
+    def builders(name: str) -> list[int] | None:
+        own = owner(name)
+        return own[1] if own is not None and own[0] == path.name else None
+
     removed = []
-    try:
-        entries = list(os.scandir(path.parent))
-    except OSError:
-        return removed
-    for e in entries:
-        own = owner(e.name)
-        if own is None or own[0] != path.name:
-            continue
-        try:  # a process that started after this was last written is not its writer
-            written = e.stat(follow_symlinks=False).st_mtime
-        except OSError:
-            continue
-        if any(pid_alive(p, written) for p in own[1]):
-            continue
+    for e in dead_writers_leftovers(path, builders):
         p = Path(e.path)
         with contextlib.suppress(OSError):
             if e.is_dir(follow_symlinks=False):

@@ -18,8 +18,8 @@ import os
 import shutil
 from pathlib import Path
 
-from seg2pose.core.locks import pid_alive
-from seg2pose.io.atomic_names import COMMIT_RECORD, commit_record_path, owner
+from seg2pose.io.atomic_names import (COMMIT_RECORD, commit_record_path, dead_writers_leftovers,
+                                      owner)
 
 
 def fsync_dir(path: str | Path) -> None:
@@ -164,21 +164,14 @@ def finish_commits(path: str | Path) -> list[Path]:
     last: its records are removed (its builds are dead partials). Returns the outputs
     swapped in now."""
     path = Path(path)
+
+    def recorder(name: str) -> list[int] | None:
+        m = COMMIT_RECORD.match(name)
+        return [int(m.group("pid"))] if m else None
+
     done = []
-    try:
-        entries = list(os.scandir(path.parent))
-    except OSError:
-        return done
-    for e in entries:
+    for e in dead_writers_leftovers(path, recorder):
         m = COMMIT_RECORD.match(e.name)
-        if not m:
-            continue
-        try:
-            written = e.stat(follow_symlinks=False).st_mtime
-        except OSError:
-            continue
-        if pid_alive(int(m.group("pid")), written):
-            continue
         rows = _read_record(Path(e.path))
         if rows is None:
             with contextlib.suppress(OSError):
