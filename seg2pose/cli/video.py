@@ -30,7 +30,7 @@ ReplaceMasks = Annotated[bool, typer.Option("--force", help="replace an existing
 BackgroundSettings = _settings(
     "a background-subtraction", "video_masks",
     "method (mog2|knn), history, threshold, shadows, shadow_texture, texture_near (true|false), "
-    "init (median|warmup|none), init_frames, init_samples, learning_rate, update "
+    "init (mode|median|warmup|none), init_frames, init_samples, learning_rate, update "
     "(selective|all|none), update_every, ghost_after, ghost_ratio, clean_start (true|false), "
     "open_px, close_px, min_area, unsettled")
 TrackerSettings = _settings(
