@@ -77,8 +77,8 @@ def new_scene_cmd(
                                     help="a camera's video file or image folder, as NAME=PATH "
                                          "(repeat per camera); a single PATH names the camera c0"),
     calibration: Path = typer.Option(..., "--calibration",
-                                     help="calibration: JSON {\"cameras\": [{name, P or K/R/t, "
-                                          "[width, height], [distortion]}]} or a text file of "
+                                     help="calibration: JSON {\"cameras\": \\[{name, P or K/R/t, "
+                                          "optional width, height, distortion}]} or a text file of "
                                           "12 numbers (one camera's 3x4 P, row by row)"),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
