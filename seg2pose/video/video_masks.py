@@ -56,6 +56,10 @@ SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
 # 110 frames, reported by four lenses). Sensor noise of the 5x5 mean: 99.9th percentile 4 grey
 # levels between frames (seed 104, c1).
 GHOST_STILL = 8.0
+# ghosts are tested down to min_area / GHOST_AREA pixels: the part of a ghost that has lasted
+# (its core) is smaller than the mask the closing and the texture test make of it (seed 104,
+# c0: a 140 px core, the start's dark tyre patch, under a mask of over 150 px for 100 frames)
+GHOST_AREA = 4
 SAMPLED = ("mode", "median")  # the starting backgrounds made from sampled frames
 MODE_TOL = 12  # grey levels: samples of one surface agree within it (noise 2-5, road texture kept)
 GHOST_NEAR = 4
@@ -389,7 +393,13 @@ class BackgroundMasks:
                 age = np.where(fg.view(bool), age + cfg.update_every, 0).astype(np.int32)
                 static = age >= cfg.ghost_after
                 if static.any() and raw is not None:
-                    ghosts = ghost_mask(static, image, bg, raw == 0, max(cfg.min_area, 1),
+                    # quiet: neither foreground nor shadow, sensor-noise specks aside (the model
+                    # starts from one image, so its variances are small and noise specks are
+                    # dense: 14 % of the road on seed 104; they made a ghost's ring "busy")
+                    busy = (raw != 0).view(np.uint8)
+                    if self.k_open is not None:
+                        busy = cv2.morphologyEx(busy, cv2.MORPH_OPEN, self.k_open)
+                    ghosts = ghost_mask(static, image, bg, busy == 0, max(cfg.min_area // GHOST_AREA, 1),
                                         cfg.ghost_ratio)
                     if ghosts.any():
                         ghosts = _still(ghosts, grey, prev)
