@@ -211,16 +211,18 @@ def mode_image(images: list[np.ndarray], tol: int = MODE_TOL) -> np.ndarray:
     median is a blend of car colours; the empty road recurs between any two cars and is the
     largest group (held-out seed 104's queue lane: its median a red-yellow smear the length of
     three cars, its mode the road). Costs N (N - 1) / 2 image differences (25 samples at 720p:
-    about 5 s)."""
+    about 1 s)."""
     import cv2
 
     n = len(images)
     if n == 1:
         return images[0]
 
+    lo, hi = (0,) * 3, (tol,) * 3
+
     def close(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        d = cv2.absdiff(a, b)
-        return (d.max(axis=2) if d.ndim == 3 else d) <= tol
+        """(H, W) uint8 1 where a and b agree within tol in every channel, else 0."""
+        return cv2.inRange(cv2.absdiff(a, b), lo, hi) & 1
 
     count = np.zeros((n,) + images[0].shape[:2], np.uint8)
     for i in range(n):
