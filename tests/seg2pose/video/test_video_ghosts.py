@@ -219,3 +219,25 @@ def test_the_mode_start_is_the_road_where_a_queue_stands_most_of_the_time():
     assert np.percentile(err_mode, 99) < 6 and err_med.min() > 20
     assert np.abs(mode[parked].astype(float) - (90, 160, 90)).max() < 6
     assert mode_image(ims[:1]) is ims[0]
+
+
+def test_a_ghost_smaller_than_min_area_is_learnt(tmp_path):
+    """The first pass learns the empty road where a road user of the start leaves even when its
+    lasting core is smaller than ``min_area`` (a 12 x 11 px stander, 132 px, min_area 150):
+    the masks of the output may still reach min_area after the closing and the texture test
+    (held-out seed 104, c0: a 140 px core under a mask of over 150 px for 100 frames), so the
+    ghost test looks at cores down to a quarter of it. Ghost-free frames learn nothing."""
+    from seg2pose.io.video import FrameReader
+    from seg2pose.video.video_masks import clean_background, median_image
+
+    A = box(60, 50, 12, 11)
+    folder = write_frames(tmp_path / "c0", 160,
+                          lambda f, img: img.__setitem__(A, (40, 40, 200)) if f < 100 else None)
+    reader = FrameReader(folder)
+    start = median_image([im for _, im in reader.sample(np.arange(0, 160, 7))])
+    assert np.abs(start[A].astype(float) - (40, 40, 200)).max() < 12     # the stander is in it
+    cfg = BgConfig(min_area=150)
+    clean = clean_background(FrameReader(folder), cfg, start, 0, 159)
+    assert np.abs(clean[A].astype(float) - road()[A]).max(axis=1).mean() < 8   # the road again
+    outside = ~box(50, 40, 32, 31)
+    assert (clean[outside] == start[outside]).all()
