@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -168,9 +169,11 @@ def remake(root: Path, out: Path = SHIPPED, seeds=TRAIN_SEEDS, threads: int = 1,
     bisect its default heights and train one quick-protocol model per class (one ``s2p
     train`` process per class, in parallel, ``threads`` each); then ``ship`` them into
     ``out``. Finished steps are skipped, so an interrupted remake resumes."""
-    from seg2pose.cli.accuracy import s2p_command
-
     root = Path(root)
+
+    def s2p_command(*args) -> list[str]:  # `s2p ARGS` with this interpreter, so this checkout's code
+        return [sys.executable, "-c", "from seg2pose.cli import main; main()", *map(str, args)]
+
     root.mkdir(parents=True, exist_ok=True)
 
     def run(*argv) -> None:
