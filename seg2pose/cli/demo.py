@@ -176,7 +176,7 @@ def demo(
     seed: int = typer.Option(0, "--seed", help="seed of the synthetic scene"),
     retrain: bool = typer.Option(False, "--retrain/--no-retrain", help=(
         "instead of the shipped models (the held-out protocol's, trained by the project on "
-        "bench seed 7; remade by `python -m seg2pose.training.demo_models`), train lite models "
+        "bench seeds 7 and 8; remade by `python -m seg2pose.training.demo_models`), train lite models "
         "afresh on this scene's train split, about 2 minutes (--protocol demo; weaker, about "
         "0.8x the baseline's error)")),
     record: bool = typer.Option(True, "--record/--no-record", help="write the sample recording and export"),

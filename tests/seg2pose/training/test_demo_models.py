@@ -66,7 +66,7 @@ def test_shipped_models_fit_the_demo_scene_and_are_used_without_training(small, 
     assert demo_models.fit_problem(small) is None
     monkeypatch.setattr(train, "train_scene", lambda *a, **k: pytest.fail("the demo trained"))
     models, used = demo.choose_models(small, tmp_path / "m", retrain=False)
-    assert models == demo_models.model_folders() and "shipped" in used and "seed 7" in used
+    assert models == demo_models.model_folders() and "shipped" in used and "seeds 7 and 8" in used
     assert not (tmp_path / "m").exists()
 
 
