@@ -71,11 +71,13 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
                    models: ModelSet | None, said: set[str], batch: int = 64,
                    far: FarResiduals | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                              np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
     (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground),
-    residuals (N, 2) metres (zeros for the baseline or a missed ray) and the error bar's cues
-    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres).
+    residuals (N, 2) metres (zeros for the baseline or a missed ray), the error bar's cues
+    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres), and
+    the masks' bounding boxes (N, 4) x0, y0, x1, y1 pixels (NaN for an empty mask).
     ``far``: residuals longer than the model learned (``seg2pose.method.ood``) are recorded there,
     and dropped with its fallback policy."""
     camera = scene.cameras[cam]
@@ -97,7 +99,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         cues[:, 0] = ((box[:, 0] <= 0) | (box[:, 1] <= 0) | (box[:, 2] >= table.width)
                       | (box[:, 3] >= table.height))
     if models is None or n == 0:
-        return names, uv, normal, residual, cues
+        return names, uv, normal, residual, cues, box
     big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
     if big.any():
         warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
@@ -115,7 +117,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
             normal[sel, :2], names[sel], batch)
         if far is not None:
             cues[far.check(table, cam, sel, residual, names, ck.info.get("residual_limit")), 1] = 1
-    return names, uv, normal, residual, cues
+    return names, uv, normal, residual, cues, box
 
 
 @dataclass
@@ -284,10 +286,10 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual, cues = view_estimates(scene, cam, t, center_method,
-                                                               models, said, far=far)
+            names, uv, normal, residual, cues, box = view_estimates(scene, cam, t, center_method,
+                                                                    models, said, far=far)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
-                                  uv, normal, residual, cues))
+                                  uv, normal, residual, cues, box=box))
 
     chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
     nframes = 0
