@@ -1,0 +1,200 @@
+"""Per-track heights fitted at inference time, without annotation (``s2p run --track-heights``).
+
+A normal position (paper 3.2) assumes the class's default height h0 for the 3D point behind the
+mask centre. A road user bigger or smaller than its class's default is placed too far or too
+near along the camera's line of sight, by about ``dh * d`` where ``d = dp/dh`` (metres per
+metre, pointing towards the camera's foot, length ~ ground distance / camera height). Its
+height is constant along its track, so one offset ``dh`` per track is fitted to what the track
+itself says, linearised around h0:
+
+    p_v(dh) = p_v + dh * d_v          p_v: a view's estimate (normal position + residual), (2,)
+
+and minimising, per track k, with Huber weights (IRLS, ``huber`` metres) on each 2D residual:
+
+    cross * sum_{poses seen by >= 2 cameras} sum_views |(p_v - q_j) + dh (d_v - D_j)|^2
+  + smooth * sum_{3 consecutive frames} |D2 q + dh D2 D|^2
+  + prior * dh^2
+
+(q_j, D_j: the mean of p_v, d_v over the views of pose j; D2: second difference along the
+track). Each IRLS step is closed form, dh = -B / (A + prior), done for all tracks at once with
+``np.bincount``; the height is then bounded to ``bounds`` times the default.
+
+What each term can know (the geometry, docs/RESULTS.md "Track consistency"): on a flat ground
+the positions of one camera at height h are the positions at h0 scaled about the camera's foot
+by (H - h) / (H - h0) (H: the camera's height), so a wrong height maps a track onto a similar
+track -- straight stays straight, a constant speed stays constant. The smoothness term
+therefore carries no information on the height from one camera (on a sloped ground a little);
+worse, shrinking a noisy path towards the camera shrinks its second differences, so the term
+pulls dh up whatever the truth. The cross-camera term is informative where cameras stand apart
+(their scalings have different centres; positions at the true height coincide), in proportion
+to their baseline over the distance: lenses of one device 20 cm apart learn almost nothing.
+The prior keeps the default where the data carry nothing (short tracks, one camera).
+
+For Seg2PoseNet runs the correction moves the network's estimate (normal position + residual)
+along the same d: the network saw the crop and the normal position at h0, its residual is what
+it learned to add at h0, and what stays after it (docs/RESULTS.md, "Error budget") is mostly a
+radial offset constant per road user -- the shape a height offset makes. Re-running the network
+from a corrected normal position would ask it for a residual at a height it was never trained
+at. The fitted offset is added to the normal position in views.csv, so that views.csv and
+poses.csv stay consistent (fusing views.csv again gives the same poses).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from seg2pose.geometry.normal import normal_positions
+from seg2pose.io.run import ViewTable
+
+
+@dataclass(frozen=True)
+class TrackHeightSettings:
+    """Weights of the per-track fit (see module docstring). prior: dimensionless (the objective's
+    data terms are in m^2, dh in m, d in m/m: a track needs sum |a|^2 ~ prior of informative
+    residual before its height moves halfway); huber: metres; bounds: the fitted height's range
+    as multiples of the class's default height."""
+
+    cross: float = 1.0
+    smooth: float = 0.0
+    prior: float = 1.0
+    huber: float = 0.2
+    bounds: tuple[float, float] = (0.6, 1.4)
+    iterations: int = 6
+    min_frames: int = 5     # tracks with fewer poses keep the default
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["bounds"] = list(self.bounds)
+        return d
+
+
+DEFAULT_SETTINGS = TrackHeightSettings()
+
+
+def height_directions(scene, views: ViewTable, heights: np.ndarray, eps: float = 0.05) -> np.ndarray:
+    """d = dp/dh (N, 2), metres of ground position per metre of assumed height, for each view:
+    central differences of the normal position (``normal_positions`` on the scene's ground) at
+    heights +-eps around ``heights`` (N,) metres. NaN where a ray misses the ground."""
+    d = np.full((len(views), 2), np.nan)
+    for cam in np.unique(views.camera):
+        i = np.flatnonzero((views.camera == cam) & np.isfinite(heights) & np.isfinite(views.uv[:, 0]))
+        if not len(i):
+            continue
+        camera = scene.cameras[str(cam)]
+        hi, _ = normal_positions(camera, scene.ground, views.uv[i], heights[i] + eps)
+        lo, _ = normal_positions(camera, scene.ground, views.uv[i], heights[i] - eps)
+        d[i] = (hi[:, :2] - lo[:, :2]) / (2 * eps)
+    return d
+
+
+def _rows(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray, n_tracks: int,
+          s: TrackHeightSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The linear residual rows r = b + dh[k] a of all tracks: k (R,) track index, b (R, 2) m,
+    a (R, 2) m/m, w (R,) weights; and the number of poses (frames) of each track (n_tracks,)."""
+    keys = np.stack([track, frame], axis=1)
+    ukeys, pose = np.unique(keys, axis=0, return_inverse=True)
+    pose = pose.reshape(-1)
+    n_views = np.bincount(pose, minlength=len(ukeys)).astype(float)
+    q = np.stack([np.bincount(pose, p[:, c], len(ukeys)) for c in range(2)], 1) / n_views[:, None]
+    D = np.stack([np.bincount(pose, d[:, c], len(ukeys)) for c in range(2)], 1) / n_views[:, None]
+    ks, bs, as_, ws = [], [], [], []
+    if s.cross > 0:
+        multi = n_views[pose] >= 2
+        ks.append(track[multi])
+        bs.append(p[multi] - q[pose[multi]])
+        as_.append(d[multi] - D[pose[multi]])
+        ws.append(np.full(int(multi.sum()), s.cross))
+    if s.smooth > 0 and len(ukeys) >= 3:
+        # ukeys is sorted by track, then frame: a triple is three consecutive frames of one track
+        t, f = ukeys[:, 0], ukeys[:, 1]
+        mid = np.flatnonzero((t[1:-1] == t[:-2]) & (t[1:-1] == t[2:])
+                             & (f[1:-1] - f[:-2] == 1) & (f[2:] - f[1:-1] == 1)) + 1
+        ks.append(t[mid])
+        bs.append(q[mid - 1] - 2 * q[mid] + q[mid + 1])
+        as_.append(D[mid - 1] - 2 * D[mid] + D[mid + 1])
+        # a second difference of white noise has 6x its variance: weigh it as one frame
+        ws.append(np.full(len(mid), s.smooth / 6.0))
+    n_frames = np.bincount(ukeys[:, 0], minlength=n_tracks)
+    if not ks:
+        z = np.zeros(0)
+        return z.astype(np.int64), np.zeros((0, 2)), np.zeros((0, 2)), z, n_frames
+    return (np.concatenate(ks), np.concatenate(bs), np.concatenate(as_), np.concatenate(ws),
+            n_frames)
+
+
+def fit_offsets(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray,
+                h0: np.ndarray, n_tracks: int, s: TrackHeightSettings = DEFAULT_SETTINGS
+                ) -> np.ndarray:
+    """Height offsets dh (n_tracks,) metres, all tracks at once (see module docstring).
+
+    track: (N,) track index in [0, n_tracks) of each view; frame: (N,) ints; p: (N, 2) the
+    views' estimates, metres; d: (N, 2) dp/dh, m/m; h0: (n_tracks,) default heights, metres
+    (bounds are relative to them). Rows with a non-finite p or d are ignored."""
+    ok = np.isfinite(p).all(1) & np.isfinite(d).all(1)
+    k, b, a, w0, n_frames = _rows(track[ok], frame[ok], p[ok], d[ok], n_tracks, s)
+    lo = (s.bounds[0] - 1.0) * h0
+    hi = (s.bounds[1] - 1.0) * h0
+    dh = np.zeros(n_tracks)
+    aa = np.einsum("rc,rc->r", a, a)
+    ab = np.einsum("rc,rc->r", a, b)
+    for _ in range(max(1, s.iterations)):
+        r = np.linalg.norm(b + dh[k, None] * a, axis=1)
+        w = w0 * np.minimum(1.0, s.huber / np.maximum(r, 1e-12))  # Huber as IRLS weights
+        A = np.bincount(k, w * aa, n_tracks)
+        B = np.bincount(k, w * ab, n_tracks)
+        dh = np.clip(-B / (A + s.prior), lo, hi)
+    dh[n_frames < s.min_frames] = 0.0
+    return dh
+
+
+def fit_offsets_loop(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray,
+                     h0: np.ndarray, n_tracks: int, s: TrackHeightSettings = DEFAULT_SETTINGS
+                     ) -> np.ndarray:
+    """``fit_offsets`` one track at a time (the reference the vectorised version is tested
+    against)."""
+    out = np.zeros(n_tracks)
+    for t in range(n_tracks):
+        i = track == t
+        if i.any():
+            out[t] = fit_offsets(np.zeros(int(i.sum()), np.int64), frame[i], p[i], d[i],
+                                 h0[t:t + 1], 1, s)[0]
+    return out
+
+
+def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAULT_SETTINGS
+                        ) -> tuple[ViewTable, dict, str]:
+    """Fit one height per tracked road user and move its views' normal positions by dh * d.
+
+    Returns the corrected views (a copy; untracked views, id -1, and views without a class are
+    unchanged), the run.json entry and the text of track_heights.csv
+    (track_id,class,default_height,height,n_views)."""
+    defaults = scene.default_heights()
+    h = np.array([defaults.get(str(c), np.nan) for c in views.cls])
+    est = views.normal[:, :2] + views.residual
+    use = (views.track_id >= 0) & np.isfinite(h) & np.isfinite(est).all(1)
+    tids, tix = np.unique(views.track_id[use], return_inverse=True)
+    tix = tix.reshape(-1)
+    first = np.zeros(len(tids), np.int64)
+    first[tix[::-1]] = np.arange(len(tix))[::-1]  # first view of each track (its class, h0)
+    idx = np.flatnonzero(use)
+    d = height_directions(scene, views.take(idx), h[idx])
+    h0 = h[idx][first]
+    dh = fit_offsets(tix, views.frame[idx], est[idx], d, h0, len(tids), s)
+    out = views.take(np.arange(len(views)))
+    move = dh[tix][:, None] * d
+    good = np.isfinite(move).all(1)
+    xy = out.normal[idx[good], :2] + move[good]
+    out.normal[idx[good], :2] = xy
+    out.normal[idx[good], 2] = scene.ground.height(xy)
+    n_views = np.bincount(tix, minlength=len(tids))
+    cls = views.cls[idx][first]
+    lines = ["track_id,class,default_height,height,n_views"]
+    lines += [f"{t},{c},{a:.3f},{a + b:.3f},{n}" for t, c, a, b, n in zip(tids, cls, h0, dh, n_views)]
+    moved = np.abs(dh) >= 0.01
+    meta = {**s.to_dict(), "file": "track_heights.csv", "n_tracks": int(len(tids)),
+            "n_moved_1cm": int(moved.sum()),
+            "median_abs_offset_m": float(np.median(np.abs(dh))) if len(dh) else 0.0,
+            "max_abs_offset_m": float(np.abs(dh).max(initial=0.0))}
+    return out, meta, "\n".join(lines) + "\n"
