@@ -7,7 +7,7 @@ scored against the truth on the run's split; mean error per class, metres.
         [--smooth 0,4] [--grid] [--json OUT]
 
 RUN: an ``s2p run`` folder of every camera of its scene (no -c), baseline or Seg2PoseNet.
-``--grid``: the settings grid used to choose the defaults (prior x huber x smooth weight);
+``--grid``: the settings grid used to choose the defaults (prior x huber x min_spread, and the smoothness term);
 without it, the defaults only. Rows: seed, config, smooth, setting; columns: mean error of the
 run without correction, with it, their ratio, and the ratio per class.
 """
@@ -33,15 +33,16 @@ CLASSES = ("pedestrian", "bicyclist", "car")
 
 def grid() -> list[TrackHeightSettings]:
     out = [DEFAULT_SETTINGS]
-    for prior, huber, smooth in itertools.product((1.0, 10.0, 100.0, 1000.0, 1e4), (0.1,), (0.0, 1.0)):
-        s = TrackHeightSettings(prior=prior, huber=huber, smooth=smooth)
+    for prior, huber, spread in itertools.product((1.0, 10.0, 100.0), (0.1, 0.3), (0.0, 0.1)):
+        s = TrackHeightSettings(prior=prior, huber=huber, min_spread=spread)
         if s != DEFAULT_SETTINGS:
             out.append(s)
+    out.append(TrackHeightSettings(smooth=1.0))  # the smoothness term on top of the default
     return out
 
 
 def label(s: TrackHeightSettings) -> str:
-    return f"prior={s.prior:g} huber={s.huber:g} smooth={s.smooth:g} cross={s.cross:g}"
+    return f"prior={s.prior:g} huber={s.huber:g} spread={s.min_spread:g} smooth={s.smooth:g}"
 
 
 def score(scene, views, smooth: int, fr) -> tuple[float, dict]:

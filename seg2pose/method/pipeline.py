@@ -352,9 +352,10 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
     extra = {}
     th_meta = None
     if opts.track_heights:
-        from seg2pose.method.track_heights import apply_track_heights
+        from seg2pose.method import track_heights as th
 
-        views, th_meta, extra["track_heights.csv"] = apply_track_heights(scene, views)
+        views, th_meta, extra["track_heights.csv"] = th.apply_track_heights(scene, views,
+                                                                            th.DEFAULT_SETTINGS)
     cal, r90_meta = None, {"calibration": None}
     if r90_path is not None and views.cues is not None:
         from seg2pose.method.uncertainty import read_calibration, view_r90

@@ -9,7 +9,8 @@ itself says, linearised around h0:
 
     p_v(dh) = p_v + dh * d_v          p_v: a view's estimate (normal position + residual), (2,)
 
-and minimising, per track k, with Huber weights (IRLS, ``huber`` metres) on each 2D residual:
+and minimising, per track k, with Huber weights (IRLS, ``huber`` metres) on each 2D residual
+(cross-camera rows only where the views' directions differ by ``min_spread`` or more):
 
     cross * sum_{poses seen by >= 2 cameras} sum_views |(p_v - q_j) + dh (d_v - D_j)|^2
   + smooth * sum_{3 consecutive frames} |D2 q + dh D2 D|^2
@@ -63,6 +64,12 @@ class TrackHeightSettings:
     bounds: tuple[float, float] = (0.6, 1.4)
     iterations: int = 6
     min_frames: int = 5     # tracks with fewer poses keep the default
+    relinearise: int = 2    # Gauss-Newton passes (each linearised at the last pass's heights)
+    # cross-camera rows whose |d_v - D_j| (m/m) is below this carry no height information: a
+    # wrong height of 0.3 m would move such views apart by less than 0.3 * min_spread metres,
+    # under the lenses' own systematic disagreement (mask centres of slightly different
+    # views); cameras of one device (20-40 cm apart, |d_v - D_j| ~ 0.01-0.02) never pass it
+    min_spread: float = 0.1
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -73,20 +80,40 @@ class TrackHeightSettings:
 DEFAULT_SETTINGS = TrackHeightSettings()
 
 
-def height_directions(scene, views: ViewTable, heights: np.ndarray, eps: float = 0.05) -> np.ndarray:
-    """d = dp/dh (N, 2), metres of ground position per metre of assumed height, for each view:
-    central differences of the normal position (``normal_positions`` on the scene's ground) at
-    heights +-eps around ``heights`` (N,) metres. NaN where a ray misses the ground."""
-    d = np.full((len(views), 2), np.nan)
-    for cam in np.unique(views.camera):
-        i = np.flatnonzero((views.camera == cam) & np.isfinite(heights) & np.isfinite(views.uv[:, 0]))
+def height_directions(scene, camera: np.ndarray, uv: np.ndarray, heights: np.ndarray,
+                      eps: float = 0.05) -> np.ndarray:
+    """d = dp/dh (N, 2), metres of ground position per metre of assumed height, of the rays
+    through pixels ``uv`` (N, 2) of cameras ``camera`` (N,) names: central differences of the
+    normal position (``normal_positions`` on the scene's ground) at heights +-eps around
+    ``heights`` (N,) metres. NaN where a ray misses the ground."""
+    d = np.full((len(uv), 2), np.nan)
+    for cam in np.unique(camera):
+        i = np.flatnonzero((camera == cam) & np.isfinite(heights) & np.isfinite(uv).all(1))
         if not len(i):
             continue
-        camera = scene.cameras[str(cam)]
-        hi, _ = normal_positions(camera, scene.ground, views.uv[i], heights[i] + eps)
-        lo, _ = normal_positions(camera, scene.ground, views.uv[i], heights[i] - eps)
+        c = scene.cameras[str(cam)]
+        hi, _ = normal_positions(c, scene.ground, uv[i], heights[i] + eps)
+        lo, _ = normal_positions(c, scene.ground, uv[i], heights[i] - eps)
         d[i] = (hi[:, :2] - lo[:, :2]) / (2 * eps)
     return d
+
+
+def directions_at(scene, camera: np.ndarray, xy: np.ndarray, heights: np.ndarray) -> np.ndarray:
+    """dp/dh (N, 2) m/m of cameras ``camera`` (N,) at ground places ``xy`` (N, 2) metres (the
+    ray through the point ``heights`` (N,) metres above the ground there).
+
+    The fit takes each view's direction at its pose's fused place, not at the view's own
+    estimate: dp/dh ~ (camera foot - place) / camera height, so a direction taken at a noisy
+    estimate carries that estimate's noise, correlated with the residual it multiplies -- a
+    bias that pulls every height up (towards the camera), and that made lenses 20 cm apart
+    look informative."""
+    X = np.column_stack([xy, scene.ground.height(xy) + heights])
+    uv = np.full((len(xy), 2), np.nan)
+    for cam in np.unique(camera):
+        i = np.flatnonzero(camera == cam)
+        p, _, front = scene.cameras[str(cam)].project_points(X[i])
+        uv[i] = np.where(front[:, None], p, np.nan)
+    return height_directions(scene, camera, uv, heights)
 
 
 def _rows(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray, n_tracks: int,
@@ -102,6 +129,7 @@ def _rows(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray, n_
     ks, bs, as_, ws = [], [], [], []
     if s.cross > 0:
         multi = n_views[pose] >= 2
+        multi &= np.linalg.norm(d - D[pose], axis=1) >= s.min_spread
         ks.append(track[multi])
         bs.append(p[multi] - q[pose[multi]])
         as_.append(d[multi] - D[pose[multi]])
@@ -125,26 +153,31 @@ def _rows(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray, n_
 
 
 def fit_offsets(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray,
-                h0: np.ndarray, n_tracks: int, s: TrackHeightSettings = DEFAULT_SETTINGS
-                ) -> np.ndarray:
+                h0: np.ndarray, n_tracks: int, s: TrackHeightSettings = DEFAULT_SETTINGS,
+                start: np.ndarray | None = None) -> np.ndarray:
     """Height offsets dh (n_tracks,) metres, all tracks at once (see module docstring).
 
     track: (N,) track index in [0, n_tracks) of each view; frame: (N,) ints; p: (N, 2) the
-    views' estimates, metres; d: (N, 2) dp/dh, m/m; h0: (n_tracks,) default heights, metres
-    (bounds are relative to them). Rows with a non-finite p or d are ignored."""
+    views' estimates at heights h0 + start, metres; d: (N, 2) dp/dh there, m/m; h0: (n_tracks,)
+    default heights, metres (the prior pulls towards them, bounds are relative to them);
+    start: (n_tracks,) the offsets p was computed at (None: zeros). Rows with a non-finite p
+    or d are ignored."""
     ok = np.isfinite(p).all(1) & np.isfinite(d).all(1)
     k, b, a, w0, n_frames = _rows(track[ok], frame[ok], p[ok], d[ok], n_tracks, s)
-    lo = (s.bounds[0] - 1.0) * h0
-    hi = (s.bounds[1] - 1.0) * h0
-    dh = np.zeros(n_tracks)
+    start = np.zeros(n_tracks) if start is None else np.asarray(start, float)
+    lo = (s.bounds[0] - 1.0) * h0 - start
+    hi = (s.bounds[1] - 1.0) * h0 - start
+    step = np.zeros(n_tracks)  # the change of dh from start
     aa = np.einsum("rc,rc->r", a, a)
     ab = np.einsum("rc,rc->r", a, b)
     for _ in range(max(1, s.iterations)):
-        r = np.linalg.norm(b + dh[k, None] * a, axis=1)
+        r = np.linalg.norm(b + step[k, None] * a, axis=1)
         w = w0 * np.minimum(1.0, s.huber / np.maximum(r, 1e-12))  # Huber as IRLS weights
         A = np.bincount(k, w * aa, n_tracks)
         B = np.bincount(k, w * ab, n_tracks)
-        dh = np.clip(-B / (A + s.prior), lo, hi)
+        # minimise sum w |b + step a|^2 + prior (start + step)^2
+        step = np.clip(-(B + s.prior * start) / (A + s.prior), lo, hi)
+    dh = start + step
     dh[n_frames < s.min_frames] = 0.0
     return dh
 
@@ -165,7 +198,7 @@ def fit_offsets_loop(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.
 
 def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAULT_SETTINGS
                         ) -> tuple[ViewTable, dict, str]:
-    """Fit one height per tracked road user and move its views' normal positions by dh * d.
+    """Fit one height per tracked road user and put its views' normal positions at that height.
 
     Returns the corrected views (a copy; untracked views, id -1, and views without a class are
     unchanged), the run.json entry and the text of track_heights.csv
@@ -179,19 +212,35 @@ def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAUL
     first = np.zeros(len(tids), np.int64)
     first[tix[::-1]] = np.arange(len(tix))[::-1]  # first view of each track (its class, h0)
     idx = np.flatnonzero(use)
-    d = height_directions(scene, views.take(idx), h[idx])
+    _, pose = np.unique(np.stack([tix, views.frame[idx]], 1), axis=0, return_inverse=True)
+    pose = pose.reshape(-1)
+    n_pose = np.bincount(pose)[:, None]
     h0 = h[idx][first]
-    dh = fit_offsets(tix, views.frame[idx], est[idx], d, h0, len(tids), s)
     out = views.take(np.arange(len(views)))
-    move = dh[tix][:, None] * d
-    good = np.isfinite(move).all(1)
-    xy = out.normal[idx[good], :2] + move[good]
-    out.normal[idx[good], :2] = xy
-    out.normal[idx[good], 2] = scene.ground.height(xy)
+    dh = np.zeros(len(tids))
+    for _ in range(max(1, s.relinearise)):
+        # linearised at the current heights (Gauss-Newton): the views' estimates there and the
+        # directions at their poses' fused places
+        p = out.normal[idx, :2] + views.residual[idx]
+        q = np.stack([np.bincount(pose, p[:, c]) for c in range(2)], 1) / n_pose
+        d = directions_at(scene, views.camera[idx], q[pose], h[idx] + dh[tix])
+        new = fit_offsets(tix, views.frame[idx], p, d, h0, len(tids), s, start=dh)
+        # the fit is linear; the correction is exact: each view's normal position at its
+        # track's height, on its own ray (the residual of a Seg2PoseNet run is kept as it is)
+        move = np.flatnonzero(new[tix] != dh[tix])
+        dh = new
+        for cam in np.unique(views.camera[idx[move]]):
+            j = move[views.camera[idx[move]] == cam]
+            X, _ = normal_positions(scene.cameras[str(cam)], scene.ground, views.uv[idx[j]],
+                                    h[idx[j]] + dh[tix[j]])
+            ok = np.isfinite(X[:, 0])
+            out.normal[idx[j[ok]]] = X[ok]
+        if not len(move):
+            break
     n_views = np.bincount(tix, minlength=len(tids))
     cls = views.cls[idx][first]
     lines = ["track_id,class,default_height,height,n_views"]
-    lines += [f"{t},{c},{a:.3f},{a + b:.3f},{n}" for t, c, a, b, n in zip(tids, cls, h0, dh, n_views)]
+    lines += [f"{t},{c},{a:.4f},{a + b:.4f},{n}" for t, c, a, b, n in zip(tids, cls, h0, dh, n_views)]
     moved = np.abs(dh) >= 0.01
     meta = {**s.to_dict(), "file": "track_heights.csv", "n_tracks": int(len(tids)),
             "n_moved_1cm": int(moved.sum()),

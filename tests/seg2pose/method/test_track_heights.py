@@ -8,8 +8,8 @@ from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.run import ViewTable
-from seg2pose.method.track_heights import (TrackHeightSettings, apply_track_heights, fit_offsets,
-                                           fit_offsets_loop, height_directions)
+from seg2pose.method.track_heights import (TrackHeightSettings, apply_track_heights, directions_at,
+                                           fit_offsets, fit_offsets_loop, height_directions)
 
 W, H = 1280, 720
 FLAT = GroundSurface(np.array([(x, y, 0.0) for x in range(-60, 61, 10) for y in range(-20, 81, 10)], float))
@@ -100,7 +100,7 @@ def test_robust_to_an_outlier_view():
     rng = np.random.default_rng(0)
     path = crossing()
     v = views_of([(5, 0.9, path)], ["a", "b"], rng, noise_px=0.3)
-    v.normal[10, :2] += 8.0  # a merged mask throws one view metres off
+    v.residual[10] += 8.0  # a network residual throws one view metres off
     _, _, plain = apply_track_heights(SCENE, v, TrackHeightSettings(prior=1e-3, huber=1e6))
     _, _, robust = apply_track_heights(SCENE, v, TrackHeightSettings(prior=1e-3, huber=0.1))
     h_plain, h_robust = (float(t.splitlines()[1].split(",")[3]) for t in (plain, robust))
@@ -116,7 +116,7 @@ def test_vectorised_equals_a_loop_over_tracks():
     v = v.take(rng.random(len(v)) > 0.1)  # some views missing
     tids, tix = np.unique(v.track_id, return_inverse=True)
     h = np.full(len(v), H0)
-    d = height_directions(SCENE, v, h)
+    d = height_directions(SCENE, v.camera, v.uv, h)
     p = v.normal[:, :2]
     for s in (TrackHeightSettings(smooth=0.5, huber=0.05, prior=0.1), TrackHeightSettings()):
         a = fit_offsets(tix, v.frame, p, d, np.full(len(tids), H0), len(tids), s)
@@ -128,16 +128,19 @@ def test_vectorised_equals_a_loop_over_tracks():
 def test_direction_points_to_the_camera_with_distance_over_height():
     path = crossing(5)
     v = views_of([(1, H0, path)], ["a"])
-    d = height_directions(SCENE, v, np.full(len(v), H0))
+    d = height_directions(SCENE, v.camera, v.uv, np.full(len(v), H0))
     foot = CAMS["a"].center[:2]
     expect = (foot - v.normal[:, :2]) / (10 - H0)  # flat ground: p(h) = foot + (g - foot)(H-h)/H
     assert np.allclose(d, expect, atol=1e-6)
 
 
-def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path):
+def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path, monkeypatch):
     # s2p run --track-heights: run.json and track_heights.csv say what was fitted, and fusing
-    # the run's views.csv again gives its poses.csv (the correction lives in the views)
+    # the run's views.csv again gives its poses.csv (the correction lives in the views). The
+    # tiny scene's lenses share a pole: without the min_spread gate, so that views do move
     from scene_fixtures import make_tiny_scene
+    from seg2pose.method import track_heights as th
+    monkeypatch.setattr(th, "DEFAULT_SETTINGS", TrackHeightSettings(min_spread=0.0, prior=1e-3))
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_meta, read_views
     from seg2pose.method.pipeline import RunOptions, fuse, run_scene
@@ -147,19 +150,43 @@ def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path):
     run = run_scene(scene, tmp_path / "th", RunOptions(config="tri-I", baseline=True, progress=False,
                                                        track_heights=True))
     meta = read_run_meta(run)
-    assert meta["track_heights"]["file"] == "track_heights.csv"
+    assert meta["track_heights"]["file"] == "track_heights.csv" and meta["track_heights"]["prior"] == 1e-3
     lines = (run / "track_heights.csv").read_text().splitlines()
     assert lines[0] == "track_id,class,default_height,height,n_views"
     assert len(lines) - 1 == meta["track_heights"]["n_tracks"] > 0
     assert "track_heights" not in read_run_meta(plain)
     again = fuse(read_views(run / "views.csv"), scene)
     np.testing.assert_allclose(again.xyz, read_poses(run / "poses.csv").xyz, atol=2e-6)
-    # each view moved along its own dp/dh by its track's offset, nothing else
+    # each view's normal position is the one at its track's height, on its own ray
     v0, v1 = read_views(plain / "views.csv"), read_views(run / "views.csv")
-    rows = {int(r.split(",")[0]): float(r.split(",")[3]) - float(r.split(",")[2]) for r in lines[1:]}
-    dh = np.array([rows.get(int(t), 0.0) for t in v0.track_id])
-    d = height_directions(scene, v0, np.array([scene.default_heights()[c] for c in v0.cls]))
-    assert np.abs(dh).max() > 0.01  # some views did move
-    # (track_heights.csv gives heights to the millimetre)
-    tol = 0.0005 * np.abs(d).max() + 1e-6
-    np.testing.assert_allclose(v1.normal[:, :2], v0.normal[:, :2] + dh[:, None] * d, atol=tol)
+    rows = {int(r.split(",")[0]): float(r.split(",")[3]) for r in lines[1:]}
+    h = np.array([rows.get(int(t), scene.default_heights()[c]) for t, c in zip(v0.track_id, v0.cls)])
+    h0 = np.array([scene.default_heights()[c] for c in v0.cls])
+    assert np.abs(h - h0).max() > 0.01  # some views did move
+    for cam in ("c0", "c1", "c2"):
+        i = v0.camera == cam
+        X, _ = normal_positions(scene.cameras[cam], scene.ground, v0.uv[i], h[i])
+        # (track_heights.csv gives heights to 0.1 mm, views.csv positions to 0.1 mm)
+        np.testing.assert_allclose(v1.normal[i], X, atol=0.00005 * 8 + 1e-4)
+
+
+def test_lenses_of_one_device_carry_no_height_information():
+    # two lenses 20 cm apart on one pole: their positions at a wrong height differ by
+    # 0.2 m / 10 m of the offset; below min_spread the cross rows are dropped, however weak the prior
+    cams = {"l": Camera.look_at("l", center=[-0.1, 0, 10], target=[-0.1, 30, 0], f=900, width=W, height=H),
+            "r": Camera.look_at("r", center=[0.1, 0, 10], target=[0.1, 30, 0], f=900, width=W, height=H)}
+    scene = SimpleNamespace(cameras=cams, ground=FLAT, default_heights=lambda: {"car": 0.75})
+    path = crossing()
+    X = np.column_stack([path, np.full(len(path), 1.0)])
+    rows = []
+    for c, cam in cams.items():
+        uv = cam.project_points(X)[0]
+        n, _ = normal_positions(cam, FLAT, uv, H0)
+        rows.append(ViewTable(np.arange(len(path)), np.full(len(path), 1), np.full(len(path), c, object),
+                              np.full(len(path), "car", object), uv, n, np.zeros((len(path), 2))))
+    v = ViewTable.concat(rows).sorted()
+    _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6))
+    assert float(text.splitlines()[1].split(",")[3]) == H0
+    # without the gate, noise-free lenses would find it (the information is there, only tiny)
+    _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6, min_spread=0.0))
+    assert abs(float(text.splitlines()[1].split(",")[3]) - 1.0) < 0.01
