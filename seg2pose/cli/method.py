@@ -28,11 +28,11 @@ SPARSE_HELP = ("exact sparse inference on the CPU: the network's convolutions on
                "mask (the same result, 3-30x faster)")
 SMOOTH_HELP = ("smooth each tracked road user's positions over this many frames either side "
                "(a line fitted per window; 0: every frame on its own, the paper's method)")
-TRACK_HEIGHTS_HELP = ("fit one height per tracked road user where the cameras disagree on it "
-                      "(positions at the true height coincide) and move its positions along the "
-                      "line of sight, before fusion; needs cameras standing apart (on one device "
-                      "or one camera it keeps the class defaults: docs/RESULTS.md, \"Track "
-                      "consistency\"); heights in RUN/track_heights.csv")
+TRACK_HEIGHTS_HELP = ("fit one height per tracked road user from where the cameras disagree on "
+                      "it (positions at the true height coincide: lenses of one device by their "
+                      "parallax, cameras on other poles far more) and put its positions there, "
+                      "before fusion; one camera keeps the class defaults. Heights in "
+                      "RUN/track_heights.csv; docs/RESULTS.md, \"Track consistency\"")
 MODELS_HELP = ("folder of trained models (default: SCENE/models); repeat it to average the "
                "models of several folders")
 

@@ -17,26 +17,30 @@ and minimising, per track k, with Huber weights (IRLS, ``huber`` metres) on each
   + prior * dh^2
 
 (q_j, D_j: the mean of p_v, d_v over the views of pose j; D2: second difference along the
-track). Each IRLS step is closed form, dh = -B / (A + prior), done for all tracks at once with
-``np.bincount``; the height is then bounded to ``bounds`` times the default.
+track; d is taken at the pose's fused place, see ``directions_at``). Each IRLS step is closed
+form, dh = -B / (A + prior), done for all tracks at once with ``np.bincount``, bounded to
+``bounds`` times the default; a second Gauss-Newton pass relinearises at the fitted heights.
+The views are then put at their track's height exactly (``normal_positions`` on each view's own
+ray at h0 + dh), not along the linearisation.
 
-What each term can know (the geometry, docs/RESULTS.md "Track consistency"): on a flat ground
-the positions of one camera at height h are the positions at h0 scaled about the camera's foot
-by (H - h) / (H - h0) (H: the camera's height), so a wrong height maps a track onto a similar
+What each term can know (docs/RESULTS.md, "Track consistency"): on a flat (or plane) ground the
+positions of one camera at height h are the positions at h0 scaled about the camera's foot by
+(H - h) / (H - h0) (H: the camera's height), so a wrong height maps a track onto a similar
 track -- straight stays straight, a constant speed stays constant. The smoothness term
-therefore carries no information on the height from one camera (on a sloped ground a little);
+carries no information on the height from one camera (on a curved ground a little);
 worse, shrinking a noisy path towards the camera shrinks its second differences, so the term
-pulls dh up whatever the truth. The cross-camera term is informative where cameras stand apart
-(their scalings have different centres; positions at the true height coincide), in proportion
-to their baseline over the distance: lenses of one device 20 cm apart learn almost nothing.
-The prior keeps the default where the data carry nothing (short tracks, one camera).
+pulls dh up whatever the truth (measured: it only harms; off by default). The cross-camera
+term triangulates: the views' positions at the true height coincide, and a wrong height moves
+them apart by dh times the difference of their directions, ~ (camera baseline) / H -- 0.02 for
+lenses of one device 20 cm apart, ~2 for poles 36 m apart. The prior keeps the default where
+the data carry nothing (one camera, short tracks).
 
 For Seg2PoseNet runs the correction moves the network's estimate (normal position + residual)
 along the same d: the network saw the crop and the normal position at h0, its residual is what
 it learned to add at h0, and what stays after it (docs/RESULTS.md, "Error budget") is mostly a
 radial offset constant per road user -- the shape a height offset makes. Re-running the network
 from a corrected normal position would ask it for a residual at a height it was never trained
-at. The fitted offset is added to the normal position in views.csv, so that views.csv and
+at. views.csv holds the normal positions at the fitted heights, so that views.csv and
 poses.csv stay consistent (fusing views.csv again gives the same poses).
 """
 
@@ -59,17 +63,17 @@ class TrackHeightSettings:
 
     cross: float = 1.0
     smooth: float = 0.0
-    prior: float = 1.0
-    huber: float = 0.2
+    prior: float = 1.0      # chosen on the tuning seeds (docs/RESULTS.md, "Track consistency")
+    huber: float = 0.1
     bounds: tuple[float, float] = (0.6, 1.4)
     iterations: int = 6
     min_frames: int = 5     # tracks with fewer poses keep the default
     relinearise: int = 2    # Gauss-Newton passes (each linearised at the last pass's heights)
-    # cross-camera rows whose |d_v - D_j| (m/m) is below this carry no height information: a
-    # wrong height of 0.3 m would move such views apart by less than 0.3 * min_spread metres,
-    # under the lenses' own systematic disagreement (mask centres of slightly different
-    # views); cameras of one device (20-40 cm apart, |d_v - D_j| ~ 0.01-0.02) never pass it
-    min_spread: float = 0.1
+    # cross-camera rows whose |d_v - D_j| (m/m) is below this are dropped. Off (0) by default:
+    # lenses of one device (20-40 cm apart, |d_v - D_j| ~ 0.01-0.02) looked too close to
+    # carry height information, but measured on the tuning seeds they do (their parallax
+    # triangulates the mask centre's height, pooled over hundreds of frames); 0.1 drops them
+    min_spread: float = 0.0
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -137,10 +137,10 @@ def test_direction_points_to_the_camera_with_distance_over_height():
 def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path, monkeypatch):
     # s2p run --track-heights: run.json and track_heights.csv say what was fitted, and fusing
     # the run's views.csv again gives its poses.csv (the correction lives in the views). The
-    # tiny scene's lenses share a pole: without the min_spread gate, so that views do move
+    # tiny scene's lenses share a pole: a weak prior, so that views do move
     from scene_fixtures import make_tiny_scene
     from seg2pose.method import track_heights as th
-    monkeypatch.setattr(th, "DEFAULT_SETTINGS", TrackHeightSettings(min_spread=0.0, prior=1e-3))
+    monkeypatch.setattr(th, "DEFAULT_SETTINGS", TrackHeightSettings(prior=1e-3))
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_meta, read_views
     from seg2pose.method.pipeline import RunOptions, fuse, run_scene
@@ -170,7 +170,7 @@ def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path, monke
         np.testing.assert_allclose(v1.normal[i], X, atol=0.00005 * 8 + 1e-4)
 
 
-def test_lenses_of_one_device_carry_no_height_information():
+def test_lenses_of_one_device_min_spread_gate():
     # two lenses 20 cm apart on one pole: their positions at a wrong height differ by
     # 0.2 m / 10 m of the offset; below min_spread the cross rows are dropped, however weak the prior
     cams = {"l": Camera.look_at("l", center=[-0.1, 0, 10], target=[-0.1, 30, 0], f=900, width=W, height=H),
@@ -185,8 +185,8 @@ def test_lenses_of_one_device_carry_no_height_information():
         rows.append(ViewTable(np.arange(len(path)), np.full(len(path), 1), np.full(len(path), c, object),
                               np.full(len(path), "car", object), uv, n, np.zeros((len(path), 2))))
     v = ViewTable.concat(rows).sorted()
-    _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6))
+    _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6, min_spread=0.1))
     assert float(text.splitlines()[1].split(",")[3]) == H0
-    # without the gate, noise-free lenses would find it (the information is there, only tiny)
+    # without the gate, noise-free lenses find it (the information is there, only small)
     _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6, min_spread=0.0))
     assert abs(float(text.splitlines()[1].split(",")[3]) - 1.0) < 0.01
