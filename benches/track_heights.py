@@ -34,15 +34,17 @@ CLASSES = ("pedestrian", "bicyclist", "car")
 def grid() -> list[TrackHeightSettings]:
     out = [DEFAULT_SETTINGS]
     for prior, huber, spread in itertools.product((1.0, 10.0, 100.0), (0.1, 0.3), (0.0, 0.1)):
-        s = TrackHeightSettings(prior=prior, huber=huber, min_spread=spread)
+        s = TrackHeightSettings(prior=prior, huber=huber, min_spread=spread, class_prior=())
         if s != DEFAULT_SETTINGS:
             out.append(s)
     out.append(TrackHeightSettings(smooth=1.0))  # the smoothness term on top of the default
+    out.append(TrackHeightSettings(class_prior=()))  # one prior for every class
     return out
 
 
 def label(s: TrackHeightSettings) -> str:
-    return f"prior={s.prior:g} huber={s.huber:g} spread={s.min_spread:g} smooth={s.smooth:g}"
+    cp = "".join(f",{c[:3]}:{v:g}" for c, v in s.class_prior)
+    return f"prior={s.prior:g}{cp} huber={s.huber:g} spread={s.min_spread:g} smooth={s.smooth:g}"
 
 
 def score(scene, views, smooth: int, fr) -> tuple[float, dict]:
@@ -59,8 +61,11 @@ def main() -> None:
     ap.add_argument("--smooth", default="0,4")
     ap.add_argument("--grid", action="store_true")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--one-prior", action="store_true", help="also the default with one prior for every class")
     a = ap.parse_args()
     settings = grid() if a.grid else [DEFAULT_SETTINGS]
+    if a.one_prior and not a.grid:
+        settings.append(TrackHeightSettings(class_prior=()))
     rows = []
     print(f"{'run':<22} {'config':<7} {'sm':>2}  {'setting':<44} {'before m':>8} {'after m':>8} "
           f"{'ratio':>6}  " + "  ".join(f"{c[:5]:>6}" for c in CLASSES))

@@ -65,6 +65,9 @@ class TrackHeightSettings:
     smooth: float = 0.0
     prior: float = 1.0      # chosen on the tuning seeds (docs/RESULTS.md, "Track consistency")
     huber: float = 0.1
+    # (class, prior) pairs overriding ``prior`` for that class's tracks: pedestrians' heights
+    # vary least against the other errors of their positions (with prior 1 they got worse)
+    class_prior: tuple = (("pedestrian", 10.0),)
     bounds: tuple[float, float] = (0.6, 1.4)
     iterations: int = 6
     min_frames: int = 5     # tracks with fewer poses keep the default
@@ -78,6 +81,7 @@ class TrackHeightSettings:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["bounds"] = list(self.bounds)
+        d["class_prior"] = dict(self.class_prior)
         return d
 
 
@@ -158,17 +162,19 @@ def _rows(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray, n_
 
 def fit_offsets(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarray,
                 h0: np.ndarray, n_tracks: int, s: TrackHeightSettings = DEFAULT_SETTINGS,
-                start: np.ndarray | None = None) -> np.ndarray:
+                start: np.ndarray | None = None, prior: np.ndarray | None = None) -> np.ndarray:
     """Height offsets dh (n_tracks,) metres, all tracks at once (see module docstring).
 
     track: (N,) track index in [0, n_tracks) of each view; frame: (N,) ints; p: (N, 2) the
     views' estimates at heights h0 + start, metres; d: (N, 2) dp/dh there, m/m; h0: (n_tracks,)
     default heights, metres (the prior pulls towards them, bounds are relative to them);
-    start: (n_tracks,) the offsets p was computed at (None: zeros). Rows with a non-finite p
-    or d are ignored."""
+    start: (n_tracks,) the offsets p was computed at (None: zeros); prior: (n_tracks,) the
+    prior weight of each track (None: ``s.prior`` for all). Rows with a non-finite p or d are
+    ignored."""
     ok = np.isfinite(p).all(1) & np.isfinite(d).all(1)
     k, b, a, w0, n_frames = _rows(track[ok], frame[ok], p[ok], d[ok], n_tracks, s)
     start = np.zeros(n_tracks) if start is None else np.asarray(start, float)
+    lam = np.full(n_tracks, s.prior) if prior is None else np.asarray(prior, float)
     lo = (s.bounds[0] - 1.0) * h0 - start
     hi = (s.bounds[1] - 1.0) * h0 - start
     step = np.zeros(n_tracks)  # the change of dh from start
@@ -180,7 +186,7 @@ def fit_offsets(track: np.ndarray, frame: np.ndarray, p: np.ndarray, d: np.ndarr
         A = np.bincount(k, w * aa, n_tracks)
         B = np.bincount(k, w * ab, n_tracks)
         # minimise sum w |b + step a|^2 + prior (start + step)^2
-        step = np.clip(-(B + s.prior * start) / (A + s.prior), lo, hi)
+        step = np.clip(-(B + lam * start) / (A + lam), lo, hi)
     dh = start + step
     dh[n_frames < s.min_frames] = 0.0
     return dh
@@ -220,6 +226,9 @@ def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAUL
     pose = pose.reshape(-1)
     n_pose = np.bincount(pose)[:, None]
     h0 = h[idx][first]
+    cls = views.cls[idx][first]
+    by_class = dict(s.class_prior)
+    lam = np.array([by_class.get(str(c), s.prior) for c in cls], float)
     out = views.take(np.arange(len(views)))
     dh = np.zeros(len(tids))
     for _ in range(max(1, s.relinearise)):
@@ -228,7 +237,7 @@ def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAUL
         p = out.normal[idx, :2] + views.residual[idx]
         q = np.stack([np.bincount(pose, p[:, c]) for c in range(2)], 1) / n_pose
         d = directions_at(scene, views.camera[idx], q[pose], h[idx] + dh[tix])
-        new = fit_offsets(tix, views.frame[idx], p, d, h0, len(tids), s, start=dh)
+        new = fit_offsets(tix, views.frame[idx], p, d, h0, len(tids), s, start=dh, prior=lam)
         # the fit is linear; the correction is exact: each view's normal position at its
         # track's height, on its own ray (the residual of a Seg2PoseNet run is kept as it is)
         move = np.flatnonzero(new[tix] != dh[tix])
@@ -242,7 +251,6 @@ def apply_track_heights(scene, views: ViewTable, s: TrackHeightSettings = DEFAUL
         if not len(move):
             break
     n_views = np.bincount(tix, minlength=len(tids))
-    cls = views.cls[idx][first]
     lines = ["track_id,class,default_height,height,n_views"]
     lines += [f"{t},{c},{a:.4f},{a + b:.4f},{n}" for t, c, a, b, n in zip(tids, cls, h0, dh, n_views)]
     moved = np.abs(dh) >= 0.01

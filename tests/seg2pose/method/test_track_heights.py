@@ -190,3 +190,15 @@ def test_lenses_of_one_device_min_spread_gate():
     # without the gate, noise-free lenses find it (the information is there, only small)
     _, _, text = apply_track_heights(scene, v, TrackHeightSettings(prior=1e-6, min_spread=0.0))
     assert abs(float(text.splitlines()[1].split(",")[3]) - 1.0) < 0.01
+
+
+def test_class_prior_overrides_the_prior_for_its_class():
+    path = crossing()
+    v = views_of([(1, 1.0, path), (2, 1.0, path)], ["a", "b"])
+    v.cls[v.track_id == 2] = "pedestrian"
+    scene = SimpleNamespace(cameras=CAMS, ground=FLAT, default_heights=lambda: {"car": H0, "pedestrian": H0})
+    s = TrackHeightSettings(prior=1e-6, class_prior=(("pedestrian", 1e9),))
+    _, meta, text = apply_track_heights(scene, v, s)
+    rows = {int(r.split(",")[0]): float(r.split(",")[3]) for r in text.splitlines()[1:]}
+    assert abs(rows[1] - 1.0) < 0.01 and abs(rows[2] - H0) < 1e-4
+    assert meta["class_prior"] == {"pedestrian": 1e9}
