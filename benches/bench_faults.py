@@ -1,6 +1,7 @@
 """Kill s2p commands at random moments, many times, and count what their outputs are left as.
 
-Every writing command on small inputs (tests/kill_harness.py): ``s2p run``, ``synth``,
+Every writing command on small inputs (tests/kill_cases.py, killed by tests/kill_harness.py):
+``s2p run``, ``synth``,
 ``convert-masks``, ``import-utocs``, ``export`` (issue 10) and ``masks-from-video``,
 ``import-detections``, ``track``, ``new-scene``, ``import-tacal``, ``annotate export`` (gt +
 MCAP + layout + CSV as one set), ``import-mcap --force`` (into an existing scene folder),
@@ -32,7 +33,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in the killed commands
-from kill_harness import build_cases, build_writer_cases  # noqa: E402
+from kill_cases import build_cases, build_writer_cases  # noqa: E402
 
 
 def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:

@@ -1,6 +1,7 @@
 """Fixtures shared by the whole suite. Helper modules (plain functions and constants) live beside
 this file: scene_fixtures (the tiny 3-camera scene, the fast training protocol), review_fixtures,
-video_fixtures, annotate_fixtures, hostile_fixtures and kill_harness; pytest puts this folder on
+video_fixtures, annotate_fixtures, hostile_fixtures, kill_harness with kill_cases and
+command_zygote; pytest puts this folder on
 ``sys.path``, so tests in every sub-folder import them by name."""
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """The annotation app's controller: the current frame, the selected track, the click mode and
 every action of the panel, on top of the engine (``annotate.Project``). No UI imports: the
 marimo page (notebook.py) feeds it clicks, keys and time-cursor moves, and draws what
-``panel()`` returns; tests drive it directly.
+``panel()`` returns; tests drive it directly. Here: opening and holding the project, the saved
+page state, the time cursor and the views; the actions are ``annotate.app.actions``', the
+clicks ``annotate.app.clicks``', what the panel shows ``annotate.app.panel_data``'s (mixins).
 
 Listeners: ``on_tracks(ids, selected)`` after anything that changes how tracks look (edits,
 undo/redo, selection), ``on_frame(frame)`` when the controller moves the time cursor.
@@ -10,7 +12,6 @@ undo/redo, selection), ``on_frame(frame)`` when the controller moves the time cu
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -20,14 +21,16 @@ from typing import Callable
 import numpy as np
 
 from annotate import LockedError, Project
-from annotate.headings import AUTO
-from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, CLICK_MODES, Actions
+from annotate.app.actions import CLICK_MODES, Actions
+from annotate.app.clicks import Clicks
+from annotate.app.panel_data import PanelData
 from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
-GROUND_TOLERANCE = 0.25         # metres: a 3D click this close to the ground surface is on it
 HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
+
+
 @dataclass
 class _Holder:
     controller: "Controller"
@@ -49,7 +52,7 @@ def close_all() -> None:
 
 
 @dataclass
-class Controller(Actions):
+class Controller(Actions, Clicks, PanelData):
     """The state of one page of the app (see the module docstring). Build with ``open``."""
 
     project: Project
@@ -297,190 +300,3 @@ class Controller(Actions):
             except S2PError as e:
                 self.message = str(e)
             return self.message
-
-    # --- clicks -----------------------------------------------------------------------------------
-    def click(self, camera: str | None, uv, hint_where: str = "") -> str:
-        """A click in the viewer: ``camera`` the camera view it landed in (None: the 3D view or
-        outside any image), ``uv`` the image pixel (x right, y down, pixel centres at +0.5).
-        Places the selected track's keyframe at the current frame, as the click mode says."""
-        with self.lock:
-            self.touch()
-            self.clicks += 1
-            ok = uv is not None and all(v is not None for v in list(uv)[:2])
-            self.last_click = {"camera": camera, "n": self.clicks,
-                               "uv": [round(float(v), 2) for v in list(uv)[:2]] if ok else None}
-            try:
-                self.message = self._click(camera, uv, hint_where)
-            except S2PError as e:
-                self.message = str(e)
-            return self.message
-
-    def _click(self, camera, uv, where) -> str:
-        if camera is None or uv is None or uv[0] is None or uv[1] is None:
-            return (f"click ignored ({where or 'not on a camera image'}): click inside a camera "
-                    "view's image to place the selected track")
-        cam = self.project.scene.cameras[camera]
-        u, v = float(uv[0]), float(uv[1])
-        if not (0 <= u < cam.width and 0 <= v < cam.height):
-            return f"click ignored: pixel ({u:.0f}, {v:.0f}) is outside camera {camera}'s image"
-        if self.click_mode == "mask":
-            return self._click_mask(camera, u, v)
-        tid = self._need_track()
-        t = self.project.track(tid)
-        height = 0.0
-        if self.click_mode == "centre":
-            # a click on the middle of the road user is a click on its box's centre: half the
-            # box's height above the ground (benches/annotate_accuracy.py compares this with
-            # the class's default height of the normal position)
-            height = float(t.size[2]) / 2
-        self._edit(self.project.place_from_pixel, tid, self.frame, camera, (u, v), height=height)
-        k = self.project.track(tid).keyframes[self.frame]
-        return f"track {tid}: keyframe {self.frame} at ({k.x:.2f}, {k.y:.2f}) m"
-
-    def _click_mask(self, camera: str, u: float, v: float) -> str:
-        hit = self.mask_at(camera, u, v)
-        if hit is None:
-            return f"no mask under pixel ({u:.0f}, {v:.0f}) of camera {camera} in frame {self.frame}"
-        mask_track, cls = hit
-        p = self.project
-        if self.selected is None:  # no track: the click makes the track of that road user
-            ch = self._edit(p.create_track, cls, meta={"run_track": int(mask_track)})
-            self._select(ch.track)
-        else:  # never join another road user to the selected track silently
-            t = p.track(self.selected)
-            linked = t.meta.get("run_track")
-            if linked is None and t.keyframes:
-                return (f"refused: track {t.id} is linked to no road user and has keyframes; mask "
-                        f"{mask_track} is road user {mask_track}. Esc (no track), then click the "
-                        "mask to make its own track")
-            if linked is not None and int(linked) != int(mask_track):
-                return (f"refused: mask {mask_track} is road user {mask_track}, track {t.id} "
-                        f"follows road user {linked}. Esc (no track), then click the mask to "
-                        "make its own track")
-            if linked is None:
-                self._edit(p.set_meta, t.id, run_track=int(mask_track))
-        tid = self.selected
-        self._edit(p.place_from_mask, tid, self.frame, camera, mask_track)
-        k = p.track(tid).keyframes[self.frame]
-        return (f"track {tid}: keyframe {self.frame} from mask {mask_track} "
-                f"({', '.join(k.flags) or 'placed'}) at ({k.x:.2f}, {k.y:.2f}) m")
-
-    def click_world(self, xyz, entity: str = "") -> str:
-        """A click in the 3D view at world point ``xyz`` (metres; None: the event carried no
-        point): on the ground it places the selected track's keyframe there."""
-        with self.lock:
-            self.touch()
-            self.clicks += 1
-            ok = xyz is not None and len(xyz) >= 3 and all(
-                v is not None and math.isfinite(float(v)) for v in list(xyz)[:3])
-            self.last_click = {"camera": None, "n": self.clicks,
-                               "xyz": [round(float(v), 3) for v in list(xyz)[:3]] if ok else None,
-                               "uv": None}
-            try:
-                self.message = self._click_world(xyz if ok else None, entity)
-            except S2PError as e:
-                self.message = str(e)
-            return self.message
-
-    def _click_world(self, xyz, entity: str) -> str:
-        if xyz is None:
-            return ("click ignored: the 3D view did not say which point was clicked; click the "
-                    "ground (grey mesh) or a camera view's image")
-        x, y, z = (float(v) for v in list(xyz)[:3])
-        g = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
-        if abs(z - g) > GROUND_TOLERANCE:
-            return (f"click ignored: that point ({entity or 'an object'}) is {z - g:+.2f} m from "
-                    "the ground; click the ground itself to place a keyframe")
-        tid = self._need_track()
-        self._edit(self.project.set_keyframe, tid, self.frame, x, y)
-        return f"track {tid}: keyframe {self.frame} at ({x:.2f}, {y:.2f}) m (3D view)"
-
-    def mask_at(self, camera: str, u: float, v: float) -> tuple[int, str] | None:
-        """(mask track id, class name) of the topmost mask of ``camera`` covering pixel (u, v)
-        in the current frame, or None."""
-        from pycocotools import mask as rle
-
-        t = self.project.masks.table(camera)
-        sel = np.flatnonzero(t.frame == self.frame)
-        if not len(sel):
-            return None
-        col, row = int(u), int(v)
-        by_id = self.project.scene.class_by_id()
-        for i in sel[::-1]:  # later masks are painted over earlier ones
-            m = rle.decode({"size": [t.height, t.width], "counts": t.rles[i]})
-            if m[row, col]:
-                spec = by_id.get(int(t.class_id[i]))
-                return int(t.track_id[i]), spec.name if spec else self.new_class
-        return None
-
-    # --- reading ----------------------------------------------------------------------------------
-    def suggestions(self, threshold: float = 0.5) -> list[tuple[int, int, float]]:
-        """(track, frame, distance m) where a track's interpolation is more than ``threshold``
-        metres from the run's estimates (or, without a run, the masks' normal positions),
-        strongest first (annotate.review.suggest_keyframes)."""
-        from annotate.review import suggest_keyframes
-
-        source = "estimate" if getattr(self.project, "_run", None) is not None else "normal"
-        return [(s.track, s.frame, s.distance)
-                for s in suggest_keyframes(self.project, source=source, threshold=threshold)]
-
-    def track_rows(self) -> list[dict]:
-        """The track list: id, class, keyframes, span, interpolation, warnings (unchecked
-        estimates, keyframes off the ground points, and annotate.review's gaps and implausible
-        speeds or accelerations)."""
-        from annotate.review import plausibility_report
-
-        issues: dict[int, list[str]] = {}
-        for i in plausibility_report(self.project):
-            issues.setdefault(i.track, []).append(i.message)
-        out = []
-        for tid, t in sorted(self.project.tracks.items()):
-            warn = []
-            flags = [f for k in t.keyframes.values() for f in k.flags]
-            if "off_support" in flags:
-                warn.append(f"{flags.count('off_support')} off the ground points")
-            if "estimate" in flags:
-                warn.append(f"{flags.count('estimate')} unchecked estimates")
-            if len(t.keyframes) == 1:
-                warn.append("one keyframe")
-            warn += issues.get(tid, [])
-            out.append({"id": tid, "cls": t.cls, "keyframes": len(t.keyframes),
-                        "span": None if t.first is None else [t.first, t.last],
-                        "interp": self.project.interpolation(tid), "warnings": warn,
-                        "selected": tid == self.selected})
-        return out
-
-    def keyframe_rows(self) -> list[dict]:
-        if self.selected is None or self.selected not in self.project.tracks:
-            return []
-        t = self.project.track(self.selected)
-        return [{"frame": f, "x": k.x, "y": k.y, "heading_deg": math.degrees(k.heading),
-                 "heading_mode": "auto" if AUTO in k.flags else "set",
-                 "flags": [fl for fl in k.flags if fl != AUTO], "current": f == self.frame}
-                for f, k in sorted(t.keyframes.items())]
-
-    def panel(self) -> dict:
-        """Everything the panel shows, as plain data."""
-        with self.lock:
-            here = None
-            if self.selected in self.project.tracks:
-                t = self.project.track(self.selected)
-                src = "keyframe" if self.frame in t.keyframes else None
-                if src is None:
-                    tab = self.project.track_poses(t.id)
-                    hit = np.flatnonzero(tab.frame == self.frame)
-                    src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
-                here = src
-            no_video = [c for c, fr in sorted(self.video_frames.items()) if self.frame not in fr]
-            return {"scene": self.project.scene.name, "frame": self.frame, "no_video": no_video,
-                    "frame_range": list(self.frame_range), "selected": self.selected,
-                    "here": here, "click_mode": self.click_mode,
-                    "click_help": CLICK_MODE_HELP[self.click_mode], "new_class": self.new_class,
-                    "classes": [c.name for c in self.project.scene.classes], "every": self.every,
-                    "tracks": self.track_rows(), "keyframes": self.keyframe_rows(),
-                    "message": self.message, "read_only": self.read_only_reason,
-                    "last_click": self.last_click, "seq": self.project.seq,
-                    "viewer": self.viewer_state,
-                    "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
-                    "has_run": getattr(self.project, "_run", None) is not None,
-                    "actions": [a.__dict__ for a in ACTIONS]}

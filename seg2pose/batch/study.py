@@ -38,7 +38,7 @@ from typing import Callable
 
 from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
-from seg2pose.core.ray import MAX_RETRIES, import_ray
+from seg2pose.core.ray import MAX_RETRIES, import_ray, start_ray
 from seg2pose.io.atomic import atomic_write_text, is_temporary
 
 SUMMARY = "summary.json"
@@ -302,10 +302,8 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
     remote = remote_part = None
     if ray is not None:
         if not ray.is_initialized():
-            # no address: a Ray of this command's own ("local"), never a cluster that another
-            # command or user started on this machine; it ends with this command
-            ctx = ray.init(address=address or "local", num_cpus=None if address else cpus,
-                           include_dashboard=None, log_to_driver=False)
+            # no address: a Ray of this command's own, never another user's cluster
+            ctx = start_ray(ray, address, cpus, include_dashboard=None, log_to_driver=False)
             out.dashboard = getattr(ctx, "dashboard_url", None) or None
         out.backend = "ray"
         if out.dashboard:

@@ -13,7 +13,7 @@ import typer
 
 from seg2pose.batch.steps import LIBRARY_STEPS, run_dir, scene_inputs
 from seg2pose.batch.study import BATCH_DIR, BatchOptions, Step, format_summary, run_study
-from seg2pose.cli.common import BATCH, speaks_flags
+from seg2pose.cli.common import BATCH, Progress, speaks_flags
 from seg2pose.core.errors import InputError
 from seg2pose.core.ray import ray_available
 
@@ -93,7 +93,7 @@ def batch_cmd(
     serial: bool = typer.Option(False, "--serial/--no-serial", help="no Ray: run the scenes one after another here"),
     force: bool = typer.Option(False, "--force", help="masks-from-video: also replace masks the "
                                                       "scenes had before the study ran"),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
+    progress: Progress = True,
 ) -> None:
     """Run steps over every scene of a study folder, in parallel with Ray.
 

@@ -1,10 +1,14 @@
-"""What the command families share: the help panels of ``s2p --help`` and option parsers."""
+"""What the command families share: the help panels of ``s2p --help``, the options several
+commands take (``typing.Annotated`` aliases: ``progress: Progress = True``) and option parsers."""
 
 from __future__ import annotations
 
 import functools
 import inspect
-from typing import Callable
+import typing
+from typing import Annotated, Callable
+
+import typer
 
 from seg2pose.core.errors import InputError
 
@@ -15,6 +19,9 @@ REVIEW = "Review"
 ANNOTATION = "Annotation"
 BATCH = "Batch"
 SAFETY = "Safety"
+
+# options of several commands, one help text each
+Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="show progress bars")]
 
 
 def parse_frames(text: str | None) -> tuple[int, int] | None:
@@ -33,13 +40,26 @@ def parse_frames(text: str | None) -> tuple[int, int] | None:
     return a, b
 
 
+def _option_names(default, annotated: tuple) -> tuple[str, ...]:
+    """The names a parameter's option is declared with: in its default
+    (``x: int = typer.Option(0, "--x")``) or in an Annotated alias (``x: Progress = True``),
+    where typer reads the first positional argument of ``typer.Option`` as a name, not as the
+    default."""
+    for info in annotated:
+        if isinstance(info, typer.models.OptionInfo):
+            first = (info.default,) if isinstance(info.default, str) else ()
+            return first + tuple(info.param_decls or ())
+    return tuple(getattr(default, "param_decls", None) or ())
+
+
 def speaks_flags(command: Callable) -> Callable:
     """Wrap a command so that a library InputError about one of its parameters (raised with
     ``field`` = the parameter's name and no file) names the command-line option instead: the
     library speaks in parameters, the command layer in flags."""
     flags: dict[str, str] = {}
+    hints = typing.get_type_hints(command, include_extras=True)
     for p in inspect.signature(command).parameters.values():
-        decls = getattr(p.default, "param_decls", None) or ()
+        decls = _option_names(p.default, getattr(hints.get(p.name), "__metadata__", ()))
         longs = [d.split("/")[0] for d in decls if d.startswith("--")]
         flag = longs[0] if longs else "--" + p.name.replace("_", "-")
         flags[p.name] = flag

@@ -9,7 +9,7 @@ from typing import List, Literal, Optional
 import numpy as np
 import typer
 
-from seg2pose.cli.common import SCENE, speaks_flags
+from seg2pose.cli.common import SCENE, Progress, speaks_flags
 from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import check_writable
 
@@ -81,7 +81,7 @@ def synth(
     ids: Literal["road_user", "visit"] = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (as in the paper); visit: a new id for every pass"),
     match: Literal["center", "all"] = typer.Option("center", "--match", help="center: keep a mask only when the road user's true 3D centre projects inside it (the paper's association); all: every visible mask"),
     workers: Optional[int] = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
+    progress: Progress = True,
     force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (the new scene is built beside it and swapped in when complete)"),
 ) -> None:
     """Make a synthetic junction scene with ground truth (the paper's CARLA stand-in).

@@ -5,12 +5,42 @@ track ids and classes)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
+from typing import Annotated, List, Optional
 
 import typer
 
-from seg2pose.cli.common import SCENE, parse_frames, speaks_flags
+from seg2pose.cli.common import SCENE, Progress, parse_frames, speaks_flags
 from seg2pose.core.errors import InputError
+
+
+def _settings(what: str, section: str, keys: str):
+    """The ``--set KEY=VALUE`` option of a command whose settings ``what`` (with its article)
+    lie in scene.json ``extra.<section>``; ``keys``: the keys, in words."""
+    return Annotated[List[str], typer.Option(
+        "--set", help=f"{what} setting KEY=VALUE (repeatable), over scene.json extra.{section}: {keys}")]
+
+
+# the options the video commands share
+Cameras = Annotated[Optional[List[str]],
+                    typer.Option("--camera", help="only this camera (repeatable; default: all)")]
+Associate = Annotated[bool, typer.Option(
+    "--associate/--no-associate",
+    help="with two or more cameras: one track id per road user in every camera (s2p associate)")]
+ReplaceMasks = Annotated[bool, typer.Option("--force", help="replace an existing masks/<camera>.txt")]
+BackgroundSettings = _settings(
+    "a background-subtraction", "video_masks",
+    "method (mog2|knn), history, threshold, shadows, shadow_texture, texture_near (true|false), "
+    "init (mode|median|warmup|none), init_frames, init_samples, learning_rate, update "
+    "(selective|all|none), update_every, ghost_after, ghost_ratio, clean_start (true|false), "
+    "open_px, close_px, min_area, unsettled")
+TrackerSettings = _settings(
+    "a tracker", "tracker",
+    "iou_min, gate_m, gate_growth, max_gap, min_length, gap_penalty, split_min (default 0.5: "
+    "split a mask holding half of two tracks' predicted masks; 0: never)")
+AssociationSettings = _settings(
+    "an association", "associate",
+    "gate_m, height_sd, gate_sigmas, track_weight, class_cost, min_run, min_votes, "
+    "split_blobs (true|false)")
 
 
 def _pairs(items: list[str], what: str) -> dict:
@@ -47,8 +77,8 @@ def new_scene_cmd(
                                     help="a camera's video file or image folder, as NAME=PATH "
                                          "(repeat per camera); a single PATH names the camera c0"),
     calibration: Path = typer.Option(..., "--calibration",
-                                     help="calibration: JSON {\"cameras\": [{name, P or K/R/t, "
-                                          "[width, height], [distortion]}]} or a text file of "
+                                     help="calibration: JSON {\"cameras\": \\[{name, P or K/R/t, "
+                                          "optional width, height, distortion}]} or a text file of "
                                           "12 numbers (one camera's 3x4 P, row by row)"),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
@@ -72,24 +102,15 @@ def new_scene_cmd(
 
 def masks_from_video_cmd(
     scene: Path = typer.Argument(..., help="scene folder with video/<camera>.mp4 (or image folders)"),
-    camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
-    setting: List[str] = typer.Option([], "--set",
-                                      help="a background-subtraction setting KEY=VALUE (repeatable), "
-                                           "over scene.json extra.video_masks: method (mog2|knn), "
-                                           "history, threshold, shadows, shadow_texture, "
-                                           "texture_near (true|false), init (median|warmup|none), "
-                                           "init_frames, init_samples, learning_rate, update "
-                                           "(selective|all|none), update_every, ghost_after, "
-                                           "ghost_ratio, clean_start (true|false), open_px, "
-                                           "close_px, min_area, unsettled"),
+    camera: Cameras = None,
+    setting: BackgroundSettings = [],
     track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
     classes: bool = typer.Option(True, "--classes/--no-classes",
                                  help="give each track a class from its world size"),
     frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
-    force: bool = typer.Option(False, "--force", help="replace existing masks/<camera>.txt"),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
-    associate: bool = typer.Option(True, "--associate/--no-associate",
-                                   help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
+    force: ReplaceMasks = False,
+    progress: Progress = True,
+    associate: Associate = True,
 ) -> None:
     """Instance masks from a static camera's video by background subtraction.
 
@@ -106,18 +127,12 @@ def masks_from_video_cmd(
 
 def track_cmd(
     scene: Path = typer.Argument(..., help="scene folder whose masks/<camera>.txt lack track ids"),
-    camera: Optional[List[str]] = typer.Option(None, "--camera", help="only this camera (repeatable; default all)"),
-    setting: List[str] = typer.Option([], "--set",
-                                      help="a tracker setting KEY=VALUE (repeatable), over scene.json "
-                                           "extra.tracker: iou_min, gate_m, gate_growth, max_gap, "
-                                           "min_length, gap_penalty, split_min (default 0.5: split "
-                                           "a mask holding half of two tracks' predicted masks; "
-                                           "0: never)"),
+    camera: Cameras = None,
+    setting: TrackerSettings = [],
     classes: bool = typer.Option(False, "--classes/--no-classes",
                                  help="also give masks without a class one from their track's world size"),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="show a progress bar"),
-    associate: bool = typer.Option(True, "--associate/--no-associate",
-                                   help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
+    progress: Progress = True,
+    associate: Associate = True,
 ) -> None:
     """Give track ids to masks that have none.
 
@@ -132,12 +147,8 @@ def track_cmd(
 
 def associate_cmd(
     scene: Path = typer.Argument(..., help="scene folder with masks/<camera>.txt of several cameras"),
-    camera: Optional[List[str]] = typer.Option(None, "--camera", help="only these cameras (repeatable; default all)"),
-    setting: List[str] = typer.Option([], "--set",
-                                      help="an association setting KEY=VALUE (repeatable), over "
-                                           "scene.json extra.associate: gate_m, height_sd, "
-                                           "gate_sigmas, track_weight, class_cost, min_run, "
-                                           "min_votes, split_blobs (true|false)"),
+    camera: Cameras = None,
+    setting: AssociationSettings = [],
     force: bool = typer.Option(False, "--force", help="associate masks that are associated already"),
 ) -> None:
     """Give one road user the same track id in every camera.
@@ -163,9 +174,8 @@ def import_detections_cmd(
                                        help="keep a bicycle without a rider as a bicyclist"),
     frame_offset: int = typer.Option(0, "--frame-offset",
                                      help="added to every frame number (e.g. -1 when image ids start at 1)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing masks/<camera>.txt"),
-    associate: bool = typer.Option(True, "--associate/--no-associate",
-                                   help="with two or more cameras: one track id per road user in every camera (s2p associate)"),
+    force: ReplaceMasks = False,
+    associate: Associate = True,
 ) -> None:
     """Masks from a detector's COCO output (Mask R-CNN, Detectron2, YOLO-seg...).
 

@@ -23,18 +23,26 @@ def ray_available() -> bool:
     return import_ray() is not None
 
 
+def start_ray(ray, address: str | None, num_cpus: int | None, **kwargs):
+    """``ray.init`` for a command: the cluster at ``address`` when the user named one, else a
+    Ray of this process's own (address "local", ``num_cpus`` CPUs, default all) that ends with
+    it, never a cluster that another command or user started on this machine (which a plain
+    ``ray.init()`` would join). ``kwargs`` go to ``ray.init``; returns its context."""
+    return ray.init(address=address or "local", num_cpus=None if address else num_cpus, **kwargs)
+
+
 def ray_map(address: str | None = None, num_cpus: int | None = None):
     """A ``map(fn, items)`` that runs each item as a Ray task (retried when its worker dies)
     and returns the results in order: for ``train_scene(map_groups=...)`` (``s2p train
-    --parallel/--address``). Starts a local Ray (``num_cpus``) or joins ``address`` unless Ray
-    is running already."""
+    --parallel/--address``). Starts a Ray of its own with ``num_cpus`` CPUs or joins the
+    cluster at ``address`` (``start_ray``), unless this process has started Ray already."""
     ray = import_ray()
     if ray is None:
         raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
 
     def mapper(fn, items):
         if not ray.is_initialized():
-            ray.init(address=address, num_cpus=None if address else num_cpus, log_to_driver=True)
+            start_ray(ray, address, num_cpus, log_to_driver=True)
         remote = ray.remote(max_retries=MAX_RETRIES)(fn)
         return ray.get([remote.remote(x) for x in items])
 

@@ -8,6 +8,9 @@ A run folder is the contract between ``s2p run`` (pipeline), evaluation, review 
                      "epoch", "seed"), "split", "frame_range", "created", "n_frames",
                      "n_views", "n_poses"}
     RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
+    RUN/track_heights.csv  (runs with --track-heights) track_id,class,default_height,height,
+                    n_views: the height fitted per road user; run.json's "track_heights" holds
+                    the settings, views.csv the normal positions at those heights
     RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
                     (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
                     Seg2PoseNet residual, metres, 0 for the baseline), then (runs since r90_m)

@@ -344,12 +344,20 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
               track_ids: dict | None = None, r90_path: Path | None = None) -> Path:
     """Fuse per-view estimates (``opts.smooth``, ``opts.confirm``: see ``fuse``; a confirm of
     None counts as 0) and write the run folder (poses.csv, views.csv, run.json, and flagged.csv
-    when the residuals were checked). ``track_ids``: how the ids were made
+    when the residuals were checked; with ``opts.track_heights`` the views' normal positions are
+    first moved to each track's fitted height, and track_heights.csv lists the heights). ``track_ids``: how the ids were made
     (``check_track_ids``), recorded in run.json; ``r90_path``: the error bars' calibration
     (``seg2pose.method.uncertainty``; None: r90_m stays NaN)."""
     run_dir = Path(run_dir)
     confirm = opts.confirm or 0.0
     smooth = opts.smooth
+    extra = {}
+    th_meta = None
+    if opts.track_heights:
+        from seg2pose.method import track_heights as th
+
+        views, th_meta, extra["track_heights.csv"] = th.apply_track_heights(scene, views,
+                                                                            th.DEFAULT_SETTINGS)
     cal, r90_meta = None, {"calibration": None}
     if r90_path is not None and views.cues is not None:
         from seg2pose.method.uncertainty import read_calibration, view_r90
@@ -373,8 +381,8 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
                        smooth),
             **({"track_ids": track_ids} if track_ids else {}),
             **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
+            **({"track_heights": th_meta} if th_meta is not None else {}),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses), "r90": r90_meta}
-    extra = {}
     if far is not None and models is not None:
         meta["far_residuals"], text = far.summary()
         if text is not None:
@@ -455,6 +463,8 @@ class RunOptions:
     confirm: float | None = None
     # the error bars' calibration (None: the default one, ``default_r90_path``, where it exists)
     r90: str | Path | None = None
+    # one height per tracked road user fitted before fusion (``seg2pose.method.track_heights``)
+    track_heights: bool = False
 
 
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:

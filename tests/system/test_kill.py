@@ -4,7 +4,7 @@ annotate export's gt + MCAP + layout + CSV, all old or all new), and beside them
 next writer cleans up. ``batch`` is killed and re-run without --force: the re-run ends with
 the uninterrupted run's outputs (on Ray: the driver killed, its local Ray ends with it, the
 re-run serial). 10 kills per command of issue 24 and 4 per command of issue 10 (seeded), each
-command forked from one Python that has imported s2p (tests/kill_harness.py);
+command forked from one Python that has imported s2p (tests/command_zygote.py);
 benches/bench_faults.py does 100-300 per command."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kill_harness import build_cases, build_writer_cases
+from kill_cases import build_cases, build_writer_cases
 
 KILLS_PER_COMMAND = 10
 KILLS_FIRST = 4  # issue 10's five: 200 each in benches/bench_faults.py, unchanged since

@@ -183,29 +183,33 @@ def _files(root):
             and "annotations" not in p.parts}
 
 
-def test_annotate_export_refuses_before_writing_anything(annotated, monkeypatch, capsys):
-    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", annotated, "--force")
-    assert code == 0, err
+@pytest.fixture
+def exported_then_edited(annotated, monkeypatch, capsys):
+    """The annotated scene exported once (``annotate export --force``), then a keyframe added:
+    (scene folder, its files but the journal's), so that a second export has something new
+    to write over the first one's set."""
     from annotate import Project
 
+    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", annotated, "--force")
+    assert code == 0, err
     with Project.open(annotated) as p:
         p.set_keyframe(1, 15, 1.0, -1.5, heading=0.0)
-    before = _files(annotated)
+    return annotated, _files(annotated)
+
+
+def test_annotate_export_refuses_before_writing_anything(exported_then_edited, monkeypatch,
+                                                         capsys):
+    annotated, before = exported_then_edited
     code, _, err = s2p(monkeypatch, capsys, "annotate", "export", annotated)
     assert code == 2 and err.count("\n") == 1 and "exists; pass --force" in err
     assert _files(annotated) == before  # gt/poses.csv not written beside the old MCAP and CSV
 
 
-def test_annotate_export_swaps_the_set_in_together(annotated, monkeypatch, capsys):
+def test_annotate_export_swaps_the_set_in_together(exported_then_edited, monkeypatch):
     import seg2pose.io.tanalyst as T
-
-    code, _, err = s2p(monkeypatch, capsys, "annotate", "export", annotated, "--force")
-    assert code == 0, err
     from annotate import Project
 
-    with Project.open(annotated) as p:
-        p.set_keyframe(1, 15, 1.0, -1.5, heading=0.0)
-    before = _files(annotated)
+    annotated, before = exported_then_edited
     monkeypatch.setattr(T, "write_tanalyst", _boom)  # the last output of the set fails
     with pytest.raises(RuntimeError, match="killed here"):
         from seg2pose.cli.annotation import export_set
@@ -247,6 +251,7 @@ def _kill_at_swap(n, outs, news):
     (os._exit, as SIGKILL: nothing cleaned up) just before the n-th rename or exchange of its
     commit. Returns the child's exit code (0: the commit had fewer than n renames)."""
     import seg2pose.io.atomic as A
+    import seg2pose.io.atomic_set as AS
 
     pid = os.fork()
     if pid == 0:
@@ -265,7 +270,7 @@ def _kill_at_swap(n, outs, news):
                         return f(*a, **k)
                     return g
                 os.replace, os.rename = counted(os.replace), counted(os.rename)
-                A._exchange = counted(A._exchange)
+                AS.exchange = counted(AS.exchange)
         except BaseException:
             code = 3
         finally:
@@ -360,7 +365,7 @@ def test_import_mcap_force_replaces_its_outputs_as_one_set(annotated, tmp_path, 
 def test_batch_resumes_after_a_kill_while_the_masks_are_written(tmp_path):
     """SIGKILL the serial batch the moment masks/c0.txt appears (on the old code: a stage's
     file with class 0), then re-run without --force: it completes."""
-    from kill_harness import zygote
+    from command_zygote import zygote
     from seg2pose.io.scene import load_scene
     from seg2pose.video.video_scene import new_scene
 

@@ -109,6 +109,24 @@ def test_library_field_becomes_the_flag():
         wrapped(rig="file")
 
 
+def test_library_field_becomes_the_flag_of_a_shared_option(monkeypatch):
+    """The same for options declared by a shared Annotated alias (``setting: TrackerSettings
+    = []``), where typer reads Option's first argument as the option's name: ``setting`` is
+    spoken of as --set, ``progress`` as --progress."""
+    import seg2pose.video.video_scene as VS
+    from seg2pose.cli.common import speaks_flags
+    from seg2pose.cli.video import track_cmd
+    from seg2pose.core.errors import InputError
+
+    def refuse(*a, tracker, **k):
+        raise InputError("bad", field=tracker["field"])
+    monkeypatch.setattr(VS, "scene_track", refuse)
+    wrapped = speaks_flags(track_cmd)
+    for field, flag in (("setting", "--set"), ("progress", "--progress"), ("classes", "--classes")):
+        with pytest.raises(InputError, match=f"^field '{flag}': bad$"):
+            wrapped("sc", None, [f"field={field}"], False, True, True)
+
+
 def typer_option(*decls):
     import typer
 

@@ -1,0 +1,88 @@
+"""What the annotation app's panel shows (``PanelData``, a mixin of ``Controller``): the track
+list with its warnings, the selected track's keyframes, suggested keyframes, and ``panel()``,
+all of it as plain data (the page's ``annotate.app.panel`` renders it). Reads the controller's
+``project``, ``frame``, ``selected`` and page state; changes nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from annotate.app.actions import ACTIONS, CLICK_MODE_HELP
+from annotate.headings import AUTO
+
+
+class PanelData:
+    """The panel's rows and state (see the module docstring)."""
+
+    def suggestions(self, threshold: float = 0.5) -> list[tuple[int, int, float]]:
+        """(track, frame, distance m) where a track's interpolation is more than ``threshold``
+        metres from the run's estimates (or, without a run, the masks' normal positions),
+        strongest first (annotate.review.suggest_keyframes)."""
+        from annotate.review import suggest_keyframes
+
+        source = "estimate" if getattr(self.project, "_run", None) is not None else "normal"
+        return [(s.track, s.frame, s.distance)
+                for s in suggest_keyframes(self.project, source=source, threshold=threshold)]
+
+    def track_rows(self) -> list[dict]:
+        """The track list: id, class, keyframes, span, interpolation, warnings (unchecked
+        estimates, keyframes off the ground points, and annotate.review's gaps and implausible
+        speeds or accelerations)."""
+        from annotate.review import plausibility_report
+
+        issues: dict[int, list[str]] = {}
+        for i in plausibility_report(self.project):
+            issues.setdefault(i.track, []).append(i.message)
+        out = []
+        for tid, t in sorted(self.project.tracks.items()):
+            warn = []
+            flags = [f for k in t.keyframes.values() for f in k.flags]
+            if "off_support" in flags:
+                warn.append(f"{flags.count('off_support')} off the ground points")
+            if "estimate" in flags:
+                warn.append(f"{flags.count('estimate')} unchecked estimates")
+            if len(t.keyframes) == 1:
+                warn.append("one keyframe")
+            warn += issues.get(tid, [])
+            out.append({"id": tid, "cls": t.cls, "keyframes": len(t.keyframes),
+                        "span": None if t.first is None else [t.first, t.last],
+                        "interp": self.project.interpolation(tid), "warnings": warn,
+                        "selected": tid == self.selected})
+        return out
+
+    def keyframe_rows(self) -> list[dict]:
+        if self.selected is None or self.selected not in self.project.tracks:
+            return []
+        t = self.project.track(self.selected)
+        return [{"frame": f, "x": k.x, "y": k.y, "heading_deg": math.degrees(k.heading),
+                 "heading_mode": "auto" if AUTO in k.flags else "set",
+                 "flags": [fl for fl in k.flags if fl != AUTO], "current": f == self.frame}
+                for f, k in sorted(t.keyframes.items())]
+
+    def panel(self) -> dict:
+        """Everything the panel shows, as plain data."""
+        with self.lock:
+            here = None
+            if self.selected in self.project.tracks:
+                t = self.project.track(self.selected)
+                src = "keyframe" if self.frame in t.keyframes else None
+                if src is None:
+                    tab = self.project.track_poses(t.id)
+                    hit = np.flatnonzero(tab.frame == self.frame)
+                    src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
+                here = src
+            no_video = [c for c, fr in sorted(self.video_frames.items()) if self.frame not in fr]
+            return {"scene": self.project.scene.name, "frame": self.frame, "no_video": no_video,
+                    "frame_range": list(self.frame_range), "selected": self.selected,
+                    "here": here, "click_mode": self.click_mode,
+                    "click_help": CLICK_MODE_HELP[self.click_mode], "new_class": self.new_class,
+                    "classes": [c.name for c in self.project.scene.classes], "every": self.every,
+                    "tracks": self.track_rows(), "keyframes": self.keyframe_rows(),
+                    "message": self.message, "read_only": self.read_only_reason,
+                    "last_click": self.last_click, "seq": self.project.seq,
+                    "viewer": self.viewer_state,
+                    "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
+                    "has_run": getattr(self.project, "_run", None) is not None,
+                    "actions": [a.__dict__ for a in ACTIONS]}
