@@ -10,7 +10,9 @@ Per configuration, every step is the ``s2p`` command a user types (printed as it
 ``s2p run --split val`` on each tuning scene, one ``s2p calibrate`` on all those runs, then
 ``s2p run --split test --r90`` and ``s2p eval --json`` on each held-out scene. Without ``--models`` the runs are the
 baseline; ``--models`` repeated gives an ensemble (its spread is a cue). ``--own-val``: also
-calibrate on each held-out scene's own val split. Finished steps are kept (resumable).
+calibrate on each held-out scene's own val split. Finished steps are kept (resumable). The
+scenes are used as given: docs/RESULTS.md runs ``s2p heights`` on each first (the paper's
+baseline).
 Writes OUT/r90.json and prints a table.
 """
 

@@ -3,7 +3,8 @@ inverse, so that ``mcap_import`` restores the run exactly what ``mcap_export`` w
 
     /s2p/poses   {"frame", "rows": [{frame, track_id, class, x, y, z, heading, l, w, h[, source]
                  [, r90_m]}]}   (r90_m: the pose's error bar, metres; null for NaN)
-    /s2p/views   {"frame", "columns": ["row", *VIEW_COLUMNS[, *CUE_COLUMNS]], "rows": [[row, ...], ...]}
+    /s2p/views   {"frame", "columns": ["row", *VIEW_COLUMNS[, *CUE_COLUMNS[, *BOX_COLUMNS]]],
+                  "rows": [[row, ...], ...]}
 
 Floats are written with Python's shortest exact repr; JSON has no NaN, so null stands for it.
 """
@@ -16,7 +17,7 @@ from typing import Iterator
 import numpy as np
 
 from seg2pose.io.poses import PoseTable
-from seg2pose.io.run import CUE_COLUMNS, VIEW_COLUMNS, ViewTable
+from seg2pose.io.run import BOX_COLUMNS, CUE_COLUMNS, VIEW_COLUMNS, ViewTable
 
 POSES_TOPIC = "/s2p/poses"
 VIEWS_TOPIC = "/s2p/views"
@@ -91,13 +92,15 @@ def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:
     """(frame, /s2p/views message) per frame; each row carries its row number in the table so
     the import restores the file's order."""
     cues = v.cues is not None
+    box = v.box is not None
     for idx in split_by_frame(v.frame):
         f = int(v.frame[idx[0]])
         rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
                  *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i],
-                                    *((*v.cues[i], v.r90[i]) if cues else ()))]] for i in idx]
-        yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS + (CUE_COLUMNS if cues else []),
-                  "rows": rows}
+                                    *((*v.cues[i], v.r90[i]) if cues else ()),
+                                    *(v.box[i] if box else ()))]] for i in idx]
+        yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS + (CUE_COLUMNS if cues else [])
+                  + (BOX_COLUMNS if box else []), "rows": rows}
 
 
 def views_table(messages: list[dict]) -> ViewTable:
@@ -106,9 +109,12 @@ def views_table(messages: list[dict]) -> ViewTable:
     rows = sorted((r for m in messages for r in m["rows"]), key=lambda r: r[0])
     if not rows:
         return ViewTable.empty()
-    cues = all(len(m.get("columns", ())) == 1 + len(VIEW_COLUMNS) + len(CUE_COLUMNS)
-               for m in messages)
-    nums = np.array([[unnum(x) for x in r[5:16 if cues else 12]] for r in rows], float)
+    n_cols = [len(m.get("columns", ())) - 1 - len(VIEW_COLUMNS) for m in messages]
+    cues = all(k >= len(CUE_COLUMNS) for k in n_cols)
+    box = all(k == len(CUE_COLUMNS) + len(BOX_COLUMNS) for k in n_cols)
+    nums = np.array([[unnum(x) for x in r[5:(20 if box else 16) if cues else 12]] for r in rows],
+                    float)
     return ViewTable([r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
                      [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7],
-                     nums[:, 7:10] if cues else None, nums[:, 10] if cues else None)
+                     nums[:, 7:10] if cues else None, nums[:, 10] if cues else None,
+                     nums[:, 11:15] if box else None)

@@ -1,8 +1,11 @@
 """``s2p demo``: the whole method end to end on a small synthetic junction.
 
-generate a scene -> default heights by bisection (3.2) -> train lite Seg2PoseNet models (or
-reuse the ones an earlier demo trained) -> run the baseline and Seg2PoseNet on the test split
--> evaluate -> write the sample recording (.rrd) and MCAP export -> print where it all went.
+generate a scene -> default heights by bisection (3.2) -> pick the Seg2PoseNet models: the ones
+the package ships (``seg2pose.training.demo_models``: the held-out protocol's, trained by the
+project on another scene of the same junction and device), or with ``--retrain`` lite models
+trained now on this scene's train split -> run the baseline and Seg2PoseNet on the test split
+-> evaluate (the table says which models) -> write the sample recording (.rrd) and MCAP export
+-> print where it all went.
 
 The demo owns its outputs (the scene folder it made and ``sample_logs/``) and rewrites them on
 every run; it never touches anything else.
@@ -42,8 +45,6 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     from seg2pose.io.scene import load_scene
     from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.synth import SynthOptions, generate_scene
-    from seg2pose.training.config import TrainConfig
-    from seg2pose.training.train import train_scene
 
     t0 = time.perf_counter()
     summary: dict = {"scene": str(scene_dir)}
@@ -65,13 +66,8 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     from seg2pose.method.heights import update_default_heights
     update_default_heights(scene, split="train", log=typer.echo)  # saved, and set on scene
 
-    models = scene_dir / "models"
-    have = sorted(models.glob("*.safetensors")) if models.exists() else []
-    if have and not retrain:
-        _step(f"reusing {len(have)} Seg2PoseNet checkpoints in {models} (--retrain to train again)")
-    else:
-        _step("training lite Seg2PoseNet models (short CPU protocol)")
-        train_scene(scene, models, TrainConfig.demo(), progress=True)
+    models, used = choose_models(scene, scene_dir / "models", retrain)
+    summary["models"], summary["models_dir"] = used, [str(m) for m in models]
 
     gt = read_poses(scene.gt_path)
     test = scene.split_range("test")
@@ -96,6 +92,11 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
                "the test frames; not counted: " + ", ".join(
                    f"{n} seen by no camera of {cfg}" for cfg, n in unseen.items()))
     summary["mean_error"] = {k: r.mean_error for k, r in results.items()}
+    summary["ratio"] = {cfg: results[f"{cfg} Seg2PoseNet"].mean_error
+                        / results[f"{cfg} baseline"].mean_error for cfg in DEMO_CONFIGS}
+    typer.secho("Seg2PoseNet / baseline mean error: " + ", ".join(
+        f"{cfg} {r:.2f}x" for cfg, r in summary["ratio"].items()), bold=True)
+    typer.echo(f"Seg2PoseNet models: {used}")
 
     if record:
         from s2p_review.mcap_export import ExportOptions, export_mcap
@@ -126,13 +127,43 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
 
     typer.echo("")
     typer.secho(f"demo finished in {time.perf_counter() - t0:.0f} s. Outputs:", bold=True)
-    typer.echo(f"  scene folder       {scene_dir}/ (scene.json, masks/, gt/, models/)")
+    typer.echo(f"  scene folder       {scene_dir}/ (scene.json, masks/, gt/)")
+    typer.echo(f"  Seg2PoseNet models {', '.join(f'{m}/' for m in models)}")
     typer.echo(f"  pose tracks        {scene_dir}/out/run-*/poses.csv (+ views.csv per view)")
     if record:
         typer.echo(f"  Rerun recording    {summary['rrd']}   open with:  rerun {summary['rrd']}")
         typer.echo(f"  MCAP export        {summary['mcap']}  open in Foxglove with the layout "
                    f"{Path(summary['mcap']).with_suffix('.layout.json')}")
     return summary
+
+
+def choose_models(scene, trained_dir: Path, retrain: bool,
+                  shipped: Path | None = None) -> tuple[list[Path], str]:
+    """The Seg2PoseNet models the demo runs: (model folders, averaged when several; one line
+    naming them for the table). By default the shipped ones (``shipped``, default
+    ``demo_models.SHIPPED``); when they do not fit the scene (one warning line says why), or
+    with ``retrain``, lite models trained on this scene's train split into ``trained_dir``
+    (``--protocol demo``: about 2 minutes; an earlier demo's finished ones are reused unless
+    ``retrain``)."""
+    from seg2pose.training import demo_models
+    from seg2pose.training.config import TrainConfig, TrainSettings
+    from seg2pose.training.train import train_scene
+
+    shipped = demo_models.SHIPPED if shipped is None else Path(shipped)
+    if not retrain:
+        problem = demo_models.fit_problem(scene, shipped)
+        if problem is None:
+            used = demo_models.describe(demo_models.read_manifest(shipped))
+            _step(f"using the {used}, from {shipped} (--retrain: train on this scene instead)")
+            return demo_models.model_folders(shipped), used
+        typer.secho(f"warning: the shipped Seg2PoseNet models do not fit this scene ({problem}); "
+                    "training lite models on it instead", fg=typer.colors.YELLOW, err=True)
+    _step(f"training lite Seg2PoseNet models on this scene's train split (--protocol demo, "
+          f"about 2 minutes) -> {trained_dir}")
+    train_scene(scene, trained_dir, TrainConfig.demo(), progress=True,
+                settings=TrainSettings(force=retrain))
+    return [trained_dir], (f"lite models trained on this scene's train split ({trained_dir}, "
+                           "--protocol demo)")
 
 
 def register(app: typer.Typer) -> None:
@@ -143,11 +174,16 @@ def demo(
     scene: Path = typer.Option(DEMO_SCENE, "--scene", help="where the demo's synthetic scene goes"),
     out: Path = typer.Option(SAMPLE_LOGS, "-o", "--out", help="where the sample recording (demo.rrd) and export (demo.mcap) go"),
     seed: int = typer.Option(0, "--seed", help="seed of the synthetic scene"),
-    retrain: bool = typer.Option(False, "--retrain/--no-retrain", help="train again even if trained models exist"),
+    retrain: bool = typer.Option(False, "--retrain/--no-retrain", help=(
+        "instead of the shipped models (the held-out protocol's, trained by the project on "
+        "bench seeds 7 and 8; remade by `python -m seg2pose.training.demo_models`), train lite models "
+        "afresh on this scene's train split, about 2 minutes (--protocol demo; weaker, about "
+        "0.8x the baseline's error)")),
     record: bool = typer.Option(True, "--record/--no-record", help="write the sample recording and export"),
 ) -> None:
     """Run Seg2Pose end to end on a small synthetic junction.
 
-    Generates a scene, trains (or reuses) lite Seg2PoseNet models, runs the baseline and
-    Seg2PoseNet, prints the error table, and writes a Rerun recording and an MCAP export."""
+    Generates a scene, runs the baseline and Seg2PoseNet (the models the package ships, or
+    with --retrain lite ones trained on the scene), prints the error table and which models
+    it used, and writes a Rerun recording and an MCAP export."""
     run_demo(scene, out, seed=seed, retrain=retrain, record=record)

@@ -28,6 +28,11 @@ SPARSE_HELP = ("exact sparse inference on the CPU: the network's convolutions on
                "mask (the same result, 3-30x faster)")
 SMOOTH_HELP = ("smooth each tracked road user's positions over this many frames either side "
                "(a line fitted per window; 0: every frame on its own, the paper's method)")
+TRACK_HEIGHTS_HELP = ("fit one height per tracked road user from where the cameras disagree on "
+                      "it (positions at the true height coincide: lenses of one device by their "
+                      "parallax, cameras on other poles far more) and put its positions there, "
+                      "before fusion; one camera keeps the class defaults. Heights in "
+                      "RUN/track_heights.csv; docs/RESULTS.md, \"Track consistency\"")
 MODELS_HELP = ("folder of trained models (default: SCENE/models); repeat it to average the "
                "models of several folders")
 
@@ -50,6 +55,7 @@ def run_cmd(
     force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
     confirm: Optional[float] = typer.Option(None, "--confirm", min=0.0, max=1.0, help="keep a fused pose only when at least this share of the configuration's cameras that see its place report it (default 0.5 for associated ids, else 0: off)"),
     fuse_unassociated: bool = typer.Option(False, "--fuse-unassociated", help="fuse cameras whose track ids are each camera's own tracker's (refused otherwise: run s2p associate first)"),
+    track_heights: bool = typer.Option(False, "--track-heights/--no-track-heights", help=TRACK_HEIGHTS_HELP),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
 
@@ -65,7 +71,8 @@ def run_cmd(
     d = run_scene(load_scene(scene), out, RunOptions(config=config, baseline=baseline, models_dir=models,
                   split=split, force=force, center_method=center, arch=arch, device=device,
                   allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals,
-                  fuse_unassociated=fuse_unassociated, confirm=confirm, r90=r90))
+                  fuse_unassociated=fuse_unassociated, confirm=confirm, r90=r90,
+                  track_heights=track_heights))
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")

@@ -8,13 +8,18 @@ A run folder is the contract between ``s2p run`` (pipeline), evaluation, review 
                      "epoch", "seed"), "split", "frame_range", "created", "n_frames",
                      "n_views", "n_poses"}
     RUN/poses.csv   fused poses: frame,track_id,class,x,y,z,heading,l,w,h (metres, radians)
+    RUN/track_heights.csv  (runs with --track-heights) track_id,class,default_height,height,
+                    n_views: the height fitted per road user; run.json's "track_heights" holds
+                    the settings, views.csv the normal positions at those heights
     RUN/views.csv   one row per detection per view: frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy
                     (u, v mask centre in pixels; xn, yn, zn normal position, metres; dx, dy the
                     Seg2PoseNet residual, metres, 0 for the baseline), then (runs since r90_m)
                     cut,far,spread_m,r90_m: the mask touches the image border (0/1), the
                     residual was flagged far (0/1), the spread of an ensemble's residuals
                     (metres, 0 for one model) and the view's error bar (metres, 90 %; NaN
-                    without a calibration; ``seg2pose.method.uncertainty``)
+                    without a calibration; ``seg2pose.method.uncertainty``), then (runs since
+                    the size cue) box_x0,box_y0,box_x1,box_y1: the mask's bounding box, pixels
+                    (x1, y1 exclusive; NaN for an empty mask)
 
 The folder is written as a unit (``write_run_folder``): the files go into a temporary sibling
 folder, are flushed to disk, and the folder is renamed into place, so a reader never sees a mix
@@ -44,6 +49,7 @@ POSES_FILE = "poses.csv"
 VIEWS_FILE = "views.csv"
 VIEW_COLUMNS = ["frame", "track_id", "camera", "class", "u", "v", "xn", "yn", "zn", "dx", "dy"]
 CUE_COLUMNS = ["cut", "far", "spread_m", "r90_m"]  # optional: files without them stay valid
+BOX_COLUMNS = ["box_x0", "box_y0", "box_x1", "box_y1"]  # optional, after CUE_COLUMNS
 
 
 # ----------------------------------------------------------------------------------------------
@@ -57,7 +63,9 @@ class ViewTable:
     missed the ground); residual: (N, 2) Seg2PoseNet residuals, metres (0 for the baseline);
     cues: (N, 3) what the error bar is estimated from -- mask cut by the image border (0/1),
     residual flagged far (0/1), ensemble spread (metres) -- and r90: (N,) the view's error bar,
-    metres; both None for a views.csv without them."""
+    metres; both None for a views.csv without them. box: (N, 4) the mask's bounding box
+    x0, y0, x1, y1, pixels (NaN for an empty mask); None for a views.csv without it (it needs
+    the cues)."""
 
     frame: np.ndarray
     track_id: np.ndarray
@@ -68,9 +76,14 @@ class ViewTable:
     residual: np.ndarray
     cues: np.ndarray | None = None
     r90: np.ndarray | None = None
+    box: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.frame = np.asarray(self.frame, dtype=np.int64).reshape(-1)
+        if self.box is not None:
+            if self.cues is None:
+                raise ValueError("ViewTable: box needs the cues")
+            self.box = np.asarray(self.box, dtype=np.float64).reshape(-1, 4)
         if self.cues is not None:
             self.cues = np.asarray(self.cues, dtype=np.float64).reshape(-1, 3)
             self.r90 = (np.full(len(self.cues), np.nan) if self.r90 is None
@@ -86,7 +99,8 @@ class ViewTable:
         n = len(self.frame)
         if not all(len(c) == n for c in (self.track_id, self.camera, self.cls, self.uv,
                                          self.normal, self.residual)) or (
-                self.cues is not None and not len(self.cues) == len(self.r90) == n):
+                self.cues is not None and not len(self.cues) == len(self.r90) == n) or (
+                self.box is not None and len(self.box) != n):
             raise ValueError("ViewTable columns differ in length")
 
     def __len__(self) -> int:
@@ -96,7 +110,8 @@ class ViewTable:
         return ViewTable(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
                          self.uv[idx], self.normal[idx], self.residual[idx],
                          None if self.cues is None else self.cues[idx],
-                         None if self.cues is None else self.r90[idx])
+                         None if self.cues is None else self.r90[idx],
+                         None if self.box is None else self.box[idx])
 
     def sorted(self) -> "ViewTable":
         """Rows by frame, track id, camera (the order ``s2p run`` writes)."""
@@ -120,6 +135,8 @@ class ViewTable:
                 for k in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual")]
         if all(t.cues is not None for t in tables):
             cols += [np.concatenate([t.cues for t in tables]), np.concatenate([t.r90 for t in tables])]
+            if all(t.box is not None for t in tables):
+                cols.append(np.concatenate([t.box for t in tables]))
         return cls(*cols)
 
 
@@ -127,9 +144,11 @@ def format_views(table: ViewTable) -> str:
     """views.csv text, rows in the table's order; floats with ``repr`` (exact round trip)."""
     buf = io.StringIO()
     cues = table.cues is not None
-    buf.write(",".join(VIEW_COLUMNS + (CUE_COLUMNS if cues else [])) + "\n")
+    box = table.box is not None
+    buf.write(",".join(VIEW_COLUMNS + (CUE_COLUMNS if cues else []) + (BOX_COLUMNS if box else []))
+              + "\n")
     num = np.column_stack([table.uv, table.normal, table.residual]
-                          + ([table.cues, table.r90] if cues else []))
+                          + ([table.cues, table.r90] if cues else []) + ([table.box] if box else []))
     for i in range(len(table)):
         buf.write(f"{table.frame[i]},{table.track_id[i]},{table.camera[i]},{table.cls[i]},"
                   + ",".join(repr(float(x)) for x in num[i]) + "\n")
@@ -143,9 +162,11 @@ def read_views(path: str | Path) -> ViewTable:
         raise InputError("views file not found", file=path)
     with open(path, encoding="utf-8") as f:
         header = [h.strip() for h in f.readline().strip().split(",")]
-        if header not in (VIEW_COLUMNS, VIEW_COLUMNS + CUE_COLUMNS):
-            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}[,{','.join(CUE_COLUMNS)}], "
-                             f"got {','.join(header)}", file=path, line=1)
+        if header not in (VIEW_COLUMNS, VIEW_COLUMNS + CUE_COLUMNS,
+                          VIEW_COLUMNS + CUE_COLUMNS + BOX_COLUMNS):
+            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}[,{','.join(CUE_COLUMNS)}"
+                             f"[,{','.join(BOX_COLUMNS)}]], got {','.join(header)}", file=path,
+                             line=1)
         lines = f.read().splitlines()
     rows = [ln.split(",") for ln in lines if ln.strip()]
     linenos = [i + 2 for i, ln in enumerate(lines) if ln.strip()]
@@ -178,9 +199,20 @@ def read_views(path: str | Path) -> ViewTable:
         if bad.any():
             raise InputError("cut and far must be 0 or 1, spread_m and r90_m metres >= 0 (r90_m "
                              "may be nan)", file=path, line=linenos[int(np.argmax(bad))])
+    box = nums[:, 11:15] if nums.shape[1] > 11 else None
+    if box is not None:
+        # a box is all NaN (empty mask) or finite with x0 <= x1, y0 <= y1
+        nan = np.isnan(box).all(axis=1)
+        bad = ~nan & ~(np.isfinite(box).all(axis=1) & (box[:, 2] >= box[:, 0])
+                       & (box[:, 3] >= box[:, 1]))
+        if bad.any():
+            raise InputError("box_x0,box_y0,box_x1,box_y1 must be pixels with x0 <= x1 and "
+                             "y0 <= y1 (all nan for an empty mask)", file=path,
+                             line=linenos[int(np.argmax(bad))])
     return ViewTable(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
                      np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
-                     nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None)
+                     nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None,
+                     box)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -173,6 +173,13 @@ class Scene:
              "ground": np.round(self.ground_points, 6).tolist()}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
+    def cameras_fingerprint(self) -> str:
+        """A short hash of the calibration alone: what a model made for a camera device rather
+        than for one scene (the demo's shipped models) records, so that another device's
+        cameras are noticed while another scene of the same device is not."""
+        d = {"cameras": [c.to_dict() for c in self.cameras.values()]}
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
     # --- serialisation ---------------------------------------------------------------------------
     def to_dict(self) -> dict:
         d = {"version": SCENE_VERSION, "name": self.name, "fps": self.fps,

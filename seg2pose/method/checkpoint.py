@@ -3,8 +3,9 @@
 A checkpoint is ``MODELS/<camera>__<class>.safetensors`` (weights, with the metadata embedded
 in the safetensors header) + a ``.json`` sidecar of the same metadata: camera, class, arch,
 network configuration, input normalisation, scene fingerprint, and training facts (val loss,
-epoch, seed, run, "complete"). ``all`` stands for a model serving all cameras of a device or
-all classes (with a class one-hot input).
+epoch, seed, run, "complete"); a model made for a camera device rather than one scene (the
+demo's shipped ones) also carries "cameras_fingerprint". ``all`` stands for a model serving all
+cameras of a device or all classes (with a class one-hot input).
 
 ``Checkpoint.predict`` gives residuals for crops; ``predict_residuals`` for masks (crops cut
 straight from the RLE runs, mask-geometry features when the model uses them); a ``ModelSet``
@@ -184,16 +185,19 @@ class ModelSet:
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
              arch: str | None = None, fingerprint: str | None = None, device=None,
-             allow_incomplete: bool = False) -> "ModelSet":
+             allow_incomplete: bool = False, cameras_fingerprint: str | None = None) -> "ModelSet":
         """The models of one folder, or of several folders as ensembles (residuals averaged).
         A checkpoint whose training did not finish (metadata "complete": false) is refused
-        unless ``allow_incomplete``."""
+        unless ``allow_incomplete``. ``fingerprint`` / ``cameras_fingerprint``: the scene's
+        (``Scene.fingerprint`` / ``Scene.cameras_fingerprint``); a checkpoint made for a scene
+        is warned about on another scene, one made for a device (metadata
+        "cameras_fingerprint") on other cameras."""
         if isinstance(models_dir, (list, tuple)):
             if len(models_dir) == 1:
                 return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device,
-                                allow_incomplete)
-            sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete)
-                    for d in models_dir]
+                                allow_incomplete, cameras_fingerprint)
+            sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete,
+                             cameras_fingerprint) for d in models_dir]
             ms, made = cls(), {}
             for key in sets[0].models:
                 members = tuple(s.models[key] for s in sets)
@@ -223,7 +227,13 @@ class ModelSet:
                                                      file=p.with_suffix(".json"), field="complete")
                                 say(f"{p}: {msg}; used because incomplete models are allowed",
                                     "warning")
-                            if fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
+                            device_fp = ck.info.get("cameras_fingerprint")
+                            if device_fp:  # made for the device: any scene of its cameras
+                                if cameras_fingerprint and device_fp != cameras_fingerprint:
+                                    say(f"{p} was made for other cameras (fingerprint "
+                                        f"{device_fp}, this scene's cameras "
+                                        f"{cameras_fingerprint})", "warning")
+                            elif fingerprint and ck.scene_fingerprint and ck.scene_fingerprint != fingerprint:
                                 say(f"{p} was trained on another scene (fingerprint "
                                     f"{ck.scene_fingerprint}, this scene {fingerprint})", "warning")
                         ms.models[(cam, c)] = cache[p]
@@ -289,4 +299,5 @@ def load_models(scene: Scene, cams: list[str], models_dir=None, arch: str | None
     """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``)."""
     return ModelSet.load(model_dirs(scene, models_dir), cams, scene.class_names, arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device),
-                         allow_incomplete=allow_incomplete)
+                         allow_incomplete=allow_incomplete,
+                         cameras_fingerprint=scene.cameras_fingerprint())

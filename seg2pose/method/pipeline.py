@@ -71,11 +71,13 @@ def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] |
 def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
                    models: ModelSet | None, said: set[str], batch: int = 64,
                    far: FarResiduals | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                              np.ndarray]:
     """For the detections of one camera (any number of frames): class names (N,), mask centres
     (N, 2) pixels, normal positions (N, 3) metres (NaN where the ray misses the ground),
-    residuals (N, 2) metres (zeros for the baseline or a missed ray) and the error bar's cues
-    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres).
+    residuals (N, 2) metres (zeros for the baseline or a missed ray), the error bar's cues
+    (N, 3): mask cut by the image border, residual flagged far, ensemble spread (metres), and
+    the masks' bounding boxes (N, 4) x0, y0, x1, y1 pixels (NaN for an empty mask).
     ``far``: residuals longer than the model learned (``seg2pose.method.ood``) are recorded there,
     and dropped with its fallback policy."""
     camera = scene.cameras[cam]
@@ -97,7 +99,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         cues[:, 0] = ((box[:, 0] <= 0) | (box[:, 1] <= 0) | (box[:, 2] >= table.width)
                       | (box[:, 3] >= table.height))
     if models is None or n == 0:
-        return names, uv, normal, residual, cues
+        return names, uv, normal, residual, cues, box
     big = np.nanmax(box[:, 2:] - box[:, :2], axis=1, initial=0) > CROP_SIZE
     if big.any():
         warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
@@ -115,7 +117,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
             normal[sel, :2], names[sel], batch)
         if far is not None:
             cues[far.check(table, cam, sel, residual, names, ck.info.get("residual_limit")), 1] = 1
-    return names, uv, normal, residual, cues
+    return names, uv, normal, residual, cues, box
 
 
 @dataclass
@@ -284,10 +286,10 @@ def compute_views(scene: Scene, cams: list[str], frame_range: tuple[int, int] | 
             if not tables:
                 continue
             t = MaskTable.concat(tables)
-            names, uv, normal, residual, cues = view_estimates(scene, cam, t, center_method,
-                                                               models, said, far=far)
+            names, uv, normal, residual, cues, box = view_estimates(scene, cam, t, center_method,
+                                                                    models, said, far=far)
             rows.append(ViewTable(t.frame, t.track_id, np.full(len(t), cam, dtype=object), names,
-                                  uv, normal, residual, cues))
+                                  uv, normal, residual, cues, box=box))
 
     chunk: dict[str, list[MaskTable]] = {c: [] for c in cams}
     nframes = 0
@@ -342,12 +344,20 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
               track_ids: dict | None = None, r90_path: Path | None = None) -> Path:
     """Fuse per-view estimates (``opts.smooth``, ``opts.confirm``: see ``fuse``; a confirm of
     None counts as 0) and write the run folder (poses.csv, views.csv, run.json, and flagged.csv
-    when the residuals were checked). ``track_ids``: how the ids were made
+    when the residuals were checked; with ``opts.track_heights`` the views' normal positions are
+    first moved to each track's fitted height, and track_heights.csv lists the heights). ``track_ids``: how the ids were made
     (``check_track_ids``), recorded in run.json; ``r90_path``: the error bars' calibration
     (``seg2pose.method.uncertainty``; None: r90_m stays NaN)."""
     run_dir = Path(run_dir)
     confirm = opts.confirm or 0.0
     smooth = opts.smooth
+    extra = {}
+    th_meta = None
+    if opts.track_heights:
+        from seg2pose.method import track_heights as th
+
+        views, th_meta, extra["track_heights.csv"] = th.apply_track_heights(scene, views,
+                                                                            th.DEFAULT_SETTINGS)
     cal, r90_meta = None, {"calibration": None}
     if r90_path is not None and views.cues is not None:
         from seg2pose.method.uncertainty import read_calibration, view_r90
@@ -371,8 +381,8 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
                        smooth),
             **({"track_ids": track_ids} if track_ids else {}),
             **({"confirm_share": confirm} if confirm > 0 and len(cams) > 1 else {}),
+            **({"track_heights": th_meta} if th_meta is not None else {}),
             "n_frames": n_frames, "n_views": len(views), "n_poses": len(poses), "r90": r90_meta}
-    extra = {}
     if far is not None and models is not None:
         meta["far_residuals"], text = far.summary()
         if text is not None:
@@ -453,6 +463,8 @@ class RunOptions:
     confirm: float | None = None
     # the error bars' calibration (None: the default one, ``default_r90_path``, where it exists)
     r90: str | Path | None = None
+    # one height per tracked road user fitted before fusion (``seg2pose.method.track_heights``)
+    track_heights: bool = False
 
 
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:

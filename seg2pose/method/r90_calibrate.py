@@ -44,6 +44,10 @@ def fit_run(scene, run_dir: str | Path) -> tuple[FitRun, dict]:
     if run.views is None or run.views.cues is None:
         raise InputError("this run's views.csv has no cut,far,spread_m columns (made by an older "
                          "s2p): run it again", file=Path(run_dir) / "views.csv")
+    if run.views.box is None:
+        raise InputError("this run's views.csv has no box_x0,box_y0,box_x1,box_y1 columns (made "
+                         "by an older s2p; the error bars' size cue needs them): run it again",
+                         file=Path(run_dir) / "views.csv")
     scene = scene_of_run(scene, Path(run_dir), run.meta)
     if not scene.gt_path.exists():
         raise InputError("the scene has no ground truth to calibrate on", file=scene.gt_path)

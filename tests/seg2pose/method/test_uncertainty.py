@@ -96,6 +96,40 @@ def test_view_cue_columns_round_trip_and_old_files(tmp_path):
         read_views(p)
 
 
+def test_view_box_columns_round_trip_old_files_and_bad_boxes(tmp_path):
+    """views.csv's box columns (after the cues) round-trip exactly, an empty mask's NaN box
+    too; a file with the cues and no box reads box None; x1 < x0 is refused naming the line;
+    the MCAP records carry the box."""
+    from s2p_review import mcap_records as R
+
+    box = [[10.0, 20.5, 30.0, 44.0], [np.nan] * 4]
+    v = ViewTable([1, 1], [2, 3], ["c0", "c1"], ["car", "pedestrian"], [[1, 2], [3, 4]],
+                  [[5, 6, 0], [7, 8, 0]], [[0.1, 0.2], [0, 0]], [[1, 0, 0.3], [0, 1, 0]],
+                  [1.25, np.nan], box)
+    p = tmp_path / "views.csv"
+    p.write_text(format_views(v))
+    assert p.read_text().splitlines()[0].endswith(",r90_m,box_x0,box_y0,box_x1,box_y1")
+    back = read_views(p)
+    np.testing.assert_array_equal(back.box, v.box)
+    np.testing.assert_array_equal(back.take([1, 0]).box, v.box[[1, 0]])
+    np.testing.assert_array_equal(ViewTable.concat([back, back]).box, np.vstack([box, box]))
+    vb = R.views_table([m for _, m in R.view_messages(v)])
+    np.testing.assert_array_equal(vb.box, v.box)
+    np.testing.assert_array_equal(vb.r90, v.r90)
+    no_box = ViewTable(v.frame, v.track_id, v.camera, v.cls, v.uv, v.normal, v.residual, v.cues,
+                       v.r90)
+    p.write_text(format_views(no_box))
+    assert read_views(p).box is None and read_views(p).cues is not None
+    assert R.views_table([m for _, m in R.view_messages(no_box)]).box is None
+    lines = format_views(v).splitlines()
+    p.write_text("\n".join([lines[0], lines[1].replace(",10.0,20.5,30.0,", ",31.0,20.5,30.0,")])
+                 + "\n")
+    with pytest.raises(InputError, match=r"views.csv:2: box_x0,box_y0,box_x1,box_y1 must be"):
+        read_views(p)
+    with pytest.raises(ValueError, match="box needs the cues"):
+        ViewTable([1], [2], ["c0"], ["car"], [[1, 2]], [[5, 6, 0]], [[0, 0]], box=[box[0]])
+
+
 def test_calibration_json_round_trip_and_bad_files(tmp_path):
     k = len(VIEW_FEATURES)
     view = StageModel(VIEW_FEATURES, {"*": [0.1] * k, "car": [0.2] * k}, {"*": 50, "car": 45},
@@ -121,6 +155,11 @@ def test_calibration_json_round_trip_and_bad_files(tmp_path):
         read_calibration(p)
     p.write_text("{}")
     with pytest.raises(InputError, match="not an r90 calibration"):
+        read_calibration(p)
+    d["version"] = 2  # made before the size cue: its view stage has other features
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"r90.json: field 'version': calibration version 2; "
+                                         r"this s2p reads 3"):
         read_calibration(p)
 
 
@@ -206,13 +245,19 @@ def test_view_columns_by_hand():
     from seg2pose.io.run import ViewTable
     from seg2pose.method.uncertainty import view_columns
 
+    from seg2pose.geometry.ground import GroundSurface
+
     cam = Camera.look_at("c0", np.array([0.0, 0.0, 10.0]), np.array([20.0, 0.0, 0.0]), f=500.0,
                          width=640, height=480)
-    scene = SimpleNamespace(cameras={"c0": cam},
+    scene = SimpleNamespace(cameras={"c0": cam}, ground=GroundSurface(_FLAT),
                             class_sizes=lambda: {"car": (4.0, 1.8, 1.5), "pedestrian": (0.6, 0.6, 1.8)})
+    # the car's box bottom at the image of the ground point 1 m nearer the camera than its
+    # normal position (20, 0); the typical car's (heading unknown: the mean over four
+    # headings) is elsewhere, so only the difference of the two is known: log_foot below
     v = ViewTable([0, 0], [1, 2], ["c0", "c0"], ["car", "pedestrian"],
                   [[320.0, 300.0], [330.0, 5.0]], [[20.0, 0.0, 0.0], [40.0, 0.0, 1.0]],
-                  np.zeros((2, 2)), [[0, 0, 0], [1, 0, 0]])
+                  np.zeros((2, 2)), [[0, 0, 0], [1, 0, 0]],
+                  box=[[300.0, 250.0, 340.0, 300.0], [325.0, 0.0, 335.0, 10.0]])
     c = view_columns(scene, v)
     np.testing.assert_allclose(np.exp(c["log_distance"]), [20.0, 40.0])
     np.testing.assert_allclose(np.exp(c["log_grazing"]), [2.0, 40.0 / 9.0])
@@ -222,6 +267,93 @@ def test_view_columns_by_hand():
     size_car = 500.0 * 4.0 / np.sqrt(500.0)
     assert size_car < np.hypot(10.0, 295.0)
     np.testing.assert_allclose(c["crowd"], [0.0, 0.0])
+    from seg2pose.method.uncertainty import FOOT_FLOOR_M, foot_offset, typical_boxes
+
+    foot = foot_offset(scene, v, typical_boxes(scene, v))
+    np.testing.assert_allclose(c["log_foot"], np.log(np.abs(foot) + FOOT_FLOOR_M))
+    with pytest.raises(InputError, match="no box_x0,box_y0,box_x1,box_y1 columns"):
+        view_columns(scene, ViewTable(v.frame, v.track_id, v.camera, v.cls, v.uv, v.normal,
+                                      v.residual, v.cues))
+
+
+_FLAT = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # the plane z = 0
+
+
+def _side_camera():
+    """A camera 10 m up at the origin looking at (20, 0, 0): the ground's x axis is the
+    image's vertical centre line."""
+    from seg2pose.geometry.camera import Camera
+
+    return Camera.look_at("c0", np.array([0.0, 0.0, 10.0]), np.array([20.0, 0.0, 0.0]), f=500.0,
+                          width=640, height=480)
+
+
+def test_cuboid_box_by_hand():
+    """A 4.5 x 1.8 x 1.5 m car at (20, 0) heading along the line of sight: its box is widest
+    at the near top corners (17.75, +-0.9, 1.5), 500 x 1.8 / their depth wide, and its bottom
+    is the image row of the near bottom corners; turned by 90 degrees it is 4.5 m wide; an
+    unknown heading gives the mean of the boxes at 0, 45, 90 and 135 degrees."""
+    from seg2pose.geometry.ground import GroundSurface
+    from seg2pose.method.uncertainty import cuboid_box
+
+    cam, ground = _side_camera(), GroundSurface(_FLAT)
+    lwh = np.array([4.5, 1.8, 1.5])
+    axis = np.array([20.0, 0.0, -10.0]) / np.sqrt(500.0)
+    depth = np.array([17.75, 0.9, 1.5 - 10.0]) @ axis  # near top corner, along the optical axis
+    box = cuboid_box(cam, ground, [[20.0, 0.0]], [0.0], lwh)[0]
+    assert box[2] - box[0] == pytest.approx(500.0 * 1.8 / depth, rel=1e-9)
+    assert box[3] == pytest.approx(cam.project_points(np.array([[17.75, 0.9, 0.0]]))[0][0, 1])
+    assert (box[0] + box[2]) / 2 == pytest.approx(320.0)
+    depth90 = np.array([19.1, 2.25, 1.5 - 10.0]) @ axis
+    box90 = cuboid_box(cam, ground, [[20.0, 0.0]], [np.pi / 2], lwh)[0]
+    assert box90[2] - box90[0] == pytest.approx(500.0 * 4.5 / depth90, rel=1e-9)
+    mean = np.mean([cuboid_box(cam, ground, [[20.0, 0.0]], [a], lwh)[0]
+                    for a in np.deg2rad([0.0, 45.0, 90.0, 135.0])], axis=0)
+    np.testing.assert_allclose(cuboid_box(cam, ground, [[20.0, 0.0]], [np.nan], lwh)[0], mean)
+    assert np.isnan(cuboid_box(cam, ground, [[np.nan, 0.0]], [0.0], lwh)).all()
+
+
+def test_foot_offset_is_how_far_the_box_bottom_lands_from_a_typical_road_users():
+    """A car moving along the line of sight at normal positions (20, 0), (21, 0): the typical
+    car's box bottom lands at its near edge, 2.25 m nearer (x = 18.75 for the second, heading
+    0 from its motion). A mask whose box bottom is the image of (17.25, 0) -- a car 3 m longer,
+    say -- lands 1.5 m nearer (-1.5); the first view (no heading yet: the typical box is the
+    mean over four headings) against the image of (18, 0); no box: NaN."""
+    from types import SimpleNamespace
+
+    from seg2pose.geometry.ground import GroundSurface
+    from seg2pose.method.uncertainty import foot_offset, typical_boxes
+
+    cam = _side_camera()
+    scene = SimpleNamespace(cameras={"c0": cam}, ground=GroundSurface(_FLAT),
+                            class_sizes=lambda: {"car": (4.5, 1.8, 1.5)})
+    bottom = cam.project_points(np.array([[18.0, 0.0, 0.0], [18.0 + 1.0 - 1.75, 0.0, 0.0],
+                                          [0.0, 0.0, 0.0]]))[0][:, 1]
+    box = [[300.0, 200.0, 340.0, bottom[0]], [300.0, 200.0, 340.0, bottom[1]],
+           [np.nan] * 4]
+    v = ViewTable([0, 1, 2], [7, 7, 7], ["c0"] * 3, ["car"] * 3, np.full((3, 2), 320.0),
+                  [[20.0, 0.0, 0.0], [21.0, 0.0, 0.0], [22.0, 0.0, 0.0]], np.zeros((3, 2)),
+                  np.zeros((3, 3)), box=box)
+    typical = typical_boxes(scene, v)
+    # heading from motion: 0 from the second view on; the first has none yet (mean of four)
+    np.testing.assert_allclose(typical[1], _typical_at(cam, 21.0))
+    off = foot_offset(scene, v, typical)
+    assert np.isnan(off[2])
+    assert off[1] == pytest.approx(-1.5, abs=1e-6)
+    # the first view: no heading yet, so the typical box is the mean over four headings; its
+    # bottom row's ray meets the ground at x = 10 d_x / -d_z (camera 10 m up on the x axis)
+    mean_bottom = np.mean([_typical_at(cam, 20.0, a)[3] for a in np.deg2rad([0, 45, 90, 135])])
+    assert typical[0, 3] == pytest.approx(mean_bottom)
+    d = cam.unproject(np.array([[320.0, mean_bottom]]))[0]
+    assert 17.75 < 10.0 * d[0] / -d[2] < 19.1  # between the end-on and the side-on near edge
+    assert off[0] == pytest.approx(18.0 - 10.0 * d[0] / -d[2], abs=1e-6)
+
+
+def _typical_at(cam, x: float, heading: float = 0.0) -> np.ndarray:
+    from seg2pose.geometry.ground import GroundSurface
+    from seg2pose.method.uncertainty import cuboid_box
+
+    return cuboid_box(cam, GroundSurface(_FLAT), [[x, 0.0]], [heading], [4.5, 1.8, 1.5])[0]
 
 
 def _draw_known(seed: int, n_users: int = 60, rows: int = 40):
@@ -246,7 +378,7 @@ def _draw_known(seed: int, n_users: int = 60, rows: int = 40):
         cols = {"one": np.ones(rows), "log_distance": np.log(g * 10), "log_grazing": np.log(g),
                 "cut": cut, "cut_edge": np.zeros(rows), "crowd": np.zeros(rows),
                 "far": np.zeros(rows), "log_spread": np.full(rows, np.log(0.02)),
-                "log_residual": np.full(rows, np.log(0.05))}
+                "log_residual": np.full(rows, np.log(0.05)), "log_foot": np.full(rows, np.log(0.05))}
         cls += [c] * rows
         X.append(np.column_stack([cols[k] for k in VIEW_FEATURES]))
         err.append(e)
@@ -298,3 +430,10 @@ def test_calibrate_on_several_runs_and_scenes(tmp_path):
     (tmp_path / "b-val" / "run.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match="differs from the first run's"):
         calibrate_run(a, runs, tmp_path / "r90-2.json")
+    # a views.csv of an s2p before the size cue (no box columns) is refused, naming the file
+    views = tmp_path / "a-val" / "views.csv"
+    views.write_text("\n".join(",".join(ln.split(",")[:15]) for ln in views.read_text().splitlines())
+                     + "\n")
+    with pytest.raises(InputError, match=r"a-val/views.csv: this run's views.csv has no "
+                                         r"box_x0,box_y0,box_x1,box_y1 columns"):
+        calibrate_run(a, runs[:1], tmp_path / "r90-3.json")
