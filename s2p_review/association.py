@@ -37,10 +37,11 @@ def _id_value(track_id: np.ndarray) -> np.ndarray:
 
 
 def log_association(rec, run: Run, scene: Scene, tb: Timebase, cameras: list[str], first: int,
-                    last: int, every: int = 1, masks: bool = True) -> None:
-    """Masks by id (``masks``: on the cadence ``every``) in every camera of the run and the
-    per-camera estimates joined to the fused poses (see the module docstring). Nothing for a
-    one-camera run."""
+                    last: int, every: int = 1, masks_for: list[str] | None = None) -> None:
+    """Masks by id (on the cadence ``every``) in the cameras ``masks_for`` (default: every
+    camera of the run; the masks are the scene's, so a recording of several runs logs each
+    camera's once) and the per-camera estimates joined to the fused poses (see the module
+    docstring). Nothing for a one-camera run."""
     import rerun as rr
 
     run_cams = [c for c in cameras if c in (run.cameras or cameras)]
@@ -50,7 +51,7 @@ def log_association(rec, run: Run, scene: Scene, tb: Timebase, cameras: list[str
                                + [rr.AnnotationInfo(id=i, label=f"id {i} (mod {N_COLORS})",
                                                     color=tuple(int(x) for x in id_color([i])[0]))
                                   for i in range(1, N_COLORS + 1)])
-    for cam in run_cams if masks else []:
+    for cam in run_cams if masks_for is None else [c for c in run_cams if c in masks_for]:
         ent = L.cam_path(cam) + "/masks_by_id"
         cam_obj = scene.cameras[cam]
         rec.log(ent, ctx, static=True)

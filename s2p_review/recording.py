@@ -431,6 +431,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/gt", scene.cameras[cam], gt, gsz,
                           color=L.GT_COLOR)
     metrics = False
+    by_id_done: set[str] = set()  # cameras whose masks by id are logged (they are the scene's)
     for run in sel.runs:
         look = L.run_look(run.meta)
         poses = run.poses.in_frames((first, last))
@@ -444,7 +445,9 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, look=look)
         log_views(ctx, run, run_cams)
-        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, style.masks)
+        todo = [c for c in run_cams if c not in by_id_done] if style.masks else []
+        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, todo)
+        by_id_done.update(todo)
         if gt is not None:
             metrics |= log_errors(ctx, run, gt)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes), video_frames)

@@ -51,3 +51,24 @@ def test_recording_holds_the_association(tmp_path):
             rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
     assert rows["/world/association/run"] == N
     assert rows["/world/cameras/c0/masks_by_id"] == N and rows["/world/cameras/c1/masks_by_id"] == N
+
+
+def test_two_runs_log_each_cameras_masks_by_id_once(tmp_path):
+    """The masks by id are the scene's, not a run's: a recording of two runs holds them once
+    per camera and frame (they were logged once per run, doubling the demo's sample file), and
+    both runs' association lines."""
+    import shutil
+
+    import rerun.chunk as rc
+
+    scene = make_scene(tmp_path / "scene", n_frames=N)
+    a = make_run(scene, tmp_path / "scene" / "out" / "run")
+    b = tmp_path / "scene" / "out" / "run2"
+    shutil.copytree(a, b)
+    out = record(scene, [a, b], tmp_path / "rec.rrd").rrd
+    rows = {}
+    for ch in rc.RrdReader(out).stream():
+        if not ch.is_static:
+            rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
+    assert rows["/world/association/run"] == rows["/world/association/run2"] == N
+    assert rows["/world/cameras/c0/masks_by_id"] == N and rows["/world/cameras/c1/masks_by_id"] == N
