@@ -26,7 +26,9 @@ def small(tmp_path_factory):
     from seg2pose.synth import SynthOptions, generate_scene
 
     root = tmp_path_factory.mktemp("demo_small") / "scene"
-    generate_scene(root, SynthOptions(preset="small", seed=0, frames=30, progress=False))
+    # one process: forked workers deadlock on locks that the suite's earlier threads (torch,
+    # OpenCV) held at fork time (this fixture hung the whole suite in a fresh clone)
+    generate_scene(root, SynthOptions(preset="small", seed=0, frames=30, progress=False, workers=1))
     scene = load_scene(root)
     update_default_heights(scene, split="train", log=lambda *_: None)
     return scene
