@@ -36,22 +36,18 @@ def _id_value(track_id: np.ndarray) -> np.ndarray:
     return np.where(track_id > 0, (track_id - 1) % N_COLORS + 1, 0).astype(np.uint8)
 
 
-def log_association(rec, run: Run, scene: Scene, tb: Timebase, cameras: list[str], first: int,
-                    last: int, every: int = 1, masks_for: list[str] | None = None) -> None:
-    """Masks by id (on the cadence ``every``) in the cameras ``masks_for`` (default: every
-    camera of the run; the masks are the scene's, so a recording of several runs logs each
-    camera's once) and the per-camera estimates joined to the fused poses (see the module
-    docstring). Nothing for a one-camera run."""
+def log_masks_by_id(rec, scene: Scene, tb: Timebase, cameras: list[str], first: int, last: int,
+                    every: int = 1) -> None:
+    """Every camera's masks painted in the colour of their track id, on the cadence ``every``
+    (see the module docstring). The masks are the scene's, not a run's: logged once per
+    recording, for the cameras of its multi-camera runs."""
     import rerun as rr
 
-    run_cams = [c for c in cameras if c in (run.cameras or cameras)]
-    if len(run_cams) < 2:
-        return
     ctx = rr.AnnotationContext([rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
                                + [rr.AnnotationInfo(id=i, label=f"id {i} (mod {N_COLORS})",
                                                     color=tuple(int(x) for x in id_color([i])[0]))
                                   for i in range(1, N_COLORS + 1)])
-    for cam in run_cams if masks_for is None else [c for c in run_cams if c in masks_for]:
+    for cam in cameras:
         ent = L.cam_path(cam) + "/masks_by_id"
         cam_obj = scene.cameras[cam]
         rec.log(ent, ctx, static=True)
@@ -69,6 +65,24 @@ def log_association(rec, run: Run, scene: Scene, tb: Timebase, cameras: list[str
                 rec.send_columns(ent, indexes=tb.rerun_columns([f for f, _ in batch]),
                                  columns=rr.SegmentationImage.columns(buffer=imgs.reshape(len(batch), -1)))
                 batch = []
+
+
+def association_cameras(run: Run, cameras: list[str]) -> list[str]:
+    """The cameras of ``cameras`` that ``run`` fused; empty for a one-camera run (nothing to
+    associate)."""
+    run_cams = [c for c in cameras if c in (run.cameras or cameras)]
+    return run_cams if len(run_cams) >= 2 else []
+
+
+def log_association(rec, run: Run, tb: Timebase, cameras: list[str], first: int,
+                    last: int) -> None:
+    """The per-camera estimates of ``run`` joined to its fused poses (see the module
+    docstring). Nothing for a one-camera run."""
+    import rerun as rr
+
+    run_cams = association_cameras(run, cameras)
+    if not run_cams:
+        return
     frames, strips, ids = association_strips(run, run_cams, first, last)
     ent = f"world/association/{run.name}"
     rec.log(ent, rr.LineStrips3D.from_fields(radii=0.04), static=True)

@@ -16,7 +16,7 @@ from s2p_review import columns as C
 from s2p_review.error_discs import log_error_discs
 from s2p_review import imagery
 from s2p_review import layout as L
-from s2p_review.association import log_association
+from s2p_review.association import association_cameras, log_association, log_masks_by_id
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
@@ -431,7 +431,10 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/gt", scene.cameras[cam], gt, gsz,
                           color=L.GT_COLOR)
     metrics = False
-    by_id_done: set[str] = set()  # cameras whose masks by id are logged (they are the scene's)
+    if style.masks:
+        by_id = {c for run in sel.runs for c in association_cameras(run, cameras)}
+        log_masks_by_id(rec, scene, tb, [c for c in cameras if c in by_id], first, last,
+                        sel.cadence.masks)
     for run in sel.runs:
         look = L.run_look(run.meta)
         poses = run.poses.in_frames((first, last))
@@ -445,9 +448,7 @@ def log_all(rec, scene: Scene, sel: Selection, tb: Timebase, style: LogStyle = L
             log_projected(ctx, f"{L.cam_path(cam)}/poses/{run.name}", scene.cameras[cam], poses,
                           sz, look=look)
         log_views(ctx, run, run_cams)
-        todo = [c for c in run_cams if c not in by_id_done] if style.masks else []
-        log_association(rec, run, scene, tb, run_cams, first, last, sel.cadence.masks, todo)
-        by_id_done.update(todo)
+        log_association(rec, run, tb, run_cams, first, last)
         if gt is not None:
             metrics |= log_errors(ctx, run, gt)
     return LogStats(last - first + 1, mask_rows, video_rows, metrics, tuple(notes), video_frames)
