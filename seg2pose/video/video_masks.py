@@ -56,13 +56,13 @@ SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
 # 110 frames, reported by four lenses). Sensor noise of the 5x5 mean: 99.9th percentile 4 grey
 # levels between frames (seed 104, c1).
 GHOST_STILL = 8.0
+GHOST_NEAR = 4
 # ghosts are tested down to min_area / GHOST_AREA pixels: the part of a ghost that has lasted
 # (its core) is smaller than the mask the closing and the texture test make of it (seed 104,
 # c0: a 140 px core, the start's dark tyre patch, under a mask of over 150 px for 100 frames)
 GHOST_AREA = 4
 SAMPLED = ("mode", "median")  # the starting backgrounds made from sampled frames
 MODE_TOL = 12  # grey levels: samples of one surface agree within it (noise 2-5, road texture kept)
-GHOST_NEAR = 4
 
 
 @dataclass
@@ -234,7 +234,8 @@ def mode_image(images: list[np.ndarray], tol: int = MODE_TOL) -> np.ndarray:
     del count
     ref = images[0].copy()
     for i in range(1, n):
-        ref[best == i] = images[i][best == i]
+        at = best == i
+        ref[at] = images[i][at]
     total = np.zeros(ref.shape, np.float32)
     k = np.zeros(ref.shape[:2], np.float32)
     for im in images:
@@ -494,7 +495,7 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
     seg = BackgroundMasks(cfg, h, w)
     if cfg.init != "none":
         span_lo = init_from if init_from is not None else first if first is not None else reader.first
-        # median: samples over the whole video by default; warm-up: one history's worth
+        # mode / median: samples over the whole video by default; warm-up: one history's worth
         sampled = cfg.init in SAMPLED
         span = cfg.init_frames or (n_header or 300 if sampled else cfg.history)
         want = np.unique(np.linspace(span_lo, span_lo + (span - 1) * reader.step,
