@@ -9,7 +9,7 @@ one instance mask per component, as COCO RLE. Track ids (-1) and classes (0) are
 tracker and the size classes (``seg2pose.video.track``, ``seg2pose.video.classify``).
 
 The background model starts from the per-pixel mode of frames sampled over the first
-``init_frames`` (``mode_image``: the colour most samples agree on; road users that pass do not
+``init_frames`` (``bg_start.mode_image``: the colour most samples agree on; road users that pass do not
 survive it, parked ones are background, as they should be; ``init="median"``: the per-pixel
 median, which a queue of different cars occupying a lane in most samples turns into a smear),
 fed to the subtractor before the first real frame, so the first frames are
@@ -47,6 +47,7 @@ from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
 from seg2pose.video.bg_checks import flat_pixels, ghost_mask, texture_stats
+from seg2pose.video.bg_start import SAMPLED, start_image
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
 # A ghost's pixels are learnt from the frame only where the frame held still since the previous
@@ -61,8 +62,6 @@ GHOST_NEAR = 4
 # (its core) is smaller than the mask the closing and the texture test make of it (seed 104,
 # c0: a 140 px core, the start's dark tyre patch, under a mask of over 150 px for 100 frames)
 GHOST_AREA = 4
-SAMPLED = ("mode", "median")  # the starting backgrounds made from sampled frames
-MODE_TOL = 12  # grey levels: samples of one surface agree within it (noise 2-5, road texture kept)
 
 
 @dataclass
@@ -202,58 +201,6 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
             counts = counts[:-1]
         out.append(mask_util.frPyObjects({"size": [h, w], "counts": counts.tolist()}, h, w)["counts"])
     return out
-
-
-def mode_image(images: list[np.ndarray], tol: int = MODE_TOL) -> np.ndarray:
-    """The per-pixel mode of images (N of (H, W, 3) or (H, W) uint8), in uint8: at each pixel
-    the sample with the most other samples within ``tol`` grey levels in every channel, and the
-    mean of those. Where cars queue, a lane is taken by *some* car in most samples, so its
-    median is a blend of car colours; the empty road recurs between any two cars and is the
-    largest group (held-out seed 104's queue lane: its median a red-yellow smear the length of
-    three cars, its mode the road). Costs N (N - 1) / 2 image differences (25 samples at 720p:
-    about 1 s)."""
-    import cv2
-
-    n = len(images)
-    if n == 1:
-        return images[0]
-
-    lo, hi = (0,) * 3, (tol,) * 3
-
-    def close(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """(H, W) uint8 1 where a and b agree within tol in every channel, else 0."""
-        return cv2.inRange(cv2.absdiff(a, b), lo, hi) & 1
-
-    count = np.zeros((n,) + images[0].shape[:2], np.uint8)
-    for i in range(n):
-        for j in range(i + 1, n):
-            c = close(images[i], images[j])
-            count[i] += c
-            count[j] += c
-    best = count.argmax(axis=0)
-    del count
-    ref = images[0].copy()
-    for i in range(1, n):
-        at = best == i
-        ref[at] = images[i][at]
-    total = np.zeros(ref.shape, np.float32)
-    k = np.zeros(ref.shape[:2], np.float32)
-    for im in images:
-        c = close(im, ref)
-        total += im * (c[..., None] if im.ndim == 3 else c)
-        k += c
-    return np.clip(total / (k[..., None] if ref.ndim == 3 else k) + 0.5, 0, 255).astype(np.uint8)
-
-
-def start_image(images: list[np.ndarray], how: str) -> np.ndarray:
-    """The starting background of sampled images: ``how`` "mode" or "median"."""
-    return mode_image(images) if how == "mode" else median_image(images)
-
-
-def median_image(images: list[np.ndarray]) -> np.ndarray:
-    """The per-pixel (lower) median of images (N of (H, W, 3) uint8), in uint8: np.median
-    would make a float64 copy (0.5 GB at 720p)."""
-    return images[0] if len(images) == 1 else np.sort(np.stack(images), axis=0)[(len(images) - 1) // 2]
 
 
 class BackgroundMasks:

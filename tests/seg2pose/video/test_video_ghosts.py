@@ -198,7 +198,7 @@ def test_the_mode_start_is_the_road_where_a_queue_stands_most_of_the_time():
     holds a car in 71 % of them, the road shows in 8): the per-pixel median is none of them
     (a blend, far from the road), the mode is the road within the noise. Where one car stands
     in most samples (a parked car), the mode is that car, as it should be."""
-    from seg2pose.video.video_masks import median_image, mode_image
+    from seg2pose.video.bg_start import median_image, mode_image
 
     rng = np.random.default_rng(5)
     base = road(2)
@@ -228,7 +228,8 @@ def test_a_ghost_smaller_than_min_area_is_learnt(tmp_path):
     (held-out seed 104, c0: a 140 px core under a mask of over 150 px for 100 frames), so the
     ghost test looks at cores down to a quarter of it. Ghost-free frames learn nothing."""
     from seg2pose.io.video import FrameReader
-    from seg2pose.video.video_masks import clean_background, median_image
+    from seg2pose.video.bg_start import median_image
+    from seg2pose.video.video_masks import clean_background
 
     A = box(60, 50, 12, 11)
     folder = write_frames(tmp_path / "c0", 160,
