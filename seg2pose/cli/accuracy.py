@@ -9,6 +9,7 @@ an interrupted benchmark resumes (training itself resumes from its checkpoints).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -17,12 +18,20 @@ from pathlib import Path
 from seg2pose.core.errors import S2PError
 from seg2pose.eval.accuracy import SMOOTHED, SeedResult, read_table, smoothed_results, summary
 from seg2pose.io.atomic import atomic_write_text
+from seg2pose.training.config import ROUGH_STAGE
 
 # training variants: name -> the `s2p train` options (the CPU protocol of docs/RESULTS.md)
 VARIANTS = {
     "s2pn": ["--protocol", "quick"],
     "zero": ["--protocol", "quick", "--zero-annotation", "--rough", "400"],
+    "zero-random": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--rough-random"],
+    "zero-track": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "track"],
+    "zero-views": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "views"],
 }
+# self-training variants start from another variant's rough-only models: when that variant's
+# folder is finished, its models are copied in as the first stage instead of retrained
+# (``self_training.check_rough_stage`` refuses them if the protocols differ)
+ROUGH_STAGE_OF = {"zero-track": "zero", "zero-views": "zero"}
 
 def s2p_command(*args: str) -> list[str]:
     """argv running ``s2p ARGS`` with this interpreter (and so this checkout's code)."""
@@ -58,6 +67,11 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
         models = scene / f"models-{v}"
         table = scene / f"table-{v}"
         meta = models / "bench.json"
+        base = scene / f"models-{ROUGH_STAGE_OF.get(v)}"
+        if not meta.exists() and v in ROUGH_STAGE_OF and (base / "bench.json").exists() \
+                and not (models / ROUGH_STAGE).exists():
+            log(f"copying {base} to {models / ROUGH_STAGE} (the rough-only stage)")
+            shutil.copytree(base, models / ROUGH_STAGE, ignore=shutil.ignore_patterns("bench.json"))
         if not meta.exists():
             secs = step(["train", scene, *VARIANTS[v], *train_args, "--threads", threads,
                          "-o", models], f"train-{v}")

@@ -19,6 +19,8 @@ from seg2pose.method.net import ARCHS
 
 LrSchedule = Literal["constant", "cosine"]
 Loss = Literal["mse", "euclid"]
+SELF_TRAIN = ("", "track", "views")  # self-training flavours (seg2pose.training.self_training)
+ROUGH_STAGE = "rough-stage"  # sub-folder of a self-training's rough-only models
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,14 @@ class TrainConfig:
     loss: Loss = "mse"               # "mse" (squared error / 2) or "euclid" (distance, = the metric)
     center_method: str = DEFAULT_CENTER_METHOD
     residual_scale: float = 1.0
+    # self-training (zero-annotation only; seg2pose.training.self_training): after the rough-only
+    # models and their radial calibration, pseudo poses from the scene's own unlabelled train
+    # split -- "track": each lens's estimates smoothed along its tracks; "views": the lenses'
+    # estimates at per-track heights, fused and smoothed -- then ``self_epochs`` epochs of
+    # fine-tuning on them (starting from the rough-only weights; "": none)
+    self_train: str = ""
+    self_epochs: int = 10
+    self_smooth: int = 4             # half window (frames) of the pseudo poses' smoothing
 
     def __post_init__(self) -> None:
         for name, allowed in (("arch", ARCHS + ("lite_hr",)), ("lr_schedule", get_args(LrSchedule)),
@@ -72,12 +82,27 @@ class TrainConfig:
             if getattr(self, name) not in allowed:
                 raise InputError(f"unknown {name} {getattr(self, name)!r}; use one of "
                                  f"{', '.join(a for a in allowed if a != 'lite_hr')}", field=name)
-        for name in ("runs", "epochs", "batch_size", "batches_per_epoch"):
+        if self.self_train not in SELF_TRAIN:
+            raise InputError(f"unknown self_train {self.self_train!r}; use one of "
+                             f"{', '.join(repr(a) for a in SELF_TRAIN)}", field="self_train")
+        if self.self_train and not self.zero_annotation:
+            raise InputError("self-training (--self-train) is a zero-annotation step; add "
+                             "--zero-annotation", field="self_train")
+        if self.self_smooth < 0:
+            raise InputError(f"self_smooth must be 0 or more, got {self.self_smooth}",
+                             field="self_smooth")
+        for name in ("runs", "epochs", "batch_size", "batches_per_epoch", "self_epochs"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"{name} must be at least 1, got {getattr(self, name)}", field=name)
 
     def replace(self, **kw) -> "TrainConfig":
         return replace(self, **kw)
+
+    def rough_stage(self) -> "TrainConfig":
+        """The protocol of a self-training's first stage: the rough-only models it starts from
+        (the same protocol without the self-training fields)."""
+        return replace(self, self_train="", self_epochs=TrainConfig.self_epochs,
+                       self_smooth=TrainConfig.self_smooth)
 
     @classmethod
     def paper(cls, arch: str = "paper") -> "TrainConfig":
@@ -116,5 +141,16 @@ def training_record(cfg: TrainConfig, settings: TrainSettings) -> dict:
 
 def same_protocol(record: dict | None, cfg: TrainConfig) -> bool:
     """Whether a stored ``training_record`` (or an older whole-config record) is of protocol
-    ``cfg``; the run-time settings in it are not compared."""
-    return isinstance(record, dict) and {k: v for k, v in record.items() if k not in RUN_TIME} == asdict(cfg)
+    ``cfg``; the run-time settings in it are not compared. Fields added since the record was
+    written (``LATER_FIELDS``) count as their defaults, so the self-training fields do not make
+    older rough-only trainings another protocol."""
+    if not isinstance(record, dict):
+        return False
+    stored = {k: v for k, v in record.items() if k not in RUN_TIME}
+    for f in fields(TrainConfig):
+        if f.name in LATER_FIELDS:
+            stored.setdefault(f.name, f.default)
+    return stored == asdict(cfg)
+
+
+LATER_FIELDS = ("self_train", "self_epochs", "self_smooth")

@@ -188,9 +188,12 @@ def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Pat
 
 def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
                 cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True,
-                runs: list[int] | None = None, settings: TrainSettings = TrainSettings()) -> dict:
+                runs: list[int] | None = None, settings: TrainSettings = TrainSettings(),
+                init: dict | None = None) -> dict:
     """Best-of-``cfg.runs`` training of one model; writes ``path`` (+ .json) whenever the
     validation loss improves and keeps a resume state beside it. Returns the best info.
+    ``init``: a state dict every run starts from (fine-tuning, e.g. self-training), instead of
+    the seed's fresh network.
     ``runs``: only these runs (0-based; default all), e.g. one run per task when the runs are
     fanned out (seg2pose/training/train_fanout.py): runs are independent, each seeded by its number."""
     device = pick_device(settings.device)
@@ -214,7 +217,10 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
         # a run: a fresh network from its seed (or the resume state of an interrupted one)
         seed = cfg.seed + run
         torch.manual_seed(seed)
-        net = Seg2PoseNet(net_cfg).to(device)
+        net = Seg2PoseNet(net_cfg)
+        if init is not None:
+            net.load_state_dict(init)
+        net = net.to(device)
         opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_factor(cfg.lr_schedule, steps))
         rng = np.random.default_rng(seed)
@@ -289,6 +295,22 @@ def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: N
 # a scene
 
 
+def new_checkpoint(scene: Scene, job, cfg: TrainConfig, settings: TrainSettings, net_cfg: NetConfig,
+                   all_classes: list[str], seen: ExampleSet) -> Checkpoint:
+    """The checkpoint a model job trains into (a fresh network; the info says how it is
+    trained). ``seen``: the examples it trains on (their residuals bound the far-residual
+    check, ``seg2pose.method.ood``)."""
+    n_rough = 0 if job.rough is None else len(job.rough)
+    return Checkpoint(net=Seg2PoseNet(net_cfg), norm=job.norm, camera=job.camera, cls=job.key,
+                      scene_fingerprint=scene.fingerprint(),
+                      classes=all_classes if job.key == "*" else [],
+                      info={"zero_annotation": cfg.zero_annotation, "cameras": job.cameras,
+                            "train_config": training_record(cfg, settings), "n_train": len(job.train),
+                            "geometry": GEO_VERSION if cfg.geometry else None,
+                            "n_rough": n_rough, "n_val": len(job.val),
+                            "residual_limit": residual_limits(seen.target, seen.cls)})
+
+
 def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                 config: TrainConfig | None = None, cameras: list[str] | None = None,
                 classes: list[str] | None = None, progress: bool = True,
@@ -306,6 +328,16 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     cfg = config or TrainConfig()
     settings = settings or TrainSettings()
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
+    if cfg.self_train:
+        # the rough-only models first (their own folder; skipped when finished), then the
+        # fine-tuning on pseudo poses of the scene's unlabelled train split
+        from seg2pose.training.self_training import ROUGH_STAGE, self_train_scene
+
+        train_scene(scene, out / ROUGH_STAGE, cfg.rough_stage(), cameras, classes, progress,
+                    map_groups, settings)
+        self_train_scene(scene, out, cfg, settings, cameras or list(scene.cameras),
+                         classes or scene.class_names, progress)
+        return out
     if not cfg.zero_annotation and not scene.gt_path.exists():
         raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it, or train "
                        "zero-annotation (from rough models only)")
@@ -330,14 +362,7 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
                                   and not (cfg.zero_annotation and e is job.train)])
         say(f"{job.path.stem}: {len(job.train)} annotated + {n_rough} rough training examples, "
             f"{len(job.val)} validation")
-        ck = Checkpoint(net=Seg2PoseNet(net_cfg), norm=job.norm, camera=job.camera, cls=job.key,
-                        scene_fingerprint=scene.fingerprint(),
-                        classes=all_classes if job.key == "*" else [],
-                        info={"zero_annotation": cfg.zero_annotation, "cameras": job.cameras,
-                              "train_config": training_record(cfg, settings), "n_train": len(job.train),
-                              "geometry": GEO_VERSION if cfg.geometry else None,
-                              "n_rough": n_rough, "n_val": len(job.val),
-                              "residual_limit": residual_limits(seen.target, seen.cls)})
+        ck = new_checkpoint(scene, job, cfg, settings, net_cfg, all_classes, seen)
 
         def data(ex: ExampleSet) -> _Data:
             return _Data.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
