@@ -85,3 +85,30 @@ def test_steps_are_the_user_commands(tmp_path, monkeypatch):
     assert log[0].startswith("$ s2p synth ") and "--seed 3" in log[0]
     assert (tmp_path / "logs" / "seed3-train-zero.log").exists()
     assert r.errors["tri-I"] == {"baseline": 0.2, "zero": 0.1}
+
+
+def test_self_training_variant_starts_from_the_finished_zero_models(tmp_path, monkeypatch):
+    """zero-views after a finished zero: zero's models are copied in as the rough-only stage
+    (not retrained: training then skips them), without zero's bench.json."""
+    scene = tmp_path / "bench-seed5"
+    (scene / "models-zero").mkdir(parents=True)
+    (scene / "scene.json").write_text("{}")
+    (scene / "models-zero" / "bench.json").write_text(json.dumps({"train_s": 60.0}))
+    (scene / "models-zero" / "all__car.json").write_text("{}")
+    write_table(scene / "table-zero", {"tri-I": 0.2}, {"tri-I": 0.1})
+    trained = []
+
+    def fake_run(argv, **kw):
+        args = argv[3:]
+        if args[0] == "train":
+            trained.append(args)
+            assert (scene / "models-zero-views" / "rough-stage" / "all__car.json").exists()
+            assert not (scene / "models-zero-views" / "rough-stage" / "bench.json").exists()
+            assert args[args.index("--self-train") + 1] == "views"
+        if args[0] == "paper-table":
+            write_table(scene / "table-zero-views", {"tri-I": 0.2}, {"tri-I": 0.08})
+        return accuracy.subprocess.CompletedProcess(argv, 0, "", "")
+
+    monkeypatch.setattr(accuracy.subprocess, "run", fake_run)
+    r = accuracy.run_seed(tmp_path, 5, variants=("zero", "zero-views"), log=lambda s: None)
+    assert len(trained) == 1 and r.errors["tri-I"] == {"baseline": 0.2, "zero": 0.1, "zero-views": 0.08}
