@@ -19,7 +19,9 @@ from seg2pose.eval.paper_table import refuse_table
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import load_scene
 
-VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "zero": "zero-annotation"}
+VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "zero": "zero-annotation",
+                  "zero-random": "zero, random rough", "zero-track": "zero + self (track)",
+                  "zero-views": "zero + self (views)"}
 CONFIGS = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",
            "tri-I", "tri-L", "tri-T"]
 

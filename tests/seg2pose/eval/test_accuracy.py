@@ -112,3 +112,4 @@ def test_self_training_variant_starts_from_the_finished_zero_models(tmp_path, mo
     monkeypatch.setattr(accuracy.subprocess, "run", fake_run)
     r = accuracy.run_seed(tmp_path, 5, variants=("zero", "zero-views"), log=lambda s: None)
     assert len(trained) == 1 and r.errors["tri-I"] == {"baseline": 0.2, "zero": 0.1, "zero-views": 0.08}
+    assert "0.400x" in summary([r], ("zero", "zero-views"))  # every variant has a title
