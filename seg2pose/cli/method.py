@@ -107,7 +107,7 @@ def train_cmd(
     share_classes: Optional[bool] = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
     share_cameras: Optional[bool] = typer.Option(None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)"),
     geometry: Optional[bool] = typer.Option(None, "--geometry/--no-geometry", help="also give the network exact mask-geometry cues: box size, foot and top points, expected height, cuts at the image border"),
-    self_train: Optional[str] = typer.Option(None, "--self-train", help="with --zero-annotation: after the rough-only models (kept in OUT/rough-stage), make pseudo poses from the scene's own unlabelled train split and fine-tune on them. track: each lens's estimates smoothed along its tracks; views: per-track heights from the lenses' disagreement, fused over the lenses and smoothed (docs/RESULTS.md)"),
+    self_train: Optional[str] = typer.Option(None, "--self-train", help="with --zero-annotation: after the rough-only models (kept in OUT/rough-stage), make pseudo poses from the scene's own unlabelled train split and fine-tune on them. track: each lens's estimates smoothed along its tracks; fused: the lenses' estimates fused and smoothed along the tracks; views: the same at per-track heights from the lenses' disagreement (docs/RESULTS.md)"),
     self_epochs: Optional[int] = typer.Option(None, "--self-epochs", min=1, help="epochs of the self-training's fine-tuning (default 10)"),
     keyframes_only: bool = typer.Option(False, "--keyframes-only/--interpolated", help="annotated scenes: train only on the annotator's keyframes, or also on the interpolated frames between them (occluded frames are never used)"),
     augment: Optional[int] = typer.Option(None, "--augment", help="K changed copies of every annotated training mask (occlusion cuts, 1 px outline changes; labels stay exact)"),
@@ -125,7 +125,7 @@ def train_cmd(
     checkpoints.
 
     Without annotation: --zero-annotation trains on rough 3D models only; adding
-    --self-train views (or track) then fine-tunes those models on pseudo poses the scene's own
+    --self-train fused (or track, views) then fine-tunes those models on pseudo poses the scene's own
     unlabelled train split gives them."""
     from seg2pose.io.scene import load_scene
     from seg2pose.training.config import TrainConfig, TrainSettings
@@ -231,7 +231,7 @@ def bench_accuracy_cmd(
     root: Path = typer.Argument(..., help="folder for the scenes, models and tables (one sub-folder per seed; finished steps are kept and skipped)"),
     seed: Optional[List[int]] = typer.Option(None, "--seed", help="a scene seed (repeatable; default 100, 101, 102: settings were chosen on seeds 0-4)"),
     preset: str = typer.Option("bench", "--preset", help="synthetic scene size (see s2p synth --preset)"),
-    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), zero (zero-annotation), zero-random (with randomised rough models), zero-track or zero-views (zero then self-training, --self-train track / views; they start from the zero variant's models when those are finished); repeatable; default s2pn and zero"),
+    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished); repeatable; default s2pn and zero"),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
     train_arg: Optional[List[str]] = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
     smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),

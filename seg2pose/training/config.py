@@ -19,7 +19,7 @@ from seg2pose.method.net import ARCHS
 
 LrSchedule = Literal["constant", "cosine"]
 Loss = Literal["mse", "euclid"]
-SELF_TRAIN = ("", "track", "views")  # self-training flavours (seg2pose.training.self_training)
+SELF_TRAIN = ("", "track", "fused", "views")  # self-training flavours (seg2pose.training.self_training)
 ROUGH_STAGE = "rough-stage"  # sub-folder of a self-training's rough-only models
 
 
@@ -70,7 +70,8 @@ class TrainConfig:
     # self-training (zero-annotation only; seg2pose.training.self_training): after the rough-only
     # models and their radial calibration, pseudo poses from the scene's own unlabelled train
     # split -- "track": each lens's estimates smoothed along its tracks; "views": the lenses'
-    # estimates at per-track heights, fused and smoothed -- then ``self_epochs`` epochs of
+    # estimates at per-track heights, fused and smoothed; "fused": the same at the default
+    # heights -- then ``self_epochs`` epochs of
     # fine-tuning on them (starting from the rough-only weights; "": none)
     self_train: str = ""
     self_epochs: int = 10

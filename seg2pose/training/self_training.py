@@ -17,6 +17,8 @@ that needs no annotation:
      default;
    - "views": all lenses together: one height per track from the lenses' disagreement
      (``apply_track_heights``), then fused over the lenses and smoothed along the track;
+   - "fused": as "views" without the per-track heights (on the tuning seed the heights made
+     the cars' pseudo poses worse, docs/RESULTS.md);
 3. the network fine-tuned on them as if they were annotations (``labelled_examples``: the mask,
    its normal position at the class's default height, target = pseudo pose - normal position),
    for ``self_epochs`` epochs, starting from the rough-only weights, the rough-model examples
@@ -88,16 +90,19 @@ def _keys(frame: np.ndarray, track_id: np.ndarray) -> np.ndarray:
 def pseudo_poses(scene: Scene, views: ViewTable, flavour: str, smooth: int) -> PseudoLabels:
     """Pseudo poses for every tracked view with an estimate (see the module docstring):
     "track": per lens, its estimates smoothed along its tracks over +-``smooth`` frames;
-    "views": per-track heights from all lenses, fused over them, smoothed likewise."""
+    "views": per-track heights from all lenses, fused over them, smoothed likewise; "fused":
+    fused over the lenses at the default heights, smoothed likewise."""
     if flavour == "views":
         from seg2pose.method.track_heights import DEFAULT_SETTINGS, apply_track_heights
 
         fitted, _, _ = apply_track_heights(scene, views, DEFAULT_SETTINGS)
         parts = [fitted]
+    elif flavour == "fused":
+        parts = [views]
     elif flavour == "track":
         parts = [views.of_cameras([c]) for c in np.unique(views.camera)]
     else:
-        raise S2PError(f"unknown self-training flavour {flavour!r}; use 'track' or 'views'")
+        raise S2PError(f"unknown self-training flavour {flavour!r}; use 'track', 'fused' or 'views'")
     cols: list[tuple] = []
     for v in parts:
         poses = fuse(v, scene, smooth=smooth)  # per (frame, track id); confirm off: keep all

@@ -53,7 +53,8 @@ def test_track_pseudo_poses_are_each_lens_smoothed_by_hand(scene):
 
 def test_views_pseudo_poses_equal_smoothed_fused_poses_at_track_heights(scene):
     """"views": for every tracked view, the pose the pipeline fuses over the lenses at the
-    fitted per-track heights, smoothed along the track -- exactly; the same for all lenses."""
+    fitted per-track heights, smoothed along the track -- exactly; the same for all lenses;
+    "fused": likewise at the default heights."""
     from seg2pose.method.pipeline import compute_views, fuse
     from seg2pose.method.track_heights import apply_track_heights
     from seg2pose.training.self_training import pseudo_poses
@@ -63,18 +64,22 @@ def test_views_pseudo_poses_equal_smoothed_fused_poses_at_track_heights(scene):
     lab = pseudo_poses(scene, views, "views", smooth=3)
     poses = fuse(apply_track_heights(scene, views)[0], scene, smooth=3)
     assert len(lab) == int((views.track_id >= 0).sum()) > 0
+    fused = pseudo_poses(scene, views, "fused", smooth=3)
+    plain = fuse(views, scene, smooth=3)  # "fused": the same at the default heights
     for cam in ("c0", "c1", "c2"):
-        got = lab.lookup(cam, poses.frame, poses.track_id)
-        seen = np.isfinite(got[:, 0])
-        assert seen.sum() > 10
-        np.testing.assert_array_equal(got[seen], poses.xyz[seen, :2])
+        for lab_, poses_ in ((lab, poses), (fused, plain)):
+            got = lab_.lookup(cam, poses_.frame, poses_.track_id)
+            seen = np.isfinite(got[:, 0])
+            assert seen.sum() > 10
+            np.testing.assert_array_equal(got[seen], poses_.xyz[seen, :2])
+    assert not np.array_equal(lab.xy, fused.xy)  # the fitted heights moved some tracks
 
 
 def test_unknown_flavour_and_self_training_without_zero_annotation_are_refused():
     from seg2pose.training.config import TrainConfig
 
-    with pytest.raises(S2PError, match="unknown self_train 'fused'"):
-        TrainConfig(zero_annotation=True, self_train="fused")
+    with pytest.raises(S2PError, match="unknown self_train 'smoothed'"):
+        TrainConfig(zero_annotation=True, self_train="smoothed")
     with pytest.raises(S2PError, match="zero-annotation"):
         TrainConfig(self_train="views")
 
