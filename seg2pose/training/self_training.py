@@ -122,25 +122,32 @@ def pseudo_poses(scene: Scene, views: ViewTable, flavour: str, smooth: int) -> P
     return PseudoLabels(*(np.concatenate(c) for c in zip(*cols)))
 
 
+def unlabelled_split(scene: Scene) -> str | None:
+    """The frames the pseudo poses come from: the train split, or all frames when the scene
+    has no splits (as the radial calibration, ``calibrate_radial``)."""
+    return "train" if "train" in scene.splits else None
+
+
 def rough_stage_views(scene: Scene, stage_dir: Path, cams: list[str], progress: bool) -> ViewTable:
-    """The rough-only models' views of ``cams`` on the train split (``compute_views``), from
+    """The rough-only models' views of ``cams`` on the train split (``unlabelled_split``;
+    ``compute_views``), from
     ``stage_dir/train-run`` when that run was made by the same checkpoints and cameras, else
     computed and written there (a run folder: ``s2p eval`` can inspect it)."""
-    if "train" not in scene.splits:
-        raise S2PError(f"{scene.root}: self-training needs a train split (its unlabelled masks)")
+    split = unlabelled_split(scene)
     models = load_models(scene, cams, stage_dir)
     run_dir = stage_dir / TRAIN_RUN
     shas = sorted({file_sha256(Path(p)) for p in models.paths.values()})
     if (run_dir / "views.csv").exists():
         meta = read_run_meta(run_dir)
         if (sorted({m["sha256"] for m in meta.get("models", {}).values()}) == shas
-                and meta.get("cameras") == cams and meta.get("split") == "train"):
+                and meta.get("cameras") == cams and meta.get("split") == split):
             say(f"self-training: the rough-only models' train-split run {run_dir} reused")
             return read_views(run_dir / "views.csv")
-    say(f"self-training: running the rough-only models on the train split of {', '.join(cams)}")
-    views, n = compute_views(scene, cams, scene.split_range("train"), models, progress=progress)
+    say(f"self-training: running the rough-only models on the {split or 'whole'} split of "
+        f"{', '.join(cams)}")
+    views, n = compute_views(scene, cams, scene.split_range(split), models, progress=progress)
     write_run(scene, run_dir, views, cams, models, n,
-              RunOptions(models_dir=stage_dir, split="train", force=True, progress=progress))
+              RunOptions(models_dir=stage_dir, split=split, force=True, progress=progress))
     return views
 
 
@@ -152,7 +159,7 @@ def pseudo_examples(scene: Scene, cam: str, labels: PseudoLabels, classes: list[
     per class (a random subset) train."""
     by_id = scene.class_by_id()
     rles, cls, xy, tid = [], [], [], []
-    for _, t in scene.iter_masks(cam, scene.split_range("train")):
+    for _, t in scene.iter_masks(cam, scene.split_range(unlabelled_split(scene))):
         names = np.array([by_id[int(c)].name if int(c) in by_id else "" for c in t.class_id], object)
         p = labels.lookup(cam, t.frame, t.track_id)
         for i in np.flatnonzero(np.isfinite(p[:, 0]) & np.isin(names, classes)):
@@ -226,7 +233,7 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                                 ExampleSet.concat([job.train, job.rough]))
             ck.info["self_training"] = {
                 "flavour": cfg.self_train, "epochs": cfg.self_epochs, "smooth": cfg.self_smooth,
-                "split": "train", "n_pseudo": len(job.train),
+                "split": unlabelled_split(scene), "n_pseudo": len(job.train),
                 "start": {"file": f"{ROUGH_STAGE}/{job.path.name}",
                           "sha256": file_sha256(stage / job.path.name),
                           "radial_offset": start.info.get("radial_offset")}}

@@ -172,3 +172,11 @@ def test_cli_self_train_option(tmp_path, monkeypatch, capsys):
     assert code == 2 and "unknown self_train 'x'" in err
     code, out, _ = s2p(monkeypatch, capsys, "train", "--help")
     assert "--self-train" in out and "--self-epochs" in out
+
+
+def test_pseudo_poses_come_from_the_train_split_or_all_frames(scene, tmp_path):
+    from seg2pose.training.self_training import unlabelled_split
+
+    assert unlabelled_split(scene) == "train"
+    assert unlabelled_split(make_tiny_scene(tmp_path / "nosplits", frames=4, n_users=1,
+                                            splits={})) is None
