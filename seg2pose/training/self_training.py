@@ -178,6 +178,9 @@ def pseudo_examples(scene: Scene, cam: str, labels: PseudoLabels, classes: list[
             k = cap if not val else max(1, int(round(cap * VAL_SHARE)))
             sel.append(np.sort(rng.choice(s, k, replace=False)) if len(s) > k else s)
         idx = np.sort(np.concatenate(sel)).astype(np.int64) if sel else np.zeros(0, np.int64)
+        if not len(idx):  # e.g. a lens that saw no road user of these classes
+            parts.append(ExampleSet.empty(crop // factor, factor))
+            continue
         parts.append(labelled_examples(scene, cam, [rles[i] for i in idx], cam_.height, cam_.width,
                                        cls_a[idx], xy_a[idx], False, crop, factor, center_method,
                                        where=f"camera {cam}, pseudo poses"))

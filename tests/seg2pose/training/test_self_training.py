@@ -180,3 +180,13 @@ def test_pseudo_poses_come_from_the_train_split_or_all_frames(scene, tmp_path):
     assert unlabelled_split(scene) == "train"
     assert unlabelled_split(make_tiny_scene(tmp_path / "nosplits", frames=4, n_users=1,
                                             splits={})) is None
+
+
+def test_a_lens_without_pseudo_poses_gives_no_examples(scene):
+    from seg2pose.training.self_training import PseudoLabels, pseudo_examples
+
+    none = PseudoLabels(np.zeros(0, object), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                        np.zeros((0, 2)))
+    tr, va = pseudo_examples(scene, "c0", none, ["car"], np.zeros(0), 420, 3, "centroid", 10,
+                             np.random.default_rng(0))
+    assert len(tr) == len(va) == 0
