@@ -71,8 +71,8 @@ class TrainConfig:
     # models and their radial calibration, pseudo poses from the scene's own unlabelled train
     # split -- "track": each lens's estimates smoothed along its tracks; "views": the lenses'
     # estimates at per-track heights, fused and smoothed; "fused": the same at the default
-    # heights -- then ``self_epochs`` epochs of
-    # fine-tuning on them (starting from the rough-only weights; "": none)
+    # heights -- then ``self_epochs`` epochs of fine-tuning on them, starting from the
+    # rough-only weights ("": none). Measured on a tuning seed: no gain yet (docs/RESULTS.md)
     self_train: str = ""
     self_epochs: int = 10
     self_smooth: int = 4             # half window (frames) of the pseudo poses' smoothing

@@ -330,7 +330,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if cfg.self_train:
         # the rough-only models first (their own folder; skipped when finished), then the
-        # fine-tuning on pseudo poses of the scene's unlabelled train split
+        # fine-tuning on pseudo poses of the scene's unlabelled train split (one model after
+        # another: ``map_groups`` fans out the first stage only)
         from seg2pose.training.self_training import ROUGH_STAGE, self_train_scene
 
         train_scene(scene, out / ROUGH_STAGE, cfg.rough_stage(), cameras, classes, progress,
