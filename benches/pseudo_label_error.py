@@ -2,7 +2,7 @@
 against the ground truth of the train split, per flavour and class: the rough-only models'
 views as they are ("raw", each lens), "track" (each lens smoothed along its tracks) and
 "views" (per-track heights, fused over the lenses, smoothed). The truth is read here only to
-measure; the pseudo poses never see it.
+measure; the pseudo poses never see it. Also "fused" (over the lenses at the default heights).
 
     PYTHONPATH=. .venv/bin/python benches/pseudo_label_error.py SCENE ROUGH_MODELS [--smooth 4]
 
@@ -60,6 +60,7 @@ def main() -> None:
     views = rough_stage_views(scene, Path(a.models), cams, progress=False)
     rows = {"raw": pseudo_poses(scene, views, "track", 0),
             "track": pseudo_poses(scene, views, "track", a.smooth),
+            "fused": pseudo_poses(scene, views, "fused", a.smooth),
             "views": pseudo_poses(scene, views, "views", a.smooth)}
     print(f"pseudo poses vs the truth, train split of {scene.root.name}: mean error / mean |radial| m (views)")
     for name, lab in rows.items():
