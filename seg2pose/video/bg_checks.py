@@ -96,18 +96,53 @@ def ncc(a: np.ndarray, b: np.ndarray, k: int = 7) -> np.ndarray:
     return (cv2.boxFilter(a * b, -1, (k, k)) - ma * mb) / np.sqrt(np.maximum(va, 1.0) * np.maximum(vb, 1.0))
 
 
+# the colour test of ``ghost_mask``: a pixel is "explained" by a palette when one of its colours
+# is within PALETTE_TOL grey levels in every channel (sensor noise 2-5, a road's texture ~10);
+# a ghost's inside is explained by the frame's surroundings (FRAME_EXPLAINED of it) and the
+# background image's inside is not (at most BG_EXPLAINED). Development seed 107, c1: ghosts on a
+# zebra stripe 1.00 / 0.00-0.09, road users 0.005-0.92 / 0.004-1.0 (none both).
+PALETTE_TOL = 20
+FRAME_EXPLAINED = 0.9
+BG_EXPLAINED = 0.2
+PALETTE_SIZE = 300
+
+
+def explained_share(pixels: np.ndarray, palette: np.ndarray, tol: int = PALETTE_TOL) -> float:
+    """Share of ``pixels`` (N, C) whose colour is within ``tol`` in every channel of one of
+    ``palette`` (M, C) (at most PALETTE_SIZE of them are used, a fixed sample)."""
+    if not len(pixels) or not len(palette):
+        return 0.0
+    if len(palette) > PALETTE_SIZE:
+        palette = palette[np.random.default_rng(0).choice(len(palette), PALETTE_SIZE, replace=False)]
+    if len(pixels) > 4 * PALETTE_SIZE:
+        pixels = pixels[np.random.default_rng(1).choice(len(pixels), 4 * PALETTE_SIZE, replace=False)]
+    d = np.abs(pixels[:, None, :].astype(np.int16) - palette[None, :, :].astype(np.int16))
+    return float(((d.max(axis=2) if d.ndim == 3 else d).min(axis=1) <= tol).mean())
+
+
 def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,
                quiet: np.ndarray, min_area: int, ratio: float) -> np.ndarray:
     """(H, W) bool: the components of ``static`` (H, W) bool (long-lasting foreground) that are
     ghosts. A road user that stopped has its outline in the frame and not in the background
     image; a ghost (the background image holds a road user that has left) the other way round.
-    A component of at least ``min_area`` pixels is a ghost when the mean edge strength
-    (``edge_strength``) along its outline (a 5 px band) is ``ratio`` times larger in ``background``
-    than in ``frame`` (both (H, W, 3) or (H, W) uint8), and at least half of a ring 2-6 px
-    around it is ``quiet`` ((H, W) bool: neither foreground nor shadow) with the background's
-    texture (``ncc`` >= 0.3). A ghost lies in the empty road; a bright road marking covered
-    by a flat dark car body (which MOG2 may take for background or shadow) has the same
-    outline edges but lies inside the car.
+    A component of at least ``min_area`` pixels is a ghost when at least half of a ring 2-6 px
+    around it is ``quiet`` ((H, W) bool: neither foreground nor shadow) and either
+
+    - *edges*: that half has the background's texture (``ncc`` >= 0.3) and the mean edge
+      strength (``edge_strength``) along the component's outline (a 5 px band) is ``ratio``
+      times larger in ``background`` than in ``frame`` (both (H, W, 3) or (H, W) uint8); or
+    - *colours*: the frame inside it (2 px in from its outline) has the colours of the frame's
+      quiet ring (``explained_share`` >= FRAME_EXPLAINED) and the background image inside it
+      does not (<= BG_EXPLAINED): the empty road continues into it, the road user that was
+      there is gone. The edge test alone misses ghosts on flat road markings: where a car of
+      the starting background covered a zebra stripe, the ghost is the stripe's part under
+      it, whose outline runs partly along the stripe's own edges (in the frame, not in the
+      background) and whose flat white ring has no texture to correlate.
+
+    A ghost lies in the empty road; a bright road marking covered by a flat dark car body
+    (which MOG2 may take for background or shadow) has the same outline edges but lies inside
+    the car (its ring is not quiet). A stopped road user fails the colour test's first half
+    (its colours are not the road's) or its second (the road it hides is in the ring).
     """
     import cv2
 
@@ -124,12 +159,21 @@ def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,
         blob = (lab[y0:y1, x0:x1] == i).view(np.uint8)
         near = cv2.dilate(blob, k)
         ring = (cv2.dilate(blob, k_ring) - near).view(bool)
-        ok = quiet[y0:y1, x0:x1][ring] & (ncc(frame[y0:y1, x0:x1], background[y0:y1, x0:x1])[ring] >= 0.3)
-        if not ok.mean() >= 0.5:
+        calm = quiet[y0:y1, x0:x1][ring]
+        if not calm.mean() >= 0.5:
             continue
-        band = (near - cv2.erode(blob, k)).view(bool)
-        e_frame = edge_strength(frame[y0:y1, x0:x1])[band].mean()
-        e_bg = edge_strength(background[y0:y1, x0:x1])[band].mean()
-        if e_bg > ratio * max(e_frame, 1e-6):
+        fr, bg = frame[y0:y1, x0:x1], background[y0:y1, x0:x1]
+        ok = calm & (ncc(fr, bg)[ring] >= 0.3)
+        if ok.mean() >= 0.5:
+            band = (near - cv2.erode(blob, k)).view(bool)
+            e_frame = edge_strength(fr)[band].mean()
+            e_bg = edge_strength(bg)[band].mean()
+            if e_bg > ratio * max(e_frame, 1e-6):
+                out[y0:y1, x0:x1] |= blob.view(bool)
+                continue
+        core = cv2.erode(blob, k).view(bool)
+        palette = fr[ring][calm]
+        if (core.any() and explained_share(fr[core], palette) >= FRAME_EXPLAINED
+                and explained_share(bg[core], palette) <= BG_EXPLAINED):
             out[y0:y1, x0:x1] |= blob.view(bool)
     return out
