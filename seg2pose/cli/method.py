@@ -142,9 +142,17 @@ def train_cmd(
                       annotated_rows="keyframes" if keyframes_only else "interpolated",
                       **{k: v for k, v in over.items() if v is not None})
     settings = TrainSettings(device=device, threads=threads or TrainSettings.threads, force=force)
-    out_dir = train_scene(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
-                          progress=True, settings=settings,
-                          map_groups=ray_map(address, parallel) if parallel or address else None)
+    sc = load_scene(scene)
+    if cfg.self_train:
+        from seg2pose.training.self_training import train_self_trained
+
+        out_dir = train_self_trained(sc, out or sc.root / "models", cfg, cameras=camera or None,
+                                     classes=cls or None, progress=True, settings=settings,
+                                     map_groups=ray_map(address, parallel) if parallel or address else None)
+    else:
+        out_dir = train_scene(sc, out, cfg, cameras=camera or None, classes=cls or None,
+                              progress=True, settings=settings,
+                              map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
 
 

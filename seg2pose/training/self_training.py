@@ -47,6 +47,7 @@ from seg2pose.method.net import NetConfig
 from seg2pose.method.pipeline import RunOptions, compute_views, fuse, write_run
 from seg2pose.training.config import ROUGH_STAGE, TrainConfig, TrainSettings, same_protocol
 from seg2pose.training.examples import ExampleSet, labelled_examples
+from seg2pose.training.train import TrainData, new_checkpoint, train_model, train_scene
 from seg2pose.training.training_data import camera_groups, model_jobs
 
 TRAIN_RUN = "train-run"       # their run on the train split (inside ROUGH_STAGE)
@@ -201,8 +202,6 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                      cams: list[str], classes: list[str], progress: bool = True) -> None:
     """Fine-tune the rough-only models of ``out/ROUGH_STAGE`` on pseudo poses into ``out``
     (see the module docstring); finished models are skipped, interrupted ones resume."""
-    from seg2pose.training.train import _Data, new_checkpoint, train_model
-
     stage = out / ROUGH_STAGE
     net_cfg = NetConfig.named(cfg.arch, len(scene.class_names) if cfg.share_classes else 0,
                               N_GEO if cfg.geometry else 0)
@@ -241,9 +240,24 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                           "sha256": file_sha256(stage / job.path.name),
                           "radial_offset": start.info.get("radial_offset")}}
 
-            def data(ex: ExampleSet) -> _Data:
-                return _Data.of(ex, job.norm, scene.class_names, job.key == "*", cfg.geometry)
+            def data(ex: ExampleSet) -> TrainData:
+                return TrainData.of(ex, job.norm, scene.class_names, job.key == "*", cfg.geometry)
 
             init = {k: v.detach().cpu() for k, v in start.net.state_dict().items()}
             train_model(data(job.train), data(job.rough), data(job.val), net_cfg, ft, ck,
                         job.path, progress, None, settings, init=init)
+
+
+def train_self_trained(scene: Scene, out: Path, cfg: TrainConfig, cameras: list[str] | None = None,
+                       classes: list[str] | None = None, progress: bool = True, map_groups=None,
+                       settings: TrainSettings | None = None) -> Path:
+    """``s2p train --self-train``: the rough-only models first (``out/ROUGH_STAGE``, by
+    ``train_scene``; skipped when finished), then the fine-tuning on pseudo poses of the
+    scene's unlabelled train split (one model after another: ``map_groups`` fans out the first
+    stage only). Returns ``out``."""
+    settings = settings or TrainSettings()
+    train_scene(scene, out / ROUGH_STAGE, cfg.rough_stage(), cameras, classes, progress,
+                map_groups, settings)
+    self_train_scene(scene, out, cfg, settings, cameras or list(scene.cameras),
+                     classes or scene.class_names, progress)
+    return out

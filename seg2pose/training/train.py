@@ -60,7 +60,7 @@ from seg2pose.training.zero_annotation import calibrate_radial
 
 
 @dataclass
-class _Data:
+class TrainData:
     """An example set with its network vectors precomputed."""
 
     ex: ExampleSet
@@ -69,7 +69,7 @@ class _Data:
 
     @classmethod
     def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool,
-           geometry: bool = False) -> "_Data":
+           geometry: bool = False) -> "TrainData":
         cfg = NetConfig(n_classes=len(classes) if shared else 0, n_geo=N_GEO if geometry else 0)
         v = input_vector(cfg, norm, ex.centers, ex.normal, ex.cls, classes, ex.geo)
         return cls(ex, v, (ex.target / norm.residual_scale).astype(np.float32))
@@ -97,7 +97,7 @@ def check_finite_loss(loss: float, where: str) -> None:
                        "(the best checkpoint so far is kept). Try a lower learning rate.")
 
 
-def _evaluate(net: Seg2PoseNet, data: _Data, device, residual_scale: float, batch: int = 256,
+def _evaluate(net: Seg2PoseNet, data: TrainData, device, residual_scale: float, batch: int = 256,
               loss: str = "mse") -> tuple[float, float]:
     """(validation loss, mean Euclidean error in metres)."""
     net.eval()
@@ -186,7 +186,7 @@ def _load_resume(state_path: Path, ckpt: Checkpoint, cfg: TrainConfig, path: Pat
     return resume
 
 
-def train_model(train: _Data | None, rough: _Data | None, val: _Data, net_cfg: NetConfig,
+def train_model(train: TrainData | None, rough: TrainData | None, val: TrainData, net_cfg: NetConfig,
                 cfg: TrainConfig, ckpt: Checkpoint, path: Path, progress: bool = True,
                 runs: list[int] | None = None, settings: TrainSettings = TrainSettings(),
                 init: dict | None = None) -> dict:
@@ -329,16 +329,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
     settings = settings or TrainSettings()
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"
     if cfg.self_train:
-        # the rough-only models first (their own folder; skipped when finished), then the
-        # fine-tuning on pseudo poses of the scene's unlabelled train split (one model after
-        # another: ``map_groups`` fans out the first stage only)
-        from seg2pose.training.self_training import ROUGH_STAGE, self_train_scene
-
-        train_scene(scene, out / ROUGH_STAGE, cfg.rough_stage(), cameras, classes, progress,
-                    map_groups, settings)
-        self_train_scene(scene, out, cfg, settings, cameras or list(scene.cameras),
-                         classes or scene.class_names, progress)
-        return out
+        raise S2PError("self-training (--self-train) is trained by "
+                       "seg2pose.training.self_training.train_self_trained, not train_scene")
     if not cfg.zero_annotation and not scene.gt_path.exists():
         raise S2PError(f"{scene.root} has no ground truth ({scene.gt_path}); annotate it, or train "
                        "zero-annotation (from rough models only)")
@@ -365,8 +357,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
             f"{len(job.val)} validation")
         ck = new_checkpoint(scene, job, cfg, settings, net_cfg, all_classes, seen)
 
-        def data(ex: ExampleSet) -> _Data:
-            return _Data.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
+        def data(ex: ExampleSet) -> TrainData:
+            return TrainData.of(ex, job.norm, all_classes, job.key == "*", cfg.geometry)
 
         best = train_model(None if cfg.zero_annotation else data(job.train),
                            None if job.rough is None else data(job.rough), data(job.val), net_cfg,

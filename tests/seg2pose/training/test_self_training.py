@@ -85,11 +85,11 @@ def test_unknown_flavour_and_self_training_without_zero_annotation_are_refused()
 
 
 def _train(scene, out, **kw):
-    from seg2pose.training.train import train_scene
+    from seg2pose.training.self_training import train_self_trained
 
     cfg = tiny_config(zero_annotation=True, epochs=2, batches_per_epoch=3, self_train="views",
                       self_epochs=1, **kw)
-    return train_scene(scene, out, cfg, progress=False)
+    return train_self_trained(scene, out, cfg, progress=False)
 
 
 def test_self_training_never_reads_ground_truth(tmp_path, fake_rough, monkeypatch):

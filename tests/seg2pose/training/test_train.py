@@ -22,7 +22,7 @@ def _val_loss_untrained(scene, cam):
     from seg2pose.training.examples import annotated_examples
     from seg2pose.io.poses import read_poses
     from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet
-    from seg2pose.training.train import _Data, _evaluate
+    from seg2pose.training.train import TrainData, _evaluate
 
     torch.manual_seed(0)
     net = Seg2PoseNet(NetConfig.lite(n_classes=3))
@@ -30,7 +30,7 @@ def _val_loss_untrained(scene, cam):
     val = annotated_examples(scene, cam, gt, "val", 420, 3)
     c = scene.cameras[cam]
     norm = Normalisation.for_scene(scene.ground_points, c.width, c.height)
-    return _evaluate(net, _Data.of(val, norm, ["pedestrian", "bicyclist", "car"], True),
+    return _evaluate(net, TrainData.of(val, norm, ["pedestrian", "bicyclist", "car"], True),
                      torch.device("cpu"), 1.0)
 
 
