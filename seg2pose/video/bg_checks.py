@@ -109,15 +109,17 @@ PALETTE_SIZE = 300
 
 def explained_share(pixels: np.ndarray, palette: np.ndarray, tol: int = PALETTE_TOL) -> float:
     """Share of ``pixels`` (N, C) whose colour is within ``tol`` in every channel of one of
-    ``palette`` (M, C) (at most PALETTE_SIZE of them are used, a fixed sample)."""
+    ``palette`` (M, C) (at most PALETTE_SIZE of them are used, a fixed sample); grey pixels and
+    palette may be (N,) and (M,)."""
     if not len(pixels) or not len(palette):
         return 0.0
+    pixels, palette = pixels.reshape(len(pixels), -1), palette.reshape(len(palette), -1)
     if len(palette) > PALETTE_SIZE:
         palette = palette[np.random.default_rng(0).choice(len(palette), PALETTE_SIZE, replace=False)]
     if len(pixels) > 4 * PALETTE_SIZE:
         pixels = pixels[np.random.default_rng(1).choice(len(pixels), 4 * PALETTE_SIZE, replace=False)]
     d = np.abs(pixels[:, None, :].astype(np.int16) - palette[None, :, :].astype(np.int16))
-    return float(((d.max(axis=2) if d.ndim == 3 else d).min(axis=1) <= tol).mean())
+    return float((d.max(axis=2).min(axis=1) <= tol).mean())
 
 
 def ghost_mask(static: np.ndarray, frame: np.ndarray, background: np.ndarray,

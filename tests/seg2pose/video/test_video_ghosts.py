@@ -206,6 +206,7 @@ def test_explained_share_counts_pixels_near_a_palette_colour():
                    [120, 120, 120]], np.uint8)
     assert explained_share(px, pal) == 0.5
     assert explained_share(px[:0], pal) == 0.0
+    assert explained_share(px[:, 0], pal[:, 0]) == 0.5      # grey: (N,) and (M,)
 
 
 def test_a_body_of_the_road_colour_next_to_foreground_is_found(tmp_path):
