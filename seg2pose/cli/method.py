@@ -129,6 +129,7 @@ def train_cmd(
     unlabelled train split gives them."""
     from seg2pose.io.scene import load_scene
     from seg2pose.training.config import TrainConfig, TrainSettings
+    from seg2pose.training.self_training import train_self_trained
     from seg2pose.training.train import train_scene
 
     cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
@@ -142,17 +143,11 @@ def train_cmd(
                       annotated_rows="keyframes" if keyframes_only else "interpolated",
                       **{k: v for k, v in over.items() if v is not None})
     settings = TrainSettings(device=device, threads=threads or TrainSettings.threads, force=force)
-    sc = load_scene(scene)
-    if cfg.self_train:
-        from seg2pose.training.self_training import train_self_trained
-
-        out_dir = train_self_trained(sc, out or sc.root / "models", cfg, cameras=camera or None,
-                                     classes=cls or None, progress=True, settings=settings,
-                                     map_groups=ray_map(address, parallel) if parallel or address else None)
-    else:
-        out_dir = train_scene(sc, out, cfg, cameras=camera or None, classes=cls or None,
-                              progress=True, settings=settings,
-                              map_groups=ray_map(address, parallel) if parallel or address else None)
+    # self-training: the rough-only stage (train_scene), then the fine-tuning on pseudo poses
+    fit = train_self_trained if cfg.self_train else train_scene
+    out_dir = fit(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
+                  progress=True, settings=settings,
+                  map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
 
 

@@ -72,20 +72,29 @@ class PseudoLabels:
         """(M, 2) the pseudo poses of ``camera``'s views (frame, track_id) (M,); NaN where
         there is none."""
         mine = np.flatnonzero(self.camera == camera)
-        keys = _keys(self.frame[mine], self.track_id[mine])
-        order = np.argsort(keys)
-        want = _keys(np.asarray(frame), np.asarray(track_id))
-        pos = np.clip(np.searchsorted(keys[order], want), 0, max(len(keys) - 1, 0))
-        out = np.full((len(want), 2), np.nan)
-        if len(keys):
-            hit = (keys[order][pos] == want) & (np.asarray(track_id) >= 0)
-            out[hit] = self.xy[mine[order[pos[hit]]]]
+        hit, at = _find(self.frame[mine], self.track_id[mine], frame, track_id)
+        hit &= np.asarray(track_id) >= 0
+        out = np.full((len(hit), 2), np.nan)
+        out[hit] = self.xy[mine[at[hit]]]
         return out
 
 
 def _keys(frame: np.ndarray, track_id: np.ndarray) -> np.ndarray:
     """One int64 per (frame, track id): frames and ids below 2**31."""
     return np.asarray(frame, np.int64) * (1 << 31) + np.asarray(track_id, np.int64)
+
+
+def _find(frame: np.ndarray, track_id: np.ndarray, want_frame: np.ndarray,
+          want_id: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each wanted (frame, track id) (M,) is among the rows (frame, track_id) (N,):
+    (found (M,) bool, its row (M,) int, meaningful where found)."""
+    keys = _keys(frame, track_id)
+    order = np.argsort(keys)
+    want = _keys(want_frame, want_id)
+    if not len(keys):
+        return np.zeros(len(want), bool), np.zeros(len(want), np.int64)
+    pos = np.clip(np.searchsorted(keys[order], want), 0, len(keys) - 1)
+    return keys[order][pos] == want, order[pos]
 
 
 def pseudo_poses(scene: Scene, views: ViewTable, flavour: str, smooth: int) -> PseudoLabels:
@@ -108,13 +117,9 @@ def pseudo_poses(scene: Scene, views: ViewTable, flavour: str, smooth: int) -> P
     for v in parts:
         poses = fuse(v, scene, smooth=smooth)  # per (frame, track id); confirm off: keep all
         tracked = poses.track_id >= 0
-        keys = _keys(poses.frame[tracked], poses.track_id[tracked])
-        order = np.argsort(keys)
         use = np.flatnonzero((v.track_id >= 0) & np.isfinite(v.normal[:, :2] + v.residual).all(1))
-        want = _keys(v.frame[use], v.track_id[use])
-        pos = np.clip(np.searchsorted(keys[order], want), 0, max(len(keys) - 1, 0))
-        hit = keys[order][pos] == want if len(keys) else np.zeros(len(use), bool)
-        xy = poses.xyz[tracked][order[pos[hit]], :2]
+        hit, at = _find(poses.frame[tracked], poses.track_id[tracked], v.frame[use], v.track_id[use])
+        xy = poses.xyz[tracked][at[hit], :2]
         i = use[hit]
         cols.append((v.camera[i], v.frame[i], v.track_id[i], xy))
     if not cols:
@@ -248,14 +253,17 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                         job.path, progress, None, settings, init=init)
 
 
-def train_self_trained(scene: Scene, out: Path, cfg: TrainConfig, cameras: list[str] | None = None,
-                       classes: list[str] | None = None, progress: bool = True, map_groups=None,
+def train_self_trained(scene: Scene, out: str | Path | None, cfg: TrainConfig,
+                       cameras: list[str] | None = None, classes: list[str] | None = None,
+                       progress: bool = True, map_groups=None,
                        settings: TrainSettings | None = None) -> Path:
-    """``s2p train --self-train``: the rough-only models first (``out/ROUGH_STAGE``, by
-    ``train_scene``; skipped when finished), then the fine-tuning on pseudo poses of the
-    scene's unlabelled train split (one model after another: ``map_groups`` fans out the first
-    stage only). Returns ``out``."""
+    """``s2p train --self-train``, with ``train_scene``'s arguments: the rough-only models first
+    (``out/ROUGH_STAGE``, by ``train_scene``; skipped when finished), then the fine-tuning on
+    pseudo poses of the scene's unlabelled train split (one model after another:
+    ``map_groups`` fans out the first stage only). ``out``: default ``scene.root / "models"``.
+    Returns ``out``."""
     settings = settings or TrainSettings()
+    out = Path(out) if out else scene.root / "models"
     train_scene(scene, out / ROUGH_STAGE, cfg.rough_stage(), cameras, classes, progress,
                 map_groups, settings)
     self_train_scene(scene, out, cfg, settings, cameras or list(scene.cameras),
