@@ -131,7 +131,10 @@ def prepare(video: Path, out: Path, kind: str, seed: int, reuse: bool) -> Path:
     work = out / f"{kind}-{seed}"
     keep = out / f"{kind}-{seed}.tracker"
     if reuse and keep.exists():
-        shutil.rmtree(work / "masks")
+        if not (work / "scene.json").exists():       # the tracker's masks copied to a new DIR
+            fresh_scene(video, work)
+            add_configs(work)
+        shutil.rmtree(work / "masks", ignore_errors=True)
         shutil.copytree(keep, work / "masks")
         return work
     fresh_scene(video, work)

@@ -54,6 +54,13 @@ class TrackConfig:
     split_min: float = 0.5    # > 0: a mask holding this share of two or more tracks' predicted
     #                           masks is split between them (merged blobs); 0: off. Chosen on
     #                           seeds 101-102 (docs/RESULTS.md): recall +3 to +8 points
+    # fragments of one road user joined (seg2pose.video.fragments; video masks only): tracks
+    # sharing >= join_min_s seconds, touching in >= join_near of them, rigid within join_rigid
+    # of their size, whose union is >= join_gain more likely under a size class; 0 gain: off
+    join_gain: float = 0.4
+    join_near: float = 0.8
+    join_rigid: float = 0.3
+    join_min_s: float = 1.0
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> "TrackConfig":

@@ -22,6 +22,7 @@ from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, loa
 from seg2pose.io.text import load_json, read_text
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
 from seg2pose.video.classify import classify_mots, size_rules
+from seg2pose.video.fragments import join_fragments
 from seg2pose.video.detections import DetectionConfig, import_detections
 from seg2pose.video.track import TrackConfig, track_mots
 from seg2pose.video.video_masks import BgConfig, VideoMasksResult, masks_from_video
@@ -85,6 +86,11 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
                                               progress=progress, log=log)
                 msg += f" -> {n_tracks} tracks ({n_kept} masks)"
             if rules is not None:
+                if track:
+                    joins = join_fragments(tmp, tmp, scene.cameras[c], scene.ground, rules,
+                                           scene.fps, tcfg, log=lambda m: None)
+                    if joins:
+                        msg += f", {len(joins)} fragment track(s) joined"
                 votes = classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules,
                                       fps=scene.fps, log=log)
                 names_by_id = {k.id: k.name for k in scene.classes}
