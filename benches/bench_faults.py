@@ -7,7 +7,8 @@ Every writing command on small inputs (tests/kill_cases.py, killed by tests/kill
 MCAP + layout + CSV as one set), ``import-mcap --force`` (into an existing scene folder),
 ``annotate import-tanalyst``, ``associate``, ``batch --serial`` and ``batch`` on a local Ray of
 its own (``batch-ray``: the driver killed; about 35 s a run, most of it Ray's start) (issues 23
-and 24).
+and 24), and ``train`` (killed, then resumed: the re-run must end with the uninterrupted run's
+models byte for byte; a model marked incomplete counts as absent, since readers refuse it).
 Put complete old outputs in place, start the command (with --force where it replaces them),
 SIGKILL it after a random share (0.15-1.05, ``--share``) of its usual duration, and classify
 the outputs: absent, the complete old ones, the complete new ones, or mixed (anything else,
@@ -33,7 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in the killed commands
-from kill_cases import build_cases, build_writer_cases  # noqa: E402
+from kill_cases import build_cases, build_training_cases, build_writer_cases  # noqa: E402
 
 
 def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:
@@ -59,8 +60,10 @@ def main() -> None:
         cases = []
         if only is None or set(only) & set(first):
             cases += build_cases(Path(d) / "first", frames=20)
-        if only is None or set(only) - set(first):
+        if only is None or set(only) - set(first) - {"train"}:
             cases += build_writer_cases(Path(d) / "writers")
+        if only is None or "train" in only:
+            cases += build_training_cases(Path(d) / "training")
         if only:
             cases = [c for c in cases if c.name in only]
         rng = np.random.default_rng(args.seed)

@@ -1,6 +1,7 @@
 """The commands tests/system/test_kill.py and benches/bench_faults.py kill
 (``kill_harness.Case``), each on small inputs made under a folder: ``build_cases`` (issue 10's
-five) and ``build_writer_cases`` (issue 24's writers, annotate export's set, batch)."""
+five), ``build_writer_cases`` (issue 24's writers, annotate export's set, batch) and
+``build_training_cases`` (s2p train: killed, then resumed)."""
 
 from __future__ import annotations
 
@@ -221,3 +222,44 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
              rerun=["batch", sray, "masks-from-video", "run", "--baseline", "--serial",
                     "--no-progress"]),
     ]
+
+
+def _models_state(models: Path, stems: list[str]) -> Callable:
+    """What a reader of the model folder sees: per expected model, None while it is absent or
+    marked incomplete (``ModelSet.load`` refuses those), else the bytes of its checkpoint and
+    metadata; last, the files that should not be there (none: a model with unreadable
+    metadata, or any file but a model's checkpoint, metadata and resume state)."""
+    import hashlib
+
+    def state(case):
+        out, odd = [], []
+        for stem in stems:
+            meta, ck = models / f"{stem}.json", models / f"{stem}.safetensors"
+            try:
+                complete = meta.exists() and json.loads(meta.read_text()).get("complete") is True
+            except ValueError:
+                odd.append(f"{meta.name}: not JSON")
+                complete = False
+            out.append(hashlib.sha256(meta.read_bytes() + ck.read_bytes()).hexdigest()
+                       if complete and ck.exists() else None)
+        known = {f"{s}{x}" for s in stems for x in (".json", ".safetensors", ".safetensors.state.pt")}
+        if models.is_dir():
+            odd += sorted(p.name for p in models.iterdir() if p.name not in known)
+        return out + [odd or None]
+    return state
+
+
+def build_training_cases(root: Path) -> list[Case]:
+    """s2p train (quick protocol, three per-class models, two epochs each) on the tiny scene:
+    killed, then run again as after a crash; the re-run must end with the uninterrupted run's
+    models, byte for byte (resuming from the per-epoch state)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from review_fixtures import make_scene
+
+    root.mkdir(parents=True, exist_ok=True)
+    scene = make_scene(root / "scene", n_frames=30).root
+    models = root / "models"
+    stems = [f"all__{c}" for c in ("pedestrian", "bicyclist", "car")]
+    return [Case("train", ["train", scene, "--protocol", "quick", "--epochs", "2", "--batches", "3",
+                           "--threads", "1", "-o", models], [models], [None],
+                 state=_models_state(models, stems), resume=True)]

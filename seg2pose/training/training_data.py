@@ -8,6 +8,8 @@ to ground truth) and its pool of rough-model examples (3.5). Models finished alr
 
 from __future__ import annotations
 
+import zlib
+
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -147,7 +149,7 @@ def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, gr
     train_ex, val_ex = _annotated(scene, gcams, gt, cfg, crop, factor, rng)
     looks = rough_looks(scene, gcams, cfg)
 
-    def rough_pool(classes_: list[str], n: int) -> ExampleSet:
+    def rough_pool(classes_: list[str], n: int, rng: np.random.Generator) -> ExampleSet:
         return ExampleSet.concat([rough_examples(scene, cam, c, n, rng, crop, factor,
                                                  cfg.center_method,
                                                  detector_noise=cfg.rough_detector_noise,
@@ -157,16 +159,19 @@ def model_jobs(scene: Scene, out: Path, cfg: TrainConfig, net_cfg: NetConfig, gr
 
     for k, path in todo:
         kcls = classes if k == "*" else [k]
+        # each model's rough pool from its own stream: a resumed training (finished models
+        # skipped) draws the same examples as an uninterrupted one
+        mrng = np.random.default_rng([cfg.seed, zlib.crc32(gkey.encode()), zlib.crc32(k.encode())])
         tr = train_ex.take(np.flatnonzero(np.isin(train_ex.cls, kcls)))
         va = val_ex.take(np.flatnonzero(np.isin(val_ex.cls, kcls)))
         rough = None
         if cfg.zero_annotation or cfg.rough_every > 0:
-            rough = rough_pool(kcls, cfg.rough_per_class)
+            rough = rough_pool(kcls, cfg.rough_per_class, mrng)
         if cfg.zero_annotation or len(va) == 0:
             if not cfg.zero_annotation:
                 say(f"{path.stem}: no annotated validation examples; validating on rough models",
                     "warning")
-            va = rough_pool(kcls, cfg.rough_val_per_class)
+            va = rough_pool(kcls, cfg.rough_val_per_class, mrng)
         if len(tr) == 0 and not cfg.zero_annotation:
             if rough is None or len(rough) == 0:
                 say(f"{path.stem}: no training examples at all; skipped", "warning")

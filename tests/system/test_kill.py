@@ -3,7 +3,8 @@ absent, the complete old ones or the complete new ones, never a mix (a set of ou
 annotate export's gt + MCAP + layout + CSV, all old or all new), and beside them only what the
 next writer cleans up. ``batch`` is killed and re-run without --force: the re-run ends with
 the uninterrupted run's outputs (on Ray: the driver killed, its local Ray ends with it, the
-re-run serial). 10 kills per command of issue 24 and 4 per command of issue 10 (seeded), each
+re-run serial); ``train`` too: the re-run resumes and ends with the uninterrupted run's models,
+byte for byte. 10 kills per command of issue 24, 4 per command of issue 10 and 5 of train (seeded), each
 command forked from one Python that has imported s2p (tests/command_zygote.py);
 benches/bench_faults.py does 100-300 per command."""
 
@@ -12,10 +13,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kill_cases import build_cases, build_writer_cases
+from kill_cases import build_cases, build_training_cases, build_writer_cases
 
 KILLS_PER_COMMAND = 10
 KILLS_FIRST = 4  # issue 10's five: 200 each in benches/bench_faults.py, unchanged since
+KILLS_TRAIN = 5  # s2p train: ~10 s a run and a re-run after each kill
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
 WRITERS = ["masks-from-video", "import-detections", "track", "new-scene", "import-tacal",
            "import-mcap", "annotate-export", "import-tanalyst", "associate", "batch-serial"]
@@ -25,17 +27,19 @@ WRITERS = ["masks-from-video", "import-detections", "track", "new-scene", "impor
 def cases(tmp_path_factory):
     root = tmp_path_factory.mktemp("kill")
     return {c.name: c for c in build_cases(root / "first", frames=12)
-            + build_writer_cases(root / "writers", frames=10)}
+            + build_writer_cases(root / "writers", frames=10)
+            + build_training_cases(root / "training")}
 
 
-@pytest.mark.parametrize("name", FIRST + WRITERS + ["batch-ray"])
+@pytest.mark.parametrize("name", FIRST + WRITERS + ["batch-ray", "train"])
 def test_killed_command_leaves_old_or_new(cases, name):
     if name == "batch-ray":  # the driver killed, its local Ray with it; re-run serially
         pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale]")
     case = cases[name]
     case.run_fully()
     rng = np.random.default_rng(sum(map(ord, name)))
-    kinds = [case.kill_once(rng) for _ in range(KILLS_FIRST if name in FIRST else KILLS_PER_COMMAND)]
+    n = KILLS_FIRST if name in FIRST else KILLS_TRAIN if name == "train" else KILLS_PER_COMMAND
+    kinds = [case.kill_once(rng) for _ in range(n)]
     assert case.counts["mixed"] == 0, (kinds, case.mixed)
     assert case.new is not None and case.new != case.old_state()
     # what a killed writer leaves beside the outputs is only what the next writer removes (its
