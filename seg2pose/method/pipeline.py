@@ -243,7 +243,7 @@ def fuse(views: ViewTable, scene: Scene, smooth: int = 0, confirm: float = 0.0,
     size = np.array([sizes.get(str(c), (np.nan, np.nan, np.nan)) for c in out_cls], float)
     pose_r90 = None
     if r90 is not None and views.r90 is not None:
-        from seg2pose.method.uncertainty import pose_features
+        from seg2pose.method.r90_features import pose_features
 
         pose_r90 = r90.pose.predict(out_cls, pose_features(stack[:, kept],
                                                            g.stack(views.r90[g.keep])[:, kept]))

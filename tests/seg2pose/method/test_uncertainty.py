@@ -13,8 +13,9 @@ import pytest
 from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 from seg2pose.io.run import ViewTable, format_views, read_views
-from seg2pose.method.uncertainty import (POSE_FEATURES, VIEW_FEATURES, Calibration, StageModel,
-                                  fit_quantile, pose_features, r90_scores, read_calibration)
+from seg2pose.method.r90_features import POSE_FEATURES, VIEW_FEATURES, pose_features
+from seg2pose.method.uncertainty import (Calibration, StageModel, fit_quantile, r90_scores,
+                                         read_calibration)
 
 
 def test_quantile_of_a_constant_model_is_the_sample_quantile():
@@ -221,7 +222,7 @@ def test_crowding_by_hand():
     """A view whose centre lies within a nearer road user's apparent size is crowded by
     1 - distance / size; the nearer one, views of other frames or cameras, and views beyond
     the size are not."""
-    from seg2pose.method.uncertainty import crowding
+    from seg2pose.method.r90_features import crowding
 
     frame = np.array([0, 0, 0, 1, 0])
     camera = np.array(["c0", "c0", "c0", "c0", "c1"], object)
@@ -243,7 +244,7 @@ def test_view_columns_by_hand():
 
     from seg2pose.geometry.camera import Camera
     from seg2pose.io.run import ViewTable
-    from seg2pose.method.uncertainty import view_columns
+    from seg2pose.method.r90_features import view_columns
 
     from seg2pose.geometry.ground import GroundSurface
 
@@ -267,7 +268,7 @@ def test_view_columns_by_hand():
     size_car = 500.0 * 4.0 / np.sqrt(500.0)
     assert size_car < np.hypot(10.0, 295.0)
     np.testing.assert_allclose(c["crowd"], [0.0, 0.0])
-    from seg2pose.method.uncertainty import FOOT_FLOOR_M, foot_offset, typical_boxes
+    from seg2pose.method.r90_features import FOOT_FLOOR_M, foot_offset, typical_boxes
 
     foot = foot_offset(scene, v, typical_boxes(scene, v))
     np.testing.assert_allclose(c["log_foot"], np.log(np.abs(foot) + FOOT_FLOOR_M))
@@ -294,7 +295,7 @@ def test_cuboid_box_by_hand():
     is the image row of the near bottom corners; turned by 90 degrees it is 4.5 m wide; an
     unknown heading gives the mean of the boxes at 0, 45, 90 and 135 degrees."""
     from seg2pose.geometry.ground import GroundSurface
-    from seg2pose.method.uncertainty import cuboid_box
+    from seg2pose.method.r90_features import cuboid_box
 
     cam, ground = _side_camera(), GroundSurface(_FLAT)
     lwh = np.array([4.5, 1.8, 1.5])
@@ -322,7 +323,7 @@ def test_foot_offset_is_how_far_the_box_bottom_lands_from_a_typical_road_users()
     from types import SimpleNamespace
 
     from seg2pose.geometry.ground import GroundSurface
-    from seg2pose.method.uncertainty import foot_offset, typical_boxes
+    from seg2pose.method.r90_features import foot_offset, typical_boxes
 
     cam = _side_camera()
     scene = SimpleNamespace(cameras={"c0": cam}, ground=GroundSurface(_FLAT),
@@ -351,7 +352,7 @@ def test_foot_offset_is_how_far_the_box_bottom_lands_from_a_typical_road_users()
 
 def _typical_at(cam, x: float, heading: float = 0.0) -> np.ndarray:
     from seg2pose.geometry.ground import GroundSurface
-    from seg2pose.method.uncertainty import cuboid_box
+    from seg2pose.method.r90_features import cuboid_box
 
     return cuboid_box(cam, GroundSurface(_FLAT), [[x, 0.0]], [heading], [4.5, 1.8, 1.5])[0]
 
