@@ -35,7 +35,7 @@ def budget(scene, run_dir: Path, smooth: int = 0, cls: str | None = None) -> dic
     gt = read_poses(scene.gt_path)
     if smooth:
         from seg2pose.io.run import read_views
-        from seg2pose.method.pipeline import fuse
+        from seg2pose.method.fusion import fuse
 
         est = fuse(read_views(run_dir / "views.csv"), scene, smooth)
     else:

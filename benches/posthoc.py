@@ -4,7 +4,7 @@ each track (for the baseline too, so that the comparison stays honest), and the 
 the annotated and zero-annotation models (their residuals averaged per view).
 
 Reads the views.csv files of ``s2p bench-accuracy`` folders (ROOT/bench-seed<N>/table-<variant>/
-runs/<config>-<method>/) and re-fuses them exactly as ``s2p run`` does (seg2pose.method.pipeline.fuse).
+runs/<config>-<method>/) and re-fuses them exactly as ``s2p run`` does (seg2pose.method.fusion.fuse).
 
     PYTHONPATH=. .venv/bin/python benches/posthoc.py ROOT --seeds 0,1,2 [--configs mono-1,tri-I]
         [--windows 2,4,8,12] [--zero]
@@ -24,7 +24,7 @@ from seg2pose.eval.evaluate import evaluate
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import ViewTable, read_views
 from seg2pose.io.scene import load_scene
-from seg2pose.method.pipeline import fuse
+from seg2pose.method.fusion import fuse
 from seg2pose.geometry.smoothing import smooth_along_tracks
 
 

@@ -25,7 +25,7 @@ from seg2pose.eval.evaluate import evaluate
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_views
 from seg2pose.io.scene import load_scene
-from seg2pose.method.pipeline import fuse
+from seg2pose.method.fusion import fuse
 from seg2pose.method.track_heights import DEFAULT_SETTINGS, TrackHeightSettings, apply_track_heights
 
 CLASSES = ("pedestrian", "bicyclist", "car")

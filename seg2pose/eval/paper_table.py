@@ -16,7 +16,8 @@ from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_run_poses, read_views
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import load_models, model_dirs
-from seg2pose.method.pipeline import RunOptions, compute_views, fuse, write_run
+from seg2pose.method.fusion import fuse
+from seg2pose.method.pipeline import RunOptions, compute_views, write_run
 
 
 def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
@@ -79,7 +80,7 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
                 force: bool = False, progress: bool = True, smooth: int = 0) -> tuple[Path, str]:
     """Table 1 / Figure 6 on this scene: every configuration with and without Seg2PoseNet.
     ``smooth``: every run's fused positions (the baseline's too) smoothed along each track over
-    this many frames either side (``pipeline.fuse``).
+    this many frames either side (``fusion.fuse``).
 
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
@@ -128,7 +129,7 @@ def paper_table(scene: Scene, models_dir: str | Path | None = None,
 
 def refuse_table(scene: Scene, table_dir: str | Path, smooth: int) -> dict:
     """The runs of a finished paper table fused again from their views.csv with ``smooth``
-    (see ``pipeline.fuse``; no network run) and evaluated on the table's split:
+    (see ``fusion.fuse``; no network run) and evaluated on the table's split:
     {"<config> baseline" | "<config> S2PN": EvalResult}, as ``paper_table`` names them."""
     table_dir = Path(table_dir)
     try:

@@ -13,7 +13,8 @@ from seg2pose.io.atomic import atomic_write_text, check_writable
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run, relative_path
 from seg2pose.io.scene import load_scene
-from seg2pose.method.pipeline import ViewGroups, default_r90_path, fuse
+from seg2pose.method.fusion import ViewGroups, fuse
+from seg2pose.method.pipeline import default_r90_path
 from seg2pose.method.r90_features import pose_features
 from seg2pose.method.uncertainty import Calibration, FitRun, fit_calibration
 

@@ -143,7 +143,8 @@ def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path, monke
     monkeypatch.setattr(th, "DEFAULT_SETTINGS", TrackHeightSettings(prior=1e-3))
     from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_run_meta, read_views
-    from seg2pose.method.pipeline import RunOptions, fuse, run_scene
+    from seg2pose.method.fusion import fuse
+    from seg2pose.method.pipeline import RunOptions, run_scene
 
     scene = make_tiny_scene(tmp_path / "tiny")
     plain = run_scene(scene, tmp_path / "plain", RunOptions(config="tri-I", baseline=True, progress=False))

@@ -55,7 +55,8 @@ def test_views_pseudo_poses_equal_smoothed_fused_poses_at_track_heights(scene):
     """"views": for every tracked view, the pose the pipeline fuses over the lenses at the
     fitted per-track heights, smoothed along the track -- exactly; the same for all lenses;
     "fused": likewise at the default heights."""
-    from seg2pose.method.pipeline import compute_views, fuse
+    from seg2pose.method.fusion import fuse
+    from seg2pose.method.pipeline import compute_views
     from seg2pose.method.track_heights import apply_track_heights
     from seg2pose.training.self_training import pseudo_poses
 
