@@ -114,9 +114,11 @@ def masks_from_video_cmd(
 ) -> None:
     """Instance masks from a static camera's video by background subtraction.
 
-    OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks and
-    size classes, written to masks/<camera>.txt (MOTS); with several cameras, their ids
-    associated (s2p associate). A truncated video keeps what was read; a background that
+    OpenCV MOG2 with shadow removal, clean-up and connected components, then tracks, the
+    pieces of one road user joined into one track (touching, moving as one, a better size
+    fit together; scene.json extra.tracker join_gain 0 turns it off) and size classes,
+    written to masks/<camera>.txt (MOTS); with several cameras, their ids associated (s2p
+    associate). A truncated video keeps what was read; a background that
     never settles is reported with its frames."""
     from seg2pose.video.video_scene import scene_masks_from_video
 
