@@ -111,3 +111,18 @@ def calibration(tmp_path, name="c0", with_size=False):
     g = "\n".join(f"{x},{y},0" for x in range(-20, 21, 10) for y in range(-10, 41, 10))
     (tmp_path / "ground.csv").write_text(g + "\n")
     return cam
+
+
+# --- world-sized boxes ----------------------------------------------------------------------
+
+
+def upright_box(cam: Camera, xy, width: float, height: float) -> tuple[int, int, int, int]:
+    """Pixel box x0, y0, x1, y1 (not clipped to the image) of an upright rectangle width x
+    height metres standing at ground point xy (z = 0), facing camera ``cam``."""
+    F = np.array([xy[0], xy[1], 0.0])
+    view = F[:2] - cam.center[:2]
+    u = np.array([-view[1], view[0], 0.0]) / np.linalg.norm(view)
+    corners = np.array([F - u * width / 2, F + u * width / 2,
+                        F + u * width / 2 + [0, 0, height], F - u * width / 2 + [0, 0, height]])
+    uv, _, _ = cam.project_points(corners)
+    return (*np.floor(uv.min(axis=0)).astype(int), *np.ceil(uv.max(axis=0)).astype(int))

@@ -16,6 +16,7 @@ from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.io.scene import ClassSpec
 from seg2pose.structures.masks import encode
+from video_fixtures import upright_box
 
 H, W = 720, 1280
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]
@@ -30,14 +31,8 @@ def setup():
 def upright_rectangle_mask(cam, xy, width, height):
     """Mask of a vertical rectangle standing at ground point xy, facing the camera (its box,
     clipped to the image: a rectangle partly outside is cut by the border)."""
-    F = np.array([xy[0], xy[1], 0.0])
-    view = F[:2] - cam.center[:2]
-    u = np.array([-view[1], view[0], 0.0]) / np.linalg.norm(view)
-    corners = np.array([F - u * width / 2, F + u * width / 2,
-                        F + u * width / 2 + [0, 0, height], F - u * width / 2 + [0, 0, height]])
-    uv, _, _ = cam.project_points(corners)
-    x0, y0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
-    x1, y1 = np.ceil(uv.max(axis=0)).astype(int)
+    x0, y0, x1, y1 = upright_box(cam, xy, width, height)
+    x0, y0 = max(x0, 0), max(y0, 0)
     m = np.zeros((H, W), np.uint8)
     m[y0:y1, x0:x1] = 1
     return encode(m)

@@ -14,6 +14,7 @@ from seg2pose.structures.masks import decode, encode
 from seg2pose.video.classify import size_rules
 from seg2pose.video.fragments import find_joins, join_fragments
 from seg2pose.video.track import TrackConfig
+from video_fixtures import upright_box
 
 H, W, FPS = 720, 1280, 10.0
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]
@@ -24,18 +25,6 @@ def setup():
     g = [(x, y, 0.0) for x in range(-30, 31, 10) for y in range(-10, 61, 10)]
     cam = Camera.look_at("c0", np.array([0.0, -12.0, 9.0]), np.array([0.0, 15.0, 0.0]), 900.0, W, H)
     return cam, GroundSurface(np.array(g, float))
-
-
-def image_box(cam, xy, width, height):
-    """Pixel box x0, y0, x1, y1 of an upright rectangle width x height metres standing at
-    ground point xy, facing the camera."""
-    F = np.array([xy[0], xy[1], 0.0])
-    view = F[:2] - cam.center[:2]
-    u = np.array([-view[1], view[0], 0.0]) / np.linalg.norm(view)
-    corners = np.array([F - u * width / 2, F + u * width / 2,
-                        F + u * width / 2 + [0, 0, height], F - u * width / 2 + [0, 0, height]])
-    uv, _, _ = cam.project_points(corners)
-    return (*np.floor(uv.min(axis=0)).astype(int), *np.ceil(uv.max(axis=0)).astype(int))
 
 
 def write(path, rows):
@@ -58,7 +47,7 @@ def car_in_pieces(cam, n=30, parts=TWO, wobble=0.0):
     of the car's width (not rigid)."""
     rows = []
     for f in range(n):
-        x0, y0, x1, y1 = image_box(cam, (-6.0 + 0.4 * f, 18.0), 4.5, 2.0)
+        x0, y0, x1, y1 = upright_box(cam, (-6.0 + 0.4 * f, 18.0), 4.5, 2.0)
         for k, (a, b, c, d) in enumerate(parts):
             dx = wobble * np.sin(1.7 * f) if k == 1 else 0.0
             m = np.zeros((H, W), np.uint8)
@@ -104,7 +93,7 @@ def test_two_pedestrians_side_by_side_stay_apart(tmp_path):
     rows = []
     for f in range(30):
         for k, dx in ((1, 0.0), (2, 0.62)):
-            x0, y0, x1, y1 = image_box(cam, (-3.0 + 0.13 * f + dx, 12.0), 0.6, 1.75)
+            x0, y0, x1, y1 = upright_box(cam, (-3.0 + 0.13 * f + dx, 12.0), 0.6, 1.75)
             m = np.zeros((H, W), np.uint8)
             m[y0:y1, x0:x1] = 1
             rows.append((f, k, m))
