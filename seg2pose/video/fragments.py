@@ -91,8 +91,17 @@ class _Pieces:
         self.frame, self.track, self.box = frame, track.copy(), box.astype(float)
         self.size = (height, width)
         self.cam, self.ground, self.rules = camera, ground, rules
-        self.ll = best_loglik(self.box, height, width, camera, ground, rules)   # of the piece
+        self._ll = np.full(len(frame), np.nan)     # of the piece; computed when first needed
+        self._known = np.zeros(len(frame), bool)
         self.into = np.arange(len(frame))      # row -> the row its mask is merged into
+
+    def ll(self, rows: np.ndarray) -> np.ndarray:
+        """best_loglik of the rows' pieces (a joined row: its best piece)."""
+        new = rows[~self._known[rows]]
+        if len(new):
+            self._ll[new] = best_loglik(self.box[new], *self.size, self.cam, self.ground, self.rules)
+            self._known[new] = True
+        return self._ll[rows]
 
     def rows(self, t: int) -> np.ndarray:
         r = np.flatnonzero((self.track == t) & (self.into == np.arange(len(self.into))))
@@ -114,7 +123,7 @@ class _Pieces:
         union = np.c_[np.minimum(ba[:, :2], bb[:, :2]), np.maximum(ba[:, 2:], bb[:, 2:])]
         lu = best_loglik(union, *self.size, self.cam, self.ground, self.rules)
         with np.errstate(all="ignore"):
-            gain = np.nanmean(lu) - max(np.nanmean(self.ll[ra[ia]]), np.nanmean(self.ll[rb[ib]]))
+            gain = np.nanmean(lu) - max(np.nanmean(self.ll(ra[ia])), np.nanmean(self.ll(rb[ib])))
         return gain if gain >= cfg.join_gain else np.nan
 
     def join(self, a: int, b: int) -> None:
@@ -125,7 +134,7 @@ class _Pieces:
         self.box[keep] = np.c_[np.minimum(self.box[keep, :2], self.box[gone, :2]),
                                np.maximum(self.box[keep, 2:], self.box[gone, 2:])]
         # a joined mask is judged by its best piece: together they must beat every piece
-        self.ll[keep] = np.fmax(self.ll[keep], self.ll[gone])
+        self._ll[keep] = np.fmax(self.ll(keep), self.ll(gone))
         remap = np.arange(len(self.into))
         remap[gone] = keep                     # rows merged into a gone row follow it
         self.into = remap[self.into]
@@ -143,14 +152,11 @@ def find_joins(frame: np.ndarray, track: np.ndarray, box: np.ndarray, height: in
     ra, rb = _pairs_per_frame(frame, track)
     near = _touching(p.box[ra], p.box[rb]) if len(ra) else np.zeros(0, bool)
     lo, hi = np.minimum(track[ra], track[rb]), np.maximum(track[ra], track[rb])
-    pairs, n_shared = np.unique(np.c_[lo, hi], axis=0, return_counts=True) if len(ra) else (
-        np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
-    n_near = np.zeros(len(pairs), np.int64)
-    if len(ra):
-        _, inv = np.unique(np.c_[lo, hi], axis=0, return_inverse=True)
-        np.add.at(n_near, inv.ravel(), near)
+    span = int(track.max(initial=0)) + 1                 # one integer key per track pair
+    keys, inv, n_shared = np.unique(lo * span + hi, return_inverse=True, return_counts=True)
+    n_near = np.bincount(inv.ravel(), weights=near, minlength=len(keys))
     ok = (n_shared >= max(min_shared, 2)) & (n_near >= cfg.join_near * n_shared)
-    cand = {(int(a), int(b)) for a, b in pairs[ok]}
+    cand = {(int(k // span), int(k % span)) for k in keys[ok]}
     length = {int(t): int(n) for t, n in zip(*np.unique(track[track >= 0], return_counts=True))}
     joins = []
     while cand:
