@@ -24,9 +24,9 @@ matched frame by frame (IoU >= 0.5, Hungarian); pairs of tracks matched in at le
 frames both are seen are linked (Hungarian on those counts, ``linear_sum_assignment``), so a
 road user keeps its id across the border; the later segment's other tracks get new ids.
 Warm-up frames are dropped; tracks with fewer than ``min_length`` masks are dropped and ids
-renumbered in order of first appearance, as the single run's tracker does; size classes follow
-as in ``s2p masks-from-video``. The split can differ from the single run only near a border;
-the stitch counts, per border, the road users whose id changes there (``id_changes``: masks
+renumbered in order of first appearance, as the single run's tracker does; fragment tracks are
+joined and size classes follow as in ``s2p masks-from-video``. The split can differ from the
+single run only near a border; the stitch counts, per border, the road users whose id changes there (``id_changes``: masks
 matched at the last frame both segments hold, whose tracks were not linked).
 """
 
@@ -50,6 +50,7 @@ from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.video import image_files
 from seg2pose.structures.masks import iou
 from seg2pose.video.classify import classify_mots, size_rules
+from seg2pose.video.fragments import join_fragments
 from seg2pose.video.track import TrackConfig, track_mots
 from seg2pose.video.video_masks import BgConfig, masks_from_video
 from seg2pose.video.video_scene import associate_step, camera_reader, scene_masks_from_video
@@ -353,9 +354,10 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
             dst = scene.masks_path(c)
             tmp = files.file(dst)  # stitched, then classified, then swapped in
             info = stitch_camera(scene, segs, tmp, tcfg, log=log)
-            classify_mots(tmp, tmp, scene.cameras[c], scene.ground,
-                          size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE),
-                          fps=scene.fps, log=log)
+            rules = size_rules(scene.classes, scene.extra, file=scene.root / SCENE_FILE)
+            join_fragments(tmp, tmp, scene.cameras[c], scene.ground, rules, scene.fps, tcfg,
+                           log=log)  # as masks-from-video does, over the stitched tracks
+            classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules, fps=scene.fps, log=log)
             files.commit(dst)
             log(f"{c}: {info['frames']} frames in {info['segments']} segments -> {info['tracks']} "
                 f"tracks ({info['masks']} masks); at the seams: "
