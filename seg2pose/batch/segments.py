@@ -26,8 +26,9 @@ road user keeps its id across the border; the later segment's other tracks get n
 Warm-up frames are dropped; tracks with fewer than ``min_length`` masks are dropped and ids
 renumbered in order of first appearance, as the single run's tracker does; fragment tracks are
 joined and size classes follow as in ``s2p masks-from-video``. The split can differ from the
-single run only near a border; the stitch counts, per border, the road users whose id changes there (``id_changes``: masks
-matched at the last frame both segments hold, whose tracks were not linked).
+single run only near a border; the stitch counts, per border, the road users whose id changes
+there (``id_changes``: masks matched at the last frame both segments hold, whose tracks were not
+linked).
 """
 
 from __future__ import annotations
