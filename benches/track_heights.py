@@ -19,8 +19,6 @@ import itertools
 import json
 from pathlib import Path
 
-import numpy as np
-
 from seg2pose.eval.evaluate import evaluate
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_views

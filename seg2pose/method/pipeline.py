@@ -22,10 +22,8 @@ from seg2pose.core.clock import utc_now
 from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import InputError
 from seg2pose.core.say import warn_once
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, fuse_views, headings_from_tracks, normal_positions
-from seg2pose.geometry.smoothing import smooth_along_tracks
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
 from seg2pose.io.mots import MaskTable
-from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import load_models, predict_with_spread
