@@ -150,7 +150,7 @@ def find_joins(frame: np.ndarray, track: np.ndarray, box: np.ndarray, height: in
     p = _Pieces(frame, track, box, height, width, camera, ground, rules)
     min_shared = int(np.ceil(cfg.join_min_s * fps))
     ra, rb = _pairs_per_frame(frame, track)
-    near = _touching(p.box[ra], p.box[rb]) if len(ra) else np.zeros(0, bool)
+    near = _touching(p.box[ra], p.box[rb])
     lo, hi = np.minimum(track[ra], track[rb]), np.maximum(track[ra], track[rb])
     span = int(track.max(initial=0)) + 1                 # one integer key per track pair
     keys, inv, n_shared = np.unique(lo * span + hi, return_inverse=True, return_counts=True)
@@ -158,20 +158,24 @@ def find_joins(frame: np.ndarray, track: np.ndarray, box: np.ndarray, height: in
     ok = (n_shared >= max(min_shared, 2)) & (n_near >= cfg.join_near * n_shared)
     cand = {(int(k // span), int(k % span)) for k in keys[ok]}
     length = {int(t): int(n) for t, n in zip(*np.unique(track[track >= 0], return_counts=True))}
+    # a join changes only the two tracks' rows: pairs without them keep their score
+    score = {pair: p.judge(*pair, cfg, min_shared) for pair in cand}
     joins = []
-    while cand:
-        scored = [(p.judge(a, b, cfg, min_shared), a, b) for a, b in sorted(cand)]
-        scored = [s for s in scored if np.isfinite(s[0])]
-        if not scored:
+    while True:
+        passed = [(g, a, b) for (a, b), g in score.items() if np.isfinite(g)]
+        if not passed:
             break
-        _, a, b = max(scored)
+        _, a, b = max(passed)
         if length[b] > length[a]:
             a, b = b, a
         p.join(a, b)
         length[a] += length.pop(b)
         joins.append((a, b))
-        cand = {(min(x, y), max(x, y)) for x, y in ((a if u == b else u, a if v == b else v)
-                                                     for u, v in cand) if x != y}
+        moved = {(min(x, y), max(x, y)) for x, y in ((a if u == b else u, a if v == b else v)
+                                                     for u, v in score if a in (u, v) or b in (u, v))
+                 if x != y}
+        score = {pair: g for pair, g in score.items() if a not in pair and b not in pair}
+        score.update({pair: p.judge(*pair, cfg, min_shared) for pair in moved})
     return p.track, p.into, joins
 
 
