@@ -21,17 +21,20 @@ from seg2pose.method.uncertainty import Calibration, FitRun, fit_calibration
 
 
 def scene_of_run(scene, run_dir: Path, meta: dict):
-    """The scene a run was made on: ``scene`` when the fingerprints agree, else the scene its
-    run.json names (runs of several scenes, e.g. several sites or seeds, can be calibrated
-    together, each against its own truth)."""
+    """The scene a run was made on: the scene its run.json names when that is another folder
+    (several recordings of one site share the calibration and so the fingerprint, not the
+    truth), else ``scene``; either must have the fingerprint the run recorded (runs of several
+    scenes, e.g. several sites, seeds or days, can be calibrated together, each against its
+    own truth)."""
     fp = meta.get("scene_fingerprint")
+    named = meta.get("scene")
+    if isinstance(named, str) and (Path(run_dir) / named / "scene.json").is_file() \
+            and (Path(run_dir) / named).resolve() != Path(scene.root).resolve():
+        other = load_scene(Path(run_dir) / named)
+        if fp is None or other.fingerprint() == fp:
+            return other
     if fp is None or fp == scene.fingerprint():
         return scene
-    named = meta.get("scene")
-    if isinstance(named, str) and (Path(run_dir) / named / "scene.json").is_file():
-        other = load_scene(Path(run_dir) / named)
-        if other.fingerprint() == fp:
-            return other
     raise InputError(f"this run was made on another scene (fingerprint {fp!r}; {scene.root} "
                      f"has {scene.fingerprint()!r}) and the scene its run.json names is not "
                      "found with that fingerprint", file=Path(run_dir) / "run.json",
@@ -73,15 +76,22 @@ def calibrate_run(scene, run_dir: str | Path | list, out: str | Path | None = No
     and val splits: more road users give steadier bars) against the scene's truth and write
     the calibration JSON to ``out`` (default: where runs of that method look for it,
     ``seg2pose.method.pipeline.default_r90_path``). The runs must share the method and
-    ``--smooth``. Returns its path and the calibration."""
+    ``--smooth`` (and, within one scene, the models; runs of other scenes may use their own
+    scene's models). Returns its path and the calibration."""
     run_dirs = [Path(r) for r in (run_dir if isinstance(run_dir, (list, tuple)) else [run_dir])]
     fits, metas = zip(*(fit_run(scene, r) for r in run_dirs))
     meta = metas[0]
-    for r, m in zip(run_dirs[1:], metas[1:]):
-        for key in ("method", "smooth_frames", "models"):
+    first_root = Path(fits[0].scene.root).resolve()
+    for r, m, f in zip(run_dirs[1:], metas[1:], fits[1:]):
+        # each scene may have its own Seg2PoseNet models (trained on that scene): pooling several
+        # scenes' val splits gives the bars more road users; within one scene the models must agree
+        same_scene = Path(f.scene.root).resolve() == first_root
+        for key in ("method", "smooth_frames") + (("models",) if same_scene else ()):
             if m.get(key) != meta.get(key):
                 raise InputError(f"this run's {key} ({m.get(key)!r}) differs from the first run's "
-                                 f"({meta.get(key)!r}): calibrate runs of one method",
+                                 f"({meta.get(key)!r}): calibrate runs of one method"
+                                 + (" and, within one scene, one set of models"
+                                    if key == "models" else ""),
                                  file=r / "run.json", field=key)
     baseline = meta.get("method") == "baseline"
     if out is None:

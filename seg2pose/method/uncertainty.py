@@ -315,7 +315,11 @@ GROUP_STRIDE = 10 ** 9  # road-user groups: scene index * GROUP_STRIDE + track i
 
 def _scene_key(scene) -> str:
     """Runs of one scene share its road users (the splits of a synthetic scene hold the same
-    track ids): they are one group per track id."""
+    track ids): they are one group per track id. A scene is its folder: two recordings of one
+    site share the calibration (and the fingerprint) but not their road users."""
+    root = getattr(scene, "root", None)
+    if root is not None:
+        return str(Path(root).resolve())
     fp = getattr(scene, "fingerprint", None)
     return fp() if callable(fp) else str(id(scene))
 

@@ -6,6 +6,7 @@ path run -> calibrate -> run -> eval on a tiny scene."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -426,6 +427,28 @@ def test_calibrate_on_several_runs_and_scenes(tmp_path):
     assert [f["split"] for f in fitted] == ["val", "train", "val"]
     assert [f["scene_fingerprint"] for f in fitted] == [a.fingerprint()] * 2 + [b.fingerprint()]
     assert 0.8 <= cal.meta["coverage_on_fit"]["poses"] <= 1.0
+    # a and b are two recordings of one site (same cameras and ground: one fingerprint): b's run
+    # is read against b's truth, not a's
+    from seg2pose.method.r90_calibrate import fit_run
+
+    assert a.fingerprint() == b.fingerprint() and a.root != b.root
+    fb, _ = fit_run(a, tmp_path / "b-val")
+    assert Path(fb.scene.root).resolve() == Path(b.root).resolve()
+    assert np.array_equal(fb.gt.xyz, read_poses(b.gt_path).xyz)
+    assert not np.array_equal(fb.gt.xyz, read_poses(a.gt_path).xyz)
+    # each scene may have its own models (runs of another scene pool), one scene's runs may not
+    def set_models(run, models):
+        m = json.loads((tmp_path / run / "run.json").read_text())
+        m["models"] = models
+        (tmp_path / run / "run.json").write_text(json.dumps(m))
+
+    set_models("b-val", {"car": {"path": "../b/models/car.safetensors"}})
+    calibrate_run(a, runs, tmp_path / "r90-b.json")
+    set_models("a-train", {"car": {"path": "../a/other/car.safetensors"}})
+    with pytest.raises(InputError, match=r"a-train/run.json: field 'models': this run's models "
+                                         r".* one set of models"):
+        calibrate_run(a, runs, tmp_path / "r90-a.json")
+    set_models("a-train", json.loads((tmp_path / "a-val" / "run.json").read_text()).get("models"))
     meta = json.loads((tmp_path / "b-val" / "run.json").read_text())
     meta["method"] = "s2pn"
     (tmp_path / "b-val" / "run.json").write_text(json.dumps(meta))
