@@ -261,7 +261,7 @@ class FitRun:
     gt: object
 
 
-def _errors(keys: np.ndarray, est: np.ndarray, gt) -> np.ndarray:
+def pose_errors(keys: np.ndarray, est: np.ndarray, gt) -> np.ndarray:
     """(N,) ground distance of est (N, 2) to the truth of the same (frame, track id) keys (N, 2),
     NaN where the truth has none (or the id is -1, untracked)."""
     g_index = {(int(f), int(t)): i for i, (f, t) in enumerate(zip(gt.frame, gt.track_id))}
@@ -284,7 +284,7 @@ def fit_calibration(runs: list[FitRun], meta: dict) -> tuple[Calibration, dict]:
         k = scene_no.setdefault(_scene_key(r.scene), len(scene_no))
         v = r.views
         Xv.append(views_matrix(r.scene, v))
-        v_err.append(_errors(np.column_stack([v.frame, v.track_id]), v.normal[:, :2] + v.residual,
+        v_err.append(pose_errors(np.column_stack([v.frame, v.track_id]), v.normal[:, :2] + v.residual,
                              r.gt))
         v_cls.append(v.cls)
         v_grp.append(np.where(v.track_id >= 0, k * GROUP_STRIDE + v.track_id, -1))
@@ -298,7 +298,7 @@ def fit_calibration(runs: list[FitRun], meta: dict) -> tuple[Calibration, dict]:
         n = len(r.views)
         Xp.append(r.pose_X(r_v[start:start + n]))
         start += n
-        p_err.append(_errors(r.pose_keys, r.pose_est, r.gt))
+        p_err.append(pose_errors(r.pose_keys, r.pose_est, r.gt))
         p_cls.append(r.pose_cls)
         p_grp.append(np.where(r.pose_keys[:, 1] >= 0, k * GROUP_STRIDE + r.pose_keys[:, 1], -1))
     Xp, p_err, p_cls, p_grp = (np.concatenate(a) for a in (Xp, p_err, p_cls, p_grp))
