@@ -28,11 +28,17 @@ VARIANTS = {
     "zero-track": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "track"],
     "zero-fused": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "fused"],
     "zero-views": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "views"],
+    # the parts together (issue 25's ladder: rough models, + randomised, + track, + multi-view)
+    "zero-random-track": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--rough-random",
+                          "--self-train", "track"],
+    "zero-random-views": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--rough-random",
+                          "--self-train", "views"],
 }
 # self-training variants start from another variant's rough-only models: when that variant's
 # folder is finished, its models are copied in as the first stage instead of retrained
 # (``self_training.check_rough_stage`` refuses them if the protocols differ)
-ROUGH_STAGE_OF = {"zero-track": "zero", "zero-fused": "zero", "zero-views": "zero"}
+ROUGH_STAGE_OF = {"zero-track": "zero", "zero-fused": "zero", "zero-views": "zero",
+                  "zero-random-track": "zero-random", "zero-random-views": "zero-random"}
 
 def s2p_command(*args: str) -> list[str]:
     """argv running ``s2p ARGS`` with this interpreter (and so this checkout's code)."""

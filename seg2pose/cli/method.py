@@ -234,7 +234,7 @@ def bench_accuracy_cmd(
     root: Path = typer.Argument(..., help="folder for the scenes, models and tables (one sub-folder per seed; finished steps are kept and skipped)"),
     seed: Optional[List[int]] = typer.Option(None, "--seed", help="a scene seed (repeatable; default 100, 101, 102: settings were chosen on seeds 0-4)"),
     preset: str = typer.Option("bench", "--preset", help="synthetic scene size (see s2p synth --preset)"),
-    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished); repeatable; default s2pn and zero"),
+    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished), zero-random-track or zero-random-views (the same from zero-random's models); repeatable; default s2pn and zero"),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
     train_arg: Optional[List[str]] = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
     smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),

@@ -22,7 +22,9 @@ from seg2pose.io.scene import load_scene
 VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "zero": "zero-annotation",
                   "zero-random": "zero, random rough", "zero-track": "zero + self (track)",
                   "zero-fused": "zero + self (fused)",
-                  "zero-views": "zero + self (views)"}
+                  "zero-views": "zero + self (views)",
+                  "zero-random-track": "random + self (track)",
+                  "zero-random-views": "random + self (views)"}
 CONFIGS = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "stereo-10",
            "tri-I", "tri-L", "tri-T"]
 
