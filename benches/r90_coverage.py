@@ -130,7 +130,7 @@ def main() -> None:
 
         for held in a.held:
             others = [h for h in a.held if h != held]
-            sources = {"tune": a.tune, "own": [held], "others": others, "all": [held] + others}
+            sources = {"tune": a.tune, "own": [held], "others": others, "all": a.held}  # one order: one file
             for which in cal_on:
                 c = cal_from(sources[which])
                 run = run_once(held, out / f"{held.name}-{cfg}-{name}-test-{which}", cfg, "test",

@@ -183,7 +183,7 @@ def eval_cmd(
 
 def calibrate_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth"),
-    run: List[Path] = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate; repeat for more road users (other splits, or runs of other scenes: each is scored against the scene its run.json names)"),
+    run: List[Path] = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate; repeat for more road users (other splits, or runs of other scenes, each with that scene's own models and scored against the scene its run.json names: how a zero-annotation scene, which has no truth of its own, gets error bars)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="calibration file (default: MODELS/r90.json beside the run's models, or SCENE/r90-baseline.json for a baseline run: where s2p run looks)"),
     force: bool = typer.Option(False, "--force", help="replace an existing calibration"),
 ) -> None:
