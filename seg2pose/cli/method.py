@@ -77,8 +77,10 @@ def run_cmd(
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
     if not (meta.get("r90") or {}).get("calibration"):
+        where = "SCENE/r90-baseline.json" if meta["method"] == "baseline" else "MODELS/r90.json"
         typer.echo("note: no r90 calibration, so r90_m (the error bars) is nan; fit one on a run "
-                   "of the validation split with s2p calibrate", err=True)
+                   "of the validation split with s2p calibrate (a scene without truth: on other "
+                   f"scenes' val runs, -o {where})", err=True)
     far = meta.get("far_residuals") or {}
     if far.get("flagged_views"):
         what = "kept at their normal positions" if far["policy"] == "fallback" else "listed"
