@@ -25,6 +25,7 @@ from seg2pose.io.atomic import check_writable, replacing
 from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
 from seg2pose.synth import junction as J
+from seg2pose.synth.look import LOOKS, look_named
 from seg2pose.synth.noise import NoiseConfig
 from seg2pose.synth.render import MATCH_RULES, FrameRenderer
 from seg2pose.synth.rig import load_rig
@@ -46,11 +47,12 @@ PRESETS = {
                   mean_pause_s={"pedestrian": 40.0, "bicyclist": 30.0, "car": 20.0}),
     # beyond the generator's own road users (issue 25): vehicles from small cars to buses,
     # motorcycles, children to tall adults with bags and strollers, bicyclists of several builds
-    # (``shapes_wide``), and the device's pole 6-15 m high, drawn per seed
+    # (``shapes_wide``), and the device's pole 6-15 m high, drawn per seed; its video (--video)
+    # has clouds that change the light and textured bodies (``look``)
     "wide": dict(split=960, gap=20,
                  population={"pedestrian": 28, "bicyclist": 8, "car": 16},
                  mean_pause_s={"pedestrian": 40.0, "bicyclist": 30.0, "car": 20.0},
-                 variety="wide"),
+                 variety="wide", look="rich"),
     "paper": dict(split=7000, gap=150,
                   population={"pedestrian": 43, "bicyclist": 12, "car": 28},
                   mean_pause_s={"pedestrian": 90.0, "bicyclist": 40.0, "car": 30.0}),
@@ -124,7 +126,7 @@ def _video_task(cam_name: str) -> str:
     st = _STATE
     idx = st["cam_names"].index(cam_name)
     write_video(st["tmp"] / "video" / f"{cam_name}.mp4", st["rig"].cameras[cam_name], idx,
-                st["world"], st["seed"], fps=1.0 / DT)
+                st["world"], st["seed"], fps=1.0 / DT, look=st["look"])
     return cam_name
 
 
@@ -188,6 +190,7 @@ class SynthOptions:
     ids: str = "road_user"
     distortion: tuple[float, float] | None = None
     match: str = "center"
+    look: str | None = None  # the video's look (synth.look.LOOKS); None: the preset's
 
 
 def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
@@ -220,6 +223,8 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
         raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="ids")
     if sum(pop.values()) == 0:
         raise InputError("population is empty: no road users to render", field="population")
+    look_name = opts.look or p.get("look", "flat")
+    look = look_named(look_name)
     wide = p.get("variety") == "wide"
     if wide and rig is None:  # the pole's height drawn from the seed (its own stream)
         from seg2pose.synth.rig import HEIGHT_RANGE, device_at
@@ -283,13 +288,15 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
                 n: {"min": [round(float(v), 2) for v in world.size[world_tracks(world, i)].min(0)],
                     "max": [round(float(v), 2) for v in world.size[world_tracks(world, i)].max(0)]}
                 for i, n in enumerate(CLASS_NAMES) if len(world_tracks(world, i))}
+        if video and look != LOOKS["flat"]:  # (the flat look's scene.json stays as it was)
+            extra["generator"]["look"] = look_name
         scene = Scene(root=tmp, name=out.name, fps=1.0 / DT, rig=rig_obj, ground_points=ground,
                       classes=classes, splits=splits, extra=extra)
         scene.save(tmp)
         write_poses(tmp / "gt" / "poses.csv", world.poses())
         _STATE.clear()
         _STATE.update(world=world, rig=rig_obj, cam_names=cams, noise=noise, seed=seed,
-                      renderers={}, tmp=tmp, match=match)
+                      renderers={}, tmp=tmp, match=match, look=look)
         tasks = [(c, f0, min(f0 + CHUNK, n_frames)) for c in cams for f0 in range(0, n_frames, CHUNK)]
         files = {}
         with contextlib.ExitStack() as stack:

@@ -3,8 +3,9 @@
 A textured static background (asphalt, lane markings, stop lines, zebra crossings, paved
 sidewalks with curbs, grass), computed once per camera by casting every pixel's ray onto the
 true surface; per frame, the road users' shadows (parts projected onto the ground along the
-sun direction) and their Lambert-shaded faces in painter's order, then sensor noise. Good
-enough for the background-subtraction path and for review; not photorealistic.
+sun direction) and their Lambert-shaded faces in painter's order, then sensor noise. With a
+``look.Look`` (the wide preset's "rich"), clouds change the light over time and the bodies are
+textured. Good enough for the background-subtraction path and for review; not photorealistic.
 
 Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
 """
@@ -18,12 +19,15 @@ import numpy as np
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.synth import junction as J
+from seg2pose.synth.look import (AMBIENT, BodyTextures, Look, draw_clouds, draw_textures,
+                                 exposure_gain, ground_light, sun_strength, texture_values)
 from seg2pose.synth.raster import SHIFT, project_parts
 from seg2pose.synth.shapes import BODY, FACES, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL
 from seg2pose.synth.world import World
 
 SUN = np.array([0.45, 0.3, -1.0]) / np.linalg.norm([0.45, 0.3, -1.0])  # direction of the light
 NOISE_SIGMA = 3.0  # grey levels of sensor noise
+TEXTURED = (BODY, TOP, FRAME, LEGS)  # parts that carry a pattern (paint, clothes), not glass or skin
 
 
 def _hash_noise(x: np.ndarray, y: np.ndarray, scale: float) -> np.ndarray:
@@ -92,9 +96,14 @@ def _part_colours(world: World, tracks: np.ndarray, kinds: np.ndarray, owner: np
     return col
 
 
-def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray) -> np.ndarray:
-    """One RGB (BGR) frame (H, W, 3) uint8 without sensor noise."""
-    img = bg.copy()
+def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray, sun: float = 1.0,
+                 textures: BodyTextures | None = None) -> np.ndarray:
+    """One RGB (BGR) frame (H, W, 3) uint8 without sensor noise.
+
+    sun: share of the direct sunlight (``look.sun_strength``; 1: full sun, the flat look);
+    textures: each road user's pattern (``look.draw_textures``) or None (plain bodies)."""
+    gain = float(exposure_gain(sun))  # 1.0 at full sun, so the flat look's bytes are unchanged
+    img = bg.copy() if sun == 1.0 else cv2.convertScaleAbs(bg, alpha=float(ground_light(sun)) * gain)
     r, wv, owner = world.frame_parts(f)
     if len(owner) == 0:
         return img
@@ -110,7 +119,7 @@ def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray) -> np.nda
     for p in pts[ok_s]:
         cv2.fillConvexPoly(shadow, cv2.convexHull(p), 1, cv2.LINE_8, SHIFT)
     m = shadow.astype(bool)
-    img[m] = (img[m] * 0.55).astype(np.uint8)
+    img[m] = (bg[m] * (AMBIENT * gain)).astype(np.uint8)  # skylight only
     # road users: parts far to near (by part centre), visible faces Lambert-shaded
     uv, ok = project_parts(camera, wv)
     cen = wv.mean(axis=1)
@@ -124,21 +133,50 @@ def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray) -> np.nda
     nn = np.linalg.norm(n, axis=2, keepdims=True)
     n = n / np.maximum(nn, 1e-12)
     facing = np.einsum("pfk,pfk->pf", n, fc - camera.center) < 0
-    light = 0.45 + 0.55 * np.clip(-np.einsum("pfk,k->pf", n, SUN), 0, 1)
+    light = 0.45 + (0.55 * sun) * np.clip(-np.einsum("pfk,k->pf", n, SUN), 0, 1)
     col = _part_colours(world, tracks, kinds, owner)
     fpts = np.clip(np.round((uv[:, FACES] - 0.5) * (1 << SHIFT)), -2**28, 2**28).astype(np.int32)
+    # which road user (row + 1) shows its pattern at each pixel, 0 where none does
+    body = np.zeros(img.shape[:2], np.int32) if textures is not None else None
     for p in order:
         if not ok[p]:
             continue
         for k in np.flatnonzero(facing[p] & (nn[p, :, 0] > 1e-9)):
-            c = tuple(float(v) for v in np.clip(col[p] * light[p, k], 0, 255))
-            cv2.fillConvexPoly(img, np.ascontiguousarray(fpts[p, k]), c, cv2.LINE_8, SHIFT)
+            c = tuple(float(v) for v in np.clip(col[p] * light[p, k] * gain, 0, 255))
+            face = np.ascontiguousarray(fpts[p, k])
+            cv2.fillConvexPoly(img, face, c, cv2.LINE_8, SHIFT)
+            if body is not None:
+                cv2.fillConvexPoly(body, face, int(owner[p]) + 1 if kinds[p] in TEXTURED else 0,
+                                   cv2.LINE_8, SHIFT)
+    if body is not None:
+        _paint_textures(img, body, camera, world, r, textures, gain)
     return img
 
 
+def _paint_textures(img: np.ndarray, body: np.ndarray, camera: Camera, world: World, r: slice,
+                    textures: BodyTextures, gain: float) -> None:
+    """Add each road user's pattern to its pixels (``body``: row + 1 per pixel, 0: none), in
+    metres on the body measured from its projected centre, so the pattern moves and scales
+    with it."""
+    vv, uu = np.nonzero(body)
+    if len(vv) == 0:
+        return
+    row = body[vv, uu] - 1
+    tracks = world.track[r]
+    centre = world.xyz[r] + np.column_stack([np.zeros((len(tracks), 2)),
+                                             world.size[tracks - 1, 2] / 2])
+    uvc, zc, _ = camera.project_points(centre)
+    ppm = camera.K[0, 0] / np.maximum(zc, 0.5)  # pixels per metre at the road user's distance
+    x = (uu + 0.5 - uvc[row, 0]) / ppm[row]
+    y = (vv + 0.5 - uvc[row, 1]) / ppm[row]
+    d = texture_values(textures, tracks[row], x, y) * gain
+    img[vv, uu] = np.clip(img[vv, uu] + d[:, None], 0, 255).astype(np.uint8)
+
+
 def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: int,
-                fps: float, frames: range | None = None) -> None:
-    """Render every frame of ``world`` for ``camera`` into an mp4 (mp4v) at ``path``."""
+                fps: float, frames: range | None = None, look: Look = Look()) -> None:
+    """Render every frame of ``world`` for ``camera`` into an mp4 (mp4v) at ``path``; ``look``
+    adds a change of light and textured bodies (the same clouds and patterns in every camera)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     bg = background(camera)
@@ -146,6 +184,14 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
     bank = [rng.normal(0, NOISE_SIGMA, size=bg.shape) for _ in range(6)]
     pos = [np.clip(b, 0, 255).astype(np.uint8) for b in bank]
     neg = [np.clip(-b, 0, 255).astype(np.uint8) for b in bank]
+    sun = (sun_strength(draw_clouds(seed, world.n_frames / fps), np.arange(world.n_frames) / fps)
+           if look.light_change else np.ones(world.n_frames))
+    textures = None
+    if look.textures:
+        first = np.unique(world.track, return_index=True)[1]  # each track's class
+        track_cls = np.zeros(int(world.track.max(initial=0)), np.int8)
+        track_cls[world.track[first] - 1] = world.cls[first]
+        textures = draw_textures(track_cls, seed)
     tmp = path.with_name(f".{path.stem}.partial.mp4")  # renamed when complete
     wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
                          (camera.width, camera.height))
@@ -153,7 +199,7 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
         raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
     try:
         for f in (frames if frames is not None else range(world.n_frames)):
-            img = render_frame(camera, world, f, bg)
+            img = render_frame(camera, world, f, bg, float(sun[f]), textures)
             k = int(rng.integers(len(bank)))
             img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
             wr.write(img)
