@@ -37,10 +37,14 @@ def boxes_at(frame: int, boxes: list[dict]) -> list[tuple[int, tuple[int, int, i
 
 
 def render(frame: int, boxes: list[dict], bg: np.ndarray, rng: np.random.Generator,
-           light: float = 0.0) -> np.ndarray:
+           light: float = 0.0, gain: float = 1.0) -> np.ndarray:
+    """One frame: ``light`` grey levels added to the background, the boxes painted, the whole
+    frame times ``gain`` (a cloud, the camera's exposure), sensor noise."""
     img = bg.astype(np.int16) + int(light)
     for bid, (x0, y0, x1, y1) in boxes_at(frame, boxes):
         img[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = (40 + 50 * bid % 200, 200, 230)
+    if gain != 1.0:
+        img = np.round(img * gain).astype(np.int16)
     img = img + rng.normal(0, 2.0, img.shape).round().astype(np.int16)
     return np.clip(img, 0, 255).astype(np.uint8)
 
@@ -54,15 +58,17 @@ def truth_mask(frame: int, boxes: list[dict], bid: int) -> np.ndarray:
 
 
 def write_folder(folder: Path, n: int, boxes: list[dict], light: dict[int, float] | None = None,
-                 seed: int = 0) -> Path:
-    """PNG frames 000000.png ... (lossless: masks are exact)."""
+                 seed: int = 0, gain: dict[int, float] | None = None) -> Path:
+    """PNG frames 000000.png ... (lossless: masks are exact); ``light``: grey levels added to
+    the background of some frames, ``gain``: some whole frames scaled."""
     import cv2
 
     folder.mkdir(parents=True, exist_ok=True)
     bg = background(seed)
     rng = np.random.default_rng(seed + 1)
     for f in range(n):
-        cv2.imwrite(str(folder / f"{f:06d}.png"), render(f, boxes, bg, rng, (light or {}).get(f, 0.0)))
+        cv2.imwrite(str(folder / f"{f:06d}.png"), render(f, boxes, bg, rng, (light or {}).get(f, 0.0),
+                                                             (gain or {}).get(f, 1.0)))
     return folder
 
 

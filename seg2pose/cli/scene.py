@@ -75,7 +75,7 @@ def synth(
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives byte-identical files"),
     rig: Optional[str] = typer.Option(None, "--rig", help="camera device: device (10 m pole; the default), device-8m, device-12m, or a rig JSON file (default for --preset wide: the device on a pole 6-15 m high, drawn from the seed)"),
     video: bool = typer.Option(False, "--video/--no-video", help="also render RGB video of every camera"),
-    look: Optional[str] = typer.Option(None, "--look", help="the video's look: flat (flat-shaded plain bodies, constant sun) or rich (clouds passing the sun change the light and soften the shadows, the camera's exposure half follows; striped and patterned clothes, two-tone paint and decals); default: rich for --preset wide, flat otherwise. Masks and truth are the same either way"),
+    look: Optional[str] = typer.Option(None, "--look", help="the video's look: flat (flat-shaded plain bodies, constant sun), rich (clouds passing the sun change the light and soften the shadows, the camera's exposure half follows; striped and patterned clothes, two-tone paint and decals), or one of the two: light, textured; default: rich for --preset wide, flat otherwise. Masks and truth are the same either way"),
     detector_noise: bool = typer.Option(True, "--detector-noise/--no-detector-noise", help="masks like a Mask R-CNN detector's (misses, merges, coarse outlines), or perfect silhouettes"),
     noise: list[str] = typer.Option([], "--noise", help="set one detector-noise knob, KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
     distortion: Optional[str] = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (none by default)"),

@@ -38,12 +38,13 @@ class Look:
     textures: bool = False
 
 
-LOOKS = {"flat": Look(), "rich": Look(light_change=True, textures=True)}
+LOOKS = {"flat": Look(), "light": Look(light_change=True), "textured": Look(textures=True),
+         "rich": Look(light_change=True, textures=True)}
 
 
 def look_named(name: str) -> Look:
     if name not in LOOKS:
-        raise InputError(f"unknown look {name!r}; use {' or '.join(LOOKS)}", field="look")
+        raise InputError(f"unknown look {name!r}; use one of {', '.join(LOOKS)}", field="look")
     return LOOKS[name]
 
 

@@ -46,6 +46,9 @@ class BgConfig:
     close_px: int = 5             # closing kernel (pixels): joins fragments of one road user
     min_area: int = 150           # smallest instance, pixels
     unsettled: float = 0.3        # foreground share of the image that means "background not settled"
+    exposure_band: float = 0.03   # a frame whose ground is brighter or darker than the model's by
+    #                               more than this share (a cloud over the sun, the camera's
+    #                               auto-exposure) is scaled to the model's brightness first; 0: never
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> "BgConfig":
@@ -91,6 +94,8 @@ class BgConfig:
             bad("learning_rate", "must be in [0, 1], or -1 for 1/history")
         if not 0 < self.unsettled <= 1:
             bad("unsettled", "must be in (0, 1]")
+        if not 0 <= self.exposure_band < 1:
+            bad("exposure_band", "must be in [0, 1)")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -18,7 +18,9 @@ Afterwards the model learns selectively (``update="selective"``): every ``update
 frames, the frame with the foreground, shadows and a margin around them replaced by the
 model's own background image. Lighting that drifts is followed; a road user that stops (at a
 red light, a curb) stays foreground instead of being absorbed, as OpenCV's own update does
-within a few seconds; a frame that is mostly foreground (a light change) is learnt whole.
+within a few seconds; a frame that is mostly foreground (a light change) is learnt whole. A
+frame whose ground is brighter or darker than the model's (a cloud, auto-exposure) is first
+scaled to the model's brightness (``exposure_band``).
 Foreground that lasts ``ghost_after`` frames is tested for a *ghost* (the place a road user of
 the starting background has left: its outline is in the background image, not in the frame,
 and it lies in quiet, textured road) and a ghost's pixels are learnt at once (``ghost_mask``).
@@ -46,19 +48,12 @@ from pycocotools import mask as mask_util
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
-from seg2pose.video.bg_checks import flat_pixels, ghost_mask, texture_stats
+from seg2pose.video.bg_checks import (exposure_ratio, flat_pixels, ghost_mask, grey_mean,
+                                      still_pixels, texture_stats)
 from seg2pose.video.bg_config import BgConfig
 from seg2pose.video.bg_start import SAMPLED, start_image
 
 SHADOW = 127  # OpenCV's shadow label in MOG2/KNN output
-# A ghost's pixels are learnt from the frame only where the frame held still since the previous
-# update (the 5x5 grey mean changed by at most GHOST_STILL, and nothing changed within
-# GHOST_NEAR px): the rest waits for a later update. Without this a car crossing a ghost's place
-# at the update was learnt as empty road (held-out seed 104, c1: a car-shaped ghost that lasted
-# 110 frames, reported by four lenses). Sensor noise of the 5x5 mean: 99.9th percentile 4 grey
-# levels between frames (seed 104, c1).
-GHOST_STILL = 8.0
-GHOST_NEAR = 4
 # ghosts are tested down to min_area / GHOST_AREA pixels: the part of a ghost that has lasted
 # (its core) is smaller than the mask the closing and the texture test make of it (seed 104,
 # c0: a 140 px core, the start's dark tyre patch, under a mask of over 150 px for 100 frames)
@@ -75,6 +70,7 @@ class VideoMasksResult:
     last_good: int | None = None
     stopped: str | None = None                     # why reading ended early, else None
     unsettled: list[tuple[int, int]] = field(default_factory=list)  # frame ranges (inclusive)
+    n_rescaled: int = 0  # frames scaled to the model's brightness (``BgConfig.exposure_band``)
 
 
 def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
@@ -148,6 +144,8 @@ class BackgroundMasks:
         # road as seen then; see clean_background)
         self.ghost_image: np.ndarray | None = None
         self._prev_grey: np.ndarray | None = None  # the previous update's frame, grey 5x5 mean
+        self.n_rescaled = 0                     # frames scaled to the model's brightness
+        self._last_fg: np.ndarray | None = None  # (H, W) uint8: the previous frame's foreground
         self.k_open = cv2.getStructuringElement(ell, (cfg.open_px,) * 2) if cfg.open_px > 1 else None
         self.k_close = cv2.getStructuringElement(ell, (cfg.close_px,) * 2) if cfg.close_px > 1 else None
 
@@ -173,6 +171,7 @@ class BackgroundMasks:
         import cv2
 
         cfg = self.cfg
+        image = self._exposed(image)
         learn = self.lr if cfg.update == "all" or not self.primed else 0.0
         raw = self.sub.apply(image, learningRate=learn)
         if learn != 0:
@@ -180,6 +179,7 @@ class BackgroundMasks:
         self.n_applied += 1
         share = float(np.count_nonzero(raw > SHADOW)) / raw.size
         fg = self._foreground(image, raw)
+        self._last_fg = fg
         if self.primed and cfg.update == "selective" and self.n_applied % cfg.update_every == 0:
             # a frame that is mostly foreground is a changed scene (light, a moved camera),
             # not road users: it is learnt whole, so that the model settles again
@@ -217,6 +217,23 @@ class BackgroundMasks:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
         return fg
 
+    def _exposed(self, image: np.ndarray) -> np.ndarray:
+        """``image`` scaled to the model's brightness when its ground is brighter or darker
+        than the model's background by more than ``exposure_band`` (a cloud over the sun, the
+        camera's auto-exposure: the whole frame changes, and without this the bright road
+        markings and pavement turn foreground); otherwise ``image`` itself. The model keeps the
+        light it learnt; the selective update follows what the scaling leaves."""
+        import cv2
+
+        band = self.cfg.exposure_band
+        if band <= 0 or not self.primed:
+            return image
+        r = exposure_ratio(image, self._texture()[0], self._last_fg)
+        if abs(r - 1.0) <= band:
+            return image
+        self.n_rescaled += 1
+        return cv2.convertScaleAbs(image, alpha=1.0 / r)
+
     def _texture(self) -> tuple:
         """``texture_stats`` of the model's background image, kept until the model learns."""
         if self._bg_tex is None:
@@ -227,9 +244,11 @@ class BackgroundMasks:
         """One step of a first pass (``clean_background``): what ``apply`` does on an update
         frame, without the components. Between two updates the model does not change, so a
         first pass only needs every ``update_every``-th frame."""
+        image = self._exposed(image)
         raw = self.sub.apply(image, learningRate=0.0)
         share = float(np.count_nonzero(raw > SHADOW)) / raw.size
         fg = self._foreground(image, raw)
+        self._last_fg = fg
         self._learn_background(image, fg, whole=share > self.cfg.unsettled, raw=raw)
 
     def _learn_background(self, image: np.ndarray, fg: np.ndarray, whole: bool = False,
@@ -251,7 +270,7 @@ class BackgroundMasks:
             return
         frame = image
         ghosts = None
-        grey = _grey_mean(image)
+        grey = grey_mean(image)
         prev, self._prev_grey = self._prev_grey, grey
         if whole:
             self.fg_age = None
@@ -271,7 +290,7 @@ class BackgroundMasks:
                     ghosts = ghost_mask(static, image, bg, busy == 0, max(cfg.min_area // GHOST_AREA, 1),
                                         cfg.ghost_ratio)
                     if ghosts.any():
-                        ghosts = _still(ghosts, grey, prev)
+                        ghosts = still_pixels(ghosts, grey, prev)
                     if ghosts.any():
                         ghosts = cv2.dilate(ghosts.view(np.uint8), self.k_ghost).view(bool)
                         age[ghosts] = 0
@@ -296,28 +315,6 @@ class BackgroundMasks:
                 self.ghost_image = np.zeros_like(image)
             self.ghost_image[ghosts] = image[ghosts]
             self.n_ghosts += 1
-
-
-def _grey_mean(image: np.ndarray) -> np.ndarray:
-    """(H, W) float32: the 5x5 box mean of ``image``'s grey values (colour (H, W, 3) BGR or grey)."""
-    import cv2
-
-    g = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-    return cv2.blur(g.astype(np.float32), (5, 5))
-
-
-def _still(ghosts: np.ndarray, grey: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
-    """The pixels of ``ghosts`` (H, W) bool that held still since the previous update: farther
-    than ``GHOST_NEAR`` px from any pixel whose 5x5 grey mean (``grey``, ``prev``: (H, W)
-    float32) changed by more than ``GHOST_STILL`` (the margin covers the flat inside of a
-    passing car, which does not change where the car overlaps itself). No previous frame: none."""
-    import cv2
-
-    if prev is None or prev.shape != grey.shape:
-        return np.zeros_like(ghosts)
-    moved = (np.abs(grey - prev) > GHOST_STILL).view(np.uint8)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * GHOST_NEAR + 1,) * 2)
-    return ghosts & ~cv2.dilate(moved, k).view(bool)
 
 
 def _ranges(frames: list[int]) -> list[tuple[int, int]]:
@@ -413,6 +410,7 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
         bar.close()
         result.stopped = reader.stopped
         result.unsettled = _ranges(bad)
+        result.n_rescaled = seg.n_rescaled
 
 
 def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = None, *,
@@ -439,6 +437,10 @@ def masks_from_video(video: str | Path, out: str | Path, cfg: BgConfig | None = 
     if res.stopped:
         log(f"warning: {reader.path}: {res.stopped}; kept the masks of frames "
             f"{res.first_frame}..{res.last_good}")
+    if res.n_rescaled:
+        log(f"note: {reader.path}: {res.n_rescaled} of {res.n_frames} frames were brighter or darker "
+            f"than the background model by over {cfg.exposure_band:.0%} (a change of light) and "
+            f"were scaled to it before the subtraction")
     if res.unsettled:
         spans = ", ".join(f"{a}..{b}" if a != b else f"{a}" for a, b in res.unsettled[:8])
         more = f" and {len(res.unsettled) - 8} more" if len(res.unsettled) > 8 else ""

@@ -234,17 +234,17 @@ def test_a_body_of_the_road_colour_next_to_foreground_is_found(tmp_path):
 
 
 def test_only_the_still_pixels_of_a_ghost_are_learnt():
-    """_still: of a ghost, the pixels where the frame changed since the previous update (a
+    """still_pixels: of a ghost, the pixels where the frame changed since the previous update (a
     road user passing through) and those within GHOST_NEAR px of them are not learnt; the rest
     is; changes at or under GHOST_STILL grey levels (noise) do not count; no previous frame:
     nothing is learnt."""
-    from seg2pose.video.video_masks import GHOST_NEAR, GHOST_STILL, _still
+    from seg2pose.video.bg_checks import GHOST_NEAR, GHOST_STILL, still_pixels
 
     ghost = box(20, 20, 100, 60)
     prev = np.full((H, W), 80.0, np.float32)
     grey = prev + np.where(box(0, 0, W, H), GHOST_STILL, 0)    # noise at the limit everywhere
     grey[box(50, 40, 10, 10)] = 140.0                            # something passing
-    got = _still(ghost, grey, prev)
+    got = still_pixels(ghost, grey, prev)
     yy, xx = np.mgrid[:H, :W]
     dx = np.maximum(np.maximum(50 - xx, xx - 59), 0)
     dy = np.maximum(np.maximum(40 - yy, yy - 49), 0)
@@ -253,7 +253,7 @@ def test_only_the_still_pixels_of_a_ghost_are_learnt():
     assert (got == (ghost & far)).mean() > 0.995                 # the disc margin, +- its rim
     assert got[ghost & (np.hypot(dx, dy) > GHOST_NEAR + 1.5)].all()
     assert not got[ghost & (np.hypot(dx, dy) < GHOST_NEAR - 1.5)].any()
-    assert not _still(ghost, grey, None).any()
+    assert not still_pixels(ghost, grey, None).any()
 
 
 def test_the_mode_start_is_the_road_where_a_queue_stands_most_of_the_time():

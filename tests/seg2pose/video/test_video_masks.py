@@ -157,14 +157,68 @@ def test_a_road_user_that_stops_stays_foreground(tmp_path):
 def test_slow_lighting_drift_is_followed(tmp_path):
     """An empty scene brightens by 0.2 grey levels per frame (16 in all, a cloud moving off):
     the selective update follows it (no foreground, nothing unsettled); a background kept
-    from the start does not settle."""
+    from the start does not settle. (Without the exposure scaling, which would undo the drift
+    for both: the update itself is tested.)"""
     folder = write_folder(tmp_path / "c0", 80, [], light={f: 0.2 * f for f in range(80)})
     got = {}
     for update in ("selective", "none"):
-        cfg = BgConfig(min_area=40, init_samples=5, init_frames=5, history=10, update=update)
+        cfg = BgConfig(min_area=40, init_samples=5, init_frames=5, history=10, update=update,
+                       exposure_band=0.0)
         got[update] = masks_from_video(folder, tmp_path / f"{update}.txt", cfg, log=lambda s: None)
     assert got["selective"].unsettled == [] and got["selective"].n_masks == 0
     assert got["none"].unsettled and got["none"].unsettled[-1][1] == 79
+
+
+def test_a_cloud_is_scaled_away_and_the_road_users_stay(tmp_path):
+    """Frames 24-41 are 20 % darker (a cloud over the sun: the ground, the boxes, everything),
+    frames 30-34 30 % brighter than the rest instead. Scaled to the model's brightness, the
+    two boxes are found as in steady light and nothing else; without the scaling the brighter
+    frames do not settle and lose a box in the foreground around it (the darker ones pass
+    MOG2's shadow test here: a grey, untextured background)."""
+    gain = {f: 0.8 for f in range(24, 42)} | {f: 1.3 for f in range(30, 35)}
+    folder = write_folder(tmp_path / "c0", 50, BOXES, gain=gain)
+    got = {}
+    for band in (0.03, 0.0):
+        cfg = BgConfig(min_area=40, init_samples=15, exposure_band=band)
+        logs = []
+        got[band] = masks_from_video(folder, tmp_path / f"m{band}.txt", cfg, log=logs.append)
+        got[band].logs = logs
+    res = got[0.03]
+    assert res.n_rescaled == 18 and res.unsettled == []
+    assert any("18 of 50 frames were brighter or darker than the background model by over 3%"
+               in m for m in res.logs)
+    t = read_mots(tmp_path / "m0.03.txt")
+    for f in range(43):  # box 1 leaves the image after frame 42
+        assert (t.frame == f).sum() == 2, f  # the two boxes and nothing else
+        for bid in (1, 2):
+            assert _best_iou(t, f, truth_mask(f, BOXES, bid)) > 0.85, (f, bid)
+    off = got[0.0]
+    assert off.n_rescaled == 0 and off.unsettled == [(30, 34)]
+    t_off = read_mots(tmp_path / "m0.0.txt")
+    assert all((t_off.frame == f).sum() < 2 for f in range(30, 35))
+
+
+def test_exposure_ratio_is_the_grounds():
+    """The median ratio over the ground: a quarter of the frame covered by a bright road user
+    does not move it; saturated background is left out."""
+    from seg2pose.video.bg_checks import exposure_ratio
+    from video_fixtures import background
+
+    bg = background(3)
+    grey = cv2_grey(bg)
+    img = np.clip(np.round(bg * 0.8), 0, 255).astype(np.uint8)
+    img[:60, :80] = 250  # a road user over a quarter of the image
+    assert exposure_ratio(img, grey) == pytest.approx(0.8, abs=0.01)
+    assert exposure_ratio(bg, grey) == pytest.approx(1.0, abs=1e-6)
+    hold = np.zeros(bg.shape[:2], np.uint8)
+    hold[60:] = 1  # only the top half counts, and a quarter of it is the road user
+    assert exposure_ratio(img, grey, hold) > 0.8 * 1.05
+
+
+def cv2_grey(img):
+    import cv2
+
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY).astype(np.float32)
 
 
 @pytest.mark.parametrize("kind", ["video", "folder"])
