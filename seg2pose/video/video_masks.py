@@ -155,7 +155,7 @@ class BackgroundMasks:
             return
         self.primed = True
         if self.cfg.init in SAMPLED:
-            bg = start_image(images, self.cfg.init)
+            bg = start_image(images, self.cfg.init, self.cfg.exposure_band)
             # enough repetitions for a confident model; afterwards learn at the history's rate
             self.sub.apply(bg, learningRate=1.0)
             self._bg_tex = None
@@ -378,7 +378,7 @@ def iter_video_masks(reader: FrameReader, cfg: BgConfig, result: VideoMasksResul
             ims = [im for _, im in reader.sample(want)]
             if (sampled and ims and cfg.clean_start and cfg.ghost_after > 0
                     and cfg.update == "selective"):
-                bg = start_image(ims, cfg.init)
+                bg = start_image(ims, cfg.init, cfg.exposure_band)
                 del ims
                 ims = [clean_background(reader, cfg, bg, span_lo, int(want[-1]))]
             seg.prime(ims)

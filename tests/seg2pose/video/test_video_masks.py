@@ -236,3 +236,26 @@ def test_every_nth_frame_is_read_as_a_full_read_gives_it(tmp_path, kind):
     assert [f for f, _ in some] == list(range(lo, max(full) + 1, 3))
     for f, im in some:
         assert np.array_equal(im, full[f])
+
+
+def test_start_image_of_samples_under_clouds():
+    """Five of twelve samples in full sun, four 15 % and three 30 % darker (clouds), over a
+    background from 40 to 220 grey levels: the per-pixel mode of the samples as they are is the
+    sunny group where the groups part (bright pixels) and a blend where they overlap (dark
+    ones: within the mode's 12 levels), so it darkens the dark end by up to a fifth; of the
+    samples scaled to one brightness it is one level everywhere (the samples' median, 0.85)."""
+    from seg2pose.video.bg_start import same_exposure, start_image
+
+    bg = np.repeat(np.linspace(40, 220, W)[None, :, None], H, 0).repeat(3, 2)
+    rng = np.random.default_rng(0)
+    ims = [np.clip(bg * g + rng.normal(0, 2.0, bg.shape), 0, 255).round().astype(np.uint8)
+           for g in [1.0] * 5 + [0.85] * 4 + [0.7] * 3]
+    assert same_exposure(ims, 0.0) is ims
+    scaled = same_exposure(ims, 0.03)
+    assert max(np.abs(a.astype(int) - b.astype(int)).mean() for a in scaled for b in scaled) < 5  # noise
+    ratio = {band: (start_image(ims, "mode", band).astype(float) / bg).mean(axis=2)
+             for band in (0.0, 0.03)}
+    lo, hi = np.percentile(ratio[0.03], [1, 99])
+    assert 0.83 < lo and hi < 0.88  # one level
+    lo, hi = np.percentile(ratio[0.0], [1, 99])
+    assert lo < 0.82 and hi > 0.99  # patchy: sunny at the bright end, darker at the dark end
