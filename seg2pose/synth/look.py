@@ -25,7 +25,6 @@ import numpy as np
 from seg2pose.core.errors import InputError
 
 AMBIENT = 0.55   # share of a sunlit ground's light that is skylight (a shadow keeps 0.55 of it)
-FACE_AMBIENT = 0.45  # the same for the road users' faces (Lambert: 0.45 + 0.55 cos)
 SUN_MIN = 0.2    # sun strength left under the thickest cloud
 PLAIN, STRIPES, PATCHES = 0, 1, 2  # texture kinds
 

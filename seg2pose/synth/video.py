@@ -133,6 +133,7 @@ def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray, sun: floa
     nn = np.linalg.norm(n, axis=2, keepdims=True)
     n = n / np.maximum(nn, 1e-12)
     facing = np.einsum("pfk,pfk->pf", n, fc - camera.center) < 0
+    # faces: skylight 0.45 + sunlight 0.55 cos (Lambert), the sun's share dimmed by a cloud
     light = 0.45 + (0.55 * sun) * np.clip(-np.einsum("pfk,k->pf", n, SUN), 0, 1)
     col = _part_colours(world, tracks, kinds, owner)
     fpts = np.clip(np.round((uv[:, FACES] - 0.5) * (1 << SHIFT)), -2**28, 2**28).astype(np.int32)

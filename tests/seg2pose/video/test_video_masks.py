@@ -130,6 +130,8 @@ def test_config_from_scene_is_validated(tmp_path):
         BgConfig.from_dict({"method": "magic"})
     with pytest.raises(InputError, match=r"extra.video_masks.min_area'.*expected int"):
         BgConfig.from_dict({"min_area": "x"})
+    with pytest.raises(InputError, match=r"extra.video_masks.exposure_band'.*must be in \[0, 1\)"):
+        BgConfig.from_dict({"exposure_band": 1.5})
 
 
 def _best_iou(t, f, truth):
