@@ -19,6 +19,11 @@ from seg2pose.synth.shapes import hexa
 from seg2pose.synth.video import background, render_frame
 from seg2pose.synth.world import World
 
+from video_fixtures import single_threaded_opencv
+
+# OpenCV's worker pool, once started here, hangs synth's forked workers in later tests
+opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
+
 
 @pytest.fixture(scope="module")
 def cam():
