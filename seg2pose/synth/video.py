@@ -189,9 +189,8 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
            if look.light_change else np.ones(world.n_frames))
     textures = None
     if look.textures:
-        first = np.unique(world.track, return_index=True)[1]  # each track's class
-        track_cls = np.zeros(int(world.track.max(initial=0)), np.int8)
-        track_cls[world.track[first] - 1] = world.cls[first]
+        track_cls = np.zeros(int(world.track.max(initial=0)), np.int8)  # each track's class
+        track_cls[world.track - 1] = world.cls
         textures = draw_textures(track_cls, seed)
     tmp = path.with_name(f".{path.stem}.partial.mp4")  # renamed when complete
     wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),

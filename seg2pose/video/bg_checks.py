@@ -1,7 +1,8 @@
 """Checks on background-subtraction output, pure functions on images: which "shadow" pixels
-are a flat body rather than a shadow (``flat_pixels``), which long-lasting foreground is
-a ghost (``ghost_mask``) and which of its pixels held still (``still_pixels``), and how much brighter the whole frame is than the background model
-(``exposure_ratio``). Used by ``seg2pose.video.video_masks``.
+are a flat body rather than a shadow (``flat_pixels``), which long-lasting foreground is a
+ghost (``ghost_mask``) and which of its pixels held still (``still_pixels``), and how much
+brighter the whole frame is than the background model (``exposure_ratio``, ``to_exposure``).
+Used by ``seg2pose.video.video_masks`` and ``seg2pose.video.bg_start``.
 
 Images: (H, W, 3) BGR or (H, W) grey uint8; pixels x right, y down.
 """
@@ -39,6 +40,14 @@ def exposure_ratio(image: np.ndarray, bg_grey: np.ndarray, hold: np.ndarray | No
     if np.count_nonzero(keep) < 100:
         return 1.0
     return float(np.median(g[keep] / b[keep]))
+
+
+def to_exposure(image: np.ndarray, ratio: float, band: float) -> np.ndarray:
+    """``image`` divided by ``ratio`` (``exposure_ratio``) when that is more than ``band`` away
+    from 1, else ``image`` itself (the same object, so a caller can tell)."""
+    import cv2
+
+    return image if abs(ratio - 1.0) <= band else cv2.convertScaleAbs(image, alpha=1.0 / ratio)
 
 
 def texture_stats(background: np.ndarray, t: float) -> tuple:

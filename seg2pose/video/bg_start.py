@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seg2pose.video.bg_checks import exposure_ratio
+from seg2pose.video.bg_checks import exposure_ratio, to_exposure
 
 SAMPLED = ("mode", "median")  # the starting backgrounds made from sampled frames
 MODE_TOL = 12  # grey levels: samples of one surface agree within it (noise 2-5, road texture kept)
@@ -73,11 +73,7 @@ def same_exposure(images: list[np.ndarray], band: float) -> list[np.ndarray]:
     if band <= 0 or len(images) < 2 or images[0].ndim != 3:
         return images
     ref = cv2.cvtColor(median_image(images), cv2.COLOR_BGR2GRAY).astype(np.float32)
-    out = []
-    for im in images:
-        r = exposure_ratio(im, ref)
-        out.append(im if abs(r - 1.0) <= band else cv2.convertScaleAbs(im, alpha=1.0 / r))
-    return out
+    return [to_exposure(im, exposure_ratio(im, ref), band) for im in images]
 
 
 def median_image(images: list[np.ndarray]) -> np.ndarray:

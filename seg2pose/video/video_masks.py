@@ -49,7 +49,7 @@ from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
 from seg2pose.video.bg_checks import (exposure_ratio, flat_pixels, ghost_mask, grey_mean,
-                                      still_pixels, texture_stats)
+                                      still_pixels, texture_stats, to_exposure)
 from seg2pose.video.bg_config import BgConfig
 from seg2pose.video.bg_start import SAMPLED, start_image
 
@@ -223,16 +223,12 @@ class BackgroundMasks:
         camera's auto-exposure: the whole frame changes, and without this the bright road
         markings and pavement turn foreground); otherwise ``image`` itself. The model keeps the
         light it learnt; the selective update follows what the scaling leaves."""
-        import cv2
-
         band = self.cfg.exposure_band
         if band <= 0 or not self.primed:
             return image
-        r = exposure_ratio(image, self._texture()[0], self._last_fg)
-        if abs(r - 1.0) <= band:
-            return image
-        self.n_rescaled += 1
-        return cv2.convertScaleAbs(image, alpha=1.0 / r)
+        out = to_exposure(image, exposure_ratio(image, self._texture()[0], self._last_fg), band)
+        self.n_rescaled += out is not image
+        return out
 
     def _texture(self) -> tuple:
         """``texture_stats`` of the model's background image, kept until the model learns."""
