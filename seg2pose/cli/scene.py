@@ -76,6 +76,7 @@ def synth(
     rig: Optional[str] = typer.Option(None, "--rig", help="camera device: device (10 m pole; the default), device-8m, device-12m, or a rig JSON file (default for --preset wide: the device on a pole 6-15 m high, drawn from the seed)"),
     video: bool = typer.Option(False, "--video/--no-video", help="also render RGB video of every camera"),
     look: Optional[str] = typer.Option(None, "--look", help="the video's look: flat (flat-shaded plain bodies, constant sun), rich (clouds passing the sun change the light and soften the shadows, the camera's exposure half follows; striped and patterned clothes, two-tone paint and decals), or one of the two: light, textured; default: rich for --preset wide, flat otherwise. Masks and truth are the same either way"),
+    groups: float = typer.Option(0.0, "--groups", min=0.0, max=1.0, help="share of the pedestrians who walk in groups of two or three (friends, a parent and a child: side by side, stopping and crossing together, the same group every visit; their masks touch and merge as in real footage); default 0, also for --preset wide, whose published figures are without groups"),
     detector_noise: bool = typer.Option(True, "--detector-noise/--no-detector-noise", help="masks like a Mask R-CNN detector's (misses, merges, coarse outlines), or perfect silhouettes"),
     noise: list[str] = typer.Option([], "--noise", help="set one detector-noise knob, KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
     distortion: Optional[str] = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (none by default)"),
@@ -108,7 +109,8 @@ def synth(
     t = time.perf_counter()
     path = generate_scene(out, SynthOptions(preset=preset, frames=frames, seed=seed, rig=rig, video=video,
                           force=force, noise=cfg, progress=progress, workers=workers,
-                          ids=ids, distortion=dist, match=match, look=look))
+                          ids=ids, distortion=dist, match=match, look=look,
+                          groups=groups))
     typer.echo(f"wrote scene {path} in {time.perf_counter() - t:.1f} s")
 
 

@@ -174,7 +174,8 @@ class SynthOptions:
     distortion: optional radial lens distortion (k1, k2) of the named devices (off by default);
     match: "center" (paper 4.1: a detection is kept, with its road user's id, only when the
     projection of the road user's true 3D centre falls inside its mask; truncated or hidden
-    road users whose centre is not covered drop out) or "all" (every visible mask).
+    road users whose centre is not covered drop out) or "all" (every visible mask); groups:
+    share of the pedestrians who walk in groups of two or three (0: none, every preset's default).
     """
 
     preset: str = "small"
@@ -191,6 +192,7 @@ class SynthOptions:
     distortion: tuple[float, float] | None = None
     match: str = "center"
     look: str | None = None  # the video's look (synth.look.LOOKS); None: the preset's
+    groups: float = 0.0  # share of the pedestrians walking in groups of two or three (traffic)
 
 
 def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
@@ -221,6 +223,8 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
         raise InputError(f"unknown match rule {match!r}; use {' or '.join(MATCH_RULES)}", field="match")
     if ids not in ("road_user", "visit"):
         raise InputError(f"unknown id scheme {ids!r}; use road_user or visit", field="ids")
+    if not 0.0 <= float(opts.groups) <= 1.0:
+        raise InputError(f"groups must be a share between 0 and 1, got {opts.groups!r}", field="groups")
     if sum(pop.values()) == 0:
         raise InputError("population is empty: no road users to render", field="population")
     look_name = opts.look or p.get("look", "flat")
@@ -246,7 +250,8 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
     workers = min(len(cams), os.cpu_count() or 1, 2) if workers is None else max(int(workers), 1)
 
     # --- simulate -------------------------------------------------------------------------------
-    traffic = TrafficConfig(population=pop, mean_pause_s=dict(p["mean_pause_s"]))
+    traffic = TrafficConfig(population=pop, mean_pause_s=dict(p["mean_pause_s"]),
+                            group_share=float(opts.groups))
     sim_stats: dict = {}
     visits = simulate(traffic, n_frames, DT, seed, stats=sim_stats)
     if not visits:

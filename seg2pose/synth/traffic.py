@@ -11,7 +11,10 @@ CARLA's road users wandering around the map; it keeps its identity (and shape) o
   queue behind each other, and never run into the car ahead in their entry lane.
 - Bicyclists ride along the road edge with the same rules.
 - Pedestrians walk along the sidewalks and across the crosswalks (waiting at the curb before
-  crossing); some stop for a while, some stand still for most of their visit.
+  crossing); some stop for a while, some stand still for most of their visit. With
+  ``group_share`` > 0 some walk in groups of two or three (friends, a parent and a child): the
+  same members every visit, side by side 0.7 m apart, a little ahead of or behind each other,
+  stopping and crossing together; traffic yields to the group as one wide walker.
 
 Everything is a function of time; positions are sampled at the frame times. Units: metres,
 seconds, radians (heading counter-clockwise from +x).
@@ -200,10 +203,36 @@ class TrafficConfig:
     population: dict  # class -> number of road users (paper: 43 / 12 / 28)
     mean_pause_s: dict  # class -> mean pause between visits, seconds
     warmup_s: float = 60.0  # simulate this long before frame 0 so the scene starts busy
+    group_share: float = 0.0  # share of the pedestrians who walk in groups of two or three
 
     def to_dict(self) -> dict:
-        return {"population": dict(self.population), "mean_pause_s": dict(self.mean_pause_s),
-                "warmup_s": self.warmup_s}
+        d = {"population": dict(self.population), "mean_pause_s": dict(self.mean_pause_s),
+             "warmup_s": self.warmup_s}
+        if self.group_share:  # (only then: scenes without groups keep their scene.json)
+            d["group_share"] = self.group_share
+        return d
+
+
+GROUP_SPACING = 0.7  # m, between neighbours of a group walking side by side
+GROUP_LAG = 0.3      # m, how far a member walks ahead of or behind the group's centre, at most
+
+
+def pedestrian_groups(share: float, slots: list[int], seed: int) -> dict[int, tuple[int, ...]]:
+    """Which population members walk together: leader slot -> the group's slots (leader
+    first), about ``share`` of ``slots`` in groups of two (70 %) or three. Its own random
+    stream, so the traffic's stream is untouched when ``share`` is 0."""
+    if share <= 0 or len(slots) < 2:
+        return {}
+    rng = np.random.default_rng([seed, 12])
+    order = [int(x) for x in rng.permutation(slots)]
+    n = int(round(share * len(order)))
+    groups, i = {}, 0
+    while n - i >= 2:
+        size = 3 if n - i >= 3 and rng.random() < 0.3 else 2
+        g = tuple(sorted(order[i:i + size]))
+        groups[g[0]] = g
+        i += size
+    return groups
 
 
 def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
@@ -217,11 +246,16 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
     rng = np.random.default_rng([seed, 11])
     t_end = n_frames * dt
     heap: list[tuple[float, int, str]] = []
+    n_veh = int(cfg.population.get("car", 0)) + int(cfg.population.get("bicyclist", 0))
+    groups = pedestrian_groups(cfg.group_share, list(range(
+        n_veh, n_veh + int(cfg.population.get("pedestrian", 0)))), seed)
+    follows = {m for g in groups.values() for m in g[1:]}  # scheduled with their group's leader
     k = 0
     for cls in ("car", "bicyclist", "pedestrian"):
         for _ in range(int(cfg.population.get(cls, 0))):
             t = -cfg.warmup_s + rng.uniform(0, cfg.mean_pause_s.get(cls, 30.0) + cfg.warmup_s)
-            heap.append((t, k, cls))
+            if k not in follows:
+                heap.append((t, k, cls))
             k += 1
     heapq.heapify(heap)
     queue: dict[tuple, tuple[float, int]] = {}  # lane -> (green time the queue waits for, count)
@@ -233,15 +267,18 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
         if t0 >= t_end:
             continue
         active = [a for a in active if a.t1 >= t0]
+        members = groups.get(slot, (slot,))
         if cls == "pedestrian":
-            tr, stride = _pedestrian_traj(rng, t0, active)
+            tr, stride = _pedestrian_traj(rng, t0, active, len(members))
         else:
             tr, stride = _vehicle_traj(rng, cls, t0, active, queue)
         active.append(tr)
         gave_up += int(tr.gave_up)
         f0 = max(int(np.ceil(tr.t0 / dt - 1e-9)), 0)
         f1 = min(int(np.floor(tr.t1 / dt + 1e-9)), n_frames - 1)
-        if f1 >= f0:
+        if f1 >= f0 and len(members) > 1:
+            visits.extend(_group_visits(rng, tr, members, np.arange(f0, f1 + 1), dt, stride))
+        elif f1 >= f0:
             frames = np.arange(f0, f1 + 1)
             s, p, h = tr.at(frames * dt)
             visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0, slot))
@@ -250,6 +287,8 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
     visits.sort(key=lambda v: (int(v.frames[0]), v.t0))
     if stats is not None:
         stats.update(visits=len(visits), yield_gave_up=gave_up)
+        if groups:
+            stats.update(groups=len(groups), in_groups=sum(len(g) for g in groups.values()))
     return visits
 
 
@@ -300,10 +339,13 @@ def _vehicle_traj(rng, cls, t0, active, queue) -> tuple[Traj, float]:
     return tr, 1e9
 
 
-def _pedestrian_traj(rng, t0, active) -> tuple[Traj, float]:
+def _pedestrian_traj(rng, t0, active, n: int = 1) -> tuple[Traj, float]:
+    """A pedestrian's (or, ``n`` > 1, a group's centre's) trajectory and stride (m)."""
     nodes, _ = pedestrian_route(rng)
-    # sideways offset from the walking line: not too near the road, where turning bicyclists pass
-    xy = offset_polyline(densify(nodes, 0.5), rng.uniform(-0.6, 1.1))
+    # sideways offset from the walking line: not too near the road, where turning bicyclists
+    # pass (a group's centre: its outer members inside the same band)
+    w = GROUP_SPACING * (n - 1) / 2
+    xy = offset_polyline(densify(nodes, 0.5), rng.uniform(-0.6 + w, max(1.1 - w, -0.6 + w + 0.1)))
     s_nodes = arc_lengths(xy)
     # wait at the curb: the last point at least 0.6 m inside the sidewalk before each crossing
     d = J.curb_distance(xy)
@@ -328,7 +370,8 @@ def _pedestrian_traj(rng, t0, active) -> tuple[Traj, float]:
         for s_h, dwell in holds:
             s_g, t_g = _hold(s_g, t_g, s_h, dwell)
         t_g = t_g + np.arange(len(t_g)) * 1e-9  # strictly increasing for interpolation
-        tr = Traj(t0 + shift, s_g, t_g, xy, s_nodes, (0.2, 0.3), False)
+        tr = Traj(t0 + shift, s_g, t_g, xy, s_nodes,
+                  (0.2, 0.3) if n == 1 else (0.2 + GROUP_LAG, 0.3 + w), False)
         c = _first_conflict(tr, active, margin=0.2)
         if c is None:
             break
@@ -340,3 +383,24 @@ def _pedestrian_traj(rng, t0, active) -> tuple[Traj, float]:
         else:
             shift += YIELD_STEP
     return tr, stride
+
+
+def _group_visits(rng, centre: Traj, members: tuple[int, ...], frames: np.ndarray, dt: float,
+                  stride: float) -> list[Visit]:
+    """The visits of a group walking ``centre``'s trajectory as a formation that turns with
+    the centre's heading: member i shifted across it by (i - (n-1)/2) * GROUP_SPACING (places
+    shuffled) and along it by a lag of its own (up to GROUP_LAG ahead or behind); each its own
+    stride (the leader the centre's). A rigid formation, not offset copies of the path: those
+    loop at the crossings' sharp corners and would walk neighbours into each other."""
+    n = len(members)
+    s, p_c, h = centre.at(frames * dt)
+    u = np.column_stack([np.cos(h), np.sin(h)])
+    v = np.column_stack([-u[:, 1], u[:, 0]])
+    place = rng.permutation(n)
+    out = []
+    for i, m in enumerate(members):
+        lag = rng.uniform(-GROUP_LAG, GROUP_LAG)
+        p = p_c + (place[i] - (n - 1) / 2) * GROUP_SPACING * v + lag * u
+        own = stride if i == 0 else rng.uniform(1.2, 1.5)
+        out.append(Visit("pedestrian", frames, p, h, 2 * np.pi * (s + lag) / own, centre.t0, m))
+    return out
