@@ -26,7 +26,6 @@ VARIANTS = {
     # the quick protocol trained twice as long, a quarter of each batch rough (the paper's
     # share): chosen on the 960-frame tuning scene (docs/RESULTS.md, "Learning curve")
     "s2pn-long": ["--protocol", "quick", "--epochs", "60", "--rough-every", "4"],
-    "s2pn-long-b": ["--protocol", "quick", "--epochs", "60", "--rough-every", "4", "--seed", "1"],
     "zero": ["--protocol", "quick", "--zero-annotation", "--rough", "400"],
     "zero-random": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--rough-random"],
     "zero-track": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "track"],
@@ -43,19 +42,6 @@ VARIANTS = {
 # (``self_training.check_rough_stage`` refuses them if the protocols differ)
 ROUGH_STAGE_OF = {"zero-track": "zero", "zero-fused": "zero", "zero-views": "zero",
                   "zero-random-track": "zero-random", "zero-random-views": "zero-random"}
-
-# ensemble variants: no training of their own; their table averages the members' models
-# (``s2p paper-table --models A --models B``: ``checkpoint.Ensemble``), each member trained
-# first where its folder is not finished. Two training seeds averaged: chosen on the demo
-# scene (docs/RESULTS.md, "The demo's shipped models")
-ENSEMBLES = {"s2pn-long-pair": ("s2pn-long", "s2pn-long-b")}
-
-
-def options(variant: str) -> list[str]:
-    """What ``variant`` is, for ROOT/accuracy.json: its ``s2p train`` options, or for an
-    ensemble its members' names."""
-    return ["ensemble:", *ENSEMBLES[variant]] if variant in ENSEMBLES else VARIANTS[variant]
-
 
 def s2p_command(*args: str) -> list[str]:
     """argv running ``s2p ARGS`` with this interpreter (and so this checkout's code)."""
@@ -87,10 +73,9 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
     if not (scene / "scene.json").exists():
         step(["synth", "-o", scene, "--preset", preset, "--seed", seed, "--no-progress"], "synth")
         step(["heights", scene], "heights")
-
-    def trained(v: str) -> Path:
-        """Variant ``v``'s models folder, trained first unless finished (its bench.json)."""
+    for v in variants:
         models = scene / f"models-{v}"
+        table = scene / f"table-{v}"
         meta = models / "bench.json"
         base = scene / f"models-{ROUGH_STAGE_OF.get(v)}"
         if not meta.exists() and v in ROUGH_STAGE_OF and (base / "bench.json").exists() \
@@ -102,16 +87,8 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
                          "-o", models], f"train-{v}")
             meta.write_text(json.dumps({"train_s": secs, "options": [*VARIANTS[v], *train_args]}))
         res.train_s[v] = json.loads(meta.read_text())["train_s"]
-        return models
-
-    for v in variants:
-        members = [trained(m) for m in ENSEMBLES.get(v, (v,))]
-        if v in ENSEMBLES:
-            res.train_s[v] = sum(res.train_s[m] for m in ENSEMBLES[v])
-        table = scene / f"table-{v}"
         if not (table / "results.json").exists():
-            step(["paper-table", scene, *(a for m in members for a in ("--models", m)), "-o", table,
-                  "--force"], f"paper-table-{v}")
+            step(["paper-table", scene, "--models", models, "-o", table, "--force"], f"paper-table-{v}")
         read_table(table / "results.json", v, res)
         if smooth:
             read_table(smoothed_results(scene, table, smooth), v, res, SMOOTHED)
@@ -122,16 +99,15 @@ def run_benchmark(root: str | Path, seeds: list[int], preset: str = "bench",
                   variants=("s2pn", "zero"), threads: int = 2, train_args: tuple[str, ...] = (),
                   log=print, smooth: int = 0) -> tuple[list[SeedResult], str]:
     """``run_seed`` for every seed, then ``summary``; also writes ROOT/accuracy.json."""
-    unknown = [v for v in variants if v not in VARIANTS and v not in ENSEMBLES]
+    unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
-        raise S2PError(f"unknown variant(s) {', '.join(unknown)}; use "
-                       f"{', '.join([*VARIANTS, *ENSEMBLES])}")
+        raise S2PError(f"unknown variant(s) {', '.join(unknown)}; use {', '.join(VARIANTS)}")
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     results = [run_seed(root, s, preset, variants, threads, train_args, log, smooth) for s in seeds]
     text = summary(results, variants)
     atomic_write_text(root / "accuracy.json", json.dumps(
-        {"preset": preset, "variants": {v: options(v) + list(train_args) for v in variants},
+        {"preset": preset, "variants": {v: VARIANTS[v] + list(train_args) for v in variants},
          "smooth_frames": smooth,
          "seeds": [vars(r) for r in results]}, indent=1) + "\n")
     return results, text

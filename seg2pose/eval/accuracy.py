@@ -20,8 +20,6 @@ from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import load_scene
 
 VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "s2pn-long": "annotated, 60 epochs",
-                  "s2pn-long-b": "annotated, 60 epochs, seed 1",
-                  "s2pn-long-pair": "annotated, 60 epochs, 2 seeds averaged",
                   "zero": "zero-annotation",
                   "zero-random": "zero, random rough", "zero-track": "zero + self (track)",
                   "zero-fused": "zero + self (fused)",

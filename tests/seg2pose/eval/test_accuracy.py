@@ -4,7 +4,6 @@ results, mean and spread over seeds, resumption without re-running finished step
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -114,34 +113,3 @@ def test_self_training_variant_starts_from_the_finished_zero_models(tmp_path, mo
     r = accuracy.run_seed(tmp_path, 5, variants=("zero", "zero-views"), log=lambda s: None)
     assert len(trained) == 1 and r.errors["tri-I"] == {"baseline": 0.2, "zero": 0.1, "zero-views": 0.08}
     assert "0.400x" in summary([r], ("zero", "zero-views"))  # every variant has a title
-
-
-def test_ensemble_variant_trains_its_members_and_averages_them(tmp_path, monkeypatch):
-    """s2pn-long-pair: both members trained (the second with --seed 1), one paper-table with
-    both folders as --models; its training time is the members' sum."""
-    scene = tmp_path / "bench-seed4"
-    scene.mkdir()
-    (scene / "scene.json").write_text("{}")
-    calls = []
-
-    def fake_run(argv, **kw):
-        args = argv[3:]
-        calls.append(args)
-        if args[0] == "train":
-            Path(args[-1]).mkdir()
-        if args[0] == "paper-table":
-            write_table(scene / "table-s2pn-long-pair", {"mono-1": 0.3}, {"mono-1": 0.12})
-        return accuracy.subprocess.CompletedProcess(argv, 0, "", "")
-
-    monkeypatch.setattr(accuracy.subprocess, "run", fake_run)
-    r = accuracy.run_seed(tmp_path, 4, variants=("s2pn-long-pair",), log=lambda s: None)
-    trains = [c for c in calls if c[0] == "train"]
-    assert [c[-1] for c in trains] == [str(scene / "models-s2pn-long"), str(scene / "models-s2pn-long-b")]
-    assert "--seed" not in trains[0] and trains[1][trains[1].index("--seed") + 1] == "1"
-    table = [c for c in calls if c[0] == "paper-table"]
-    assert len(table) == 1
-    models = [table[0][i + 1] for i, a in enumerate(table[0]) if a == "--models"]
-    assert models == [str(scene / "models-s2pn-long"), str(scene / "models-s2pn-long-b")]
-    assert r.train_s["s2pn-long-pair"] == pytest.approx(r.train_s["s2pn-long"] + r.train_s["s2pn-long-b"])
-    assert r.errors["mono-1"]["s2pn-long-pair"] == 0.12
-    assert "0.400x" in summary([r], ("s2pn-long-pair",))
