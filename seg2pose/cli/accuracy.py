@@ -23,9 +23,7 @@ from seg2pose.training.config import ROUGH_STAGE
 # training variants: name -> the `s2p train` options (the CPU protocol of docs/RESULTS.md)
 VARIANTS = {
     "s2pn": ["--protocol", "quick"],
-    # the quick protocol trained twice as long, a quarter of each batch rough (the paper's
-    # share): chosen on the 960-frame tuning scene (docs/RESULTS.md, "Learning curve")
-    "s2pn-long": ["--protocol", "quick", "--epochs", "60", "--rough-every", "4"],
+    "s2pn-long": ["--protocol", "long"],   # = quick --epochs 60 --rough-every 4
     "zero": ["--protocol", "quick", "--zero-annotation", "--rough", "400"],
     "zero-random": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--rough-random"],
     "zero-track": ["--protocol", "quick", "--zero-annotation", "--rough", "400", "--self-train", "track"],

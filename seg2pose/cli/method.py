@@ -12,7 +12,7 @@ from seg2pose.core.ray import ray_map
 
 Arch = Literal["paper", "lite", "lite-hr"]
 Center = Literal["bbox", "centroid"]
-Protocol = Literal["paper", "quick", "demo"]
+Protocol = Literal["paper", "quick", "long", "demo"]
 
 
 def register(app: typer.Typer) -> None:
@@ -91,7 +91,7 @@ def run_cmd(
 def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder (with ground truth, unless --zero-annotation)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default: SCENE/models)"),
-    protocol: Protocol = typer.Option("paper", "--protocol", help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; demo: the demo's shortest one"),
+    protocol: Protocol = typer.Option("paper", "--protocol", help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; long: quick for twice as long with a quarter of each batch rough, for a thousand or more annotated frames per split (held out: 0.37x the baseline where quick gives 0.45x, docs/RESULTS.md); demo: the demo's shortest one"),
     arch: Optional[Arch] = typer.Option(None, "--arch", help="network: paper (Figure 3), lite (crop / 3, for CPUs) or lite-hr (full-resolution 140 px crop)"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation/--no-zero-annotation", help="train on rough models only (no ground truth needed)"),
     rough_noise: Optional[bool] = typer.Option(None, "--rough-noise/--no-rough-noise", help="make rough-model masks detector-like (coarse 28x28 outlines, 1 px wider)"),
@@ -134,7 +134,8 @@ def train_cmd(
     from seg2pose.training.self_training import train_self_trained
     from seg2pose.training.train import train_scene
 
-    cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "demo": TrainConfig.demo}[protocol]()
+    cfg = {"paper": TrainConfig.paper, "quick": TrainConfig.quick, "long": TrainConfig.long,
+           "demo": TrainConfig.demo}[protocol]()
     over = dict(arch=arch, epochs=epochs, runs=runs, batches_per_epoch=batches, lr=lr,
                 rough_per_class=rough, rough_every=rough_every, rough_occlusion=rough_occlusion,
                 rough_random=rough_random,
@@ -236,7 +237,7 @@ def bench_accuracy_cmd(
     root: Path = typer.Argument(..., help="folder for the scenes, models and tables (one sub-folder per seed; finished steps are kept and skipped)"),
     seed: Optional[List[int]] = typer.Option(None, "--seed", help="a scene seed (repeatable; default 100, 101, 102: settings were chosen on seeds 0-4)"),
     preset: str = typer.Option("bench", "--preset", help="synthetic scene size (see s2p synth --preset)"),
-    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), s2pn-long (annotated, 60 epochs, a quarter rough), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished), zero-random-track or zero-random-views (the same from zero-random's models); repeatable; default s2pn and zero"),
+    variant: Optional[List[str]] = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), s2pn-long (annotated, --protocol long), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished), zero-random-track or zero-random-views (the same from zero-random's models); repeatable; default s2pn and zero"),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
     train_arg: Optional[List[str]] = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
     smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),

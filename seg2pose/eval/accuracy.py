@@ -19,7 +19,7 @@ from seg2pose.eval.paper_table import refuse_table
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.scene import load_scene
 
-VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "s2pn-long": "annotated, 60 epochs",
+VARIANT_TITLES = {"s2pn": "Seg2PoseNet (annotated)", "s2pn-long": "annotated, long protocol",
                   "zero": "zero-annotation",
                   "zero-random": "zero, random rough", "zero-track": "zero + self (track)",
                   "zero-fused": "zero + self (fused)",

@@ -14,7 +14,8 @@ CPU presets: ``TrainConfig.quick()`` (lite-hr + mask geometry) and ``TrainConfig
 model for all lenses of the device** (``share_cameras``: the lenses sit centimetres apart, so
 their examples are nearly the same views). ``quick`` keeps the paper's one model per class
 (measured better than one model for all classes with a class input, ``share_classes``, which
-``demo`` uses to train a single model).
+``demo`` uses to train a single model). ``TrainConfig.long()`` is ``quick`` for 60 epochs with
+a quarter of each batch rough: for a thousand or more annotated frames per split.
 
 Checkpoints (``seg2pose.method.checkpoint``): ``MODELS/<camera>__<class>.safetensors`` (``__all`` when
 shared). While training, ``<name>.state.pt`` holds the resume state (after every epoch); an

@@ -246,3 +246,15 @@ def test_cli_train_resumes_with_other_run_time_settings(tiny, tmp_path, fake_rou
     assert calls["n"] == 2  # epochs 3 and 4 only
     meta = json.loads(next((tmp_path / "m").glob("*.json")).read_text())
     assert meta["complete"] is True and meta["train_config"]["threads"] == 1
+
+
+def test_long_protocol_is_quick_for_longer_with_a_quarter_rough():
+    """``--protocol long`` = ``--protocol quick --epochs 60 --rough-every 4``: models trained
+    either way are of one protocol (a finished one is skipped, a stopped one resumed), and
+    not of quick's."""
+    from seg2pose.training.config import TrainConfig, TrainSettings, same_protocol, training_record
+
+    flags = TrainConfig.quick().replace(epochs=60, rough_every=4)
+    assert TrainConfig.long() == flags
+    assert same_protocol(training_record(flags, TrainSettings(threads=1)), TrainConfig.long())
+    assert not same_protocol(training_record(TrainConfig.quick(), TrainSettings()), TrainConfig.long())
