@@ -91,7 +91,7 @@ def run_cmd(
 def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder (with ground truth, unless --zero-annotation)"),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="model folder (default: SCENE/models)"),
-    protocol: Protocol = typer.Option("paper", "--protocol", help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; long: quick for twice as long with a quarter of each batch rough, for a thousand or more annotated frames per split (bench preset, held out: 0.37x the baseline where quick gives 0.45x; no gain on the wide preset's vans, trucks and buses; docs/RESULTS.md); demo: the demo's shortest one"),
+    protocol: Protocol = typer.Option("paper", "--protocol", help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; long: quick for twice as long with a quarter of each batch rough, for a thousand or more annotated frames per split (bench preset, held out: 0.37x the baseline where quick gives 0.45x; little gain on the wide preset's vans, trucks and buses; docs/RESULTS.md); demo: the demo's shortest one"),
     arch: Optional[Arch] = typer.Option(None, "--arch", help="network: paper (Figure 3), lite (crop / 3, for CPUs) or lite-hr (full-resolution 140 px crop)"),
     zero_annotation: bool = typer.Option(False, "--zero-annotation/--no-zero-annotation", help="train on rough models only (no ground truth needed)"),
     rough_noise: Optional[bool] = typer.Option(None, "--rough-noise/--no-rough-noise", help="make rough-model masks detector-like (coarse 28x28 outlines, 1 px wider)"),
