@@ -246,17 +246,16 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
     rng = np.random.default_rng([seed, 11])
     t_end = n_frames * dt
     heap: list[tuple[float, int, str]] = []
-    n_veh = int(cfg.population.get("car", 0)) + int(cfg.population.get("bicyclist", 0))
-    groups = pedestrian_groups(cfg.group_share, list(range(
-        n_veh, n_veh + int(cfg.population.get("pedestrian", 0)))), seed)
+    # population member (slot) k's class: cars, then bicyclists, then pedestrians
+    slot_cls = [c for c in ("car", "bicyclist", "pedestrian")
+                for _ in range(int(cfg.population.get(c, 0)))]
+    groups = pedestrian_groups(cfg.group_share,
+                               [k for k, c in enumerate(slot_cls) if c == "pedestrian"], seed)
     follows = {m for g in groups.values() for m in g[1:]}  # scheduled with their group's leader
-    k = 0
-    for cls in ("car", "bicyclist", "pedestrian"):
-        for _ in range(int(cfg.population.get(cls, 0))):
-            t = -cfg.warmup_s + rng.uniform(0, cfg.mean_pause_s.get(cls, 30.0) + cfg.warmup_s)
-            if k not in follows:
-                heap.append((t, k, cls))
-            k += 1
+    for k, cls in enumerate(slot_cls):
+        t = -cfg.warmup_s + rng.uniform(0, cfg.mean_pause_s.get(cls, 30.0) + cfg.warmup_s)
+        if k not in follows:
+            heap.append((t, k, cls))
     heapq.heapify(heap)
     queue: dict[tuple, tuple[float, int]] = {}  # lane -> (green time the queue waits for, count)
     active: list[Traj] = []
@@ -276,12 +275,13 @@ def simulate(cfg: TrafficConfig, n_frames: int, dt: float, seed: int,
         gave_up += int(tr.gave_up)
         f0 = max(int(np.ceil(tr.t0 / dt - 1e-9)), 0)
         f1 = min(int(np.floor(tr.t1 / dt + 1e-9)), n_frames - 1)
-        if f1 >= f0 and len(members) > 1:
-            visits.extend(_group_visits(rng, tr, members, np.arange(f0, f1 + 1), dt, stride))
-        elif f1 >= f0:
+        if f1 >= f0:
             frames = np.arange(f0, f1 + 1)
-            s, p, h = tr.at(frames * dt)
-            visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0, slot))
+            if len(members) > 1:
+                visits.extend(_group_visits(rng, tr, members, frames, dt, stride))
+            else:
+                s, p, h = tr.at(frames * dt)
+                visits.append(Visit(cls, frames, p, h, 2 * np.pi * s / stride, tr.t0, slot))
         t_next = max(tr.t1, t0 + 1.0) + rng.exponential(cfg.mean_pause_s.get(cls, 30.0))
         heapq.heappush(heap, (t_next, slot, cls))
     visits.sort(key=lambda v: (int(v.frames[0]), v.t0))
@@ -345,7 +345,7 @@ def _pedestrian_traj(rng, t0, active, n: int = 1) -> tuple[Traj, float]:
     # sideways offset from the walking line: not too near the road, where turning bicyclists
     # pass (a group's centre: its outer members inside the same band)
     w = GROUP_SPACING * (n - 1) / 2
-    xy = offset_polyline(densify(nodes, 0.5), rng.uniform(-0.6 + w, max(1.1 - w, -0.6 + w + 0.1)))
+    xy = offset_polyline(densify(nodes, 0.5), rng.uniform(-0.6 + w, 1.1 - w))  # groups of <= 3
     s_nodes = arc_lengths(xy)
     # wait at the curb: the last point at least 0.6 m inside the sidewalk before each crossing
     d = J.curb_distance(xy)
