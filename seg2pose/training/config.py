@@ -72,7 +72,7 @@ class TrainConfig:
     # split -- "track": each lens's estimates smoothed along its tracks; "views": the lenses'
     # estimates at per-track heights, fused and smoothed; "fused": the same at the default
     # heights -- then ``self_epochs`` epochs of fine-tuning on them, starting from the
-    # rough-only weights ("": none). Measured on a tuning seed: no gain yet (docs/RESULTS.md)
+    # rough-only weights ("": none). Measured in docs/RESULTS.md, "Self-training on the scene's own tracks"
     self_train: str = ""
     self_epochs: int = 10
     self_smooth: int = 4             # half window (frames) of the pseudo poses' smoothing
