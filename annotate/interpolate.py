@@ -11,7 +11,8 @@ Three interpolants, all exact at the keyframes:
   to a standing interval (a stop or a start) gets zero speed. Each end's tangent is then
   limited per interval so that the progress along the chord is monotone (Fritsch & Carlson
   1980: alpha, beta <= 3), hence the path never runs past the next keyframe and comes back. Heading between keyframes follows the curve's tangent (plus pi
-  when reversing); where the road user barely moves, it falls back to the shortest arc.
+  when reversing); where the road user stands, the shortest arc; where the curve nearly stops
+  inside an interval (under ``SLOW`` of the chord's mean speed), a blend of the two.
 - ``pchip``: positions by monotone cubic (PCHIP, scipy) per axis, heading along the shortest
   arc.
 
@@ -29,6 +30,7 @@ from seg2pose.core.errors import InputError
 METHODS = ("linear", "hermite", "pchip")
 STILL = 0.01  # metres: a chord shorter than this is a road user standing still
 FC_LIMIT = 3.0  # Fritsch-Carlson: tangent / chord slope at most 3 keeps a cubic monotone
+SLOW = 0.1  # the curve's speed over the chord's mean speed below which the heading leans to the arc
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
@@ -165,14 +167,23 @@ def hermite(kf: np.ndarray, xy: np.ndarray, heading: np.ndarray, q: np.ndarray
     vel = d00[:, None] * p0 + d10[:, None] * m0[i] + d01[:, None] * p1 + d11[:, None] * m1[i]
     along = np.arctan2(vel[:, 1], vel[:, 0]) + np.where(direction[i] < 0, np.pi, 0.0)
     length = np.linalg.norm(xy[1:] - xy[:-1], axis=1)
-    # the tangent says nothing where the road user stands (still chord) or where the curve's
-    # speed vanishes; a reversal inside the interval: the tangent cannot tell forwards from
-    # backwards. The direction follows the shortest arc there.
-    slow = np.linalg.norm(vel, axis=1) < 1e-9 * np.maximum(length[i], STILL)
-    use_arc = (length[i] < STILL) | slow | (direction[i] == 0)
+    # the tangent says nothing where the road user stands (still chord); a reversal inside the
+    # interval: the tangent cannot tell forwards from backwards. The direction follows the
+    # shortest arc there. Where the curve nearly stops inside an interval (both ends' tangents
+    # at the Fritsch-Carlson limit make its progress 3 (2t - 1)^2 times the chord's: zero at
+    # the middle) the tangent's direction is that of whatever sideways part is left, however
+    # small -- up to 90 degrees off. So below SLOW of the chord's mean speed the heading is
+    # blended towards the shortest arc, in proportion: continuous, and the tangent's wherever
+    # the road user moves.
+    speed = np.linalg.norm(vel, axis=1) / np.maximum(length[i], STILL)
+    weight = np.clip(speed / SLOW, 0.0, 1.0)
+    use_arc = (length[i] < STILL) | (direction[i] == 0)
+    weight[use_arc] = 0.0
     hd = wrap_angle(along)
-    if use_arc.any():
-        hd[use_arc] = shortest_arc(kf, heading, q[use_arc])
+    blend = weight < 1.0
+    if blend.any():
+        arc = shortest_arc(kf, heading, q[blend])
+        hd[blend] = wrap_angle(arc + weight[blend] * wrap_angle(hd[blend] - arc))
     # exact at keyframes
     exact = (t == 0) | (t == 1)
     k = i[exact] + (t[exact] == 1)

@@ -150,3 +150,27 @@ def test_hermite_heading_is_continuous(track):
         _, hd = interpolate(frames * scale, pts, heading, q, "hermite")
         steps.append(np.abs(wrap_angle(np.diff(hd))).max())
     assert steps[1] <= 0.35 * steps[0] + 1e-6  # straight tracks: both steps are rounding noise
+
+
+def test_hermite_heading_holds_where_the_curve_stops_for_a_moment():
+    # fast, slow, fast along +x (1 m in 5, 18 and 5 frames): both tangents of the slow interval
+    # are cut to the Fritsch-Carlson limit, so its progress is 3 (2t - 1)^2 times the chord's
+    # and stops at the middle (frame 14). The heading must not follow the sideways rounding
+    # left there (a 1e-7 m offset once turned it 90 degrees, found by the property test above):
+    # it stays along the road, here within 1e-6 rad of 0 on every frame.
+    frames = np.array([0, 5, 23, 28])
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 1.1920929e-07]])
+    heading = np.array([0.0, 0.0, 5.96046448e-08, 1.19209290e-07])
+    q = np.arange(0, 28 * 20 + 1)
+    xy, hd = interpolate(frames * 20, pts, heading, q, "hermite")
+    mid = np.flatnonzero(q == 14 * 20)[0]
+    assert abs(xy[mid, 0] - 1.5) < 1e-9 and np.abs(np.diff(xy[:, 0])).min() < 1e-6  # it stops
+    assert np.abs(wrap_angle(hd)).max() < 1e-6
+    # on a bend the blend is continuous: no step larger than the turn over a few frames
+    pts2 = np.array([[0.0, 0.0], [1.0, 0.0], [1.7, 0.7], [1.7, 1.7]])
+    heading2 = np.array([0.0, 0.0, math.pi / 4, math.pi / 2])
+    steps = []
+    for scale in (20, 200):
+        _, hd2 = interpolate(frames * scale, pts2, heading2, np.arange(0, 28 * scale + 1), "hermite")
+        steps.append(np.abs(wrap_angle(np.diff(hd2))).max())
+    assert steps[1] <= 0.35 * steps[0]
