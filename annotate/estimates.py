@@ -10,11 +10,11 @@ import numpy as np
 
 from annotate.model import EditError
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.structures.masks import mask_centers
-from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
 
 
 def _fill_headings(table: PoseTable) -> np.ndarray:
@@ -50,7 +50,7 @@ class RunEstimates:
         self._keys = keys
 
     @classmethod
-    def load(cls, run: str | Path, scene: Scene) -> "RunEstimates":
+    def load(cls, run: str | Path, scene: Scene) -> RunEstimates:
         """Read ``RUN/poses.csv``; refuse a run made on another scene (run.json's fingerprint)."""
         from seg2pose.io.run import RUN_FILE, read_run_meta, read_run_poses
 

@@ -92,7 +92,7 @@ class Track:
                 "spans": [list(s) for s in self.spans], "meta": self.meta}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Track":
+    def from_dict(cls, d: dict) -> Track:
         return cls(id=int(d["id"]), cls=str(d["cls"]), size=tuple(float(v) for v in d["size"]),
                    interp=d.get("interp"),
                    keyframes={int(r[0]): Keyframe(float(r[1]), float(r[2]), float(r[3]),
@@ -101,7 +101,7 @@ class Track:
                    spans=[(int(a), int(b), str(k)) for a, b, k in d.get("spans", [])],
                    meta=dict(d.get("meta") or {}))
 
-    def copy(self) -> "Track":
+    def copy(self) -> Track:
         return Track(self.id, self.cls, tuple(self.size), self.interp, dict(self.keyframes),
                      list(self.spans), dict(self.meta))
 

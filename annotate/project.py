@@ -16,21 +16,21 @@ writes nothing (a second viewer of a scene being annotated); ``refresh()`` picks
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Callable, Mapping
 
 from annotate import journal as J
 from annotate.edits import EditsMixin
 from annotate.estimates import scene_frames
 from annotate.headings import auto_heading_op
-from annotate.place import PlacementMixin
 from annotate.interpolate import METHODS, default_method
 from annotate.model import EditError, Track, apply_ops, op_tracks
+from annotate.place import PlacementMixin
 from annotate.table import empty, track_poses
-from seg2pose.io.poses import PoseTable
 from seg2pose.core.errors import S2PError
+from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene, load_scene
 
 UNDO_LIMIT = 10_000      # edits kept for undo (the oldest are forgotten beyond this)
@@ -103,7 +103,7 @@ class Project(EditsMixin, PlacementMixin):
     @classmethod
     def open(cls, scene: Scene | str | Path, *, read_only: bool = False,
              run: str | Path | None = None, frames: tuple[int, int] | None = None,
-             snapshot_every: int = SNAPSHOT_EVERY) -> "Project":
+             snapshot_every: int = SNAPSHOT_EVERY) -> Project:
         """Open (or start) the annotation project of a scene folder.
 
         read_only: no lock, no writes (edits raise); run: a run folder whose Seg2Pose estimates
@@ -142,7 +142,7 @@ class Project(EditsMixin, PlacementMixin):
             self._lock.release()
             self._lock = None
 
-    def __enter__(self) -> "Project":
+    def __enter__(self) -> Project:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -20,8 +20,7 @@ import numpy as np
 from annotate.model import EditError, Track
 from annotate.place import motion_headings
 from seg2pose.core.errors import InputError
-from seg2pose.io.tanalyst import (CLASS_TO_TYPE, TYPE_TO_CLASS, TAnalystTable, frames_to_times,
-                                  times_to_frames)
+from seg2pose.io.tanalyst import CLASS_TO_TYPE, TYPE_TO_CLASS, TAnalystTable, frames_to_times, times_to_frames
 
 META = "tanalyst"  # track.meta key: {"road_user_id": int, "type": str}
 

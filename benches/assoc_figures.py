@@ -46,13 +46,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from video_figures import coco_from_masks, fresh_scene, s2p  # noqa: E402
+
 from seg2pose.eval.evaluate import id_consistency, match_nearest  # noqa: E402
 from seg2pose.io.mots import iter_mots  # noqa: E402
-from seg2pose.io.poses import read_poses  # noqa: E402
-from seg2pose.io.poses import PoseTable  # noqa: E402
+from seg2pose.io.poses import (
+    PoseTable,  # noqa: E402
+    read_poses,  # noqa: E402
+)
 from seg2pose.io.run import read_run_poses, read_views  # noqa: E402
 from seg2pose.structures.masks import rle_stats  # noqa: E402
-from video_figures import coco_from_masks, fresh_scene, s2p  # noqa: E402
 
 CAMERAS = ["c0", "c1", "c2", "c3", "c4"]
 MULTI = {"stereo-10": ["c1", "c3"], "tri-I": ["c0", "c1", "c2"], "tri-T": ["c0", "c2", "c4"],

@@ -28,7 +28,6 @@ decoding and drawing come on top (not measured here).
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
 import time

@@ -43,15 +43,15 @@ def bench_video_segments(root: Path, n_frames: int) -> None:
     import cv2
     import numpy as np
     import ray
-
     from bench_video import H, W, write_video
-    from seg2pose.batch.study import BatchOptions, run_study
+
     from seg2pose.batch.steps import MASKS_FROM_VIDEO
+    from seg2pose.batch.study import BatchOptions, run_study
+    from seg2pose.eval.mask_eval import score_masks
     from seg2pose.geometry.camera import Camera
-    from seg2pose.video.classify import classify_mots, size_rules
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.scene import load_scene
-    from seg2pose.eval.mask_eval import score_masks
+    from seg2pose.video.classify import classify_mots, size_rules
     from seg2pose.video.track import TrackConfig, track_mots
     from seg2pose.video.video_masks import BgConfig, masks_from_video
     from seg2pose.video.video_scene import new_scene

@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from seg2pose.method.heights import collect_height_views, subsample_views
+from seg2pose.geometry.normal import CENTER_METHODS, default_height_bisection, normal_positions
 from seg2pose.io.mots import iter_mots
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-from seg2pose.structures.masks import mask_centers
+from seg2pose.method.heights import collect_height_views, subsample_views
 from seg2pose.method.matching import match_masks_to_truth
-from seg2pose.geometry.normal import CENTER_METHODS, default_height_bisection, normal_positions
+from seg2pose.structures.masks import mask_centers
 
 
 def tuned_heights(scene, center: str) -> dict[str, float]:

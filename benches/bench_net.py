@@ -73,9 +73,7 @@ def bench_crops(n: int = 256, runs: bool = True) -> float:
     """Crops/s of the input path: RLE -> 420x420 crop around the bbox centre -> downsample /3.
     runs=True: crops straight from the RLE runs (masks.crop_runs, what the pipeline uses);
     False: full-image decode with pycocotools, then slicing (masks.crop_masks)."""
-    from seg2pose.structures.masks import crop_runs
-    from seg2pose.structures.masks import crop_masks, encode, mask_centers
-    from seg2pose.structures.masks import downsample_crops
+    from seg2pose.structures.masks import crop_masks, crop_runs, downsample_crops, encode, mask_centers
 
     rng = np.random.default_rng(0)
     h, w = 720, 1280
@@ -101,11 +99,10 @@ def scene_crops(scene_dir: str | None, per_class: int, seed: int = 0):
     import tempfile
     from pathlib import Path
 
-    from seg2pose.structures.masks import crop_runs
+    from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
     from seg2pose.io.mots import iter_mots
     from seg2pose.io.scene import load_scene
-    from seg2pose.structures.masks import mask_centers
-    from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
+    from seg2pose.structures.masks import crop_runs, mask_centers
 
     if scene_dir is None:
         from seg2pose.synth.generate import SynthOptions, generate_scene
@@ -153,8 +150,8 @@ def bench_sparse(crops: np.ndarray, names: np.ndarray, arch: str, batch: int,
     class, the speed-up, max |dense - sparse|, and the distribution of window sizes.
     ``clock``: time.perf_counter (wall) or time.process_time (this process's CPU seconds:
     steadier on a shared machine with one torch thread)."""
-    from seg2pose.structures.masks import center_cut, downsample_crops
     from seg2pose.method.sparse import crop_boxes, sparse_of, window_sizes
+    from seg2pose.structures.masks import center_cut, downsample_crops
 
     net = _random_net(arch)
     sp = sparse_of(net)

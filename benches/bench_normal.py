@@ -22,9 +22,9 @@ import numpy as np
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
+from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.structures.masks import encode, mask_centers
-from seg2pose.geometry.normal import normal_positions
 
 W, H = 1280, 720
 SIZES = {"car": (4.5, 1.8, 1.5), "pedestrian": (0.5, 0.5, 1.8), "bicyclist": (1.8, 0.6, 1.7)}

@@ -32,14 +32,14 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     """A 3-camera junction with n_users road users driving straight lines (wrapping around)."""
     import cv2
 
+    from s2p_review.columns import box_corners
     from seg2pose.geometry.camera import Camera, Rig
+    from seg2pose.geometry.normal import normal_positions
     from seg2pose.io.mots import MaskTable, write_mots
     from seg2pose.io.poses import PoseTable, write_poses
     from seg2pose.io.run import ViewTable, relative_path, write_run_folder
     from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
     from seg2pose.structures.masks import encode, mask_centers
-    from seg2pose.geometry.normal import normal_positions
-    from s2p_review.columns import box_corners
 
     marker = root / "built.json"
     want = {"n_frames": n_frames, "n_users": n_users, "w": width, "h": height, "seed": seed, "v": 2}
@@ -108,15 +108,15 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     """The same content as ``record``, one rr.log per entity per frame."""
     import rerun as rr
 
-    from seg2pose.io.mots import iter_mots
-    from seg2pose.io.poses import read_poses
-    from seg2pose.eval.evaluate import per_frame_errors
     from s2p_review import columns as C
     from s2p_review import layout as L
     from s2p_review.columns import sizes_of as _with_size
     from s2p_review.recording import LogContext, log_static
-    from s2p_review.timebase import scene_timebase
     from s2p_review.runs import load_run
+    from s2p_review.timebase import scene_timebase
+    from seg2pose.eval.evaluate import per_frame_errors
+    from seg2pose.io.mots import iter_mots
+    from seg2pose.io.poses import read_poses
 
     run = load_run(run_dir, scene)
     gt = read_poses(scene.gt_path)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seg2pose.geometry.ground import GroundSurface
 from seg2pose.synth import junction as J
 from seg2pose.synth.generate import DT, PRESETS, SynthOptions, generate_scene, split_ranges
 from seg2pose.synth.noise import NoiseConfig
@@ -30,7 +31,6 @@ from seg2pose.synth.rig import make_device
 from seg2pose.synth.rough import render_rough_examples
 from seg2pose.synth.traffic import TrafficConfig, Visit, simulate
 from seg2pose.synth.world import build_world
-from seg2pose.geometry.ground import GroundSurface
 
 
 def twenty_in_view(cam, n_frames: int, seed: int = 0):

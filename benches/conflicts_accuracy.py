@@ -35,8 +35,8 @@ import numpy as np
 
 from seg2pose.io.poses import read_poses
 from seg2pose.safety.conflicts import ConflictOptions, analyse
-from seg2pose.safety.kinematics import MotionOptions
 from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+from seg2pose.safety.kinematics import MotionOptions
 from seg2pose.safety.tracks import from_poses, load_tracks
 
 TTC, PET = 1.5, 5.0

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.eval.evaluate import match_poses
+from seg2pose.geometry.smoothing import smooth_along_tracks
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-from seg2pose.geometry.smoothing import smooth_along_tracks
 
 NOISE_WINDOW = 4  # frames either side
 

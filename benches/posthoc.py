@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.eval.evaluate import evaluate
+from seg2pose.geometry.smoothing import smooth_along_tracks
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import ViewTable, read_views
 from seg2pose.io.scene import load_scene
 from seg2pose.method.fusion import fuse
-from seg2pose.geometry.smoothing import smooth_along_tracks
 
 
 def view_key(views: ViewTable) -> np.ndarray:

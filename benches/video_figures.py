@@ -37,8 +37,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seg2pose.io.mots import iter_mots, read_mots  # noqa: E402
 from seg2pose.eval.mask_eval import score_masks  # noqa: E402
+from seg2pose.io.mots import iter_mots, read_mots  # noqa: E402
 from seg2pose.structures.masks import decode, encode  # noqa: E402
 
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from s2p_review.mcap_export import ExportOptions, ExportResult, export_mcap
+from seg2pose.core.validate import safe_name
 from seg2pose.io.atomic import atomic_write_bytes
 from seg2pose.io.scene import Scene
-from seg2pose.core.validate import safe_name
-from s2p_review.mcap_export import ExportOptions, ExportResult, export_mcap
 
 PREFIX = "annotations/"
 

@@ -14,12 +14,12 @@ import colorsys
 
 import numpy as np
 
-from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 from s2p_review import imagery
 from s2p_review import layout as L
 from s2p_review.runs import Run
 from s2p_review.timebase import Timebase
+from seg2pose.io.scene import Scene
 
 N_COLORS = 255   # id colours cycle (pixel value 1..255; 0 = background)
 BATCH = 64       # frames per send_columns call of images

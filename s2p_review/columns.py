@@ -7,7 +7,8 @@ All builders are vectorised over rows; a frame range [a, b] always produces one 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,7 +49,7 @@ def frame_lengths(frame: np.ndarray, first: int, last: int) -> np.ndarray:
     return np.bincount(np.asarray(frame, np.int64) - first, minlength=last - first + 1)
 
 
-def sizes_of(table: "PoseTable", scene: "Scene") -> np.ndarray:
+def sizes_of(table: PoseTable, scene: Scene) -> np.ndarray:
     """(N, 3) l, w, h metres of each row: the table's own sizes (NaN -> 1 m), else the scene's
     class sizes."""
     if table.size is not None:

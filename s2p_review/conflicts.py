@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from s2p_review import layout as L
+from s2p_review.columns import send_scalars
 from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.text import read_text
-from s2p_review.columns import send_scalars
-from s2p_review import layout as L
 
 EVENTS = "conflicts/events"
 TOPIC = "/s2p/conflicts"

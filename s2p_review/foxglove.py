@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from seg2pose.io.poses import PoseTable
-from seg2pose.io.scene import Scene
 from s2p_review import columns as C
 from s2p_review import layout as L
+from seg2pose.io.poses import PoseTable
+from seg2pose.io.scene import Scene
 
 
 def timestamp(ns: int):

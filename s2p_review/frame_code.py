@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 CODE_BITS = 10  # frames 0..1023
 
 

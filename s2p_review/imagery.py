@@ -5,16 +5,16 @@ export, so both read, check and cadence the images the same way.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from s2p_review import columns as C
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.scene import Scene
 from seg2pose.io.video import camera_reader
-from s2p_review import columns as C
 
 
 def video_frames(scene: Scene, cam: str, first: int, last: int, every: int = 1

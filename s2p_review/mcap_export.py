@@ -39,16 +39,12 @@ from __future__ import annotations
 
 import heapq
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
-from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import check_writable, replacing
-from seg2pose.io.poses import PoseTable, read_poses
-from seg2pose.io.scene import SCENE_FILE, Scene
 from s2p_review import columns as C
 from s2p_review import foxglove as F
 from s2p_review import foxglove_layout as FL
@@ -58,6 +54,10 @@ from s2p_review import mcap_records as R
 from s2p_review.runs import Run
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import Timebase, scene_timebase
+from seg2pose.core.errors import InputError
+from seg2pose.io.atomic import check_writable, replacing
+from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.scene import SCENE_FILE, Scene
 
 MEDIA_JSON = "application/json"
 ERRORS_TOPIC = "/s2p/errors"

@@ -5,18 +5,17 @@ attachments and the lossless /s2p/ channels, see ``mcap_export`` and ``mcap_reco
 from __future__ import annotations
 
 import json
-import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
+from s2p_review import mcap_records as R
+from s2p_review.annotated_mcap import PREFIX, restore_annotation_files
 from seg2pose.core.errors import InputError, S2PError
+from seg2pose.core.validate import inside, safe_name
 from seg2pose.io.atomic import os_errors, outputs, replacing
 from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
-from seg2pose.core.validate import inside, safe_name
-from s2p_review import mcap_records as R
-from s2p_review.annotated_mcap import PREFIX, restore_annotation_files
 
 
 @dataclass

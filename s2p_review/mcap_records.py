@@ -12,7 +12,7 @@ Floats are written with Python's shortest exact repr; JSON has no NaN, so null s
 from __future__ import annotations
 
 import math
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 

@@ -10,16 +10,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seg2pose.io.poses import PoseTable, read_poses
-from seg2pose.io.scene import Scene
 from s2p_review import columns as C
-from s2p_review.error_discs import log_error_discs
 from s2p_review import imagery
 from s2p_review import layout as L
 from s2p_review.association import association_cameras, log_association, log_masks_by_id
+from s2p_review.error_discs import log_error_discs
 from s2p_review.runs import Run
 from s2p_review.selection import Selection
 from s2p_review.timebase import Timebase
+from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.io.scene import Scene
 
 IMAGE_BATCH = 64  # frames per send_columns call for images (bounds memory)
 VIDEO_FORMATS = ("asset", "jpeg")

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from s2p_review.runs import Run, load_run, scene_last_frame
 from seg2pose.core.errors import InputError
 from seg2pose.io.scene import Scene
-from s2p_review.runs import Run, load_run, scene_last_frame
 
 IMAGE_BUDGET_PX = 160e6  # pixels of masks (and of video) logged by default: a few MB of output
 

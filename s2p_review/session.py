@@ -9,13 +9,13 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_path, check_writable
-from seg2pose.io.scene import Scene
 from s2p_review import layout as L
 from s2p_review.recording import LogStats, LogStyle, log_all
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
+from seg2pose.core.errors import S2PError
+from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -74,9 +74,8 @@ def _error_max(scene: Scene, sel: Selection) -> float | None:
     lines stay in the lower half and the legend (top left) hides none of them."""
     if not scene.gt_path.exists() or not sel.runs:
         return None
-    from seg2pose.io.poses import read_poses
-
     from s2p_review.recording import error_series
+    from seg2pose.io.poses import read_poses
 
     gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last))
     top = [float(e.max()) for r in sel.runs

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from s2p_review import imagery
 from seg2pose.core.errors import S2PError
 from seg2pose.io.scene import Scene
-from s2p_review import imagery
 
 GOP = 12          # frames between keyframes: bounds the decoding work of a jump
 CRF = 26          # x264 quality (lower: better, bigger); 26 keeps masks' edges readable

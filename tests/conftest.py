@@ -10,7 +10,6 @@ import sys
 import types
 
 import pytest
-
 from scene_fixtures import fake_rough_examples
 
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import json
 import shutil
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from kill_harness import Case, snapshot
 
@@ -19,13 +19,14 @@ def build_cases(root: Path, frames: int = 40) -> list[Case]:
     convert-masks, import-utocs and export, each with an old output to replace."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from hostile_fixtures import write_scene, write_utocs
+
+    from s2p_review.mcap_export import export_mcap
     from seg2pose.io.mask_formats import save_masks
     from seg2pose.io.mots import read_mots
+    from seg2pose.io.scene import load_scene
     from seg2pose.io.utocs import import_utocs
     from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.synth.generate import SynthOptions, generate_scene
-    from s2p_review.mcap_export import export_mcap
-    from seg2pose.io.scene import load_scene
 
     root.mkdir(parents=True, exist_ok=True)
     scene = write_scene(root / "scene", frames=frames, users=4)
@@ -62,8 +63,9 @@ def _project_state(scene_root: Path) -> Callable:
     """The annotation project's tracks and history as a reader sees them (journal bytes hold
     times): None when there is no journal."""
     def state(case):
-        from annotate import Project
         from annotate_fixtures import digest
+
+        from annotate import Project
 
         if not (scene_root / "annotations").exists():
             return [None]
@@ -84,13 +86,14 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     import contextlib as _cl
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from annotate import Project
     from review_fixtures import make_scene
+    from video_fixtures import calibration, det, rle, write_folder
+
+    from annotate import Project
     from seg2pose.cli.annotation import export_set
     from seg2pose.io.scene import load_scene
     from seg2pose.io.tacal import camera_to_tacal, write_tacal
     from seg2pose.video.video_scene import new_scene, scene_import_detections, scene_masks_from_video
-    from video_fixtures import calibration, det, rle, write_folder
 
     root.mkdir(parents=True, exist_ok=True)
     old, out = root / "old", root / "out"

@@ -16,12 +16,11 @@ import os
 import shutil
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
-
 from command_zygote import descendants, ray_workers_of, wait_gone, zygote
 
 

@@ -15,14 +15,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from s2p_review.recording import LogStyle
+from s2p_review.session import RecordOptions
 from seg2pose.geometry.camera import Camera, Rig
+from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
 from seg2pose.structures.masks import encode, mask_centers
-from s2p_review.recording import LogStyle
-from s2p_review.session import RecordOptions
-from seg2pose.geometry.normal import normal_positions
 
 W, H = 160, 120
 FPS = 10.0
@@ -126,7 +126,6 @@ def make_run(scene: Scene, run_dir: Path, *, method: str = "baseline", residual:
     ``frame_shift`` moves all frames (to make a run that does not match its scene)."""
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
-
     from seg2pose.io.run import ViewTable, relative_path, write_run_folder
 
     run_dir = Path(run_dir)

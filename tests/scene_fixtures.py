@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from seg2pose.cli import main
-
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.poses import PoseTable, write_poses

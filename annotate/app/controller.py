@@ -14,9 +14,9 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -33,7 +33,7 @@ HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the
 
 @dataclass
 class _Holder:
-    controller: "Controller"
+    controller: Controller
     since: str
     seen: float
     tab: str | None = None  # the browser tab's id (kept by the tab across reloads)
@@ -81,7 +81,7 @@ class Controller(Actions, Clicks, PanelData):
 
     # --- opening, closing, holding -------------------------------------------------------------
     @classmethod
-    def open(cls, scene, run=None, cameras: list[str] | None = None) -> "Controller":
+    def open(cls, scene, run=None, cameras: list[str] | None = None) -> Controller:
         """Open the project of ``scene`` for this page. A project that another page of this
         server holds (it was heard from in the last HOLD_SECONDS), or another process writes,
         opens read-only with the reason in ``read_only_reason``."""

@@ -31,9 +31,16 @@ from annotate.app.frame_image import FrameImages  # noqa: E402
 from annotate.app.frame_view import FrameView  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
 from s2p_review import layout as L  # noqa: E402
-from s2p_review.annotation_log import (AnnotationLogger, Tee, TrackColumns,  # noqa: E402
-                                       app_blueprint, camera_of_view, log_scene, new_recording,
-                                       send_timeline)
+from s2p_review.annotation_log import (  # noqa: E402
+    AnnotationLogger,
+    Tee,
+    TrackColumns,
+    app_blueprint,
+    camera_of_view,
+    log_scene,
+    new_recording,
+    send_timeline,
+)
 
 ARGS_ENV = "S2P_ANNOTATE_ARGS"   # JSON {"scene": ..., "run": ..., "cameras": [...], "native": bool}
 VIEWER_HEIGHT = 400  # under the large camera picture: 3D world, the other cameras, the timeline

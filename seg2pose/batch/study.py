@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError

@@ -14,7 +14,6 @@ named like a subcommand is opened with ``s2p annotate open NAME``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 from typer.core import TyperGroup
@@ -92,11 +91,11 @@ START_HELP = ("time stamp of the video's first frame (frame 0) on T-Analyst's cl
 @speaks_flags
 def open_cmd(
     scene: Path = typer.Argument(..., help="scene folder to annotate (edits go to SCENE/annotations/)"),
-    run: Optional[Path] = typer.Option(None, "--run", help="run folder of this scene (from `s2p run`): "
+    run: Path | None = typer.Option(None, "--run", help="run folder of this scene (from `s2p run`): "
                                        "its estimates are shown, can be accepted as keyframes and "
                                        "drive the suggested keyframes"),
     camera: list[str] = typer.Option([], "--camera", help="cameras to show (repeatable; default: all)"),
-    port: Optional[int] = typer.Option(None, "--port", help="local port of the app on 127.0.0.1 (default: "
+    port: int | None = typer.Option(None, "--port", help="local port of the app on 127.0.0.1 (default: "
                                         "a free one; other machines: an SSH tunnel, see below)"),
     browser: bool = typer.Option(True, "--browser/--no-browser", help="open the app in your web browser"),
     native: bool = typer.Option(False, "--native", help="also show the recording in the native Rerun "
@@ -135,7 +134,7 @@ def import_tanalyst_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     csv: Path = typer.Argument(..., help="T-Analyst tracks CSV (';'-separated, decimal commas)"),
     start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
-    fps: Optional[float] = typer.Option(None, "--fps", help="the video's frame rate "
+    fps: float | None = typer.Option(None, "--fps", help="the video's frame rate "
                                         "(default: the scene's)"),
     types: list[str] = typer.Option([], "--type", help="TYPE=CLASS: the scene class of a "
                                     "T-Analyst road user type the defaults do not know "
@@ -180,7 +179,7 @@ def export_tanalyst_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     out: Path = typer.Option(..., "-o", "--out", help="T-Analyst tracks CSV to write"),
     start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
-    fps: Optional[float] = typer.Option(None, "--fps", help="the video's frame rate "
+    fps: float | None = typer.Option(None, "--fps", help="the video's frame rate "
                                         "(default: the scene's)"),
     keyframes_only: bool = typer.Option(False, "--keyframes-only/--no-keyframes-only",
                                         help="only keyframes, or every annotated frame"),
@@ -199,7 +198,7 @@ def export_tanalyst_cmd(
 @speaks_flags
 def export_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="folder for the MCAP set and "
+    out: Path | None = typer.Option(None, "-o", "--out", help="folder for the MCAP set and "
                                        "the T-Analyst CSV (default: SCENE/export)"),
     gt: bool = typer.Option(True, "--gt/--no-gt", help="write SCENE/gt/poses.csv (every "
                             "annotated frame, with a source column) for training"),
@@ -234,7 +233,6 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     from s2p_review.annotated_mcap import export_annotated_mcap
     from s2p_review.foxglove_layout import layout_path
     from s2p_review.mcap_export import ExportOptions
-
     from seg2pose.io.poses import write_poses
     from seg2pose.io.tanalyst import write_tanalyst
 

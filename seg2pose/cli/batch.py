@@ -7,7 +7,6 @@ defined here and handed to the library as Steps."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -68,18 +67,18 @@ def register(app: typer.Typer) -> None:
 def batch_cmd(
     study: Path = typer.Argument(..., help="study folder: one sub-folder per scene (recording), "
                                            "each a scene folder with scene.json"),
-    steps: List[str] = typer.Argument(..., help="steps, run in this order over every scene: "
+    steps: list[str] = typer.Argument(..., help="steps, run in this order over every scene: "
                                                 "masks-from-video, run, eval, export, review"),
     baseline: bool = typer.Option(False, "--baseline/--no-baseline", help="run: normal positions only, no network "
                                                             "(results in SCENE/batch/baseline)"),
-    models: Optional[List[Path]] = typer.Option(None, "--models",
+    models: list[Path] | None = typer.Option(None, "--models",
                                                 help="run: checkpoint folder (default each SCENE/models); "
                                                      "results in SCENE/batch/s2pn"),
-    address: Optional[str] = typer.Option(None, "--address",
+    address: str | None = typer.Option(None, "--address",
                                           help="a Ray cluster to run on, e.g. ray://head:10001 or auto "
                                                "(default: a local Ray of this command's own, on this "
                                                "machine's cores; it ends with the command)"),
-    max_parallel: Optional[int] = typer.Option(None, "--max-parallel", min=1,
+    max_parallel: int | None = typer.Option(None, "--max-parallel", min=1,
                                                help="at most this many tasks (scenes, video segments) at "
                                                     "once (default: all; Ray still runs one per free CPU)"),
     segment_frames: int = typer.Option(36000, "--segment-frames", min=0,
@@ -87,7 +86,7 @@ def batch_cmd(
                                             "many frames into segments of about this length that run "
                                             "in parallel and are stitched back, track ids continued "
                                             "(36000 = 20 min at 30 fps; 0: never cut)"),
-    cpus: Optional[int] = typer.Option(None, "--cpus", min=1,
+    cpus: int | None = typer.Option(None, "--cpus", min=1,
                                        help="the local Ray's CPUs (default: all of this machine's; "
                                             "not with --address)"),
     serial: bool = typer.Option(False, "--serial/--no-serial", help="no Ray: run the scenes one after another here"),

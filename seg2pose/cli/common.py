@@ -6,7 +6,8 @@ from __future__ import annotations
 import functools
 import inspect
 import typing
-from typing import Annotated, Callable
+from collections.abc import Callable
+from typing import Annotated
 
 import typer
 

@@ -90,13 +90,12 @@ def conflicts(
     gives it), 90 % intervals of min TTC and PET."""
     import numpy as np
 
+    from seg2pose.core.say import say
     from seg2pose.io.atomic import atomic_write_text, check_writable, output_lock
-    from seg2pose.safety.conflicts import (ConflictOptions, INTERVAL_COLUMNS, analyse,
-                                           format_conflicts)
+    from seg2pose.safety.conflicts import INTERVAL_COLUMNS, ConflictOptions, analyse, format_conflicts
     from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
     from seg2pose.safety.kinematics import MotionOptions
     from seg2pose.safety.tracks import load_tracks
-    from seg2pose.core.say import say
 
     check_writable(out, force)
     scene_dir = None
@@ -152,8 +151,8 @@ def conflicts(
                + (f" among {len(table)} encounters" if all_pairs else "")
                + f" in {time.perf_counter() - t0:.1f} s")
     if review is not None:
-        from seg2pose.io.scene import load_scene
         from s2p_review.session import RecordOptions, Targets, record
+        from seg2pose.io.scene import load_scene
 
         res = record(load_scene(scene_dir), [tracks], Targets(rrd=review, force=force),
                      RecordOptions(conflicts=out))

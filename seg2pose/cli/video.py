@@ -5,7 +5,7 @@ track ids and classes)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, List, Optional
+from typing import Annotated
 
 import typer
 
@@ -16,12 +16,12 @@ from seg2pose.core.errors import InputError
 def _settings(what: str, section: str, keys: str):
     """The ``--set KEY=VALUE`` option of a command whose settings ``what`` (with its article)
     lie in scene.json ``extra.<section>``; ``keys``: the keys, in words."""
-    return Annotated[List[str], typer.Option(
+    return Annotated[list[str], typer.Option(
         "--set", help=f"{what} setting KEY=VALUE (repeatable), over scene.json extra.{section}: {keys}")]
 
 
 # the options the video commands share
-Cameras = Annotated[Optional[List[str]],
+Cameras = Annotated[list[str] | None,
                     typer.Option("--camera", help="only this camera (repeatable; default: all)")]
 Associate = Annotated[bool, typer.Option(
     "--associate/--no-associate",
@@ -73,7 +73,7 @@ def register(app: typer.Typer) -> None:
 
 def new_scene_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
-    video: List[str] = typer.Option(..., "--video",
+    video: list[str] = typer.Option(..., "--video",
                                     help="a camera's video file or image folder, as NAME=PATH "
                                          "(repeat per camera); a single PATH names the camera c0"),
     calibration: Path = typer.Option(..., "--calibration",
@@ -81,7 +81,7 @@ def new_scene_cmd(
                                           "optional width, height, distortion}]} or a text file of "
                                           "12 numbers (one camera's 3x4 P, row by row)"),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
-    fps: Optional[float] = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
+    fps: float | None = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
     force: bool = typer.Option(False, "--force", help="replace an existing scene folder OUT entirely (built beside it, swapped in when complete)"),
 ) -> None:
     """Make a scene folder from video, calibration and ground points.
@@ -107,7 +107,7 @@ def masks_from_video_cmd(
     track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
     classes: bool = typer.Option(True, "--classes/--no-classes",
                                  help="give each track a class from its world size"),
-    frames: Optional[str] = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
+    frames: str | None = typer.Option(None, "--frames", help="only frames A:B (inclusive)"),
     force: ReplaceMasks = False,
     progress: Progress = True,
     associate: Associate = True,

@@ -20,9 +20,9 @@ import fcntl
 import json
 import os
 import socket
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from seg2pose.core.clock import utc_now
 
@@ -98,11 +98,11 @@ class LockHolder:
     since: str = "?"
 
     @classmethod
-    def me(cls, timespec: str = "seconds") -> "LockHolder":
+    def me(cls, timespec: str = "seconds") -> LockHolder:
         return cls(os.getpid(), socket.gethostname(), utc_now(timespec))
 
     @classmethod
-    def parse(cls, text: str | bytes) -> "LockHolder | None":
+    def parse(cls, text: str | bytes) -> LockHolder | None:
         """The record of a lock file, or None when it holds none (empty, or cut short by a
         kill between creating and filling it). ``time`` is the older files' name of ``since``."""
         try:

@@ -5,7 +5,8 @@ result); the command layer may redirect them with ``set_sink`` (e.g. to collect 
 from __future__ import annotations
 
 import sys
-from typing import Callable, Literal
+from collections.abc import Callable
+from typing import Literal
 
 Kind = Literal["info", "note", "warning"]
 

@@ -12,8 +12,8 @@ matched one to one by the Hungarian method on IoU, and a pair counts when IoU >=
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable
 
 from scipy.optimize import linear_sum_assignment
 

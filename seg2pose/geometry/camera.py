@@ -243,7 +243,7 @@ class Camera:
     # --- construction ------------------------------------------------------------------------
     @classmethod
     def from_P(cls, name: str, P: np.ndarray, width: int, height: int,
-               distortion: Distortion | None = None) -> "Camera":
+               distortion: Distortion | None = None) -> Camera:
         """K, R, t from a 3x4 projection matrix by RQ decomposition, signs fixed so that the
         focal lengths are positive and det R = +1 (P is defined up to scale, sign included)."""
         P = np.asarray(P, dtype=np.float64)
@@ -267,7 +267,7 @@ class Camera:
     @classmethod
     def look_at(cls, name: str, center: np.ndarray, target: np.ndarray, f: float,
                 width: int, height: int, up=(0.0, 0.0, 1.0),
-                distortion: Distortion | None = None) -> "Camera":
+                distortion: Distortion | None = None) -> Camera:
         """A camera at ``center`` (3,) metres looking at ``target`` (3,), focal length f pixels,
         principal point at the image centre."""
         center = np.asarray(center, float)
@@ -336,7 +336,7 @@ class Camera:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, *, file=None, where: str = "camera") -> "Camera":
+    def from_dict(cls, d: dict, *, file=None, where: str = "camera") -> Camera:
         def get(key):
             if key not in d:
                 raise InputError(f"missing field '{key}'", file=file, field=f"{where}.{key}")

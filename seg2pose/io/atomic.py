@@ -32,16 +32,15 @@ import contextlib
 import errno
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
 from seg2pose.core.errors import S2PError
 from seg2pose.core.locks import ExclusiveLock, LockHolder
 from seg2pose.core.say import say
-from seg2pose.io.atomic_names import (clean_stale_partials, final_name, is_temporary, lock_path,
-                                      partial_prefix)
-from seg2pose.io.atomic_set import (commit_set, finish_commits, fsync_dir, remove_partial_folder,
-                                    remove_path, swap_in)
+from seg2pose.io.atomic_names import clean_stale_partials, final_name, is_temporary, lock_path, partial_prefix
+from seg2pose.io.atomic_set import commit_set, finish_commits, fsync_dir, remove_partial_folder, remove_path, swap_in
 
 __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text",
            "check_writable", "clean_stale_partials", "final_name", "finish_commits", "fsync_dir",

@@ -16,8 +16,8 @@ import contextlib
 import os
 import re
 import shutil
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 from seg2pose.core.locks import pid_alive
 

@@ -18,8 +18,7 @@ import os
 import shutil
 from pathlib import Path
 
-from seg2pose.io.atomic_names import (COMMIT_RECORD, commit_record_path, dead_writers_leftovers,
-                                      owner)
+from seg2pose.io.atomic_names import COMMIT_RECORD, commit_record_path, dead_writers_leftovers, owner
 
 
 def fsync_dir(path: str | Path) -> None:

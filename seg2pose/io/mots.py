@@ -8,9 +8,9 @@ non-decreasing, so files can be streamed frame by frame.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -48,7 +48,7 @@ class MaskTable:
                 self.score is not None and len(self.score) != len(self.rles)):
             raise ValueError("MaskTable columns differ in length")
 
-    def take(self, idx) -> "MaskTable":
+    def take(self, idx) -> MaskTable:
         idx = np.asarray(idx)
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
@@ -57,12 +57,12 @@ class MaskTable:
                          None if self.score is None else self.score[idx])
 
     @classmethod
-    def empty(cls, height: int, width: int) -> "MaskTable":
+    def empty(cls, height: int, width: int) -> MaskTable:
         z = np.zeros(0, np.int64)
         return cls(z, z, z, height, width, [])
 
     @classmethod
-    def concat(cls, tables: list["MaskTable"]) -> "MaskTable":
+    def concat(cls, tables: list[MaskTable]) -> MaskTable:
         if not tables:
             raise ValueError("nothing to concatenate")
         with_score = all(t.score is not None for t in tables)
@@ -72,7 +72,7 @@ class MaskTable:
                    tables[0].height, tables[0].width, [r for t in tables for r in t.rles],
                    np.concatenate([t.score for t in tables]) if with_score else None)
 
-    def frames(self) -> Iterator[tuple[int, "MaskTable"]]:
+    def frames(self) -> Iterator[tuple[int, MaskTable]]:
         """(frame, detections of that frame) in frame order."""
         if len(self) == 0:
             return

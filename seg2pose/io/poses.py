@@ -16,9 +16,9 @@ import csv
 import io
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -73,27 +73,27 @@ class PoseTable:
     def __len__(self) -> int:
         return len(self.frame)
 
-    def take(self, idx) -> "PoseTable":
+    def take(self, idx) -> PoseTable:
         return PoseTable(self.frame[idx], self.track_id[idx], self.cls[idx], self.xyz[idx],
                          self.heading[idx], None if self.size is None else self.size[idx],
                          None if self.source is None else self.source[idx],
                          None if self.r90 is None else self.r90[idx])
 
-    def sorted(self) -> "PoseTable":
+    def sorted(self) -> PoseTable:
         return self.take(np.lexsort((self.track_id, self.frame)))
 
-    def in_frames(self, frame_range: tuple[int, int] | None) -> "PoseTable":
+    def in_frames(self, frame_range: tuple[int, int] | None) -> PoseTable:
         if frame_range is None:
             return self
         return self.take((self.frame >= frame_range[0]) & (self.frame <= frame_range[1]))
 
     @classmethod
-    def empty(cls, with_size: bool = False) -> "PoseTable":
+    def empty(cls, with_size: bool = False) -> PoseTable:
         return cls(np.zeros(0), np.zeros(0), np.zeros(0, object), np.zeros((0, 3)), np.zeros(0),
                    np.zeros((0, 3)) if with_size else None)
 
     @classmethod
-    def concat(cls, tables: Iterable["PoseTable"]) -> "PoseTable":
+    def concat(cls, tables: Iterable[PoseTable]) -> PoseTable:
         tables = list(tables)
         if not tables:
             return cls.empty()

@@ -34,9 +34,9 @@ import io
 import json
 import os
 import shutil
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -106,28 +106,28 @@ class ViewTable:
     def __len__(self) -> int:
         return len(self.frame)
 
-    def take(self, idx) -> "ViewTable":
+    def take(self, idx) -> ViewTable:
         return ViewTable(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
                          self.uv[idx], self.normal[idx], self.residual[idx],
                          None if self.cues is None else self.cues[idx],
                          None if self.cues is None else self.r90[idx],
                          None if self.box is None else self.box[idx])
 
-    def sorted(self) -> "ViewTable":
+    def sorted(self) -> ViewTable:
         """Rows by frame, track id, camera (the order ``s2p run`` writes)."""
         return self.take(np.lexsort((self.camera, self.track_id, self.frame)))
 
-    def of_cameras(self, cameras: Iterable[str]) -> "ViewTable":
+    def of_cameras(self, cameras: Iterable[str]) -> ViewTable:
         """The rows seen by ``cameras``."""
         return self.take(np.isin(self.camera, list(cameras)))
 
     @classmethod
-    def empty(cls) -> "ViewTable":
+    def empty(cls) -> ViewTable:
         return cls(np.zeros(0), np.zeros(0), np.zeros(0, object), np.zeros(0, object),
                    np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
 
     @classmethod
-    def concat(cls, tables: Iterable["ViewTable"]) -> "ViewTable":
+    def concat(cls, tables: Iterable[ViewTable]) -> ViewTable:
         tables = list(tables)
         if not tables:
             return cls.empty()

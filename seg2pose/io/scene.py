@@ -371,5 +371,5 @@ def parse_start_time(text, file: str | Path | None = None, field: str | None = N
         raise InputError(f"{want}, got {text!r}", file=file, field=field) from None
     if t.tzinfo is None:
         raise InputError(f"{want} (no zone in {text!r})", file=file, field=field)
-    delta = t - dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
+    delta = t - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
     return (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000

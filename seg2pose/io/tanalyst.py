@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import MAX_COORD, MAX_ID, int_text, number
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.text import read_text
-from seg2pose.core.validate import MAX_COORD, MAX_ID, int_text, number
 
 COLUMNS = ["Detection ID", "Type of road user", "Road user ID", "X (m)", "Y (m)", "Time Stamp"]
 _TIME = re.compile(r"^(\d{1,3}):([0-5]\d):([0-5]\d)[.,](\d{3})$")

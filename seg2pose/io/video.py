@@ -12,9 +12,10 @@ Images are BGR uint8 (H, W, 3), OpenCV's order.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -201,7 +202,7 @@ class FrameReader:
         return out
 
 
-def camera_reader(scene: "Scene", camera: str) -> FrameReader:
+def camera_reader(scene: Scene, camera: str) -> FrameReader:
     """The camera's frames with the scene's numbering (``extra.video_frames.<camera>``: the
     first video frame's scene frame and the step; image folders: the number in each name)."""
     path = scene.video_path(camera)

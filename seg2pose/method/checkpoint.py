@@ -70,7 +70,7 @@ class Checkpoint:
 
     @classmethod
     def load(cls, path: str | Path, *, arch: str | None = None, camera: str | None = None,
-             device: str | torch.device = "cpu") -> "Checkpoint":
+             device: str | torch.device = "cpu") -> Checkpoint:
         """Load a checkpoint; ``arch`` / ``camera``, when given, must match its metadata."""
         from safetensors import safe_open
         from safetensors.torch import load_file
@@ -185,7 +185,7 @@ class ModelSet:
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
              arch: str | None = None, fingerprint: str | None = None, device=None,
-             allow_incomplete: bool = False, cameras_fingerprint: str | None = None) -> "ModelSet":
+             allow_incomplete: bool = False, cameras_fingerprint: str | None = None) -> ModelSet:
         """The models of one folder, or of several folders as ensembles (residuals averaged).
         A checkpoint whose training did not finish (metadata "complete": false) is refused
         unless ``allow_incomplete``. ``fingerprint`` / ``cameras_fingerprint``: the scene's
@@ -295,7 +295,7 @@ def model_dirs(scene: Scene, models_dir) -> list[Path]:
 
 
 def load_models(scene: Scene, cams: list[str], models_dir=None, arch: str | None = None,
-                device: str | None = None, allow_incomplete: bool = False) -> "ModelSet":
+                device: str | None = None, allow_incomplete: bool = False) -> ModelSet:
     """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``)."""
     return ModelSet.load(model_dirs(scene, models_dir), cams, scene.class_names, arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device),

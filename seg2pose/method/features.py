@@ -28,7 +28,7 @@ Rays that miss the ground give 0 for their two features; every feature is clippe
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -31,7 +31,7 @@ class ViewGroups:
     n_cams: int
 
     @classmethod
-    def of(cls, views: ViewTable) -> "ViewGroups":
+    def of(cls, views: ViewTable) -> ViewGroups:
         est = views.normal[:, :2] + views.residual
         keep = np.isfinite(est).all(axis=1) & (views.cls != "")
         key_tid = views.track_id[keep].copy()

@@ -100,17 +100,17 @@ class NetConfig:
         return s
 
     @classmethod
-    def paper(cls, n_classes: int = 0) -> "NetConfig":
+    def paper(cls, n_classes: int = 0) -> NetConfig:
         return cls(n_classes=n_classes)
 
     @classmethod
-    def lite(cls, n_classes: int = 0) -> "NetConfig":
+    def lite(cls, n_classes: int = 0) -> NetConfig:
         return cls(arch="lite", downsample=3,
                    stages=((8, 3, True), (16, 3, True), (24, 3, True), (32, 3, True), (48, 3, True)),
                    convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
 
     @classmethod
-    def lite_hr(cls, n_classes: int = 0) -> "NetConfig":
+    def lite_hr(cls, n_classes: int = 0) -> NetConfig:
         """The lite trunk on a full-resolution 140x140 crop centred on the mask centre (no
         downsampling): the same cost as ``lite``, 3x the resolution, 1/9 of the field of view.
         Masks larger than 140 px are cut around their centre (as the paper does at 420)."""
@@ -119,7 +119,7 @@ class NetConfig:
                    convs_per_block=1, head_channels=64, hidden=64, n_classes=n_classes)
 
     @classmethod
-    def named(cls, arch: str, n_classes: int = 0, n_geo: int = 0) -> "NetConfig":
+    def named(cls, arch: str, n_classes: int = 0, n_geo: int = 0) -> NetConfig:
         """The named arch; ``n_geo`` > 0 appends that many mask-geometry features to the vector."""
         makers = {"paper": cls.paper, "lite": cls.lite, "lite-hr": cls.lite_hr,
                   "lite_hr": cls.lite_hr}
@@ -133,7 +133,7 @@ class NetConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "NetConfig":
+    def from_dict(cls, d: dict) -> NetConfig:
         d = dict(d)
         d["stages"] = tuple(tuple(s) for s in d["stages"])
         d.setdefault("n_geo", 0)  # checkpoints from before the geometry features
@@ -152,7 +152,7 @@ class Normalisation:
 
     @classmethod
     def for_scene(cls, ground_points: np.ndarray, width: int, height: int,
-                  residual_scale: float = 1.0) -> "Normalisation":
+                  residual_scale: float = 1.0) -> Normalisation:
         xy = np.asarray(ground_points, float)[:, :2]
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         c = xy.mean(axis=0)
@@ -177,7 +177,7 @@ class Normalisation:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Normalisation":
+    def from_dict(cls, d: dict) -> Normalisation:
         d = dict(d)
         d["center_xy"] = tuple(d["center_xy"])
         return cls(**d)

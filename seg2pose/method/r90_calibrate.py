@@ -19,7 +19,6 @@ from seg2pose.method.r90_features import pose_features
 from seg2pose.method.uncertainty import Calibration, FitRun, fit_calibration
 
 
-
 def scene_of_run(scene, run_dir: Path, meta: dict):
     """The scene a run was made on: the scene its run.json names when that is another folder
     (several recordings of one site share the calibration and so the fingerprint, not the

@@ -294,7 +294,7 @@ def group_by_window(crops: np.ndarray, bucket: int = 8) -> tuple[np.ndarray, np.
 
 
 _ENABLED = os.environ.get("S2P_SPARSE", "1") != "0"
-_WRAPPERS: "weakref.WeakKeyDictionary[Seg2PoseNet, SparseSeg2PoseNet]" = weakref.WeakKeyDictionary()
+_WRAPPERS: weakref.WeakKeyDictionary[Seg2PoseNet, SparseSeg2PoseNet] = weakref.WeakKeyDictionary()
 
 
 def set_enabled(on: bool) -> None:

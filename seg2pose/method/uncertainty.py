@@ -140,7 +140,7 @@ class StageModel:
 
     @classmethod
     def fit(cls_, features: list[str], cls: np.ndarray, X: np.ndarray, err: np.ndarray,
-            groups: np.ndarray | None = None, q: float = QUANTILE) -> "StageModel":
+            groups: np.ndarray | None = None, q: float = QUANTILE) -> StageModel:
         """Per class (and pooled), the q-quantile regression of log(error) on X, then shifted
         up by conformal calibration over ``groups`` (road users: a road user's errors are
         alike, so a new road user is what the bar must cover): each fold of road users is
@@ -176,7 +176,7 @@ class StageModel:
                 "lo": self.lo, "hi": self.hi, "y_max": self.y_max}
 
     @classmethod
-    def from_dict(cls, d: dict, features: list[str], where: str) -> "StageModel":
+    def from_dict(cls, d: dict, features: list[str], where: str) -> StageModel:
         if d.get("features") != features or "*" not in d.get("coef", {}):
             raise InputError(f"expected features {features} and a pooled ('*') model", field=where)
         def vec(v) -> bool:

@@ -171,7 +171,7 @@ class ConflictTable:
     def __len__(self) -> int:
         return len(self.columns["track_a"])
 
-    def take(self, idx) -> "ConflictTable":
+    def take(self, idx) -> ConflictTable:
         return ConflictTable({k: v[idx] for k, v in self.columns.items()}, self.pairs, self.pets,
                              self.compared)
 

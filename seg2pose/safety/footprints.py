@@ -104,7 +104,7 @@ class Footprints:
         self.hl, self.hw = size[:, 0] / 2, size[:, 1] / 2
         self.reach = reach(size)
 
-    def grown(self, by: np.ndarray) -> "Footprints":
+    def grown(self, by: np.ndarray) -> Footprints:
         """The same rows with footprints ``by`` (N,) metres longer and wider (as if made
         with size + by on both sides: the same values), sharing the centres and headings."""
         out = Footprints.__new__(Footprints)

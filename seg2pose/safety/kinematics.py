@@ -22,7 +22,6 @@ import numpy as np
 
 from seg2pose.safety.tracks import Tracks
 
-
 BACKWARDS_MPS = 1e-6  # slower than this along the heading: not moving backwards
 
 

@@ -25,7 +25,6 @@ from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.workers import map_chunks
 
-
 SIZE_GROUPS = np.array([1.0, 2.0, 3.0, 4.5])  # metres of reach + travel: the search's groups
 
 

@@ -12,8 +12,8 @@ line. ``poses.csv`` may carry an extra last column ``r90_m`` (read by ``seg2pose
 
 from __future__ import annotations
 
-import json
 import io
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +22,8 @@ import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.core.validate import FPS_RANGE, MAX_COORD
-from seg2pose.io.poses import BASE_COLUMNS, R90_COLUMN as POSE_R90, SIZE_COLUMNS, PoseTable, read_poses
+from seg2pose.io.poses import BASE_COLUMNS, SIZE_COLUMNS, PoseTable, read_poses
+from seg2pose.io.poses import R90_COLUMN as POSE_R90
 from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
 from seg2pose.safety.workers import map_chunks
 
@@ -91,12 +92,12 @@ class Tracks:
             c = self.__dict__["_ends"] = np.minimum.accumulate(np.where(last, np.arange(n), n)[::-1])[::-1]
         return c
 
-    def take(self, idx) -> "Tracks":
+    def take(self, idx) -> Tracks:
         return Tracks(self.frame[idx], self.track_id[idx], self.cls[idx], self.xy[idx],
                       self.heading[idx], self.size[idx], self.fps,
                       None if self.r90 is None else self.r90[idx])
 
-    def with_xy(self, xy: np.ndarray) -> "Tracks":
+    def with_xy(self, xy: np.ndarray) -> Tracks:
         """The same rows at other positions (``xy`` (N, 2), in this table's row order)."""
         out = self.take(slice(None))
         out.xy = np.asarray(xy, np.float64).reshape(-1, 2)

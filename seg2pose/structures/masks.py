@@ -7,7 +7,7 @@ and alternate background / foreground, starting with background.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from pycocotools import mask as mask_util

@@ -82,7 +82,7 @@ def ray_ground_points(origin: np.ndarray, dirs: np.ndarray, iterations: int = 6)
     return out
 
 
-def sample_ground_points(rng: np.random.Generator, visible: "callable", n: int = 184,
+def sample_ground_points(rng: np.random.Generator, visible: callable, n: int = 184,
                          curb_share: float = 0.6, extent: float = 75.0) -> np.ndarray:
     """The paper's ground survey: ``n`` points (n, 3) metres on the true surface, around the
     area the cameras see, with ``curb_share`` of them in pairs straddling the curb edges

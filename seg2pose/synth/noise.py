@@ -45,7 +45,7 @@ class NoiseConfig:
     fragment_rate: float = 0.02
 
     @classmethod
-    def off(cls) -> "NoiseConfig":
+    def off(cls) -> NoiseConfig:
         return cls(enabled=False, miss_rate=0.0, min_area=1, small_area=0, small_miss=0.0,
                    occlusion_miss=0.0, merge_rate=0.0, class_confusion=0.0, dilate_px=0.0, mask_resolution=0,
                    boundary_jitter=0.0, fragment_rate=0.0)
@@ -54,7 +54,7 @@ class NoiseConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "NoiseConfig":
+    def from_dict(cls, d: dict) -> NoiseConfig:
         known = {f.name for f in fields(cls)}
         bad = sorted(set(d) - known)
         if bad:

@@ -97,7 +97,7 @@ def build_device(name: str, spec: dict, *, focal: float = FOCAL, width: int = WI
     return Rig(cameras=cams, configs={k: list(v) for k, v in CONFIGS.items()}, name=name)
 
 
-def load_rig(spec: "str | Path | Rig | None", distortion: tuple[float, float] | None = None) -> Rig:
+def load_rig(spec: str | Path | Rig | None, distortion: tuple[float, float] | None = None) -> Rig:
     """A rig from a device name, a JSON file ({"cameras": [...], "configs": {...}} in
     scene.json's format), or a Rig (returned as is). None = the default device.
     distortion: (k1, k2) for the named devices (a JSON rig carries its own)."""

@@ -19,8 +19,17 @@ import numpy as np
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.synth import junction as J
-from seg2pose.synth.look import (AMBIENT, BodyTextures, Look, draw_clouds, draw_textures,
-                                 exposure_gain, ground_light, sun_strength, texture_values)
+from seg2pose.synth.look import (
+    AMBIENT,
+    BodyTextures,
+    Look,
+    draw_clouds,
+    draw_textures,
+    exposure_gain,
+    ground_light,
+    sun_strength,
+    texture_values,
+)
 from seg2pose.synth.raster import SHIFT, project_parts
 from seg2pose.synth.shapes import BODY, FACES, FRAME, GLASS, LEGS, SKIN, TOP, WHEEL
 from seg2pose.synth.world import World

@@ -18,8 +18,8 @@ changed copies of every annotated training mask with recomputed normal positions
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np

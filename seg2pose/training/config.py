@@ -96,21 +96,21 @@ class TrainConfig:
             if int(getattr(self, name)) < 1:
                 raise InputError(f"{name} must be at least 1, got {getattr(self, name)}", field=name)
 
-    def replace(self, **kw) -> "TrainConfig":
+    def replace(self, **kw) -> TrainConfig:
         return replace(self, **kw)
 
-    def rough_stage(self) -> "TrainConfig":
+    def rough_stage(self) -> TrainConfig:
         """The protocol of a self-training's first stage: the rough-only models it starts from
         (the same protocol without the self-training fields)."""
         return replace(self, self_train="", self_epochs=TrainConfig.self_epochs,
                        self_smooth=TrainConfig.self_smooth)
 
     @classmethod
-    def paper(cls, arch: str = "paper") -> "TrainConfig":
+    def paper(cls, arch: str = "paper") -> TrainConfig:
         return cls(arch=arch)
 
     @classmethod
-    def quick(cls) -> "TrainConfig":
+    def quick(cls) -> TrainConfig:
         """The CPU protocol of docs/RESULTS.md: one ``lite-hr`` model with the mask-geometry
         features per class (the paper's layout) shared by all lenses of the device, one run of
         30 epochs, half of every batch rough-model examples from a pool of 1,500 per lens and
@@ -122,7 +122,7 @@ class TrainConfig:
                    share_classes=False, share_cameras=True, max_val_per_class=100)
 
     @classmethod
-    def long(cls) -> "TrainConfig":
+    def long(cls) -> TrainConfig:
         """``quick`` trained twice as long (60 epochs), a quarter of every batch rough-model
         examples (the paper's share): for a scene with a thousand or more annotated frames per
         split, where the rough examples matter less; about twice quick's time. Chosen on the
@@ -130,7 +130,7 @@ class TrainConfig:
         return cls.quick().replace(epochs=60, rough_every=4)
 
     @classmethod
-    def demo(cls) -> "TrainConfig":
+    def demo(cls) -> TrainConfig:
         """The demo's protocol: lite, one model for all five lenses and three classes, in
         about 2 minutes of training on a 2-core CPU (docs/RESULTS.md)."""
         return cls(arch="lite", runs=1, lr=1.5e-3, lr_schedule="cosine", batch_size=32,

@@ -57,7 +57,7 @@ class ExampleSet:
     def __len__(self) -> int:
         return len(self.target)
 
-    def take(self, idx) -> "ExampleSet":
+    def take(self, idx) -> ExampleSet:
         return ExampleSet(self.crops[idx], self.factor, self.centers[idx], self.normal[idx],
                           self.target[idx], self.cls[idx], self.rough[idx], self.geo[idx])
 
@@ -66,12 +66,12 @@ class ExampleSet:
         return (self.crops[idx].astype(np.float32) / float(self.factor ** 2))[:, None]
 
     @classmethod
-    def empty(cls, size: int, factor: int) -> "ExampleSet":
+    def empty(cls, size: int, factor: int) -> ExampleSet:
         return cls(np.zeros((0, size, size), np.uint8), factor, np.zeros((0, 2)), np.zeros((0, 2)),
                    np.zeros((0, 2)), np.zeros(0, object), np.zeros(0, bool))
 
     @classmethod
-    def concat(cls, sets: list["ExampleSet"]) -> "ExampleSet":
+    def concat(cls, sets: list[ExampleSet]) -> ExampleSet:
         sets = [s for s in sets if len(s)] or sets[:1]
         return cls(np.concatenate([s.crops for s in sets]), sets[0].factor,
                    np.concatenate([s.centers for s in sets]), np.concatenate([s.normal for s in sets]),

@@ -43,8 +43,8 @@ from seg2pose.io.run import ViewTable, read_run_meta, read_views
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint, load_models
 from seg2pose.method.features import N_GEO
-from seg2pose.method.net import NetConfig
 from seg2pose.method.fusion import fuse
+from seg2pose.method.net import NetConfig
 from seg2pose.method.pipeline import RunOptions, compute_views, write_run
 from seg2pose.training.config import ROUGH_STAGE, TrainConfig, TrainSettings, same_protocol
 from seg2pose.training.examples import ExampleSet, labelled_examples

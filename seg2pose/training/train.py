@@ -70,7 +70,7 @@ class TrainData:
 
     @classmethod
     def of(cls, ex: ExampleSet, norm: Normalisation, classes: list[str], shared: bool,
-           geometry: bool = False) -> "TrainData":
+           geometry: bool = False) -> TrainData:
         cfg = NetConfig(n_classes=len(classes) if shared else 0, n_geo=N_GEO if geometry else 0)
         v = input_vector(cfg, norm, ex.centers, ex.normal, ex.cls, classes, ex.geo)
         return cls(ex, v, (ex.target / norm.residual_scale).astype(np.float32))

@@ -18,8 +18,8 @@ may differ).
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from seg2pose.core.say import say
 from seg2pose.method.checkpoint import Checkpoint

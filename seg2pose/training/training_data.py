@@ -9,10 +9,9 @@ to ground truth) and its pool of rough-model examples (3.5). Models finished alr
 from __future__ import annotations
 
 import zlib
-
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -22,9 +21,9 @@ from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint, model_filename
 from seg2pose.method.net import NetConfig, Normalisation
+from seg2pose.training import rough_video
 from seg2pose.training.config import TrainConfig
 from seg2pose.training.examples import ExampleSet, annotated_examples, rough_examples
-from seg2pose.training import rough_video
 
 
 @dataclass

@@ -39,7 +39,7 @@ class AssociateConfig:
     split_blobs: bool = True  # split a mask that other cameras see as several road users
 
     @classmethod
-    def from_dict(cls, d: dict | None, file: Path | None = None) -> "AssociateConfig":
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> AssociateConfig:
         out = cls()
         known = {f.name: f for f in fields(cls)}
         for k, v in (d or {}).items():

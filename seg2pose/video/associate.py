@@ -33,8 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seg2pose.video.assoc_pairs import (AssociateConfig, CameraViews, pair_cameras,
-                                        position_spread)
+from seg2pose.video.assoc_pairs import AssociateConfig, CameraViews, pair_cameras, position_spread
 
 __all__ = ["AssociateConfig", "Association", "CameraViews", "associate", "majority_class",
            "position_spread"]

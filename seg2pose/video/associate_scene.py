@@ -15,21 +15,27 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from seg2pose.core.errors import S2PError
+from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.atomic import replacing
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.track_ids import entries, ids_path, ids_text, read_ids
-from seg2pose.structures.masks import decode, encode, mask_centers, rle_contains, rle_stats
-from seg2pose.geometry.normal import normal_positions
-from seg2pose.video.associate import (AssociateConfig, Association, CameraViews, associate,
-                                      majority_class, position_spread)
+from seg2pose.structures.masks import decode, encode, mask_centers, rle_contains
+from seg2pose.video.associate import (
+    AssociateConfig,
+    Association,
+    CameraViews,
+    associate,
+    majority_class,
+    position_spread,
+)
 
 UNKNOWN_CLASS_HEIGHT = 0.8  # metres: default height of a mask without a class (the tracker's)
 MIN_PART = 30               # pixels: a split part smaller than this is dropped

@@ -51,7 +51,7 @@ class BgConfig:
     #                               auto-exposure) is scaled to the model's brightness first; 0: never
 
     @classmethod
-    def from_dict(cls, d: dict | None, file: Path | None = None) -> "BgConfig":
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> BgConfig:
         d = d or {}
         names = {f.name: f.type for f in fields(cls)}
         out = cls()

@@ -31,9 +31,9 @@ Defaults and constants were chosen on synthetic seeds 101-102 (docs/RESULTS.md).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 from pycocotools import mask as mask_util

@@ -11,9 +11,9 @@ rider is dropped, or kept as a bicyclist with ``lone_bicycles=True``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

@@ -28,8 +28,8 @@ RLEs). Constants were chosen on synthetic seeds 107, 108 and 110 (docs/RESULTS.m
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 from pycocotools import mask as mask_util

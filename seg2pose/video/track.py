@@ -22,9 +22,9 @@ the second runs the same (deterministic) tracker again and writes the masks with
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
 
 import numpy as np
 from pycocotools import mask as mask_util
@@ -63,7 +63,7 @@ class TrackConfig:
     join_min_s: float = 1.0
 
     @classmethod
-    def from_dict(cls, d: dict | None, file: Path | None = None) -> "TrackConfig":
+    def from_dict(cls, d: dict | None, file: Path | None = None) -> TrackConfig:
         out = cls()
         known = {f.name for f in fields(cls)}
         for k, v in (d or {}).items():
@@ -104,12 +104,12 @@ class LiveTracks:
     def __len__(self) -> int:
         return len(self.ids)
 
-    def take(self, rows: np.ndarray) -> "LiveTracks":
+    def take(self, rows: np.ndarray) -> LiveTracks:
         """The rows ``rows`` (indices), in that order."""
         return LiveTracks(**{f.name: [col[i] for i in rows] if isinstance(col, list) else col[rows]
                              for f in fields(self) for col in [getattr(self, f.name)]})
 
-    def append(self, more: "LiveTracks") -> "LiveTracks":
+    def append(self, more: LiveTracks) -> LiveTracks:
         """These rows, then ``more``'s."""
         return LiveTracks(**{f.name: a + b if isinstance(a, list) else np.concatenate([a, b])
                              for f in fields(self)

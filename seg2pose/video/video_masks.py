@@ -38,9 +38,9 @@ Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 from pycocotools import mask as mask_util
@@ -48,8 +48,15 @@ from pycocotools import mask as mask_util
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
-from seg2pose.video.bg_checks import (exposure_ratio, flat_pixels, ghost_mask, grey_mean,
-                                      still_pixels, texture_stats, to_exposure)
+from seg2pose.video.bg_checks import (
+    exposure_ratio,
+    flat_pixels,
+    ghost_mask,
+    grey_mean,
+    still_pixels,
+    texture_stats,
+    to_exposure,
+)
 from seg2pose.video.bg_config import BgConfig
 from seg2pose.video.bg_start import SAMPLED, start_image
 

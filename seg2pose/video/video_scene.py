@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -17,13 +17,13 @@ from seg2pose.core.errors import InputError
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.atomic import outputs
 from seg2pose.io.mots import write_mots
-from seg2pose.io.track_ids import mark_ids
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
 from seg2pose.io.text import load_json, read_text
+from seg2pose.io.track_ids import mark_ids
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
 from seg2pose.video.classify import classify_mots, size_rules
-from seg2pose.video.fragments import join_fragments
 from seg2pose.video.detections import DetectionConfig, import_detections
+from seg2pose.video.fragments import join_fragments
 from seg2pose.video.track import TrackConfig, track_mots
 from seg2pose.video.video_masks import BgConfig, VideoMasksResult, masks_from_video
 

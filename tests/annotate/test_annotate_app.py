@@ -5,7 +5,6 @@ re-sends only the changed track."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

@@ -5,12 +5,12 @@ import json
 
 import numpy as np
 import pytest
+from review_fixtures import make_scene
 
 from annotate import Project
 from annotate.export import annotated_poses, export_gt, journal_files, write_annotation_run
 from seg2pose.core.errors import S2PError
 from seg2pose.io.poses import read_poses
-from review_fixtures import make_scene
 
 
 @pytest.fixture

@@ -5,10 +5,10 @@ import math
 
 import numpy as np
 import pytest
+from review_fixtures import make_scene
 
 from annotate import Project
 from annotate.headings import AUTO, motion_headings
-from review_fixtures import make_scene
 
 
 @pytest.fixture

@@ -12,11 +12,11 @@ import sys
 import time
 
 import pytest
+from annotate_fixtures import digest, random_edit, state
+from review_fixtures import make_scene
 
 from annotate import EditError, JournalError, LockedError, NotSavedError, Project
 from annotate import journal as J
-from annotate_fixtures import digest, random_edit, state
-from review_fixtures import make_scene
 
 
 @pytest.fixture

@@ -5,11 +5,11 @@ import random
 
 import numpy as np
 import pytest
+from annotate_fixtures import random_edit, state
+from review_fixtures import EST_OFFSET, make_run, make_scene
 
 from annotate import EditError, Project
 from seg2pose.io.poses import read_poses
-from annotate_fixtures import random_edit, state
-from review_fixtures import EST_OFFSET, make_run, make_scene
 
 
 @pytest.fixture

@@ -3,11 +3,11 @@
 import math
 
 import pytest
+from review_fixtures import EST_OFFSET, make_run, make_scene
 
 from annotate import Project
 from annotate.review import keyframe_density, plausibility_report, suggest_keyframes
 from seg2pose.io.poses import read_poses
-from review_fixtures import EST_OFFSET, make_run, make_scene
 
 
 @pytest.fixture

@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from review_fixtures import make_scene
 
 from annotate import Project
 from annotate.tanalyst_io import annotations_to_tanalyst, import_tanalyst
 from seg2pose.core.errors import InputError
 from seg2pose.io.tanalyst import format_tanalyst, parse_tanalyst, read_tanalyst
-from review_fixtures import make_scene
 
 HEADER = "Detection ID;Type of road user;Road user ID;X (m);Y (m);Time Stamp"
 # 10 fps scene, frame 0 at 12:00:00.000: road user 3 (car) at frames 0, 5, 10, user 7 at 2, 6

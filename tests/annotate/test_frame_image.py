@@ -75,8 +75,8 @@ def test_no_video_is_said_and_grey(scene, pictures):
 
 def test_selected_track_drawn_where_its_box_projects(scene, pictures):
     from annotate.place import pixel_to_ground
-    from s2p_review.annotation_log import TrackColumns
     from s2p_review import columns as C
+    from s2p_review.annotation_log import TrackColumns
 
     s, _ = scene
     cam = s.cameras["c0"]

@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from annotate import Project
-from seg2pose.core.errors import InputError
-from s2p_review.annotated_mcap import export_annotated_mcap, restore_annotation_files
-from s2p_review.mcap_import import read_mcap_records
-
 from review_fixtures import make_scene
 from scene_fixtures import s2p
+
+from annotate import Project
+from s2p_review.annotated_mcap import export_annotated_mcap, restore_annotation_files
+from s2p_review.mcap_import import read_mcap_records
+from seg2pose.core.errors import InputError
 
 
 def test_export_import_restores_the_annotation_project(monkeypatch, capsys, tmp_path):

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene
 
 from s2p_review.association import association_strips, id_color
 from s2p_review.runs import load_run
 from s2p_review.session import record
-from review_fixtures import make_run, make_scene
 
 N = 12
 

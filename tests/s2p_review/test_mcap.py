@@ -7,14 +7,13 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene
 from typer.testing import CliRunner
 
-from seg2pose.core.errors import InputError, S2PError
-from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from s2p_review.mcap_export import ExportOptions, export_mcap
 from s2p_review.mcap_import import import_mcap, read_mcap_records
-
-from review_fixtures import make_run, make_scene
+from seg2pose.core.errors import InputError, S2PError
+from seg2pose.io.poses import PoseTable, read_poses, write_poses
 
 N_FRAMES = 12
 

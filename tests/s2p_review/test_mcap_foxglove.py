@@ -10,16 +10,15 @@ import os
 
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene, video_rgb
 
-from seg2pose.io.mots import read_mots
-from seg2pose.io.poses import read_poses, write_poses
-from seg2pose.io.scene import load_scene
 from s2p_review import columns as C
 from s2p_review import layout as L
 from s2p_review.foxglove_layout import layout_topics
 from s2p_review.mcap_export import ExportOptions, export_mcap
-
-from review_fixtures import make_run, make_scene, video_rgb
+from seg2pose.io.mots import read_mots
+from seg2pose.io.poses import read_poses, write_poses
+from seg2pose.io.scene import load_scene
 
 N_FRAMES = 12
 START = "2021-06-14T08:00:00Z"
@@ -37,8 +36,8 @@ def _opencv_one_thread():
 
 def _messages(path, topics=None) -> list:
     """(topic, log_time, data) of every message, in the file's order (a front-to-back read)."""
-    from mcap.stream_reader import StreamReader
     from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
 
     chans, out = {}, []
     with open(path, "rb") as f:
@@ -73,8 +72,8 @@ def exported(tmp_path_factory):
 
 
 def test_display_images_show_class_colours_over_video(exported):
-    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
     import cv2
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
     scene, _, res, _ = exported
     msgs = _messages(res.path, {"/cameras/c0/display"})

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-
 import pytest
-from typer.testing import CliRunner
-
-from seg2pose.core.errors import InputError
-from seg2pose.cli.common import parse_frames
-
 from review_fixtures import make_run, review_scene, rrd_rows
+from typer.testing import CliRunner
 from video_fixtures import single_threaded_opencv
+
+from seg2pose.cli.common import parse_frames
+from seg2pose.core.errors import InputError
 
 _opencv_one_thread = pytest.fixture(scope="module", autouse=True)(single_threaded_opencv)
 tiny = pytest.fixture(scope="module")(review_scene)

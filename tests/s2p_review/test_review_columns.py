@@ -3,19 +3,17 @@ trails, the layout's labels and colours."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from seg2pose.io.mots import read_mots
-from seg2pose.structures.masks import decode, encode
-from s2p_review import columns as C
-from s2p_review import layout as L
-
 from review_fixtures import review_scene
 from video_fixtures import single_threaded_opencv
+
+from s2p_review import columns as C
+from s2p_review import layout as L
+from seg2pose.io.mots import read_mots
+from seg2pose.structures.masks import decode, encode
 
 _opencv_one_thread = pytest.fixture(scope="module", autouse=True)(single_threaded_opencv)
 tiny = pytest.fixture(scope="module")(review_scene)

@@ -6,13 +6,12 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
+from review_fixtures import make_run, make_scene
 
-from seg2pose.core.errors import InputError
 from s2p_review.conflicts import TOPIC, read_conflicts
 from s2p_review.recording import LogStyle
 from s2p_review.session import RecordOptions, record
-
-from review_fixtures import make_run, make_scene
+from seg2pose.core.errors import InputError
 
 N_FRAMES = 60
 

@@ -3,14 +3,12 @@ nothing, unreachable viewers, unreadable video, broken masks, no display."""
 
 from __future__ import annotations
 
-
 import pytest
-
-from seg2pose.core.errors import InputError, S2PError
-from s2p_review.session import Targets, record
-
 from review_fixtures import NO_IMAGES, make_run, review_scene
 from video_fixtures import single_threaded_opencv
+
+from s2p_review.session import Targets, record
+from seg2pose.core.errors import InputError, S2PError
 
 _opencv_one_thread = pytest.fixture(scope="module", autouse=True)(single_threaded_opencv)
 tiny = pytest.fixture(scope="module")(review_scene)

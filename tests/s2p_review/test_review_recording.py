@@ -8,15 +8,14 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from review_fixtures import CLASS_ID, EST_OFFSET, N_FRAMES, NO_IMAGES, TRACKS, review_scene, rrd_rows
+from video_fixtures import single_threaded_opencv
 
-from seg2pose.io.mots import read_mots
-from seg2pose.structures.masks import decode
 from s2p_review import layout as L
 from s2p_review.recording import LogStyle
 from s2p_review.session import RecordOptions, record
-
-from review_fixtures import CLASS_ID, EST_OFFSET, N_FRAMES, NO_IMAGES, TRACKS, review_scene, rrd_rows
-from video_fixtures import single_threaded_opencv
+from seg2pose.io.mots import read_mots
+from seg2pose.structures.masks import decode
 
 _opencv_one_thread = pytest.fixture(scope="module", autouse=True)(single_threaded_opencv)
 tiny = pytest.fixture(scope="module")(review_scene)

@@ -7,14 +7,13 @@ import json
 
 import numpy as np
 import pytest
+from review_fixtures import EST_OFFSET, N_FRAMES, TRACKS, make_run, review_scene
+from video_fixtures import single_threaded_opencv
 
+from s2p_review.runs import load_run, scene_last_frame
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import read_mots
 from seg2pose.io.run import read_views
-from s2p_review.runs import load_run, scene_last_frame
-
-from review_fixtures import EST_OFFSET, N_FRAMES, TRACKS, make_run, review_scene
-from video_fixtures import single_threaded_opencv
 
 _opencv_one_thread = pytest.fixture(scope="module", autouse=True)(single_threaded_opencv)
 tiny = pytest.fixture(scope="module")(review_scene)

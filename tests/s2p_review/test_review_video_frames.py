@@ -10,13 +10,12 @@ import json
 import cv2
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene
 
-from seg2pose.io.scene import load_scene
 from s2p_review import imagery
 from s2p_review.recording import LogStyle
 from s2p_review.session import RecordOptions, record
-
-from review_fixtures import make_run, make_scene
+from seg2pose.io.scene import load_scene
 
 N_FRAMES = 12
 

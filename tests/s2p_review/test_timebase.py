@@ -7,12 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene
 
+from s2p_review.timebase import Timebase, scene_timebase
 from seg2pose.core.errors import InputError
 from seg2pose.io.scene import load_scene, parse_start_time
-from s2p_review.timebase import Timebase, scene_timebase
-
-from review_fixtures import make_run, make_scene
 
 START_NS = 1623657600 * 10**9  # 2021-06-14T08:00:00Z
 

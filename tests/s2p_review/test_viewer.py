@@ -14,15 +14,14 @@ import time
 import cv2
 import numpy as np
 import pytest
+from review_fixtures import make_run, make_scene, video_rgb
 
-from seg2pose.io.mots import read_mots
 from s2p_review import columns as C
 from s2p_review import layout as L
 from s2p_review import viewer as V
 from s2p_review.recording import LogStyle
 from s2p_review.session import RecordOptions, Targets, record
-
-from review_fixtures import make_run, make_scene, video_rgb
+from seg2pose.io.mots import read_mots
 
 _why = V.vulkan_problem()
 pytestmark = pytest.mark.skipif(_why is not None, reason=f"no Vulkan for the headless viewer: {_why}")
@@ -246,8 +245,8 @@ def test_screenshot_of_an_mcap_export_shows_video(data):
     and its camera views show the video."""
     from typer.testing import CliRunner
 
-    from seg2pose.cli import app
     from s2p_review.mcap_export import export_mcap
+    from seg2pose.cli import app
 
     _, video, runs, root = data
     res = export_mcap(video, runs[1], root / "v.mcap")

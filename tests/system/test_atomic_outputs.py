@@ -15,10 +15,10 @@ import time
 from pathlib import Path
 
 import pytest
-
 from hostile_fixtures import write_s2p_mcap, write_scene, write_utocs
+
 from seg2pose.core.errors import InputError, S2PError
-from seg2pose.io.atomic import (clean_stale_partials, replacing)
+from seg2pose.io.atomic import clean_stale_partials, replacing
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
 
@@ -134,7 +134,7 @@ def test_stale_partials_of_dead_processes_are_cleaned(tmp_path, capsys):
     (tmp_path / f".syn.partial-{pid}" / "masks").mkdir(parents=True)          # old main's name
     (tmp_path / f".syn.partial-{pid}-x1y2").mkdir()
     (tmp_path / f".syn.partial-{pid}-k3.tmp").write_text("half")
-    (tmp_path / f".syn.lock").write_text(json.dumps({"pid": pid, "host": os.uname().nodename}))
+    (tmp_path / ".syn.lock").write_text(json.dumps({"pid": pid, "host": os.uname().nodename}))
     live = tmp_path / f".syn.partial-{os.getpid()}-mine"
     live.mkdir()
     other = tmp_path / f".other.partial-{pid}"

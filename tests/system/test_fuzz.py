@@ -11,13 +11,13 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from hostile_fixtures import H, W, write_s2p_mcap, write_scene, write_utocs
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from hostile_fixtures import H, W, write_s2p_mcap, write_scene, write_utocs
 from io_fixtures import RLE, make_scene, same_masks
 from io_fixtures import H as IO_H
 from io_fixtures import W as IO_W
+
 from seg2pose.core.errors import S2PError
 from seg2pose.io.coco import read_coco, write_coco
 from seg2pose.io.mots import MaskTable, read_mots, write_mots

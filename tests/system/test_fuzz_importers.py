@@ -14,13 +14,13 @@ import json
 import warnings
 
 import numpy as np
+from hostile_fixtures import write_scene, write_utocs
 from hypothesis import given
 from hypothesis import strategies as st
+from test_fuzz import FUZZ, folder, mutate_json, mutate_text
+from video_fixtures import calibration, det, write_folder, write_video
 
-from hostile_fixtures import write_scene, write_utocs
 from seg2pose.core.errors import S2PError
-from test_fuzz import FUZZ, folder, mutate_json, mutate_text, only_s2p_errors
-from video_fixtures import calibration, det, rle, write_folder, write_video
 
 SMALL = 2048 * 2048  # pixels: larger accepted cameras get `info` only (a mask would be huge)
 
@@ -47,8 +47,8 @@ def scene_is_usable(root, run_dir) -> None:
     from seg2pose.cli.scene import info
     from seg2pose.io.mots import MaskTable, write_mots
     from seg2pose.io.scene import load_scene
-    from seg2pose.structures.masks import encode
     from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.structures.masks import encode
 
     with contextlib.redirect_stdout(io.StringIO()):
         info(root)
@@ -172,10 +172,11 @@ TCSV = "\n".join(["Detection ID;Type of road user;Road user ID;X (m);Y (m);Time 
 @FUZZ
 @given(st.data())
 def test_tanalyst_near_valid(data):
+    from review_fixtures import make_scene
+
     from annotate import Project
     from annotate.export import export_gt
     from annotate.tanalyst_io import import_tanalyst
-    from review_fixtures import make_scene
     from seg2pose.io.tanalyst import read_tanalyst
 
     with folder() as d:
@@ -195,9 +196,10 @@ def test_tanalyst_near_valid(data):
 
 
 def test_tanalyst_valid_import_exactly(tmp_path):
+    from review_fixtures import make_scene
+
     from annotate import Project
     from annotate.tanalyst_io import import_tanalyst
-    from review_fixtures import make_scene
     from seg2pose.io.tanalyst import parse_tanalyst
 
     scene = make_scene(tmp_path / "sc", n_frames=30)

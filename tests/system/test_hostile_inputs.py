@@ -9,14 +9,13 @@ import os
 
 import numpy as np
 import pytest
-
 from hostile_fixtures import H, W, write_scene, write_utocs
+
 from seg2pose.core.errors import InputError
 from seg2pose.io.coco import read_coco
 from seg2pose.io.mots import read_mots
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import load_scene
-
 
 # --- scene.json -------------------------------------------------------------------------------
 
@@ -282,8 +281,8 @@ def test_eval_refuses_a_half_written_run(scene_and_run, missing):
 
 def test_eval_and_heights_agree_on_classes(scene_and_run):
     """A truth file with a class the scene does not know: `heights` refused it, `eval` did not."""
-    from seg2pose.method.heights import collect_height_views
     from seg2pose.eval.paper_table import evaluate_run
+    from seg2pose.method.heights import collect_height_views
 
     scene, run = scene_and_run
     gt = scene / "gt" / "poses.csv"

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from kill_cases import build_cases, build_training_cases, build_writer_cases
 
 KILLS_PER_COMMAND = 10

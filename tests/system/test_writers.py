@@ -12,16 +12,14 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pytest
+from hostile_fixtures import write_scene
+from scene_fixtures import s2p
+from video_fixtures import calibration, det, rle, single_threaded_opencv, write_folder
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import output_lock
 from seg2pose.io.mots import read_mots
-
-from hostile_fixtures import write_scene
-from scene_fixtures import s2p
-from video_fixtures import calibration, det, rle, single_threaded_opencv, write_folder
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
@@ -121,9 +119,10 @@ def test_new_scene_force_replaces_the_scene_whole_and_copies_the_video(video_sce
     """--force with a new .avi: the old masks and the old video/c0.mp4-or-folder are gone, the
     scene reads the new video (named in scene.json), and the scene's video is a copy: editing
     it leaves the original as it was."""
+    from video_fixtures import write_video
+
     from seg2pose.io.scene import load_scene
     from seg2pose.video.video_scene import new_scene
-    from video_fixtures import write_video
 
     avi = write_video(tmp_path / "new.avi", 12, BOXES)
     (video_scene / "video" / "c0.mp4").write_bytes(b"an old video preferred by name")
@@ -167,8 +166,9 @@ def test_new_scene_refuses_up_front_and_old_scenes_keep_their_video(video_scene,
 
 @pytest.fixture
 def annotated(tmp_path):
-    from annotate import Project
     from review_fixtures import make_scene
+
+    from annotate import Project
 
     scene = make_scene(tmp_path / "ann", n_frames=20)
     with Project.open(scene) as p:
@@ -366,6 +366,7 @@ def test_batch_resumes_after_a_kill_while_the_masks_are_written(tmp_path):
     """SIGKILL the serial batch the moment masks/c0.txt appears (on the old code: a stage's
     file with class 0), then re-run without --force: it completes."""
     from command_zygote import zygote
+
     from seg2pose.io.scene import load_scene
     from seg2pose.video.video_scene import new_scene
 

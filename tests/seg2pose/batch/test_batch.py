@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from seg2pose.batch.study import BatchOptions, Step, run_study
 from seg2pose.batch.steps import EVAL, RUN
+from seg2pose.batch.study import BatchOptions, Step, run_study
 from seg2pose.synth.generate import SynthOptions, generate_scene
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
@@ -189,10 +189,8 @@ def test_bad_usage_is_one_clear_error(tmp_path):
 def test_masks_from_video_step_matches_the_command(tmp_path):
     """A study with one video scene and one whose video is missing: the masks written by the
     batch step are the masks `s2p masks-from-video` writes; the other scene is reported."""
-    from video_fixtures import calibration
-    from video_fixtures import write_folder
-
     import cv2
+    from video_fixtures import calibration, write_folder
 
     calibration(tmp_path)
     write_folder(tmp_path / "frames", 16, [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)])
@@ -231,8 +229,7 @@ def test_train_fan_out_gives_the_serial_models(ray_local, tmp_path):
     """`s2p train --parallel`: camera x class x run as Ray tasks (2 cameras, a model per class,
     best of 2 runs) give the same checkpoints, byte for byte, as the serial protocol (same
     seeds, same examples, the same best run picked); no run files are left."""
-    from scene_fixtures import make_tiny_scene
-    from scene_fixtures import tiny_config
+    from scene_fixtures import make_tiny_scene, tiny_config
 
     from seg2pose.core.ray import ray_map
     from seg2pose.training.train import train_scene
@@ -258,8 +255,7 @@ def test_long_video_segments_as_ray_tasks(ray_local, tmp_path):
     """A 200-frame video cut into 2 segments by `s2p batch masks-from-video --segment-frames
     100` on Ray: the segments run as tasks of their own; the masks are those of the library's
     serial split."""
-    from video_fixtures import calibration
-    from video_fixtures import write_folder
+    from video_fixtures import calibration, write_folder
 
     from seg2pose.batch.segments import scene_masks_segmented
 

@@ -12,14 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from typer.testing import CliRunner
+from video_fixtures import calibration, single_threaded_opencv, write_folder
 
-from seg2pose.io.mots import iter_mots, read_mots
-from seg2pose.eval.mask_eval import score_masks
 from seg2pose.batch.segments import plan_scene, plan_segments, scene_masks_segmented, segment_path
+from seg2pose.eval.mask_eval import score_masks
+from seg2pose.io.mots import iter_mots, read_mots
 from seg2pose.video.video_scene import new_scene, scene_masks_from_video
-
-from video_fixtures import calibration
-from video_fixtures import single_threaded_opencv, write_folder
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 

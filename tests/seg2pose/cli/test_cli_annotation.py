@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
-
 from review_fixtures import make_scene
 from scene_fixtures import s2p
-
 
 CSV = "\n".join(["Detection ID;Type of road user;Road user ID;X (m);Y (m);Time Stamp",
                  "1;Car;3;-8;-1,5;07:30:00.000",

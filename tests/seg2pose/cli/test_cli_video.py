@@ -6,12 +6,9 @@ import sys
 
 import pytest
 from typer.testing import CliRunner
+from video_fixtures import calibration, det, rle, single_threaded_opencv, write_folder
 
 from seg2pose.io.mots import read_mots
-
-from video_fixtures import calibration, det, rle
-from video_fixtures import write_folder
-from video_fixtures import single_threaded_opencv
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 

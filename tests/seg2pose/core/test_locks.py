@@ -74,7 +74,7 @@ def test_a_pid_reused_by_a_later_process_is_not_the_holder(tmp_path):
     me = os.getpid()
     assert pid_alive(me, time.time()) and pid_alive(me)
     assert not pid_alive(me, time.time() - 10 * 86400)  # this process did not run then
-    old = (dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=10)).isoformat(timespec="seconds")
+    old = (dt.datetime.now(dt.UTC) - dt.timedelta(days=10)).isoformat(timespec="seconds")
     assert LockHolder(me, socket.gethostname(), old).gone
     assert not LockHolder(me, socket.gethostname(), "?").gone  # no time: cannot tell
     path = tmp_path / ".out.lock"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from seg2pose.cli import accuracy
-from seg2pose.eval.accuracy import SeedResult, class_ratios, ratios, read_table, summary
 from seg2pose.core.errors import S2PError
+from seg2pose.eval.accuracy import SeedResult, class_ratios, ratios, read_table, summary
 
 
 def write_table(path, errors: dict, s2pn: dict, per_class: dict | None = None):

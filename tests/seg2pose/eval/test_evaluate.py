@@ -6,8 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from seg2pose.eval.evaluate import (EvalResult, evaluate, format_table, match_poses, per_frame_errors,
-                               plot_error_vs_distance)
+from seg2pose.eval.evaluate import (
+    EvalResult,
+    evaluate,
+    format_table,
+    match_poses,
+    per_frame_errors,
+    plot_error_vs_distance,
+)
 from seg2pose.io.poses import PoseTable
 
 
@@ -153,11 +159,11 @@ def test_seen_truth_keeps_the_rows_with_a_mask_in_the_cameras(tmp_path):
     """Known answer on the tiny scene (every road user visible in every camera) after removing
     masks: camera c1 keeps the even frames of every road user but 2; c0 keeps road user 2 only.
     A truth row is seen when one of the configuration's cameras has its mask in that frame."""
+    from scene_fixtures import make_tiny_scene
+
     from seg2pose.eval.evaluate import seen_truth
     from seg2pose.io.mots import read_mots, write_mots
     from seg2pose.io.poses import read_poses
-
-    from scene_fixtures import make_tiny_scene
 
     scene = make_tiny_scene(tmp_path, frames=20, n_users=6, seed=3)
     gt = read_poses(scene.gt_path)

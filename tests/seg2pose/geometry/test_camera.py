@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera, OpenCVDistortion, Rig
 
 
 def random_camera(seed: int, distortion: bool = False) -> Camera:

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seg2pose.core.errors import InputError
-from seg2pose.geometry.ground import (BELOW_SURFACE, HIT, INVALID, POINTS_UP, GroundSurface, miss_reasons)
+from seg2pose.geometry.ground import BELOW_SURFACE, HIT, INVALID, POINTS_UP, GroundSurface, miss_reasons
 
 
 def random_ground(seed: int, n: int = 30) -> GroundSurface:

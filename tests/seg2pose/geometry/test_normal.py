@@ -9,9 +9,16 @@ from scipy.optimize import brentq
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
+from seg2pose.geometry.normal import (
+    CENTER_METHODS,
+    DEFAULT_CENTER_METHOD,
+    closer_share,
+    default_height_bisection,
+    fuse_views,
+    headings_from_tracks,
+    normal_positions,
+)
 from seg2pose.structures.masks import encode, mask_centers
-from seg2pose.geometry.normal import (CENTER_METHODS, DEFAULT_CENTER_METHOD, closer_share, default_height_bisection,
-                             fuse_views, headings_from_tracks, normal_positions)
 
 W, H = 1280, 720
 

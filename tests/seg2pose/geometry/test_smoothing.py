@@ -81,8 +81,8 @@ def test_paper_table_smooth_equals_refused_views(tmp_path):
 
     from scene_fixtures import make_tiny_scene
 
-    from seg2pose.io.poses import read_poses
     from seg2pose.eval.paper_table import paper_table, refuse_table
+    from seg2pose.io.poses import read_poses
 
     tiny = make_tiny_scene(tmp_path / "tiny")
     raw, _ = paper_table(tiny, out_dir=tmp_path / "raw", baseline_only=True, progress=False,

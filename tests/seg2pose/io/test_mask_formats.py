@@ -5,15 +5,13 @@ import json
 
 import numpy as np
 import pytest
+from io_fixtures import RLE, H, W, masks_table, same_masks, write
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.coco import read_coco, write_coco
 from seg2pose.io.mots import iter_mots, read_mots, write_mots
 from seg2pose.io.png import read_png_folder, write_png_folder
 from seg2pose.structures.masks import decode
-
-from io_fixtures import RLE, H, W, masks_table, same_masks, write
-
 
 # --- round trips ---------------------------------------------------------------------------------
 
@@ -68,7 +66,7 @@ def test_png_rejects_untracked(tmp_path):
 
 
 @pytest.mark.parametrize("text,match", [
-    (f"0 1 1 2 3\n", r"m.txt:1: expected 6 fields"),
+    ("0 1 1 2 3\n", r"m.txt:1: expected 6 fields"),
     (f"0 1 1 2 3 {RLE}\n0 1 1 2 4 {RLE}\n", r"m.txt:2: image size 2x4 differs"),
     (f"0 1 1 2 3 {RLE}\n0 1 1 3 3 {RLE}\n", r"m.txt:2: image size 3x3 differs"),
     (f"0 1 1 4 3 {RLE}\n", r"m.txt:1: RLE covers 6 pixels but height\*width = 12"),

@@ -3,12 +3,10 @@
 
 import numpy as np
 import pytest
+from io_fixtures import write
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
-
-from io_fixtures import write
-
 
 
 def test_poses_round_trip_exact(tmp_path):

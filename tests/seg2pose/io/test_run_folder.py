@@ -14,8 +14,7 @@ import pytest
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.poses import PoseTable
-from seg2pose.io.run import (ViewTable, format_views, read_run, read_views, relative_path,
-                             run_lock, write_run_folder)
+from seg2pose.io.run import ViewTable, format_views, read_run, read_views, relative_path, run_lock, write_run_folder
 
 
 def views(n: int = 5, seed: int = 0) -> ViewTable:

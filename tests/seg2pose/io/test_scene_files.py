@@ -4,11 +4,10 @@ import json
 
 import numpy as np
 import pytest
+from io_fixtures import make_scene, write
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.scene import load_scene, read_ground_points
-
-from io_fixtures import make_scene, write
 
 
 def test_scene_round_trip(tmp_path):

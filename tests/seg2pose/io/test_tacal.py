@@ -8,10 +8,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from seg2pose.geometry.camera import Camera, TsaiDistortion
 from seg2pose.core.errors import InputError
-from seg2pose.io.tacal import (TACAL_FIELDS, Tacal, camera_to_tacal, format_tacal, parse_tacal,
-                               read_tacal, tacal_to_camera, write_tacal)
+from seg2pose.geometry.camera import Camera, TsaiDistortion
+from seg2pose.io.tacal import (
+    TACAL_FIELDS,
+    Tacal,
+    camera_to_tacal,
+    format_tacal,
+    parse_tacal,
+    read_tacal,
+    tacal_to_camera,
+    write_tacal,
+)
 
 # the camera looks along world +y: camera x = world x, camera y = -world z, camera z = world y
 R_Y = [1, 0, 0, 0, 0, -1, 0, 1, 0]

@@ -6,9 +6,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seg2pose.core.errors import InputError
-from seg2pose.io.tanalyst import (TAnalystTable, format_tanalyst, format_time, frames_to_times,
-                                  parse_tanalyst, parse_time, read_tanalyst, times_to_frames,
-                                  write_tanalyst)
+from seg2pose.io.tanalyst import (
+    TAnalystTable,
+    format_tanalyst,
+    format_time,
+    frames_to_times,
+    parse_tanalyst,
+    parse_time,
+    read_tanalyst,
+    times_to_frames,
+    write_tanalyst,
+)
 
 HEADER = "Detection ID;Type of road user;Road user ID;X (m);Y (m);Time Stamp"
 SAMPLE = "\n".join([HEADER,

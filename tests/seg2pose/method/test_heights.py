@@ -11,7 +11,6 @@ from seg2pose.io.scene import ClassSpec, Scene, load_scene
 from seg2pose.structures.masks import encode
 
 
-
 def test_heights_bisection_writes_scene_json(tmp_path):
     """A camera over flat ground; pedestrians and cars as exact box masks; ``s2p heights``
     moves the default heights so that about half the normal positions are closer."""

@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 from seg2pose.geometry.camera import Camera
 from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
-from seg2pose.structures.masks import encode, rle_contains
 from seg2pose.method.matching import candidate_pairs, match_masks_to_truth, truth_points
+from seg2pose.structures.masks import encode, rle_contains
 
 H, W = 120, 160
 CAM = Camera.look_at("c", center=[0, -20, 10], target=[0, 0, 0], f=150.0, width=W, height=H)

@@ -11,8 +11,8 @@ from torch import nn
 
 from seg2pose.core.errors import InputError
 from seg2pose.method.checkpoint import Checkpoint
-from seg2pose.structures.masks import downsample_crops
 from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, make_net
+from seg2pose.structures.masks import downsample_crops
 
 
 def _shapes(net: Seg2PoseNet, size: int, n_vec: int) -> dict[str, list[tuple]]:
@@ -163,9 +163,7 @@ def test_radial_offset_is_subtracted_along_the_viewing_direction():
 def test_lite_hr_shapes_and_centre_cut_of_pipeline_crops():
     """lite-hr: the lite trunk on a full-resolution 140x140 crop; Checkpoint.predict cuts it
     from the centre of the pipeline's 420 crops, which equals cropping at 140 directly."""
-    from seg2pose.structures.masks import crop_runs
-    from seg2pose.structures.masks import encode, mask_centers
-    from seg2pose.structures.masks import center_cut
+    from seg2pose.structures.masks import center_cut, crop_runs, encode, mask_centers
 
     net = make_net("lite-hr", n_classes=3)
     assert net.cfg.arch == "lite-hr" and net.cfg.crop == 140 and net.cfg.downsample == 1

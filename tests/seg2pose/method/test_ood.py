@@ -7,10 +7,9 @@ import json
 
 import numpy as np
 import pytest
+from scene_fixtures import tiny_config, tiny_train_scene
 
 from seg2pose.method.ood import flag_far, flagged_poses, residual_limits
-
-from scene_fixtures import tiny_config, tiny_train_scene
 
 tiny = pytest.fixture(scope="module")(tiny_train_scene)
 
@@ -39,9 +38,9 @@ def test_flags_only_residuals_beyond_their_class_limit():
 def test_a_run_lists_warns_and_falls_back_on_far_residuals(tiny, tmp_path, fake_rough):  # noqa: F811
     from typer.testing import CliRunner
 
-    from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.cli import app
     from seg2pose.io.run import read_run_poses, read_views
+    from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.training.train import train_scene
 

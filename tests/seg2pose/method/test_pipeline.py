@@ -7,15 +7,15 @@ import json
 
 import numpy as np
 import pytest
+from scene_fixtures import SIZES, make_tiny_scene
 
 from seg2pose.core.errors import InputError, S2PError
+from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.mots import read_mots
 from seg2pose.io.poses import PoseTable, read_poses, write_poses
 from seg2pose.io.scene import Scene
 from seg2pose.structures.masks import mask_centers
-from seg2pose.geometry.normal import normal_positions
 
-from scene_fixtures import SIZES, make_tiny_scene
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Scene:

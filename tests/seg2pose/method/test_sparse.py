@@ -15,13 +15,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.method import sparse
-from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
-from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
+from seg2pose.method import sparse
+from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet, make_net
 from seg2pose.method.sparse import SparseSeg2PoseNet, crop_boxes, sparse_of
+from seg2pose.structures.masks import center_cut, crop_runs, downsample_crops, encode, mask_centers
 from seg2pose.synth.generate import SynthOptions, generate_scene
 from seg2pose.synth.rough import render_rough_examples
 

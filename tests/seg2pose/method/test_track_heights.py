@@ -8,8 +8,13 @@ from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.run import ViewTable
-from seg2pose.method.track_heights import (TrackHeightSettings, apply_track_heights, directions_at,
-                                           fit_offsets, fit_offsets_loop, height_directions)
+from seg2pose.method.track_heights import (
+    TrackHeightSettings,
+    apply_track_heights,
+    fit_offsets,
+    fit_offsets_loop,
+    height_directions,
+)
 
 W, H = 1280, 720
 FLAT = GroundSurface(np.array([(x, y, 0.0) for x in range(-60, 61, 10) for y in range(-20, 81, 10)], float))
@@ -139,6 +144,7 @@ def test_run_records_the_heights_and_its_views_fuse_to_its_poses(tmp_path, monke
     # the run's views.csv again gives its poses.csv (the correction lives in the views). The
     # tiny scene's lenses share a pole: a weak prior, so that views do move
     from scene_fixtures import make_tiny_scene
+
     from seg2pose.method import track_heights as th
     monkeypatch.setattr(th, "DEFAULT_SETTINGS", TrackHeightSettings(prior=1e-3))
     from seg2pose.io.poses import read_poses

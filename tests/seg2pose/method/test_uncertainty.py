@@ -15,8 +15,7 @@ from seg2pose.core.errors import InputError
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 from seg2pose.io.run import ViewTable, format_views, read_views
 from seg2pose.method.r90_features import POSE_FEATURES, VIEW_FEATURES, pose_features
-from seg2pose.method.uncertainty import (Calibration, StageModel, fit_quantile, r90_scores,
-                                         read_calibration)
+from seg2pose.method.uncertainty import Calibration, StageModel, fit_quantile, r90_scores, read_calibration
 
 
 def test_quantile_of_a_constant_model_is_the_sample_quantile():
@@ -192,12 +191,11 @@ def test_mcap_records_carry_r90():
 def test_run_calibrate_run_eval_on_a_tiny_scene(tmp_path):
     """The user's path: a baseline run of the val split, s2p calibrate, a run of the test
     split that carries r90_m in both files, and eval's coverage."""
-    from tests.scene_fixtures import make_tiny_scene
-
-    from seg2pose.io.run import read_run
     from seg2pose.eval.paper_table import evaluate_run
+    from seg2pose.io.run import read_run
     from seg2pose.method.pipeline import RunOptions, default_r90_path, run_scene
     from seg2pose.method.r90_calibrate import calibrate_run
+    from tests.scene_fixtures import make_tiny_scene
 
     scene = make_tiny_scene(tmp_path / "s", frames=40, n_users=9)
     run_scene(scene, tmp_path / "val", RunOptions(baseline=True, split="val", progress=False))
@@ -244,10 +242,9 @@ def test_view_columns_by_hand():
     from types import SimpleNamespace
 
     from seg2pose.geometry.camera import Camera
+    from seg2pose.geometry.ground import GroundSurface
     from seg2pose.io.run import ViewTable
     from seg2pose.method.r90_features import view_columns
-
-    from seg2pose.geometry.ground import GroundSurface
 
     cam = Camera.look_at("c0", np.array([0.0, 0.0, 10.0]), np.array([20.0, 0.0, 0.0]), f=500.0,
                          width=640, height=480)
@@ -411,10 +408,9 @@ def test_calibrate_on_several_runs_and_scenes(tmp_path):
     """s2p calibrate --run A --run B: two splits of one scene and a run of another scene (read
     against the truth its run.json names) make one calibration; its fitted_on lists the three;
     a run of another method is refused."""
-    from tests.scene_fixtures import make_tiny_scene
-
     from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.method.r90_calibrate import calibrate_run
+    from tests.scene_fixtures import make_tiny_scene
 
     a = make_tiny_scene(tmp_path / "a", frames=40, n_users=9)
     b = make_tiny_scene(tmp_path / "b", frames=40, n_users=9, seed=1)

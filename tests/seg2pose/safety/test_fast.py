@@ -6,17 +6,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seg2pose.safety import encounters
-from seg2pose.safety.conflicts import ConflictOptions, RowData, analyse, apart_rows, pair_frames
+from seg2pose.safety.conflicts import ConflictOptions, RowData, analyse, pair_frames
 from seg2pose.safety.encounters import class_rows, frame_pairs, near_pairs
 from seg2pose.safety.footprints import Footprints, overlap_interval, overlaps
 from seg2pose.safety.kinematics import _slope_rows, motion, slope
 from seg2pose.safety.pet import PetOptions, overlapping_rows
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc, ttc_rows
-
 from tests.seg2pose.safety.test_safety import FPS, road_user
 from tests.seg2pose.safety.test_stream import traffic
 
@@ -209,7 +209,6 @@ def test_pet_interval_without_noise_is_the_tables_pet(case):
     """The draws' PET is searched over the whole encounter as the table's is: with no pose
     error (r90 = 0) every draw is the tracks themselves, so the interval is the table's PET."""
     from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
-
     from tests.seg2pose.safety.test_safety import crossing, follower, turning_car_and_pedestrian
 
     tr = {"follower": follower, "crossing": crossing,

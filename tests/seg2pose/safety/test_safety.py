@@ -7,7 +7,8 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seg2pose.safety.conflicts import ConflictOptions, analyse, format_conflicts
 from seg2pose.safety.footprints import overlaps

@@ -9,7 +9,6 @@ import pytest
 
 from seg2pose.safety.conflicts import ConflictOptions, analyse, format_conflicts
 from seg2pose.safety.tracks import Tracks
-
 from tests.seg2pose.safety.test_safety import FPS, crossing, follower
 
 WHOLE = np.inf  # one chunk: the whole recording

@@ -7,8 +7,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seg2pose.core.errors import InputError
-from seg2pose.structures.masks import (crop_masks, decode, decode_counts, encode, iou, mask_centers,
-                            merge_bicyclists, rle_stats)
+from seg2pose.structures.masks import (
+    crop_masks,
+    decode,
+    decode_counts,
+    encode,
+    iou,
+    mask_centers,
+    merge_bicyclists,
+    rle_stats,
+)
 
 
 def runs_of(mask: np.ndarray) -> list[int]:

@@ -9,17 +9,28 @@ import json
 import cv2
 import numpy as np
 import pytest
+from video_fixtures import single_threaded_opencv
 
 from seg2pose.core.errors import InputError
-from seg2pose.synth.look import (PATCHES, PLAIN, STRIPES, SUN_MIN, BodyTextures, Cloud, draw_clouds,
-                                 draw_textures, exposure_gain, ground_light, look_named,
-                                 sun_strength, texture_values)
+from seg2pose.synth.look import (
+    PATCHES,
+    PLAIN,
+    STRIPES,
+    SUN_MIN,
+    BodyTextures,
+    Cloud,
+    draw_clouds,
+    draw_textures,
+    exposure_gain,
+    ground_light,
+    look_named,
+    sun_strength,
+    texture_values,
+)
 from seg2pose.synth.rig import make_device
 from seg2pose.synth.shapes import hexa
 from seg2pose.synth.video import background, render_frame
 from seg2pose.synth.world import World
-
-from video_fixtures import single_threaded_opencv
 
 # OpenCV's worker pool, once started here, hangs synth's forked workers in later tests
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)

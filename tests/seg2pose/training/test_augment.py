@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from seg2pose.training.augment import AugmentConfig, augment_masks
 from seg2pose.structures.masks import decode, encode, rle_stats
+from seg2pose.training.augment import AugmentConfig, augment_masks
 
 H, W = 120, 160
 
@@ -49,13 +49,13 @@ def test_untouched_and_too_small_masks_are_not_kept():
 def test_augmented_examples_keep_the_truth():
     """normal + target == truth for every example, augmented or not, and the augmented copies'
     targets differ from their originals' (the cut moved the normal position)."""
-    from scene_fixtures import make_tiny_scene
-
     import tempfile
     from pathlib import Path
 
-    from seg2pose.training.examples import annotated_examples
+    from scene_fixtures import make_tiny_scene
+
     from seg2pose.io.poses import read_poses
+    from seg2pose.training.examples import annotated_examples
 
     with tempfile.TemporaryDirectory() as d:
         scene = make_tiny_scene(Path(d), frames=12, n_users=5, seed=2)

@@ -9,7 +9,6 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from scene_fixtures import make_tiny_scene
 
 from seg2pose.core import say as say_mod

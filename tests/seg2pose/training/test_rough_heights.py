@@ -2,10 +2,10 @@
 
 import pytest
 
-from seg2pose.method.heights import update_default_heights
 from seg2pose.io.scene import load_scene
-from seg2pose.training.rough_heights import rough_height_views
+from seg2pose.method.heights import update_default_heights
 from seg2pose.synth.generate import SynthOptions, generate_scene
+from seg2pose.training.rough_heights import rough_height_views
 
 
 def test_rough_heights_are_close_to_the_annotated_ones(tmp_path):

@@ -7,15 +7,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-
-from seg2pose.structures.masks import decode
-from seg2pose.training.rough_video import VideoLook, render_video_examples, video_look
-from seg2pose.synth.raster import fill_parts, project_parts
-from seg2pose.synth.rough import place, rough_model
-from seg2pose.video.video_masks import BgConfig
-
 from scene_fixtures import make_tiny_scene
 from video_fixtures import single_threaded_opencv
+
+from seg2pose.structures.masks import decode
+from seg2pose.synth.raster import fill_parts, project_parts
+from seg2pose.synth.rough import place, rough_model
+from seg2pose.training.rough_video import VideoLook, render_video_examples, video_look
+from seg2pose.video.video_masks import BgConfig
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 

@@ -10,11 +10,10 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from scene_fixtures import make_tiny_scene, s2p, tiny_config
 
 from seg2pose.core.errors import S2PError
 from seg2pose.io.run import ViewTable
-
-from scene_fixtures import make_tiny_scene, s2p, tiny_config
 
 
 def _views(frames, tids, cams, xy) -> ViewTable:

@@ -9,19 +9,18 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from scene_fixtures import make_tiny_scene, s2p, tiny_config, tiny_train_scene
 
 from seg2pose.core.errors import S2PError
-
-from scene_fixtures import make_tiny_scene, s2p, tiny_config, tiny_train_scene
 
 tiny = pytest.fixture(scope="module")(tiny_train_scene)
 
 
 def _val_loss_untrained(scene, cam):
     """Validation loss of a freshly initialised net (seed 0), computed like train.py does."""
-    from seg2pose.training.examples import annotated_examples
     from seg2pose.io.poses import read_poses
     from seg2pose.method.net import NetConfig, Normalisation, Seg2PoseNet
+    from seg2pose.training.examples import annotated_examples
     from seg2pose.training.train import TrainData, _evaluate
 
     torch.manual_seed(0)
@@ -124,9 +123,9 @@ def test_no_ground_truth_needs_zero_annotation(tmp_path, fake_rough):
 def test_trained_models_in_pipeline(tiny, tmp_path, fake_rough):
     """Per-class models (the paper's layout) for one camera run through `s2p run`; views.csv
     holds the residuals, and poses = normal position + residual (one view)."""
+    from seg2pose.io.poses import read_poses
     from seg2pose.io.run import read_views
     from seg2pose.method.pipeline import RunOptions, run_scene
-    from seg2pose.io.poses import read_poses
     from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(share_classes=False, epochs=1,
@@ -151,13 +150,13 @@ def test_geometry_model_trains_and_runs_with_the_same_features(tiny, tmp_path, f
     """--geometry: the net's vector gains the 14 mask-geometry features; the pipeline computes
     them for each detection exactly as the training examples had them (same mask -> same
     features), and a geometry model refuses to predict without them."""
-    from seg2pose.training.examples import annotated_examples
-    from seg2pose.method.features import N_GEO, scene_geometry
     from seg2pose.io.mots import read_mots
     from seg2pose.io.poses import read_poses
-    from seg2pose.method.checkpoint import Checkpoint
     from seg2pose.io.run import read_views
+    from seg2pose.method.checkpoint import Checkpoint
+    from seg2pose.method.features import N_GEO, scene_geometry
     from seg2pose.method.pipeline import RunOptions, run_scene
+    from seg2pose.training.examples import annotated_examples
     from seg2pose.training.train import train_scene
 
     out = train_scene(tiny, tmp_path / "m", tiny_config(geometry=True, epochs=2), cameras=["c1"],

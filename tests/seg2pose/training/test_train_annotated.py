@@ -3,10 +3,10 @@ keyframes only on request (masks are matched against every annotated row first, 
 skipped row never lends its mask to a neighbour)."""
 
 import numpy as np
-
-from seg2pose.training.examples import annotated_examples
-from seg2pose.io.poses import PoseTable, read_poses
 from review_fixtures import make_scene
+
+from seg2pose.io.poses import PoseTable, read_poses
+from seg2pose.training.examples import annotated_examples
 
 
 def test_sources_select_the_examples(tmp_path):

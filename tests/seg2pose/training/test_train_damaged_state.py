@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from scene_fixtures import tiny_config, tiny_train_scene
 
 tiny = pytest.fixture(scope="module")(tiny_train_scene)

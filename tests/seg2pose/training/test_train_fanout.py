@@ -10,8 +10,7 @@ from seg2pose.training.train_fanout import run_path
 
 
 def test_fan_out_resumes_and_matches_serial(tmp_path, monkeypatch):
-    from scene_fixtures import make_tiny_scene
-    from scene_fixtures import tiny_config
+    from scene_fixtures import make_tiny_scene, tiny_config
 
     import seg2pose.training.train as train
     from seg2pose.training.train import train_scene

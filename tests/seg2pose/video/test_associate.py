@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from seg2pose.core.errors import InputError
-from seg2pose.video.associate import (AssociateConfig, CameraViews, associate, majority_class,
-                                      position_spread)
+from seg2pose.video.associate import AssociateConfig, CameraViews, associate, majority_class, position_spread
 
 F = np.arange(100)
 

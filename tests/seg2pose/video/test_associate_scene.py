@@ -8,13 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.core.errors import S2PError
+from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene, load_scene
 from seg2pose.io.track_ids import ids_status, mark_ids, read_ids
-from seg2pose.structures.masks import encode
 from seg2pose.method.pipeline import RunOptions, run_scene
+from seg2pose.structures.masks import encode
 from seg2pose.video.associate_scene import associate_scene
 
 W, H, N = 320, 240, 30
@@ -76,8 +76,6 @@ def test_merged_blob_is_split_by_the_other_cameras(tmp_path):
     assert len(ids_b) == 2 and {int(t) for t in c.track_id} == ids_b == {int(t) for t in a.track_id}
     # each of a's parts is where b's mask of the same id says: the nearer walker (y = -1)
     # reaches lower in a's image
-    from seg2pose.structures.masks import rle_stats
-
     from seg2pose.structures.masks import iou, rle_stats
 
     cams = cameras()

@@ -5,18 +5,28 @@ rendered rectangles (cut by the border, touching it, moving fast)."""
 import numpy as np
 import pytest
 from scipy import integrate, stats
+from video_fixtures import upright_box
 
 import seg2pose.video.classify as C
-from seg2pose.geometry.camera import Camera
-from seg2pose.video.classify import (CUT_BOTTOM, CUT_SIDE, CUT_TOP, border_cuts, classify_mots,
-                               classify_sizes, size_loglik, size_rules, track_classes,
-                               track_speeds, world_sizes)
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
 from seg2pose.io.scene import ClassSpec
 from seg2pose.structures.masks import encode
-from video_fixtures import upright_box
+from seg2pose.video.classify import (
+    CUT_BOTTOM,
+    CUT_SIDE,
+    CUT_TOP,
+    border_cuts,
+    classify_mots,
+    classify_sizes,
+    size_loglik,
+    size_rules,
+    track_classes,
+    track_speeds,
+    world_sizes,
+)
 
 H, W = 720, 1280
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]

@@ -5,6 +5,7 @@ never touch and pieces seen too briefly stay apart."""
 
 import numpy as np
 import pytest
+from video_fixtures import upright_box
 
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
@@ -14,7 +15,6 @@ from seg2pose.structures.masks import decode, encode
 from seg2pose.video.classify import size_rules
 from seg2pose.video.fragments import find_joins, join_fragments
 from seg2pose.video.track import TrackConfig
-from video_fixtures import upright_box
 
 H, W, FPS = 720, 1280, 10.0
 CLASSES = [ClassSpec(1, "pedestrian", 0.9), ClassSpec(2, "bicyclist", 0.9), ClassSpec(3, "car", 0.75)]

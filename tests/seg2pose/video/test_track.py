@@ -5,11 +5,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seg2pose.geometry.camera import Camera
 from seg2pose.core.errors import InputError
+from seg2pose.eval.mask_eval import score_masks
+from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, read_mots, write_mots
-from seg2pose.eval.mask_eval import score_masks
 from seg2pose.structures.masks import encode
 from seg2pose.video.track import TrackConfig, Tracker, track_mots, track_table, world_positions
 

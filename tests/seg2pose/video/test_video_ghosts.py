@@ -3,13 +3,12 @@ their ghosts, and dark bodies that OpenCV's shadow test takes for shadows."""
 
 import numpy as np
 import pytest
+from video_fixtures import single_threaded_opencv
 
 from seg2pose.io.mots import read_mots
 from seg2pose.structures.masks import decode
 from seg2pose.video.bg_checks import ghost_mask
 from seg2pose.video.video_masks import BgConfig, masks_from_video
-
-from video_fixtures import single_threaded_opencv
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 

@@ -5,16 +5,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pycocotools import mask as mask_util
+from video_fixtures import H, W, single_threaded_opencv, truth_mask, write_folder, write_video
 
-from seg2pose.geometry.camera import Camera
 from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import Camera
 from seg2pose.io.mots import read_mots
 from seg2pose.io.video import FrameReader
 from seg2pose.structures.masks import decode
 from seg2pose.video.video_masks import BgConfig, labels_to_rles, masks_from_video
-
-from video_fixtures import H, W, truth_mask, write_folder, write_video
-from video_fixtures import single_threaded_opencv
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
@@ -203,8 +201,9 @@ def test_a_cloud_is_scaled_away_and_the_road_users_stay(tmp_path):
 def test_exposure_ratio_is_the_grounds():
     """The median ratio over the ground: a quarter of the frame covered by a bright road user
     does not move it; saturated background is left out."""
-    from seg2pose.video.bg_checks import exposure_ratio
     from video_fixtures import background
+
+    from seg2pose.video.bg_checks import exposure_ratio
 
     bg = background(3)
     grey = cv2_grey(bg)

@@ -4,16 +4,14 @@ import json
 
 import numpy as np
 import pytest
+from video_fixtures import H, W, calibration, det, rle, single_threaded_opencv, write_folder
 
-from seg2pose.video.detections import DetectionConfig, import_detections
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.mots import read_mots
 from seg2pose.io.scene import load_scene
 from seg2pose.structures.masks import decode
+from seg2pose.video.detections import DetectionConfig, import_detections
 from seg2pose.video.video_scene import new_scene, read_calibration, scene_import_detections, scene_masks_from_video
-
-from video_fixtures import H, W, calibration, det, rle, write_folder
-from video_fixtures import single_threaded_opencv
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
@@ -100,8 +98,9 @@ def test_calibration_files(tmp_path):
 
 
 def test_utocs_single_camera_finds_any_video(tmp_path):
-    from seg2pose.io.utocs import import_utocs
     from video_fixtures import write_video
+
+    from seg2pose.io.utocs import import_utocs
 
     src = tmp_path / "rec"
     (src / "positions").mkdir(parents=True)
