@@ -97,9 +97,9 @@ def batch_cmd(
     """Run steps over every scene of a study folder, in parallel with Ray.
 
     Steps: masks-from-video (long videos cut into segments, --segment-frames), run (--baseline
-    or --models), eval, export (MCAP), review (SCENE/batch/RUN.rrd). Each scene's files are written as the single-scene command writes
-    them; complete steps are skipped on a re-run; a bad scene is reported and the others go
-    on. Writes STUDY/summary.json and prints a table."""
+    or --models), eval, export (MCAP), review (SCENE/batch/RUN.rrd). Each scene's files are
+    written as the single-scene command writes them; complete steps are skipped on a re-run; a
+    bad scene is reported and the others go on. Writes STUDY/summary.json and prints a table."""
     bad = [s for s in steps if s not in STEPS]
     if bad:
         raise InputError(f"unknown step {bad[0]!r}; expected some of {', '.join(ORDER)}", field="STEP")

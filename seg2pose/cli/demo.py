@@ -175,7 +175,9 @@ def register(app: typer.Typer) -> None:
 
 def demo(
     scene: Path = typer.Option(DEMO_SCENE, "--scene", help="where the demo's synthetic scene goes"),
-    out: Path = typer.Option(SAMPLE_LOGS, "-o", "--out", help="where the sample recording (demo.rrd) and export (demo.mcap) go"),
+    out: Path = typer.Option(
+        SAMPLE_LOGS, "-o", "--out", help="where the sample recording (demo.rrd) and export (demo.mcap) go",
+    ),
     seed: int = typer.Option(0, "--seed", help="seed of the synthetic scene"),
     retrain: bool = typer.Option(False, "--retrain/--no-retrain", help=(
         "instead of the shipped models (the held-out protocol's, trained by the project on "

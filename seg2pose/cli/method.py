@@ -40,21 +40,52 @@ MODELS_HELP = ("folder of trained models (default: SCENE/models); repeat it to a
 def run_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     out: Path = typer.Option(..., "-o", "--out", help="run folder to write"),
-    config: str | None = typer.Option(None, "-c", "--config", help="camera configuration, e.g. tri-T (default: all cameras)"),
-    baseline: bool = typer.Option(False, "--baseline/--no-baseline", help="normal positions only, without the network (the paper's baseline)"),
+    config: str | None = typer.Option(
+        None, "-c", "--config", help="camera configuration, e.g. tri-T (default: all cameras)",
+    ),
+    baseline: bool = typer.Option(
+        False, "--baseline/--no-baseline", help="normal positions only, without the network (the paper's baseline)",
+    ),
     models: list[Path] | None = typer.Option(None, "--models", help=MODELS_HELP),
     split: str | None = typer.Option(None, "--split", help="only this split's frames (train, val or test)"),
-    center: Center = typer.Option("bbox", "--center", help="mask centre: bbox (the paper's section 5, measured best) or centroid (section 3.2)"),
+    center: Center = typer.Option(
+        "bbox", "--center", help="mask centre: bbox (the paper's section 5, measured best) or centroid (section 3.2)",
+    ),
     smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP),
     arch: Arch | None = typer.Option(None, "--arch", help="refuse models of another architecture"),
-    device: str | None = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
+    device: str | None = typer.Option(
+        None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)",
+    ),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
-    allow_incomplete: bool = typer.Option(False, "--allow-incomplete/--no-allow-incomplete", help="use models whose training was interrupted (refused otherwise)"),
-    far_residuals: Literal["warn", "fallback", "off"] = typer.Option("warn", "--far-residuals", help="when the network moves a position further than it ever did in training (99th percentile of its training residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for them) or off"),
-    r90: Path | None = typer.Option(None, "--r90", help="calibration of the error bars r90_m (made by s2p calibrate; default: MODELS/r90.json, or SCENE/r90-baseline.json for --baseline, where it exists; without one r90_m is nan)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)"),
-    confirm: float | None = typer.Option(None, "--confirm", min=0.0, max=1.0, help="keep a fused pose only when at least this share of the configuration's cameras that see its place report it (default 0.5 for associated ids, else 0: off)"),
-    fuse_unassociated: bool = typer.Option(False, "--fuse-unassociated", help="fuse cameras whose track ids are each camera's own tracker's (refused otherwise: run s2p associate first)"),
+    allow_incomplete: bool = typer.Option(
+        False, "--allow-incomplete/--no-allow-incomplete",
+        help="use models whose training was interrupted (refused otherwise)",
+    ),
+    far_residuals: Literal["warn", "fallback", "off"] = typer.Option(
+        "warn", "--far-residuals",
+        help="when the network moves a position further than it ever did in training (99th percentile of its training "
+             "residuals): warn (count them, list them in RUN/flagged.csv), fallback (also keep the normal position for "
+             "them) or off",
+    ),
+    r90: Path | None = typer.Option(
+        None, "--r90",
+        help="calibration of the error bars r90_m (made by s2p calibrate; default: MODELS/r90.json, or "
+             "SCENE/r90-baseline.json for --baseline, where it exists; without one r90_m is nan)",
+    ),
+    force: bool = typer.Option(
+        False, "--force",
+        help="replace an existing run folder entirely (the new run is written beside it and swapped in when complete)",
+    ),
+    confirm: float | None = typer.Option(
+        None, "--confirm", min=0.0, max=1.0,
+        help="keep a fused pose only when at least this share of the configuration's cameras that see its place report "
+             "it (default 0.5 for associated ids, else 0: off)",
+    ),
+    fuse_unassociated: bool = typer.Option(
+        False, "--fuse-unassociated",
+        help="fuse cameras whose track ids are each camera's own tracker's "
+             "(refused otherwise: run s2p associate first)",
+    ),
     track_heights: bool = typer.Option(False, "--track-heights/--no-track-heights", help=TRACK_HEIGHTS_HELP),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
@@ -91,34 +122,98 @@ def run_cmd(
 def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder (with ground truth, unless --zero-annotation)"),
     out: Path | None = typer.Option(None, "-o", "--out", help="model folder (default: SCENE/models)"),
-    protocol: Protocol = typer.Option("paper", "--protocol", help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; long: quick for twice as long with a quarter of each batch rough, for a thousand or more annotated frames per split (bench preset, held out: 0.37x the baseline where quick gives 0.45x; little gain on the wide preset's vans, trucks and buses; docs/RESULTS.md); demo: the demo's shortest one"),
-    arch: Arch | None = typer.Option(None, "--arch", help="network: paper (Figure 3), lite (crop / 3, for CPUs) or lite-hr (full-resolution 140 px crop)"),
-    zero_annotation: bool = typer.Option(False, "--zero-annotation/--no-zero-annotation", help="train on rough models only (no ground truth needed)"),
-    rough_noise: bool | None = typer.Option(None, "--rough-noise/--no-rough-noise", help="make rough-model masks detector-like (coarse 28x28 outlines, 1 px wider)"),
-    camera: list[str] | None = typer.Option(None, "--camera", help="train only for this camera (repeatable; default: all)"),
+    protocol: Protocol = typer.Option(
+        "paper", "--protocol",
+        help="paper: best of four, 50 epochs (section 4.1, for a GPU); quick: the measured CPU protocol, minutes; "
+             "long: quick for twice as long with a quarter of each batch rough, for a thousand or more annotated "
+             "frames per split (bench preset, held out: 0.37x the baseline where quick gives 0.45x; little gain on the "
+             "wide preset's vans, trucks and buses; docs/RESULTS.md); demo: the demo's shortest one",
+    ),
+    arch: Arch | None = typer.Option(
+        None, "--arch",
+        help="network: paper (Figure 3), lite (crop / 3, for CPUs) or lite-hr (full-resolution 140 px crop)",
+    ),
+    zero_annotation: bool = typer.Option(
+        False, "--zero-annotation/--no-zero-annotation", help="train on rough models only (no ground truth needed)",
+    ),
+    rough_noise: bool | None = typer.Option(
+        None, "--rough-noise/--no-rough-noise",
+        help="make rough-model masks detector-like (coarse 28x28 outlines, 1 px wider)",
+    ),
+    camera: list[str] | None = typer.Option(
+        None, "--camera", help="train only for this camera (repeatable; default: all)",
+    ),
     cls: list[str] | None = typer.Option(None, "--class", help="train only for this class (repeatable; default: all)"),
     epochs: int | None = typer.Option(None, "--epochs", min=1, help="epochs per run"),
     runs: int | None = typer.Option(None, "--runs", min=1, help="best of this many runs (the paper: 4)"),
     batches: int | None = typer.Option(None, "--batches", min=1, help="batches per epoch (the paper: 64)"),
     lr: float | None = typer.Option(None, "--lr", help="learning rate (the paper: 5e-5)"),
     rough: int | None = typer.Option(None, "--rough", help="rough-model examples per camera and class"),
-    rough_video: bool | None = typer.Option(None, "--rough-video/--no-rough-video", help="film the rough models over the video's background and pass them through the same background subtraction as the masks (default: off; on synthetic video it measured worse than clean rough models, docs/RESULTS.md)"),
-    rough_occlusion: float | None = typer.Option(None, "--rough-occlusion", help="share of rough-model examples partly hidden by a rough car or pedestrian in front"),
-    rough_random: bool | None = typer.Option(None, "--rough-random/--no-rough-random", help="randomised rough models: each one's length, width and height drawn from ranges per class (cars 3.5-6 m long, 1.35-2.4 m high; pedestrians 1.1-2.0 m; bicyclists 1.5-2.3 m long), not one box per class (not measured yet on this CPU, docs/RESULTS.md)"),
-    rough_every: int | None = typer.Option(None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)"),
-    share_classes: bool | None = typer.Option(None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input"),
-    share_cameras: bool | None = typer.Option(None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)"),
-    geometry: bool | None = typer.Option(None, "--geometry/--no-geometry", help="also give the network exact mask-geometry cues: box size, foot and top points, expected height, cuts at the image border"),
-    self_train: str | None = typer.Option(None, "--self-train", help="with --zero-annotation: after the rough-only models (kept in OUT/rough-stage), make pseudo poses from the scene's own unlabelled train split and fine-tune on them. track: each lens's estimates smoothed along its tracks; fused: the lenses' estimates fused and smoothed along the tracks; views: the same at per-track heights from the lenses' disagreement (docs/RESULTS.md)"),
-    self_epochs: int | None = typer.Option(None, "--self-epochs", min=1, help="epochs of the self-training's fine-tuning (default 10)"),
-    keyframes_only: bool = typer.Option(False, "--keyframes-only/--interpolated", help="annotated scenes: train only on the annotator's keyframes, or also on the interpolated frames between them (occluded frames are never used)"),
-    augment: int | None = typer.Option(None, "--augment", help="K changed copies of every annotated training mask (occlusion cuts, 1 px outline changes; labels stay exact)"),
-    device: str | None = typer.Option(None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)"),
+    rough_video: bool | None = typer.Option(
+        None, "--rough-video/--no-rough-video",
+        help="film the rough models over the video's background and pass them through the same background subtraction "
+             "as the masks (default: off; on synthetic video it measured worse than clean rough models, "
+             "docs/RESULTS.md)",
+    ),
+    rough_occlusion: float | None = typer.Option(
+        None, "--rough-occlusion",
+        help="share of rough-model examples partly hidden by a rough car or pedestrian in front",
+    ),
+    rough_random: bool | None = typer.Option(
+        None, "--rough-random/--no-rough-random",
+        help="randomised rough models: each one's length, width and height drawn from ranges per class (cars 3.5-6 m "
+             "long, 1.35-2.4 m high; pedestrians 1.1-2.0 m; bicyclists 1.5-2.3 m long), not one box per class (not "
+             "measured yet on this CPU, docs/RESULTS.md)",
+    ),
+    rough_every: int | None = typer.Option(
+        None, "--rough-every", help="every K-th training example is a rough model (the paper: 4; 0: none)",
+    ),
+    share_classes: bool | None = typer.Option(
+        None, "--share-classes/--no-share-classes", help="one model for all classes, with the class as an input",
+    ),
+    share_cameras: bool | None = typer.Option(
+        None, "--share-cameras/--no-share-cameras", help="one model for all cameras (the lenses of one device)",
+    ),
+    geometry: bool | None = typer.Option(
+        None, "--geometry/--no-geometry",
+        help="also give the network exact mask-geometry cues: box size, foot and top points, expected height, cuts at "
+             "the image border",
+    ),
+    self_train: str | None = typer.Option(
+        None, "--self-train",
+        help="with --zero-annotation: after the rough-only models (kept in OUT/rough-stage), make pseudo poses from "
+             "the scene's own unlabelled train split and fine-tune on them. track: each lens's estimates smoothed "
+             "along its tracks; fused: the lenses' estimates fused and smoothed along the tracks; views: the same at "
+             "per-track heights from the lenses' disagreement (docs/RESULTS.md)",
+    ),
+    self_epochs: int | None = typer.Option(
+        None, "--self-epochs", min=1, help="epochs of the self-training's fine-tuning (default 10)",
+    ),
+    keyframes_only: bool = typer.Option(
+        False, "--keyframes-only/--interpolated",
+        help="annotated scenes: train only on the annotator's keyframes, or also on the interpolated frames between "
+             "them (occluded frames are never used)",
+    ),
+    augment: int | None = typer.Option(
+        None, "--augment",
+        help="K changed copies of every annotated training mask (occlusion cuts, 1 px outline changes; labels stay "
+             "exact)",
+    ),
+    device: str | None = typer.Option(
+        None, "--device", help="torch device, e.g. cpu or cuda (default: cuda if present)",
+    ),
     threads: int | None = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: int | None = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
-    parallel: int | None = typer.Option(None, "--parallel", min=1, help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best run picked as in serial (same seeds, same models)"),
-    address: str | None = typer.Option(None, "--address", help="train camera x class x run as tasks on this Ray cluster, e.g. ray://head:10001 or auto"),
+    parallel: int | None = typer.Option(
+        None, "--parallel", min=1,
+        help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best "
+             "run picked as in serial (same seeds, same models)",
+    ),
+    address: str | None = typer.Option(
+        None, "--address",
+        help="train camera x class x run as tasks on this Ray cluster, e.g. ray://head:10001 or auto",
+    ),
 ) -> None:
     """Train Seg2PoseNet on a scene, per camera and class (paper 4.1).
 
@@ -159,7 +254,12 @@ def eval_cmd(
     run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
     split: str | None = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
-    match: Literal["auto", "ids", "nearest"] = typer.Option("auto", "--match", help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p track, masks-from-video or import-detections); auto: nearest when the run's ids are not the truth's, and says so"),
+    match: Literal["auto", "ids", "nearest"] = typer.Option(
+        "auto", "--match",
+        help="ids: pair estimates with the truth by track id; nearest: per frame by position (for tracks made by s2p "
+             "track, masks-from-video or import-detections); auto: nearest when the run's ids are not the truth's, and "
+             "says so",
+    ),
     gate: float = typer.Option(3.0, "--gate", help="with --match nearest or auto: the farthest pair, metres"),
 ) -> None:
     """Mean ground-plane error of a run against the ground truth.
@@ -186,8 +286,18 @@ def eval_cmd(
 
 def calibrate_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth"),
-    run: list[Path] = typer.Option(..., "--run", help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to calibrate; repeat for more road users (other splits, or runs of other scenes, each with that scene's own models and scored against the scene its run.json names: how a zero-annotation scene, which has no truth of its own, gets error bars)"),
-    out: Path | None = typer.Option(None, "-o", "--out", help="calibration file (default: MODELS/r90.json beside the run's models, or SCENE/r90-baseline.json for a baseline run: where s2p run looks)"),
+    run: list[Path] = typer.Option(
+        ..., "--run",
+        help="a run of the validation split (s2p run --split val), with the method and --smooth of the runs to "
+             "calibrate; repeat for more road users (other splits, or runs of other scenes, each with that scene's own "
+             "models and scored against the scene its run.json names: how a zero-annotation scene, which has no truth "
+             "of its own, gets error bars)",
+    ),
+    out: Path | None = typer.Option(
+        None, "-o", "--out",
+        help="calibration file (default: MODELS/r90.json beside the run's models, or SCENE/r90-baseline.json for a "
+             "baseline run: where s2p run looks)",
+    ),
     force: bool = typer.Option(False, "--force", help="replace an existing calibration"),
 ) -> None:
     """Fit the error bars r90_m on a run whose truth is known.
@@ -211,8 +321,12 @@ def paper_table_cmd(
     models: list[Path] | None = typer.Option(None, "--models", help=MODELS_HELP),
     split: str = typer.Option("test", "--split", help="split to evaluate on"),
     out: Path | None = typer.Option(None, "-o", "--out", help="output folder (default: SCENE/out/paper-table)"),
-    config: list[str] | None = typer.Option(None, "-c", "--config", help="a camera configuration to include (repeatable; default: all)"),
-    seg2posenet: bool = typer.Option(True, "--seg2posenet/--no-seg2posenet", help="also the rows with Seg2PoseNet (not only the baseline)"),
+    config: list[str] | None = typer.Option(
+        None, "-c", "--config", help="a camera configuration to include (repeatable; default: all)",
+    ),
+    seg2posenet: bool = typer.Option(
+        True, "--seg2posenet/--no-seg2posenet", help="also the rows with Seg2PoseNet (not only the baseline)",
+    ),
     sparse: bool = typer.Option(True, "--sparse/--no-sparse", help=SPARSE_HELP),
     smooth: int = typer.Option(0, "--smooth", min=0, help=SMOOTH_HELP + "; applied to the baseline's rows too"),
     force: bool = typer.Option(False, "--force", help="redo a paper table that exists already"),
@@ -234,13 +348,31 @@ def paper_table_cmd(
 
 
 def bench_accuracy_cmd(
-    root: Path = typer.Argument(..., help="folder for the scenes, models and tables (one sub-folder per seed; finished steps are kept and skipped)"),
-    seed: list[int] | None = typer.Option(None, "--seed", help="a scene seed (repeatable; default 100, 101, 102: settings were chosen on seeds 0-4)"),
+    root: Path = typer.Argument(
+        ...,
+        help="folder for the scenes, models and tables (one sub-folder per seed; finished steps are kept and skipped)",
+    ),
+    seed: list[int] | None = typer.Option(
+        None, "--seed", help="a scene seed (repeatable; default 100, 101, 102: settings were chosen on seeds 0-4)",
+    ),
     preset: str = typer.Option("bench", "--preset", help="synthetic scene size (see s2p synth --preset)"),
-    variant: list[str] | None = typer.Option(None, "--variant", help="s2pn (annotated, the quick protocol), s2pn-long (annotated, --protocol long), zero (zero-annotation), zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then self-training, --self-train track / fused / views; they start from the zero variant's models when those are finished), zero-random-track or zero-random-views (the same from zero-random's models); repeatable; default s2pn and zero"),
+    variant: list[str] | None = typer.Option(
+        None, "--variant",
+        help="s2pn (annotated, the quick protocol), s2pn-long (annotated, --protocol long), zero (zero-annotation), "
+             "zero-random (with randomised rough models), zero-track, zero-fused or zero-views (zero then "
+             "self-training, --self-train track / fused / views; they start from the zero variant's models when those "
+             "are finished), zero-random-track or zero-random-views (the same from zero-random's models); repeatable; "
+             "default s2pn and zero",
+    ),
     threads: int = typer.Option(2, "--threads", min=1, help="CPU threads for training"),
-    train_arg: list[str] | None = typer.Option(None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40"),
-    smooth: int = typer.Option(0, "--smooth", min=0, help="also every run with positions smoothed along the tracks over this many frames either side (s2p paper-table --smooth; the baseline's too)"),
+    train_arg: list[str] | None = typer.Option(
+        None, "--train-arg", help="one more s2p train option (repeatable), e.g. --train-arg=--epochs=40",
+    ),
+    smooth: int = typer.Option(
+        0, "--smooth", min=0,
+        help="also every run with positions smoothed along the tracks over this many frames either side (s2p "
+             "paper-table --smooth; the baseline's too)",
+    ),
 ) -> None:
     """The accuracy benchmark over several synthetic scenes.
 

@@ -47,21 +47,48 @@ def review(
     run: list[Path] = typer.Option([], "--run", help="run folder (made by `s2p run`); repeat to compare runs"),
     save: Path | None = typer.Option(None, "-o", "--out", help="write the recording to this .rrd file"),
     spawn: bool = typer.Option(False, "--spawn/--no-spawn", help="open the native Rerun viewer"),
-    connect: str | None = typer.Option(None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
-    screenshot: Path | None = typer.Option(None, "--screenshot", help="run a headless viewer and save a PNG of it here"),
+    connect: str | None = typer.Option(
+        None, "--connect", help="stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    ),
+    screenshot: Path | None = typer.Option(
+        None, "--screenshot", help="run a headless viewer and save a PNG of it here",
+    ),
     frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the runs' frames"),
-    frame: int | None = typer.Option(None, "--frame", help="time cursor for --screenshot (default: middle frame) and for a spawned or connected viewer"),
-    follow: bool = typer.Option(False, "--follow/--no-follow", help="make a spawned or connected viewer follow the newest frame"),
+    frame: int | None = typer.Option(
+        None, "--frame",
+        help="time cursor for --screenshot (default: middle frame) and for a spawned or connected viewer",
+    ),
+    follow: bool = typer.Option(
+        False, "--follow/--no-follow", help="make a spawned or connected viewer follow the newest frame",
+    ),
     camera: list[str] = typer.Option([], "--camera", help="cameras to show (default: the runs' cameras)"),
-    mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the smallest k that does)"),
-    video_every: int | None = typer.Option(None, "--video-every", min=1, help="with --video-as jpeg: log video frames every k-th frame (default: as for masks)"),
-    video_as: str = typer.Option("asset", "--video-as", help="asset: every frame, one H.264 video per camera that the viewer decodes (a few MB; encoded once, cached); jpeg: JPEG images every --video-every frames"),
-    masks: bool = typer.Option(True, "--masks/--no-masks", help="show the instance masks (outlines every frame, filled every --mask-every frames)"),
+    mask_every: int | None = typer.Option(
+        None, "--mask-every", min=1,
+        help="log masks every k-th frame (default: every frame while the masks stay within 160 Mpixel, else the "
+             "smallest k that does)",
+    ),
+    video_every: int | None = typer.Option(
+        None, "--video-every", min=1,
+        help="with --video-as jpeg: log video frames every k-th frame (default: as for masks)",
+    ),
+    video_as: str = typer.Option(
+        "asset", "--video-as",
+        help="asset: every frame, one H.264 video per camera that the viewer decodes (a few MB; encoded once, cached); "
+             "jpeg: JPEG images every --video-every frames",
+    ),
+    masks: bool = typer.Option(
+        True, "--masks/--no-masks",
+        help="show the instance masks (outlines every frame, filled every --mask-every frames)",
+    ),
     video: bool = typer.Option(True, "--video/--no-video", help="show the video frames (when the scene has video)"),
     start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
     image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
     force: bool = typer.Option(False, "--force", help="overwrite existing output files"),
-    conflicts: Path | None = typer.Option(None, "--conflicts", help="conflicts.csv of the (first) run (made by `s2p conflicts`): events, highlighted pairs, TTC and distance plots"),
+    conflicts: Path | None = typer.Option(
+        None, "--conflicts",
+        help="conflicts.csv of the (first) run (made by `s2p conflicts`): events, highlighted pairs, TTC and distance "
+             "plots",
+    ),
 ) -> None:
     """Review a scene and its runs in the Rerun viewer.
 
@@ -98,13 +125,23 @@ def export(
     run: Path = typer.Option(..., "--run", help="run folder (made by `s2p run`)"),
     out: Path = typer.Option(..., "-o", "--out", help="output .mcap file"),
     frames: str | None = typer.Option(None, "--frames", help="frame range A:B (inclusive); default: the run's frames"),
-    mask_every: int | None = typer.Option(None, "--mask-every", min=1, help="export masks every k-th frame (default: automatic, as for `s2p review`)"),
-    video_every: int | None = typer.Option(None, "--video-every", min=1, help="export video frames every k-th frame (default: automatic)"),
-    video: bool = typer.Option(True, "--video/--no-video", help="also export the plain video frames (the display images show the video under the masks either way)"),
+    mask_every: int | None = typer.Option(
+        None, "--mask-every", min=1, help="export masks every k-th frame (default: automatic, as for `s2p review`)",
+    ),
+    video_every: int | None = typer.Option(
+        None, "--video-every", min=1, help="export video frames every k-th frame (default: automatic)",
+    ),
+    video: bool = typer.Option(
+        True, "--video/--no-video",
+        help="also export the plain video frames (the display images show the video under the masks either way)",
+    ),
     start_time: str | None = typer.Option(None, "--start-time", help=START_HELP),
     image_scale: float = typer.Option(1.0, "--image-scale", min=0.05, max=1.0, help=SCALE_HELP),
     force: bool = typer.Option(False, "--force", help="overwrite an existing file and its layout"),
-    conflicts: Path | None = typer.Option(None, "--conflicts", help="conflicts.csv of the run (made by `s2p conflicts`): exported as events on /s2p/conflicts"),
+    conflicts: Path | None = typer.Option(
+        None, "--conflicts",
+        help="conflicts.csv of the run (made by `s2p conflicts`): exported as events on /s2p/conflicts",
+    ),
 ) -> None:
     """Export a scene and a run as MCAP, for Foxglove and archives.
 
@@ -136,7 +173,11 @@ def import_mcap_cmd(
 
 
 def screenshot_cmd(
-    rrd: Path = typer.Argument(..., help="recording (.rrd), or MCAP export (.mcap: Rerun lays it out itself and draws its images and cameras, not its boxes)"),
+    rrd: Path = typer.Argument(
+        ...,
+        help="recording (.rrd), or MCAP export (.mcap: Rerun lays it out itself and draws its images and cameras, not "
+             "its boxes)",
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="output .png"),
     frame: int | None = typer.Option(None, "--frame", help="time cursor, a frame number (default: the middle)"),
     force: bool = typer.Option(False, "--force", help="overwrite an existing file"),

@@ -58,28 +58,81 @@ def register(app: typer.Typer) -> None:
 
 
 def conflicts(
-    tracks: Path = typer.Argument(..., help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a T-Analyst tracks CSV"),
+    tracks: Path = typer.Argument(
+        ...,
+        help="run folder (made by `s2p run`), a poses.csv (frame,track_id,class,x,y,z,heading[,l,w,h][,r90_m]) or a "
+             "T-Analyst tracks CSV",
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="output conflicts.csv"),
-    fps: float | None = typer.Option(None, "--fps", help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)"),
+    fps: float | None = typer.Option(
+        None, "--fps",
+        help="frames per second (needed when no scene says it: a poses.csv outside a run or scene, a T-Analyst file)",
+    ),
     frames: str | None = typer.Option(None, "--frames", help="only frames A:B (inclusive); default: all"),
-    start: str | None = typer.Option(None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)"),
-    ttc_s: float = typer.Option(1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict"),
-    pet_s: float = typer.Option(5.0, "--pet", min=0.0, help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)"),
-    near_m: float = typer.Option(25.0, "--near", min=0.1, help="road users farther apart than this (metres, centre to centre) are not compared for TTC"),
-    window_s: float = typer.Option(1.0, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over"),
-    centred: bool = typer.Option(False, "--centred/--trailing", help="fit the velocity over a window around each frame instead of the one before it"),
-    brake: float = typer.Option(3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)"),
-    swerve: float = typer.Option(3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2"),
-    all_pairs: bool = typer.Option(False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts"),
-    pedestrian_pairs: bool = typer.Option(False, "--pedestrian-pairs", help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)"),
-    draws: int = typer.Option(200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)"),
-    r90: str | None = typer.Option(None, "--r90", help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 percent of the positions lie; say where the figures come from)"),
-    heading90: str | None = typer.Option(None, "--heading90", help="heading error per class for the intervals, e.g. car=40,pedestrian=61,bicyclist=16 (degrees within which 90 percent of the headings lie; the baseline's on synthetic seed 201); default: headings not perturbed"),
-    corr_s: float = typer.Option(3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds"),
+    start: str | None = typer.Option(
+        None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)",
+    ),
+    ttc_s: float = typer.Option(
+        1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict",
+    ),
+    pet_s: float = typer.Option(
+        5.0, "--pet", min=0.0,
+        help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)",
+    ),
+    near_m: float = typer.Option(
+        25.0, "--near", min=0.1,
+        help="road users farther apart than this (metres, centre to centre) are not compared for TTC",
+    ),
+    window_s: float = typer.Option(
+        1.0, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over",
+    ),
+    centred: bool = typer.Option(
+        False, "--centred/--trailing",
+        help="fit the velocity over a window around each frame instead of the one before it",
+    ),
+    brake: float = typer.Option(
+        3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)",
+    ),
+    swerve: float = typer.Option(
+        3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2",
+    ),
+    all_pairs: bool = typer.Option(
+        False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts",
+    ),
+    pedestrian_pairs: bool = typer.Option(
+        False, "--pedestrian-pairs",
+        help="also pairs of two pedestrians (left out by default: walking past each other is no traffic conflict)",
+    ),
+    draws: int = typer.Option(
+        200, "--draws", min=0, help="error intervals: draws per conflict where poses carry r90_m (0: none)",
+    ),
+    r90: str | None = typer.Option(
+        None, "--r90",
+        help="error radius per class for poses without r90_m, e.g. car=1.2,pedestrian=0.6 (metres within which 90 "
+             "percent of the positions lie; say where the figures come from)",
+    ),
+    heading90: str | None = typer.Option(
+        None, "--heading90",
+        help="heading error per class for the intervals, e.g. car=40,pedestrian=61,bicyclist=16 (degrees within which "
+             "90 percent of the headings lie; the baseline's on synthetic seed 201); default: headings not perturbed",
+    ),
+    corr_s: float = typer.Option(
+        3.0, "--error-corr", min=0.01, help="correlation time of pose errors for the intervals, seconds",
+    ),
     seed: int = typer.Option(0, "--seed", help="seed of the interval draws"),
-    workers: int = typer.Option(2, "--workers", min=1, help="processes the time chunks are analysed in (the result does not depend on it)"),
-    chunk_s: float = typer.Option(60.0, "--chunk", min=1.0, help="seconds of recording whose pair frames are held at once (memory then grows only with the poses themselves; the result does not depend on it)"),
-    review: Path | None = typer.Option(None, "--review", help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder of a scene)"),
+    workers: int = typer.Option(
+        2, "--workers", min=1, help="processes the time chunks are analysed in (the result does not depend on it)",
+    ),
+    chunk_s: float = typer.Option(
+        60.0, "--chunk", min=1.0,
+        help="seconds of recording whose pair frames are held at once (memory then grows only with the poses "
+             "themselves; the result does not depend on it)",
+    ),
+    review: Path | None = typer.Option(
+        None, "--review",
+        help="also write a review recording (.rrd) of the run's scene with the conflicts (TRACKS must be a run folder "
+             "of a scene)",
+    ),
     force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
 ) -> None:
     """Find traffic conflicts in road-user tracks: TTC, PET, Time-to-Accident, speeds.

@@ -70,21 +70,64 @@ def info(scene: Path = typer.Argument(..., help="scene folder")) -> None:
 
 def synth(
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
-    preset: str = typer.Option("small", "--preset", help="small (3 x 240 frames, seconds; tests and the demo), bench (3 x 960 frames, about a minute; the accuracy benchmark), wide (bench's length with road users of many kinds and sizes -- small cars to buses, motorcycles, children to tall adults, bags, strollers -- and the pole 6-15 m high, drawn from the seed) or paper (3 x 7,000 frames, as in the paper's section 4.1)"),
-    frames: int | None = typer.Option(None, "--frames", help="frames per split (train, val and test each); default from the preset"),
+    preset: str = typer.Option(
+        "small", "--preset",
+        help="small (3 x 240 frames, seconds; tests and the demo), bench (3 x 960 frames, about a minute; the accuracy "
+             "benchmark), wide (bench's length with road users of many kinds and sizes -- small cars to buses, "
+             "motorcycles, children to tall adults, bags, strollers -- and the pole 6-15 m high, drawn from the seed) "
+             "or paper (3 x 7,000 frames, as in the paper's section 4.1)",
+    ),
+    frames: int | None = typer.Option(
+        None, "--frames", help="frames per split (train, val and test each); default from the preset",
+    ),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives byte-identical files"),
-    rig: str | None = typer.Option(None, "--rig", help="camera device: device (10 m pole; the default), device-8m, device-12m, or a rig JSON file (default for --preset wide: the device on a pole 6-15 m high, drawn from the seed)"),
+    rig: str | None = typer.Option(
+        None, "--rig",
+        help="camera device: device (10 m pole; the default), device-8m, device-12m, or a rig JSON file (default for "
+             "--preset wide: the device on a pole 6-15 m high, drawn from the seed)",
+    ),
     video: bool = typer.Option(False, "--video/--no-video", help="also render RGB video of every camera"),
-    look: str | None = typer.Option(None, "--look", help="the video's look: flat (flat-shaded plain bodies, constant sun), rich (clouds passing the sun change the light and soften the shadows, the camera's exposure half follows; striped and patterned clothes, two-tone paint and decals), or one of the two: light, textured; default: rich for --preset wide, flat otherwise. Masks and truth are the same either way"),
-    groups: float = typer.Option(0.0, "--groups", min=0.0, max=1.0, help="share of the pedestrians who walk in groups of two or three (friends, a parent and a child: side by side, stopping and crossing together, the same group every visit; their masks touch and merge as in real footage); default 0, also for --preset wide, whose published figures are without groups"),
-    detector_noise: bool = typer.Option(True, "--detector-noise/--no-detector-noise", help="masks like a Mask R-CNN detector's (misses, merges, coarse outlines), or perfect silhouettes"),
-    noise: list[str] = typer.Option([], "--noise", help="set one detector-noise knob, KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: " + ", ".join(NOISE_KEYS)),
-    distortion: str | None = typer.Option(None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (none by default)"),
-    ids: Literal["road_user", "visit"] = typer.Option("road_user", "--ids", help="road_user: a road user keeps its id when it comes back (as in the paper); visit: a new id for every pass"),
-    match: Literal["center", "all"] = typer.Option("center", "--match", help="center: keep a mask only when the road user's true 3D centre projects inside it (the paper's association); all: every visible mask"),
+    look: str | None = typer.Option(
+        None, "--look",
+        help="the video's look: flat (flat-shaded plain bodies, constant sun), rich (clouds passing the sun change the "
+             "light and soften the shadows, the camera's exposure half follows; striped and patterned clothes, "
+             "two-tone paint and decals), or one of the two: light, textured; default: rich for --preset wide, flat "
+             "otherwise. Masks and truth are the same either way",
+    ),
+    groups: float = typer.Option(
+        0.0, "--groups", min=0.0, max=1.0,
+        help="share of the pedestrians who walk in groups of two or three (friends, a parent and a child: side by "
+             "side, stopping and crossing together, the same group every visit; their masks touch and merge as in real "
+             "footage); default 0, also for --preset wide, whose published figures are without groups",
+    ),
+    detector_noise: bool = typer.Option(
+        True, "--detector-noise/--no-detector-noise",
+        help="masks like a Mask R-CNN detector's (misses, merges, coarse outlines), or perfect silhouettes",
+    ),
+    noise: list[str] = typer.Option(
+        [], "--noise",
+        help="set one detector-noise knob, KEY=VALUE (repeatable), e.g. --noise miss_rate=0.05; keys: "
+             + ", ".join(NOISE_KEYS),
+    ),
+    distortion: str | None = typer.Option(
+        None, "--distortion", help="radial lens distortion K1,K2 of the device's lenses (none by default)",
+    ),
+    ids: Literal["road_user", "visit"] = typer.Option(
+        "road_user", "--ids",
+        help="road_user: a road user keeps its id when it comes back (as in the paper); visit: a new id for every pass",
+    ),
+    match: Literal["center", "all"] = typer.Option(
+        "center", "--match",
+        help="center: keep a mask only when the road user's true 3D centre projects inside it (the paper's "
+             "association); all: every visible mask",
+    ),
     workers: int | None = typer.Option(None, "--workers", help="processes (default: one per core, at most 2)"),
     progress: Progress = True,
-    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (the new scene is built beside it and swapped in when complete)"),
+    force: bool = typer.Option(
+        False, "--force",
+        help="replace an existing scene folder entirely "
+             "(the new scene is built beside it and swapped in when complete)",
+    ),
 ) -> None:
     """Make a synthetic junction scene with ground truth (the paper's CARLA stand-in).
 
@@ -117,11 +160,24 @@ def synth(
 def import_utocs_cmd(
     src: Path = typer.Argument(..., help="UTOCS recording folder (cameras.json, ground_points.txt, positions/)"),
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
-    fps: float | None = typer.Option(None, "--fps", help="frames per second (default 1/0.075 s, the paper's CARLA interval)"),
-    size_scale: float = typer.Option(1.0, "--size-scale", help="multiply lengths, widths and heights by this (2 if the recording stores CARLA's half extents)"),
+    fps: float | None = typer.Option(
+        None, "--fps", help="frames per second (default 1/0.075 s, the paper's CARLA interval)",
+    ),
+    size_scale: float = typer.Option(
+        1.0, "--size-scale",
+        help="multiply lengths, widths and heights by this (2 if the recording stores CARLA's half extents)",
+    ),
     frames: bool = typer.Option(True, "--frames/--no-frames", help="bring the recording's images or videos along"),
-    start_time: str | None = typer.Option(None, "--start-time", help="time of frame 0, ISO 8601 with a zone, e.g. 2021-06-14T08:00:00Z (reviews and exports then show real times)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete; nothing of the old scene is kept)"),
+    start_time: str | None = typer.Option(
+        None, "--start-time",
+        help="time of frame 0, ISO 8601 with a zone, e.g. 2021-06-14T08:00:00Z (reviews and exports then show real "
+             "times)",
+    ),
+    force: bool = typer.Option(
+        False, "--force",
+        help="replace an existing scene folder entirely (built beside it, swapped in when complete; nothing of the old "
+             "scene is kept)",
+    ),
 ) -> None:
     """Import a UTOCS (CARLA) recording as a scene folder.
 
@@ -133,12 +189,20 @@ def import_utocs_cmd(
 
 
 def import_tacal_cmd(
-    files: list[Path] = typer.Argument(..., help="T-Analyst calibration files (.tacal), one per camera; the camera is named after the file"),
+    files: list[Path] = typer.Argument(
+        ..., help="T-Analyst calibration files (.tacal), one per camera; the camera is named after the file",
+    ),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV (x,y,z metres per line, an optional header)"),
     out: Path = typer.Option(..., "-o", "--out", help="scene folder to create"),
     fps: float = typer.Option(..., "--fps", help="the videos' frame rate (frames per second)"),
-    size: str | None = typer.Option(None, "--size", help="image size WIDTHxHEIGHT of every camera, e.g. 1280x720 (default: twice the principal point Cx, Cy of each file)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete)"),
+    size: str | None = typer.Option(
+        None, "--size",
+        help="image size WIDTHxHEIGHT of every camera, e.g. 1280x720 (default: twice the principal point Cx, Cy of "
+             "each file)",
+    ),
+    force: bool = typer.Option(
+        False, "--force", help="replace an existing scene folder entirely (built beside it, swapped in when complete)",
+    ),
 ) -> None:
     """Make a scene from T-Analyst .tacal calibrations and ground points.
 
@@ -170,11 +234,24 @@ def import_tacal_cmd(
 def heights_cmd(
     scene: Path = typer.Argument(..., help="scene folder"),
     split: str = typer.Option("train", "--split", help="split whose masks and truth are used ('all' for every frame)"),
-    center: Literal["bbox", "centroid"] | None = typer.Option(None, "--center", help="mask centre: bbox or centroid (default: the one measured best, bbox)"),
-    dry_run: bool = typer.Option(False, "--dry-run/--no-dry-run", help="only print the heights; leave scene.json as it is"),
-    rough: int = typer.Option(0, "--rough", min=0, help="use N rough-model renders per class instead of masks matched to ground truth (no annotations needed)"),
-    rough_video: bool = typer.Option(False, "--rough-video/--no-rough-video", help="with --rough: film the rough models over the video's background and use the masks background subtraction makes of them (measured within 1.2 cm of the clean renders, and minutes slower)"),
-    camera: list[str] | None = typer.Option(None, "--camera", help="with --rough: render for this camera only (repeatable; default: all)"),
+    center: Literal["bbox", "centroid"] | None = typer.Option(
+        None, "--center", help="mask centre: bbox or centroid (default: the one measured best, bbox)",
+    ),
+    dry_run: bool = typer.Option(
+        False, "--dry-run/--no-dry-run", help="only print the heights; leave scene.json as it is",
+    ),
+    rough: int = typer.Option(
+        0, "--rough", min=0,
+        help="use N rough-model renders per class instead of masks matched to ground truth (no annotations needed)",
+    ),
+    rough_video: bool = typer.Option(
+        False, "--rough-video/--no-rough-video",
+        help="with --rough: film the rough models over the video's background and use the masks background subtraction "
+             "makes of them (measured within 1.2 cm of the clean renders, and minutes slower)",
+    ),
+    camera: list[str] | None = typer.Option(
+        None, "--camera", help="with --rough: render for this camera only (repeatable; default: all)",
+    ),
 ) -> None:
     """Set per-class default heights by bisection on the ground truth (paper 3.2).
 
@@ -201,7 +278,9 @@ def convert_masks_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="output file (mots, coco) or folder (png)"),
     format: MaskFormat = typer.Option(..., "-f", "--format", help="output format: mots, coco or png"),
     src_format: MaskFormat | None = typer.Option(None, "--from", help="input format (default: from the name of SRC)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing output entirely (a PNG folder keeps none of its old frames)"),
+    force: bool = typer.Option(
+        False, "--force", help="replace an existing output entirely (a PNG folder keeps none of its old frames)",
+    ),
 ) -> None:
     """Convert instance masks between MOTS text, COCO RLE JSON and PNG instance-id images."""
     from seg2pose.io.mask_formats import read_masks, save_masks

@@ -82,7 +82,10 @@ def new_scene_cmd(
                                           "12 numbers (one camera's 3x4 P, row by row)"),
     ground: Path = typer.Option(..., "--ground", help="ground points CSV: x,y,z per line, metres"),
     fps: float | None = typer.Option(None, "--fps", help="frames per second (default: the video's)"),
-    force: bool = typer.Option(False, "--force", help="replace an existing scene folder OUT entirely (built beside it, swapped in when complete)"),
+    force: bool = typer.Option(
+        False, "--force",
+        help="replace an existing scene folder OUT entirely (built beside it, swapped in when complete)",
+    ),
 ) -> None:
     """Make a scene folder from video, calibration and ground points.
 
@@ -103,7 +106,7 @@ def new_scene_cmd(
 def masks_from_video_cmd(
     scene: Path = typer.Argument(..., help="scene folder with video/<camera>.mp4 (or image folders)"),
     camera: Cameras = None,
-    setting: BackgroundSettings = [],
+    setting: BackgroundSettings = [],  # noqa: B006 -- Typer's default for a repeatable option; never mutated
     track: bool = typer.Option(True, "--track/--no-track", help="give the masks track ids (s2p track)"),
     classes: bool = typer.Option(True, "--classes/--no-classes",
                                  help="give each track a class from its world size"),
@@ -130,7 +133,7 @@ def masks_from_video_cmd(
 def track_cmd(
     scene: Path = typer.Argument(..., help="scene folder whose masks/<camera>.txt lack track ids"),
     camera: Cameras = None,
-    setting: TrackerSettings = [],
+    setting: TrackerSettings = [],  # noqa: B006 -- Typer's default for a repeatable option; never mutated
     classes: bool = typer.Option(False, "--classes/--no-classes",
                                  help="also give masks without a class one from their track's world size"),
     progress: Progress = True,
@@ -150,7 +153,7 @@ def track_cmd(
 def associate_cmd(
     scene: Path = typer.Argument(..., help="scene folder with masks/<camera>.txt of several cameras"),
     camera: Cameras = None,
-    setting: AssociationSettings = [],
+    setting: AssociationSettings = [],  # noqa: B006 -- Typer's default for a repeatable option; never mutated
     force: bool = typer.Option(False, "--force", help="associate masks that are associated already"),
 ) -> None:
     """Give one road user the same track id in every camera.
