@@ -193,7 +193,8 @@ class EditsMixin:
     def move_keyframe(self, track_id: int, frame: int, x: float, y: float,
                       heading: float | None = None, _name: str = "move_keyframe"):
         """Move a keyframe (or the interpolated pose at ``frame``, making it a keyframe) to x, y;
-        heading None keeps it (an auto heading, or a new keyframe's, follows the motion). Removes the estimate/normal flags: the pose is now checked."""
+        heading None keeps it (an auto heading, or a new keyframe's, follows the motion). Removes
+        the estimate/normal flags: the pose is now checked."""
         t, f = self.track(track_id), self._frame(frame)
         old = t.keyframes.get(f)
         _, _, h0 = self.pose_at(t.id, f)

@@ -10,7 +10,8 @@ Three interpolants, all exact at the keyframes:
   two chord speeds, weighted by frames (the parabola through three keyframes); a keyframe next
   to a standing interval (a stop or a start) gets zero speed. Each end's tangent is then
   limited per interval so that the progress along the chord is monotone (Fritsch & Carlson
-  1980: alpha, beta <= 3), hence the path never runs past the next keyframe and comes back. Heading between keyframes follows the curve's tangent (plus pi
+  1980: alpha, beta <= 3), hence the path never runs past the next keyframe and comes back.
+  Heading between keyframes follows the curve's tangent (plus pi
   when reversing); where the road user stands, the shortest arc; where the curve nearly stops
   inside an interval (under ``SLOW`` of the chord's mean speed), a blend of the two.
 - ``pchip``: positions by monotone cubic (PCHIP, scipy) per axis, heading along the shortest

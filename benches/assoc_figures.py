@@ -16,7 +16,8 @@ Configurations: each camera alone (its tracker's masks: what the lens gives by i
 stereo-10, tri-I, tri-T and all five cameras, before association (``--fuse-unassociated``) and
 after. Each run: ``s2p run --baseline``; scored against the truth *the configuration's cameras
 see* (gt/poses.csv rows whose road user has a truth mask of >= 150 px in one of its cameras in
-that frame), per frame one to one by ground distance (Hungarian) within 3 m (the default --gate of s2p eval): recall, precision,
+that frame), per frame one to one by ground distance (Hungarian) within 3 m (the default --gate
+of s2p eval): recall, precision,
 mean error of the pairs; cross-camera id consistency as ``s2p eval`` reports it (views paired
 with the truth per camera and frame; share of a road user's views in a frame that carry its
 majority id).
@@ -164,7 +165,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="an s2p associate setting")
     ap.add_argument("--reuse", action="store_true", help="start from the kept tracker masks")
     ap.add_argument("--skip-before", action="store_true", help="no runs before association")
-    ap.add_argument("--skip-alone", action="store_true", help="no runs of the cameras alone (kept from an earlier call)")
+    ap.add_argument("--skip-alone", action="store_true",
+                    help="no runs of the cameras alone (kept from an earlier call)")
     ap.add_argument("--confirm", type=float, default=None, help="s2p run --confirm for the associated runs")
     ap.add_argument("--rescore", action="store_true", help="no s2p call: score the runs in DIR/<input>-S/out again")
     a = ap.parse_args()

@@ -83,7 +83,7 @@ def write_journal(scene_root: Path, n_edits: int) -> float:
     rng = random.Random(0)
     try:
         with Project.open(scene_root, snapshot_every=10 ** 9) as p:
-            for i in range(n_edits):
+            for _ in range(n_edits):
                 ids = list(p.tracks)
                 r = rng.random()
                 if not ids or r < 0.01:

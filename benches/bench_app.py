@@ -167,7 +167,8 @@ def browser(args) -> None:
         cam = scene.cameras[c]
         write_code_video(root / "video" / f"{c}.mp4", cam.width, cam.height, n, fps=scene.fps,
                          texture=True)
-    print(f"scene: {n} frames, cameras {', '.join(f'{c} {scene.cameras[c].width}x{scene.cameras[c].height}' for c in cams)}"
+    sizes = ', '.join(f'{c} {scene.cameras[c].width}x{scene.cameras[c].height}' for c in cams)
+    print(f"scene: {n} frames, cameras {sizes}"
           f" (code videos written in {time.perf_counter() - t0:.0f} s)")
     from annotate.app.session import prepare_viewer
 
@@ -226,7 +227,7 @@ def browser(args) -> None:
 
             def steps(label, count):
                 out, wrong = [], 0
-                for i in range(count):
+                for _ in range(count):
                     want = int(panel("frame-number")) + 1
                     t_page = pg.evaluate("() => performance.now()")
                     pg.keyboard.press("ArrowRight")

@@ -104,8 +104,12 @@ def main() -> None:
         for n in names:
             rat = np.array([res[s][cfg][n].mean_error / res[s][cfg]["baseline"].mean_error
                             for s in seeds])
-            pc = " ".join(f"{c[:4]} {np.mean([res[s][cfg][n].per_class[c] / res[s][cfg]['baseline'].per_class[c] for s in seeds]):.3f}"
-                          for c in classes)
+
+            def class_ratio(c: str, n: str = n) -> float:
+                return float(np.mean([res[s][cfg][n].per_class[c] / res[s][cfg]["baseline"].per_class[c]
+                                      for s in seeds]))
+
+            pc = " ".join(f"{c[:4]} {class_ratio(c):.3f}" for c in classes)
             m = np.mean([res[s][cfg][n].mean_error for s in seeds])
             print(f"  {n:<22} {m:.4f} m  {rat.mean():.3f}x ({rat.min():.3f}-{rat.max():.3f})  {pc}")
 

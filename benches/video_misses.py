@@ -99,7 +99,6 @@ def breakdown(truth: Path, est: Path, camera: str, min_area: int = 150, small: i
             m = iou(tt.rles, ee.rles, h, w)
             r, c = linear_sum_assignment(-m)
             ok[r[m[r, c] >= 0.5]] = True
-            to = [{"size": [h, w], "counts": x} for x in tt.rles]
             eo = [{"size": [h, w], "counts": x} for x in ee.rles]
             # intersection areas from IoU: |A∩B| = iou (|A| + |B|) / (1 + iou)
             ea = mask_util.area(eo).astype(np.float64)
@@ -150,7 +149,8 @@ def breakdown(truth: Path, est: Path, camera: str, min_area: int = 150, small: i
     out = {"truth": n, "matched": hit, "recall": hit / max(n, 1), "missed": miss,
            "first_reason": {k: first[k] for k in REASONS},
            "any_reason": {k: flags[k] for k in REASONS},
-           "still_truth": n_still, "still_missed": miss_still, "small_lt_px": small, "small_truth": n_small, "small_missed": miss_small,
+           "still_truth": n_still, "still_missed": miss_still,
+           "small_lt_px": small, "small_truth": n_small, "small_missed": miss_small,
            "recall_by_class": {k: 1 - by_cls_miss[k] / by_cls[k] for k in sorted(by_cls)},
            "truth_by_class": dict(sorted(by_cls.items()))}
     return out

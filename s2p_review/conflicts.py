@@ -71,7 +71,10 @@ class Conflicts:
 
     def describe(self, k: int) -> str:
         c = self.columns
-        num = lambda key, unit: ("none" if not math.isfinite(c[key][k]) else f"{c[key][k]:.2f} {unit}")
+
+        def num(key: str, unit: str) -> str:
+            return "none" if not math.isfinite(c[key][k]) else f"{c[key][k]:.2f} {unit}"
+
         return (f"conflict {k}: {c['type'][k]}, {c['class_a'][k]} {int(c['track_a'][k])} x "
                 f"{c['class_b'][k]} {int(c['track_b'][k])}: min TTC {num('min_ttc_s', 's')}, "
                 f"PET {num('pet_s', 's')}")

@@ -37,7 +37,7 @@ def _(mo, problem, session):
             if session is None else
             mo.hstack([mo.vstack([session.frame_view, session.viewer]), session.panel],
                       widths=[3, 1], align="start"))
-    page
+    page  # noqa: B018 -- marimo shows a cell's last expression
     return
 
 

@@ -81,7 +81,8 @@ function render({ model, el }) {
   // the WebGL renderer: in software (SwiftShader, llvmpipe) the 3D viewer starts hidden
   let renderer = '';
   try {
-    const g = document.createElement('canvas').getContext('webgl2') || document.createElement('canvas').getContext('webgl');
+    const g = document.createElement('canvas').getContext('webgl2')
+      || document.createElement('canvas').getContext('webgl');
     const d = g && g.getExtension('WEBGL_debug_renderer_info');
     renderer = g ? String(g.getParameter(d ? d.UNMASKED_RENDERER_WEBGL : g.RENDERER)) : 'none';
   } catch (err) { renderer = 'unknown'; }

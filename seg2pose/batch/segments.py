@@ -134,7 +134,7 @@ def segment_path(scene_dir: Path, seg: Segment) -> Path:
 def _video_digest(path: Path) -> str:
     if path.is_dir():  # an image folder: its listing (names, sizes, times), not every image
         h = hashlib.sha256()
-        for f, p in image_files(path):
+        for _f, p in image_files(path):
             st = p.stat()
             h.update(f"{p.name} {st.st_size} {st.st_mtime_ns}\n".encode())
         return h.hexdigest()

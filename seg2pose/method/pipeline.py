@@ -239,7 +239,8 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
     """Fuse per-view estimates (``opts.smooth``, ``opts.confirm``: see ``fuse``; a confirm of
     None counts as 0) and write the run folder (poses.csv, views.csv, run.json, and flagged.csv
     when the residuals were checked; with ``opts.track_heights`` the views' normal positions are
-    first moved to each track's fitted height, and track_heights.csv lists the heights). ``track_ids``: how the ids were made
+    first moved to each track's fitted height, and track_heights.csv lists the heights).
+    ``track_ids``: how the ids were made
     (``check_track_ids``), recorded in run.json; ``r90_path``: the error bars' calibration
     (``seg2pose.method.uncertainty``; None: r90_m stays NaN)."""
     run_dir = Path(run_dir)

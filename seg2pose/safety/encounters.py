@@ -55,7 +55,7 @@ def near_pairs(tracks: Tracks, rows: np.ndarray, r: float, dt: float = 0.0,
             parts = [near_pairs(tracks, a1, r, dt, chunk_s), near_pairs(tracks, a1, r, dt, chunk_s, o1)]
         else:
             other = np.asarray(other, np.int64)
-            a2, o2 = other[~apart[other]], other[apart[other]]
+            a2 = other[~apart[other]]  # apart x apart pairs are left out
             parts = [near_pairs(tracks, a1, r, dt, chunk_s, other),
                      near_pairs(tracks, o1, r, dt, chunk_s, a2)]
         return np.concatenate(parts)

@@ -66,7 +66,7 @@ def background(camera: Camera) -> np.ndarray:
     curb = np.abs(d) < 0.18
     img[curb] = (185, 185, 182)
     # road markings, per arm in arm coordinates (a along the arm, b across)
-    for arm, th in J.ARM_ANGLES.items():
+    for th in J.ARM_ANGLES.values():
         c, s = np.cos(th), np.sin(th)
         a = x * c + y * s
         b = -x * s + y * c

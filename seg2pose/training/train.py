@@ -325,7 +325,8 @@ def train_scene(scene: Scene, out_models_dir: str | Path | None = None,
 
     ``settings``: device, threads, force (``TrainSettings()`` by default). Finished models
     (metadata "complete") are kept unless ``settings.force``; interrupted ones resume, also
-    with other settings (only the protocol, ``config``, must be the same). Without ground truth only ``zero_annotation`` training is possible."""
+    with other settings (only the protocol, ``config``, must be the same). Without ground truth
+    only ``zero_annotation`` training is possible."""
     cfg = config or TrainConfig()
     settings = settings or TrainSettings()
     out = Path(out_models_dir) if out_models_dir else scene.root / "models"

@@ -1,5 +1,6 @@
 """The training protocol's independent runs as tasks (``s2p train --parallel/--address``):
-camera x class x run, on Ray (``seg2pose.core.ray.ray_map``) or any ``map``, with the checkpoints of the serial protocol.
+camera x class x run, on Ray (``seg2pose.core.ray.ray_map``) or any ``map``, with the
+checkpoints of the serial protocol.
 
 Why the result is the same: a camera group's examples come from its own random stream
 (``training_data.model_jobs``), so the groups' examples are built as one task per group, in

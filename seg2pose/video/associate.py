@@ -99,7 +99,7 @@ def _cuts(runs: list[tuple[np.ndarray, ...]], spans: list[tuple[np.ndarray, np.n
     change partner there: with three cameras, the one camera whose tracker swapped is cut, not
     the two that saw it right."""
     props = []  # (track, frame, camera) of each proposed cut
-    for k, ((t, p, f0, f1), (first, last)) in enumerate(zip(runs, spans)):
+    for k, ((t, p, f0, _f1), (first, last)) in enumerate(zip(runs, spans)):
         change = np.flatnonzero((t[1:] == t[:-1]) & (p[1:] != p[:-1])) + 1
         old, nw = p[change - 1], p[change]
         alive = (last[old] >= first[nw]) & (last[nw] >= first[old])
@@ -109,12 +109,12 @@ def _cuts(runs: list[tuple[np.ndarray, ...]], spans: list[tuple[np.ndarray, np.n
     for track, f, k in props:
         by_track.setdefault(track, []).append((f, k))
     out_t, out_f = [], []
-    for track, f, k in sorted(props):
+    for track, f, _k in sorted(props):
         if out_t and out_t[-1] == track and abs(out_f[-1] - f) <= min_run:
             continue  # one cut per change, however many cameras saw it
         changed = {kk for ff, kk in by_track[track] if abs(ff - f) <= min_run}
         steady = 0
-        for kk, (t, p, f0, f1) in enumerate(runs):
+        for kk, (t, _p, f0, f1) in enumerate(runs):
             if kk not in changed and np.any((t == track) & (f0 < f - min_run) & (f1 > f + min_run)):
                 steady += 1
         if len(changed) > steady:
@@ -225,7 +225,10 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
         p_track.append(uk[:, 0] + sum(n_t[x] for x in names[:k]))
         p_rank.append(uk[:, 1])
         n_pieces += len(uk)
-    cat = (lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.int64))
+
+    def cat(xs: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(xs) if xs else np.zeros(0, np.int64)
+
     p_cam, p_first, p_last, p_track, p_rank = map(cat, (p_cam, p_first, p_last, p_track, p_rank))
 
     # 3. joins: pieces paired across cameras, most votes first; then a track's own pieces
@@ -258,7 +261,7 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
     gid[roots] = np.arange(1, len(roots) + 1)
     ids = {c: gid[root[piece[c]]] for c in names}
     cams_of: dict[int, list[str]] = {}
-    for k, c in enumerate(names):
+    for c in names:
         for g in np.unique(ids[c]):
             cams_of.setdefault(int(g), []).append(c)
     return Association(ids=ids, road_users=len(roots), pieces=n_pieces, cuts=n_cuts,

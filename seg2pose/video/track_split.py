@@ -45,8 +45,10 @@ class BlobSplitting:
         # two or more of them can take part
         bt = self.live.shape_box[recent]
         bt[:, :2] += shift
-        meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2]) & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
-                & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3]) & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
+        meet = ((bt[:, None, 0] < bd[None, :, 0] + bd[None, :, 2])
+                & (bd[None, :, 0] < bt[:, None, 0] + bt[:, None, 2])
+                & (bt[:, None, 1] < bd[None, :, 1] + bd[None, :, 3])
+                & (bd[None, :, 1] < bt[:, None, 1] + bt[:, None, 3]))
         cand = meet[:, meet.sum(axis=0) >= 2].any(axis=1)
         if cand.sum() < 2:
             return rles, xy, src

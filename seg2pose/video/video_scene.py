@@ -269,7 +269,8 @@ def new_scene(out: str | Path, videos: dict[str, str | Path], calibration: str |
         for c, r in readers.items():
             copy_video(r.path, tmp / names[c])
         scene.save(tmp)
-    log(f"new scene {out}: {len(cams)} cameras ({', '.join(f'{c} {sizes[c][0]}x{sizes[c][1]}, 'f'{counts[c]} frames' for c in cams)}), "
+    each = ', '.join(f'{c} {sizes[c][0]}x{sizes[c][1]}, {counts[c]} frames' for c in cams)
+    log(f"new scene {out}: {len(cams)} cameras ({each}), "
         f"{len(ground)} ground points, {fps:g} fps")
     return scene
 

@@ -258,7 +258,7 @@ def test_class_keys_delete_with_confirmation_and_headings_shown(ctl):
 
 def test_logger_sends_one_track_and_empties_frames_it_left(ctl):
     """send_track writes only the track's entities; a shrunk track's old frames get empty rows."""
-    rr = pytest.importorskip("rerun")
+    pytest.importorskip("rerun")
     from annotate.app.session import track_columns
     from s2p_review.annotation_log import AnnotationLogger
 

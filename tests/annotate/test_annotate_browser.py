@@ -34,7 +34,8 @@ ARGS = ["--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshade
 CAM = "c1"
 KEYFRAMES = (20, 35, 50, 65, 80)  # seed 1: car 2 drives towards camera c1 over these
 
-playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[app]')")
+playwright_api = pytest.importorskip("playwright.sync_api",
+                                     reason="playwright is not installed (pip install -e '.[app]')")
 pytest.importorskip("marimo", reason="marimo is not installed (pip install -e '.[app]')")
 pytest.importorskip("rerun_notebook", reason="rerun-notebook is not installed (pip install -e '.[app]')")
 if not Path(CHROMIUM).exists():

@@ -41,7 +41,7 @@ def test_export_import_restores_the_annotation_project(monkeypatch, capsys, tmp_
         "keyframe", "interpolated", "interpolated", "occluded", "occluded"]
     labels = set()
     with open(mcap, "rb") as f:
-        for _s, ch, m in make_reader(f).iter_messages(topics=["/road_users/scene"]):
+        for _s, _ch, m in make_reader(f).iter_messages(topics=["/road_users/scene"]):
             su = SceneUpdate.FromString(m.data)
             labels |= {t.text for e in su.entities for t in e.texts}
     assert "c1 keyframe" in labels and "c1 occluded" in labels

@@ -140,7 +140,7 @@ def test_stale_partials_of_dead_processes_are_cleaned(tmp_path, capsys):
     other = tmp_path / f".other.partial-{pid}"
     other.mkdir()
     generate_scene(out, SynthOptions(frames=4, workers=1, progress=False))
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".other.partial-%d" % pid, live.name, "syn"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([f".other.partial-{pid}", live.name, "syn"])
     assert "taking over the lock" in capsys.readouterr().err
     assert clean_stale_partials(tmp_path / "other") == [other]
 
@@ -158,7 +158,8 @@ def test_import_mcap_refuses_paths_outside_the_folder(tmp_path, name):
     from s2p_review.mcap_import import import_mcap
 
     name = name.format(os.getpid())
-    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1, "ground_points": name}, name, [{"frame": 0, "rows": [GOOD_ROW]}])
+    f = write_s2p_mcap(tmp_path / "x.mcap", {"version": 1, "ground_points": name}, name,
+                       [{"frame": 0, "rows": [GOOD_ROW]}])
     with pytest.raises(InputError, match=r"x\.mcap: field 'scene.json attachment: ground_points': "
                                          r"ground points file .* leads outside"):
         import_mcap(f, tmp_path / "out")
@@ -177,9 +178,12 @@ def test_import_mcap_refuses_a_crafted_run_name(tmp_path):
 @pytest.mark.parametrize("rows,match", [
     ([{"frame": 0}], r"malformed /s2p/poses message 0 \(frame 0\): KeyError"),
     ([{"frame": 0, "rows": [dict(GOOD_ROW, x="a")]}], r"malformed /s2p/poses message 0"),
-    ([{"frame": 0, "rows": [dict(GOOD_ROW, x=None)]}], r"the restored poses\.csv would be invalid \(row 1\): x, y, z must be finite"),
-    ([{"frame": 0, "rows": [GOOD_ROW, GOOD_ROW]}], r"the restored poses\.csv would be invalid \(row 2\): duplicate row"),
-    ([{"frame": 0, "rows": [dict(GOOD_ROW, l=-4)]}], r"the restored poses\.csv would be invalid \(row 1\): l, w, h must be sizes"),
+    ([{"frame": 0, "rows": [dict(GOOD_ROW, x=None)]}],
+     r"the restored poses\.csv would be invalid \(row 1\): x, y, z must be finite"),
+    ([{"frame": 0, "rows": [GOOD_ROW, GOOD_ROW]}],
+     r"the restored poses\.csv would be invalid \(row 2\): duplicate row"),
+    ([{"frame": 0, "rows": [dict(GOOD_ROW, l=-4)]}],
+     r"the restored poses\.csv would be invalid \(row 1\): l, w, h must be sizes"),
 ])
 def test_import_mcap_malformed_rows_are_one_error(tmp_path, rows, match):
     from s2p_review.mcap_import import import_mcap
@@ -267,7 +271,8 @@ def test_disk_full_is_one_line_and_keeps_the_old_run(tmp_path):
         r = s2p("run", s.root, "-o", small / "run", "--baseline", "--force")
         assert r.returncode == 2, r.stderr
         assert "Traceback" not in r.stderr, r.stderr
-        assert r.stderr.strip().splitlines()[-1] == f"error: cannot write {small / 'run' / 'poses.csv'}: the disk is full"
+        full = f"error: cannot write {small / 'run' / 'poses.csv'}: the disk is full"
+        assert r.stderr.strip().splitlines()[-1] == full
         assert {p.name: p.read_bytes() for p in (small / "run").iterdir()} == before
         assert read_run_meta(small / "run")["n_poses"] > 0
         assert sorted(p.name for p in small.iterdir()) == ["filler", "run"]

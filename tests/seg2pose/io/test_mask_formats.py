@@ -110,8 +110,10 @@ def test_cli_convert_masks_round_trip(tmp_path):
     r = run(app, ["convert-masks", str(tmp_path / "a.txt"), "-o", str(tmp_path / "b.json"), "--format", "coco"])
     assert r.exit_code == 0, r.output
     assert "9 masks in 3 frames (32x24)" in r.output
-    assert run(app, ["convert-masks", str(tmp_path / "b.json"), "-o", str(tmp_path / "png"), "-f", "png"]).exit_code == 0
-    assert run(app, ["convert-masks", str(tmp_path / "png"), "-o", str(tmp_path / "c.txt"), "-f", "mots"]).exit_code == 0
+    assert run(app, ["convert-masks", str(tmp_path / "b.json"), "-o", str(tmp_path / "png"),
+                     "-f", "png"]).exit_code == 0
+    assert run(app, ["convert-masks", str(tmp_path / "png"), "-o", str(tmp_path / "c.txt"),
+                     "-f", "mots"]).exit_code == 0
     same_masks(read_mots(tmp_path / "c.txt"), t, ordered=False)
     r = run(app, ["convert-masks", str(tmp_path / "png"), "-o", str(tmp_path / "c.txt"), "-f", "mots"])
     assert r.exit_code != 0 and "--force" in str(r.exception)

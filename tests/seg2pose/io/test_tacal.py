@@ -208,7 +208,8 @@ def test_scene_json_stores_a_tsai_camera(tmp_path):
     (tmp_path / "scene.json").write_text(json.dumps(d))
     with pytest.raises(InputError, match="f must be positive") as e:
         load_scene(tmp_path)
-    assert e.value.file == str(tmp_path / "scene.json") and e.value.field.endswith("distortion.f") and "cameras[" in e.value.field
+    assert e.value.file == str(tmp_path / "scene.json")
+    assert e.value.field.endswith("distortion.f") and "cameras[" in e.value.field
 
 
 def test_scene_from_tacal_files(tmp_path):

@@ -99,7 +99,10 @@ def test_pair_searches_with_rows_apart(seed, monkeypatch):
     rows = np.arange(len(tr))
     ped = class_rows(tr.cls, "pedestrian")
     assert 0 < ped.sum() < len(tr)
-    both = lambda p: ped[p[:, 0]] & ped[p[:, 1]]
+
+    def both(p):
+        return ped[p[:, 0]] & ped[p[:, 1]]
+
     kd = near_pairs(tr, rows, 8.0, 0.0)
     assert len(kd) > 100 and both(kd).any()
     assert as_set(frame_pairs(tr, rows, 8.0)) == as_set(kd)

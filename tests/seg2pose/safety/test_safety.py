@@ -205,7 +205,10 @@ def test_ttc_symmetric_invariant_nonnegative(a, b, dx, dy, rot):
     # rotating the world
     c, s = np.cos(rot), np.sin(rot)
     Rm = np.array([[c, -s], [s, c]])
-    rot_of = lambda u: (u[0] @ Rm.T, u[1] + rot, u[2], u[3] @ Rm.T)
+
+    def rot_of(u):
+        return (u[0] @ Rm.T, u[1] + rot, u[2], u[3] @ Rm.T)
+
     ra, rb = rot_of(a), rot_of(b)
     assert same(x, ttc(*ra[:3], ra[3], *rb[:3], rb[3], horizon_s=30.0)[0]) or _grazing(a, b)
 

@@ -215,7 +215,8 @@ def test_cli_synth(tmp_path):
 
     from seg2pose.cli import app
 
-    r = CliRunner().invoke(app, ["synth", "-o", str(tmp_path / "s"), "--frames", "2", "--no-progress", "--workers", "1"])
+    r = CliRunner().invoke(app, ["synth", "-o", str(tmp_path / "s"), "--frames", "2", "--no-progress",
+                                 "--workers", "1"])
     assert r.exit_code == 0, r.output
     assert load_scene(tmp_path / "s").splits["train"] == (0, 1)
     r = CliRunner().invoke(app, ["synth", "-o", str(tmp_path / "s"), "--frames", "2", "--no-progress"])
