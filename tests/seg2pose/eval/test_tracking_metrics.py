@@ -1,0 +1,143 @@
+"""HOTA, CLEAR MOT and IDF1 (seg2pose/eval/tracking_metrics.py, tracking_inputs.py): hand-made
+cases whose figures are derived by hand below, and equality with TrackEval's own metric
+classes (to 1e-9) on those and on random sequences when TrackEval is installed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seg2pose.eval.tracking_inputs import sequence_from_masks, sequence_from_poses
+from seg2pose.eval.tracking_metrics import ALPHAS, Sequence, clear, hota, identity, summary
+from seg2pose.io.mots import MaskTable
+from seg2pose.io.poses import PoseTable
+from seg2pose.structures.masks import encode
+
+
+def poses(rows) -> PoseTable:
+    """rows: (frame, track id, x, y)."""
+    a = np.asarray(rows, float).reshape(-1, 4)
+    return PoseTable(a[:, 0], a[:, 1], ["car"] * len(a), np.c_[a[:, 2:4], np.zeros(len(a))],
+                     np.full(len(a), np.nan))
+
+
+# Truth: road user A at x=0 in frames 0-3, B at x=10 in frames 0-1. Estimate: id 1 on A in
+# frames 0-1, id 2 on A in frames 2-3 (one ID switch), id 3 on B in frame 0 only (B missed in
+# frame 1), id 4 a false positive at x=50 in frame 3. Every similarity is 1 or 0.
+TRUTH = poses([(0, 7, 0, 0), (1, 7, 0, 0), (2, 7, 0, 0), (3, 7, 0, 0), (0, 8, 10, 0), (1, 8, 10, 0)])
+EST = poses([(0, 1, 0, 0), (1, 1, 0, 0), (2, 2, 0, 0), (3, 2, 0, 0), (0, 3, 10, 0), (3, 4, 50, 0)])
+
+
+def test_hand_made_world_case():
+    s = summary(sequence_from_poses(EST, TRUTH, d0=2.0))
+    # CLEAR: GT = 6, TP = 5 (A four times, B once), FN = 1, FP = 1, IDSW = 1 (A: 1 -> 2);
+    # MOTA = 1 - (1 + 1 + 1) / 6 = 0.5; MOTP = mean similarity of the TPs = 1
+    assert (s["TP"], s["FN"], s["FP"], s["IDSW"]) == (5, 1, 1, 1)
+    assert s["MOTA"] == pytest.approx(0.5, abs=1e-12) and s["MOTP"] == pytest.approx(1.0)
+    # identity: one global pairing, A <-> 1 (or 2: 2 frames either way), B <-> 3 (1 frame):
+    # IDTP = 3, IDFN = 6 - 3, IDFP = 6 - 3, IDF1 = 2 * 3 / (2 * 3 + 3 + 3) = 0.5
+    assert (s["IDTP"], s["IDFN"], s["IDFP"]) == (3, 3, 3)
+    assert s["IDF1"] == pytest.approx(0.5) and s["IDP"] == pytest.approx(0.5)
+    # HOTA, the same at every alpha: DetA = 5 / (5 + 1 + 1); every TP's association Jaccard is
+    # 0.5 (A-1: 2 / (2 + 2 + 0), A-2 the same, B-3: 1 / (1 + 1 + 0)), so AssA = 0.5;
+    # HOTA = sqrt(5/7 * 0.5); AssRe = 0.5 (2/4, 2/4, 1/2), AssPr = 1 (2/2, 2/2, 1/1)
+    assert s["DetA"] == pytest.approx(5 / 7) and s["AssA"] == pytest.approx(0.5)
+    assert s["HOTA"] == pytest.approx(np.sqrt(5 / 14), abs=1e-12)
+    assert s["DetRe"] == pytest.approx(5 / 6) and s["DetPr"] == pytest.approx(5 / 6)
+    assert s["AssRe"] == pytest.approx(0.5) and s["AssPr"] == pytest.approx(1.0)
+    assert s["LocA"] == pytest.approx(1.0)
+    assert (s["gt_tracks"], s["est_tracks"], s["frames"]) == (2, 4, 4)
+
+
+def test_distance_similarity_and_alphas():
+    # one road user, one frame, 0.6 m off with d0 = 2 m: similarity 1 - 0.6 / 2 = 0.7
+    seq = sequence_from_poses(poses([(5, 1, 0.6, 0)]), poses([(5, 9, 0, 0)]), d0=2.0)
+    assert seq.similarity[0][0, 0] == pytest.approx(0.7)
+    h = hota(seq)
+    # a TP at the 14 alphas 0.05..0.70, a FN + FP at 0.75..0.95: HOTA_alpha 1 or 0
+    np.testing.assert_allclose(h["HOTA"], (ALPHAS <= 0.7 + 1e-9).astype(float))
+    s = summary(seq)
+    assert s["HOTA"] == pytest.approx(14 / 19)
+    # LocA at an alpha without matches is 1 in TrackEval (1e-10 / 1e-10): (14 * 0.7 + 5) / 19
+    assert s["LocA"] == pytest.approx((14 * 0.7 + 5) / 19)
+    assert s["MOTA"] == 1.0 and s["MOTP"] == pytest.approx(0.7) and s["sMOTA"] == pytest.approx(0.7)
+    # 1.2 m off: similarity 0.4 < 0.5, no CLEAR match: MOTA = 1 - (1 + 1) / 1 = -1
+    far = summary(sequence_from_poses(poses([(5, 1, 1.2, 0)]), poses([(5, 9, 0, 0)])))
+    assert far["MOTA"] == pytest.approx(-1.0) and far["IDF1"] == 0.0
+
+
+def rect(h, w, y0, y1, x0, x1) -> bytes:
+    m = np.zeros((h, w), np.uint8)
+    m[y0:y1, x0:x1] = 1
+    return encode(m)
+
+
+def frame_masks(f, ids, rles, h=40, w=60) -> tuple[int, MaskTable]:
+    n = len(ids)
+    return f, MaskTable(np.full(n, f), np.asarray(ids), np.ones(n, np.int64), h, w, list(rles))
+
+
+def test_masks_iou_motsa_and_ignored_small_truth():
+    big = rect(40, 60, 0, 10, 0, 10)              # 100 px
+    half = rect(40, 60, 0, 10, 5, 15)             # IoU with big: 50 / 150 = 1/3
+    tiny = rect(40, 60, 30, 32, 50, 52)           # 4 px truth mask: an ignore region at min_area 10
+    truth = [frame_masks(0, [1, 2], [big, tiny]), frame_masks(1, [1], [big])]
+    est = [frame_masks(0, [5, 6], [half, tiny]), frame_masks(1, [5], [big])]
+    seq = sequence_from_masks(iter(truth), iter(est), min_area=10)
+    # the estimate on the tiny truth mask is dropped with it: frame 0 has one truth, one estimate
+    assert [len(g) for g in seq.gt_ids] == [1, 1] and [len(t) for t in seq.tracker_ids] == [1, 1]
+    assert seq.similarity[0][0, 0] == pytest.approx(1 / 3) and seq.similarity[1][0, 0] == 1.0
+    s = summary(seq, kind="masks")
+    # CLEAR at IoU >= 0.5: frame 0 FN + FP, frame 1 TP: MOTSA = (1 - 1 - 0) / 2 = 0
+    assert (s["TP"], s["FN"], s["FP"], s["IDSW"]) == (1, 1, 1, 0)
+    assert s["MOTSA"] == 0.0 and s["MOTSP"] == 1.0 and "MOTA" not in s
+    # HOTA: alphas <= 1/3 (0.05..0.30, six) match both frames: DetA 1, AssA 1; the other 13
+    # match frame 1 only: DetA 1/3, and the one TP's Jaccard is 1 / (1 + 1 + 1) = 1/3
+    expect = np.where(ALPHAS <= 1 / 3, 1.0, 1 / 3)
+    assert s["HOTA"] == pytest.approx(float(np.mean(expect)))
+    # without the ignore rule the tiny pair is an exact match: one more TP in frame 0
+    s0 = summary(sequence_from_masks(iter(truth), iter(est)), kind="masks")
+    assert (s0["TP"], s0["FN"], s0["FP"]) == (2, 1, 1)
+
+
+def test_empty_sides():
+    none = poses([])
+    s = summary(sequence_from_poses(none, TRUTH))
+    assert (s["FN"], s["TP"], s["FP"]) == (6, 0, 0) and s["HOTA"] == 0.0 and s["IDF1"] == 0.0
+    s = summary(sequence_from_poses(EST, none))
+    assert (s["FP"], s["FN"]) == (6, 0) and s["MOTA"] == 0.0
+
+
+def random_sequence(rng, frames=30, n_gt=6, n_tr=8) -> Sequence:
+    """Road users that come and go, estimates that swap, miss and add, with real similarities."""
+    gts, trs, sims = [], [], []
+    for _ in range(frames):
+        g = np.flatnonzero(rng.random(n_gt) < 0.6)
+        t = np.flatnonzero(rng.random(n_tr) < 0.6)
+        s = rng.random((len(g), len(t)))
+        s[s < 0.4] = 0.0
+        gts.append(g.astype(np.int64))
+        trs.append(t.astype(np.int64))
+        sims.append(s)
+    return Sequence(gts, trs, sims, n_gt, n_tr, np.arange(frames))
+
+
+def test_equal_to_trackeval():
+    te = pytest.importorskip("trackeval.metrics")   # installed with --no-deps (Makefile)
+    rng = np.random.default_rng(3)
+    seqs = [sequence_from_poses(EST, TRUTH), random_sequence(rng), random_sequence(rng, 60, 12, 15),
+            sequence_from_poses(poses([(5, 1, 0.6, 0)]), poses([(5, 9, 0, 0)]))]
+    cfg = {"THRESHOLD": 0.5, "PRINT_CONFIG": False}
+    for seq in seqs:
+        data = seq.as_trackeval()
+        ref_h = te.HOTA().eval_sequence(data)
+        ref_c = te.CLEAR(cfg).eval_sequence(data)
+        ref_i = te.Identity(cfg).eval_sequence(data)
+        h, c, i = hota(seq), clear(seq), identity(seq)
+        for k in ("HOTA", "DetA", "AssA", "LocA", "DetRe", "DetPr", "AssRe", "AssPr", "HOTA_TP"):
+            np.testing.assert_allclose(h[k], ref_h[k], atol=1e-9, err_msg=k)
+        for k in ("MOTA", "MOTP", "MODA", "sMOTA", "CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML",
+                  "Frag"):
+            assert c[k] == pytest.approx(ref_c[k], abs=1e-9), k
+        for k in ("IDF1", "IDP", "IDR", "IDTP", "IDFN", "IDFP"):
+            assert i[k] == pytest.approx(ref_i[k], abs=1e-9), k
