@@ -204,6 +204,21 @@ def check_rough_stage(path: Path, cfg: TrainConfig) -> Checkpoint:
     return ck
 
 
+def keep_rough_stage(start: Path, path: Path, classes: list[str], labels: PseudoLabels) -> str:
+    """A model with no pseudo-labelled mask to self-train on (e.g. no track of its class in
+    the train split): its finished rough-only model is copied into the model folder (marked
+    ``self_training: {"skipped": ...}``) so that the other classes' models and ``s2p run``
+    go on, and a re-run finds it done; says so in one line and returns it, short."""
+    why = (f"no {'/'.join(classes)} track in the unlabelled split"
+           if len(labels) else "no pseudo-labelled views at all")
+    ck = Checkpoint.load(start)
+    ck.info["self_training"] = {"skipped": why, "start": {"file": f"{ROUGH_STAGE}/{path.name}",
+                                                           "sha256": file_sha256(start)}}
+    ck.save(path)
+    say(f"skipped self-training of {path.stem}: {why}; its rough-only model is kept", "warning")
+    return f"{path.stem} ({why})"
+
+
 def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainSettings,
                      cams: list[str], classes: list[str], progress: bool = True) -> None:
     """Fine-tune the rough-only models of ``out/ROUGH_STAGE`` on pseudo poses into ``out``
@@ -214,6 +229,7 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
     ft = cfg.replace(epochs=cfg.self_epochs)  # the fine-tuning's loop (its cosine schedule too)
     cap = cfg.max_train_per_class or PSEUDO_PER_CLASS
     labels = val_tracks = None
+    skipped: list[str] = []
     for group in camera_groups(scene, cams, cfg.share_cameras):
         for job in model_jobs(scene, out, cfg, net_cfg, group, classes, None, settings.force):
             if labels is None:  # only when a model is still to train
@@ -234,7 +250,8 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
             if len(val):
                 job.val = val  # else the rough models validate (as for the rough stage)
             if not len(job.train):
-                raise S2PError(f"{job.path.stem}: no pseudo-labelled masks to self-train on")
+                skipped.append(keep_rough_stage(stage / job.path.name, job.path, kcls, labels))
+                continue
             say(f"{job.path.stem}: self-training on {len(job.train)} pseudo-labelled + "
                 f"{len(job.rough)} rough examples, {len(job.val)} validation")
             ck = new_checkpoint(scene, job, cfg, settings, net_cfg, scene.class_names,
@@ -252,6 +269,8 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
             init = {k: v.detach().cpu() for k, v in start.net.state_dict().items()}
             train_model(data(job.train), data(job.rough), data(job.val), net_cfg, ft, ck,
                         job.path, progress, None, settings, init=init)
+    if skipped:  # once more at the end of a long run, where the user looks
+        say("self-training finished; skipped (rough-only model kept): " + "; ".join(skipped))
 
 
 def train_self_trained(scene: Scene, out: str | Path | None, cfg: TrainConfig,
