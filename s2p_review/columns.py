@@ -50,12 +50,9 @@ def frame_lengths(frame: np.ndarray, first: int, last: int) -> np.ndarray:
 
 
 def sizes_of(table: PoseTable, scene: Scene) -> np.ndarray:
-    """(N, 3) l, w, h metres of each row: the table's own sizes (NaN -> 1 m), else the scene's
-    class sizes."""
-    if table.size is not None:
-        return np.nan_to_num(table.size, nan=1.0)
-    sizes = scene.class_sizes()
-    return np.array([sizes.get(c, (1.0, 1.0, 1.0)) for c in table.cls], float).reshape(-1, 3)
+    """(N, 3) l, w, h metres of each row: the table's own sizes where given, else the scene's
+    class sizes (``Scene.road_user_sizes``: the one source that conflicts and export use too)."""
+    return scene.road_user_sizes(table.cls, table.size)[0]
 
 
 def box_corners(xyz: np.ndarray, heading: np.ndarray, size: np.ndarray) -> np.ndarray:

@@ -49,9 +49,48 @@ DEFAULT_CLASSES = [
 ]
 
 
-# l, w, h metres, used when scene.json gives no extra["class_sizes"]
+# l, w, h metres, used when scene.json gives no extra["class_sizes"]: a mid-size car, an adult
+# walking (shoulders and stride), a bicycle with rider, a rigid truck, a city bus, a motorcycle
+# and a moped with their riders
 DEFAULT_CLASS_SIZES = {"pedestrian": (0.6, 0.6, 1.75), "bicyclist": (1.8, 0.6, 1.7),
-                       "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.55, 3.2)}
+                       "car": (4.5, 1.8, 1.5), "truck": (8.0, 2.5, 3.2), "bus": (12.0, 2.55, 3.2),
+                       "motorcycle": (2.2, 0.8, 1.5), "moped": (1.8, 0.7, 1.5)}
+UNKNOWN_CLASS = "car"  # a class without a typical size is sized as this one (callers say so)
+
+
+def road_user_sizes(cls, own: np.ndarray | None = None,
+                    sizes: dict[str, tuple[float, float, float]] | None = None
+                    ) -> tuple[np.ndarray, list[str]]:
+    """The one source of road-user sizes (review, MCAP export, conflicts): (N, 3) l, w, h
+    metres per row and the class names that have no typical size (sized as UNKNOWN_CLASS).
+
+    cls: (N,) class names; own: (N, 3) or (N, 2) sizes the rows carry (NaN = none; a finite
+    value is kept, a missing one is taken from the class); sizes: class name -> (l, w, h), a
+    scene's ``Scene.class_sizes()`` (default: DEFAULT_CLASS_SIZES). Names are matched as given,
+    then in lower case. Looked up once per run of equal names (millions of rows, few classes)."""
+    table = DEFAULT_CLASS_SIZES if sizes is None else sizes
+    lower = {str(k).lower(): v for k, v in table.items()}
+    cls = np.asarray(cls, object).reshape(-1)
+    n = len(cls)
+    out = np.zeros((n, 3), np.float64)
+    unknown: list[str] = []
+    if n:
+        heads = np.flatnonzero(np.r_[True, cls[1:] != cls[:-1]])
+        looked: dict[str, tuple[float, float, float]] = {}
+        for name in {str(c) for c in cls[heads]}:
+            size = table.get(name, lower.get(name.lower()))
+            if size is None:
+                unknown.append(name)
+                size = table.get(UNKNOWN_CLASS, DEFAULT_CLASS_SIZES[UNKNOWN_CLASS])
+            looked[name] = (float(size[0]), float(size[1]), float(size[2]))
+        run = np.array([looked[str(c)] for c in cls[heads]], np.float64).reshape(-1, 3)
+        out = np.repeat(run, np.diff(np.r_[heads, n]), axis=0)
+    if own is not None:
+        own = np.asarray(own, np.float64).reshape(n, -1)
+        k = min(3, own.shape[1])
+        have = np.isfinite(own[:, :k])
+        out[:, :k][have] = own[:, :k][have]
+    return out, sorted(unknown)
 
 
 @dataclass
@@ -114,6 +153,12 @@ class Scene:
             sizes[str(k)] = tuple(number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True,
                                          hi=1000.0) for x in v)
         return sizes
+
+    def road_user_sizes(self, cls, own: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+        """(N, 3) l, w, h metres of rows of classes ``cls`` (N,) and the classes without a typical
+        size: the rows' ``own`` sizes where finite, else this scene's class sizes
+        (module function ``road_user_sizes``)."""
+        return road_user_sizes(cls, own, self.class_sizes())
 
     def masks_path(self, camera: str) -> Path:
         return self.root / "masks" / f"{camera}.txt"
