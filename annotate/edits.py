@@ -18,14 +18,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from annotate.headings import AUTO
-from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, keyframe_row, mark_spans
+from annotate.model import EditError, Keyframe, Track, check_flags, keyframe, keyframe_row, mark_reviewed, mark_spans
 
 SUPPORT_RADIUS = 10.0    # metres from the nearest ground point: beyond, keyframes are flagged
 REFUSE_RADIUS = 200.0    # metres: beyond, keyframes are refused
 NUDGE_STEPS = (0.02, 0.10, 0.50)   # metres, the app's small / medium / large nudge
 ROTATE_STEPS = (1.0, 5.0, 15.0)    # degrees
 MAX_SIZE = 30.0          # metres: no road user is longer, wider or taller
-CHECKED = {"estimate", "normal"}   # flags a manual correction removes (the pose is now checked)
+CHECKED = {"estimate", "accepted", "normal"}  # flags a correction removes (the pose is now checked)
 
 
 class EditsMixin:
@@ -247,6 +247,18 @@ class EditsMixin:
         if kind == "outside" and inside:
             ops.insert(0, {"op": "set_keyframes", "id": t.id, "del": sorted(inside)})
         return self._commit(f"mark_{kind}", ops)
+
+    def mark_reviewed(self, track_id: int, first: int, last: int, reviewed: bool = True):
+        """Mark frames first..last of a track reviewed (the annotator played them back and
+        passed them: estimates there count as accepted, the interpolation as ``reviewed``) or,
+        with ``reviewed=False``, not reviewed."""
+        t, a, b = self.track(track_id), self._frame(first), self._frame(last)
+        if b < a:
+            raise EditError(f"frames {a}..{b}: the last frame comes before the first")
+        spans = mark_reviewed(t.reviewed, a, b, bool(reviewed))
+        return self._commit("mark_reviewed" if reviewed else "unmark_reviewed",
+                            [{"op": "set_fields", "id": t.id,
+                              "fields": {"reviewed": [list(r) for r in spans]}}])
 
     # --- several tracks --------------------------------------------------------------------------
     def split_track(self, track_id: int, frame: int):

@@ -98,6 +98,18 @@ class MaskIndex:
             self._tables[camera] = self.scene.read_masks(camera)  # checked against the camera
         return self._tables[camera]
 
+    def presence(self) -> dict[int, np.ndarray]:
+        """Mask track id -> sorted frames in which some camera has its mask (presence.py)."""
+        if getattr(self, "_presence", None) is None:
+            from annotate.presence import presence
+            self._presence = presence(self.table(c) for c in self.scene.cameras)
+        return self._presence
+
+    def seen(self, road_user: int) -> np.ndarray | None:
+        """Frames in which some camera has a mask of ``road_user`` (a mask track id); None when
+        no mask carries that id (the run's ids are not the masks': presence unknown)."""
+        return self.presence().get(int(road_user))
+
     def normal_position(self, camera: str, frame: int, mask_track: int
                         ) -> tuple[float, float, str]:
         """Normal position (x, y metres) and class name of one mask (camera, frame, its track id)."""

@@ -9,8 +9,9 @@ folder of the annotated poses that review tools (the MCAP exporter) read as they
 
 Which rows: every frame from a track's first to its last keyframe, except frames in
 ``outside`` spans (and beyond the last keyframe before / first after such a span). source is
-``keyframe``, ``interpolated`` or ``occluded`` (inside an occluded span): training uses the
-first two and skips occluded rows.
+the row's provenance (table.py): ``keyframe``, ``estimate-accepted``, ``estimate-unchecked``,
+``interpolated``, ``reviewed`` or ``occluded``. Unchecked estimates are refused unless asked
+for (``gt_table``); training skips them and occluded rows.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from annotate import journal as J
+from annotate.table import UNCHECKED, source_counts
 from seg2pose.core.errors import S2PError
-from seg2pose.io.poses import PoseTable, write_poses
+from seg2pose.io.poses import SOURCES, PoseTable, write_poses
 
 RUN_META = {"kind": "annotations", "method": "annotation (keyframes + interpolation)"}
 
@@ -46,11 +48,40 @@ def gt_replaceable(path: Path, force: bool) -> bool:
     return True
 
 
-def gt_table(project) -> PoseTable:
-    """The annotated poses for ``gt/poses.csv`` (an S2PError when there are none)."""
+class UnreviewedError(S2PError):
+    """An export refused because rows are unchecked estimates; ``counts``: {track: rows}."""
+
+    def __init__(self, message: str, counts: dict[int, int]):
+        super().__init__(message)
+        self.counts = counts
+
+
+def provenance_line(table: PoseTable) -> str:
+    """Rows per provenance over all tracks, e.g. ``120 keyframe, 3400 interpolated``."""
+    total: dict[str, int] = {}
+    for c in source_counts(table).values():
+        for k, n in c.items():
+            total[k] = total.get(k, 0) + n
+    return ", ".join(f"{total[k]} {k}" for k in SOURCES if k in total) or "no rows"
+
+
+def gt_table(project, allow_unreviewed: bool = False) -> PoseTable:
+    """The annotated poses for ``gt/poses.csv``. An S2PError when there are none; an
+    ``UnreviewedError`` when rows are unchecked estimates (source ``estimate-unchecked``: a
+    pre-annotation or estimates taken every N frames that nobody has reviewed) unless
+    ``allow_unreviewed``, with which they are written, their source saying so."""
     table = annotated_poses(project)
     if not len(table):
         raise S2PError(f"{project.scene.root}: the annotation project has no annotated poses yet")
+    if not allow_unreviewed:
+        counts = {t: c[UNCHECKED] for t, c in source_counts(table).items() if UNCHECKED in c}
+        if counts:
+            worst = sorted(counts.items(), key=lambda kv: -kv[1])[:8]
+            raise UnreviewedError(
+                f"{sum(counts.values())} rows of {len(counts)} tracks are unchecked estimates "
+                f"(neither keyframed nor reviewed; tracks {', '.join(f'{t}: {n}' for t, n in worst)}"
+                f"{', ...' if len(counts) > len(worst) else ''}): review them, or export them "
+                "marked estimate-unchecked", counts)
     return table
 
 

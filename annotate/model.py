@@ -3,7 +3,9 @@
 A track has an id (int >= 1), a class name, a box size (l, w, h metres, constant over the track),
 an interpolation method (None = the class's default), keyframes ``{frame: Keyframe}`` and spans
 ``[(first, last, kind)]`` with kind ``occluded`` (still interpolated, flagged) or ``outside``
-(not in view: interpolation stops). z is never stored: it comes from the ground surface.
+(not in view: interpolation stops), and reviewed spans ``[(first, last)]`` (frames the annotator
+has watched and passed: their rows' provenance becomes ``reviewed``). z is never stored: it
+comes from the ground surface.
 
 Every change to the tracks is a list of *primitive operations*, plain JSON-able dicts, each of
 which ``apply_op`` applies and answers with its exact inverse:
@@ -11,7 +13,8 @@ which ``apply_op`` applies and answers with its exact inverse:
 - ``{"op": "put_track", "id": 3, "track": {...} | None}``: create, replace or delete a track;
 - ``{"op": "set_keyframes", "id": 3, "set": [[frame, x, y, heading, [flags]], ...],
   "del": [frame, ...]}``: upsert and delete keyframes;
-- ``{"op": "set_fields", "id": 3, "fields": {"cls"|"size"|"interp"|"spans"|"meta": value}}``.
+- ``{"op": "set_fields", "id": 3, "fields": {"cls"|"size"|"interp"|"spans"|"reviewed"|"meta":
+  value}}``.
 
 The journal stores these (with absolute values, never "nudge by 2 cm"), so replaying it needs no
 geometry and gives bit-identical floats (JSON writes floats with repr).
@@ -31,6 +34,7 @@ FLAG_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 # Keyframe flags the engine itself sets (others may be added by users: short identifiers)
 FLAGS = {
     "estimate": "taken from a Seg2Pose run's estimate (pre-annotation), not yet checked",
+    "accepted": "an estimate the annotator looked at and accepted (with the estimate flag)",
     "normal": "placed at a mask's normal position",
     "off_support": "more than SUPPORT_RADIUS from every ground point: z is extrapolated",
     "imported": "imported from another tool (T-Analyst)",
@@ -63,6 +67,7 @@ class Track:
     interp: str | None = None
     keyframes: dict[int, Keyframe] = field(default_factory=dict)
     spans: list[tuple[int, int, str]] = field(default_factory=list)
+    reviewed: list[tuple[int, int]] = field(default_factory=list)  # sorted, disjoint, inclusive
     meta: dict = field(default_factory=dict)  # free-form, JSON-able (e.g. {"run_track": 12})
 
     @property
@@ -85,11 +90,15 @@ class Track:
                 return kind
         return None
 
+    def is_reviewed(self, frame: int) -> bool:
+        return any(a <= frame <= b for a, b in self.reviewed)
+
     def to_dict(self) -> dict:
         return {"id": self.id, "cls": self.cls, "size": list(self.size), "interp": self.interp,
                 "keyframes": [[f, k.x, k.y, k.heading, list(k.flags)]
                               for f, k in sorted(self.keyframes.items())],
-                "spans": [list(s) for s in self.spans], "meta": self.meta}
+                "spans": [list(s) for s in self.spans],
+                "reviewed": [list(r) for r in self.reviewed], "meta": self.meta}
 
     @classmethod
     def from_dict(cls, d: dict) -> Track:
@@ -99,11 +108,12 @@ class Track:
                                                   tuple(r[4]) if len(r) > 4 else ())
                               for r in d.get("keyframes", [])},
                    spans=[(int(a), int(b), str(k)) for a, b, k in d.get("spans", [])],
+                   reviewed=[(int(a), int(b)) for a, b in d.get("reviewed", [])],
                    meta=dict(d.get("meta") or {}))
 
     def copy(self) -> Track:
         return Track(self.id, self.cls, tuple(self.size), self.interp, dict(self.keyframes),
-                     list(self.spans), dict(self.meta))
+                     list(self.spans), list(self.reviewed), dict(self.meta))
 
 
 # --- spans ----------------------------------------------------------------------------------------
@@ -134,6 +144,15 @@ def mark_spans(spans: list[tuple[int, int, str]], first: int, last: int, kind: s
         else:
             merged.append((a, b, k))
     return merged
+
+
+def mark_reviewed(reviewed: list[tuple[int, int]], first: int, last: int, on: bool
+                  ) -> list[tuple[int, int]]:
+    """Reviewed spans after marking frames first..last (inclusive) reviewed (``on``) or not:
+    sorted, disjoint, touching spans merged."""
+    spans = mark_spans([(a, b, "occluded") for a, b in reviewed], first, last,
+                       "occluded" if on else "visible")
+    return [(a, b) for a, b, _ in spans]
 
 
 # --- primitive operations -------------------------------------------------------------------------
@@ -211,6 +230,9 @@ def apply_op(tracks: dict[int, Track], op: dict) -> dict:
             elif name == "spans":
                 inv[name] = [list(s) for s in t.spans]
                 t.spans = [(int(a), int(b), str(k)) for a, b, k in value]
+            elif name == "reviewed":
+                inv[name] = [list(r) for r in t.reviewed]
+                t.reviewed = [(int(a), int(b)) for a, b in value]
             elif name == "meta":
                 inv[name], t.meta = dict(t.meta), dict(value)
             else:

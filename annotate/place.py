@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from annotate.estimates import MaskIndex
-from annotate.model import EditError, keyframe_row
+from annotate.model import EditError, keyframe_row, mark_spans
+from annotate.presence import annotated_run_tracks, plan
 from seg2pose.geometry.ground import miss_reasons
 
 
@@ -117,29 +118,38 @@ class PlacementMixin:
             if est is None:
                 raise EditError(f"the run has no estimate of road user {rt} at frame {f}")
             self._free(t, f)
-            k = self._kf(t.id, f, *est, flags=("estimate",))
+            k = self._kf(t.id, f, *est, flags=("accepted", "estimate"))
             return self._commit("accept_estimate", [{"op": "set_keyframes", "id": t.id,
                                                      "set": [keyframe_row(f, k)]}])
-        rows = self._sample(self.run.track(rt), every, frames)
-        if not len(rows[0]):
-            raise EditError(f"the run has no estimates of road user {rt} in frames {frames}")
+        p = self._plan(rt, every, frames)
+        if not p.keyframes:
+            raise EditError(f"the run has no estimates of road user {rt} where a camera sees it "
+                            f"in frames {frames}")
+        spans = list(t.spans)
+        for a, b, kind in p.spans:  # where the annotator keyframed, the annotator decides
+            if not any(a <= f <= b for f, k in t.keyframes.items() if "estimate" not in k.flags):
+                spans = mark_spans(spans, a, b, kind)
+        drop = [f for f in t.keyframes if any(a <= f <= b for a, b, k in spans if k == "outside")]
         sets = [keyframe_row(f, self._kf(t.id, f, x, y, h, ("estimate",)))
-                for f, x, y, h in zip(*rows) if t.span_at(f) != "outside"]
-        return self._commit("accept_estimates", [{"op": "set_keyframes", "id": t.id, "set": sets}])
+                for f, x, y, h in p.keyframes if not any(a <= f <= b for a, b, k in spans
+                                                         if k == "outside")]
+        ops = [{"op": "set_fields", "id": t.id, "fields": {"spans": [list(s) for s in spans]}}]
+        if drop:
+            ops.insert(0, {"op": "set_keyframes", "id": t.id, "del": sorted(drop)})
+        return self._commit("accept_estimates",
+                            ops + [{"op": "set_keyframes", "id": t.id, "set": sets}])
 
-    def _sample(self, est, every: int, frames):
+    def _plan(self, rt: int, every: int, frames):
+        """Keyframes and spans from run track ``rt``'s estimates (presence.py): every ``every``
+        frames over ``frames`` (and the scene's frames), only where a camera sees it."""
         if int(every) < 1:
             raise EditError(f"every must be a whole number of frames >= 1, got {every!r}")
+        est = self.run.track(rt)
         if frames is not None:
             est = est.in_frames((self._frame(frames[0]), self._frame(frames[1])))
         if self.frame_range is not None:
             est = est.in_frames(self.frame_range)
-        if not len(est):
-            return [], [], [], []
-        fr = est.frame
-        pick = ((fr - fr[0]) % int(every) == 0) | (np.arange(len(fr)) == len(fr) - 1)
-        return (fr[pick].tolist(), est.xyz[pick, 0].tolist(), est.xyz[pick, 1].tolist(),
-                est.heading[pick].tolist())
+        return plan(est, self.masks.seen(rt), int(every))
 
     def import_poses(self, table, every: int = 1, flags=("imported",), keep_ids: bool = True,
                      name: str = "import_poses"):
@@ -185,29 +195,33 @@ class PlacementMixin:
     def preannotate(self, every: int = 25, frames: tuple[int, int] | None = None,
                     run_tracks=None, min_estimates: int = 2, skip_annotated: bool = False):
         """Pre-annotation: one new track per road user of the run (or of ``run_tracks``) with
-        at least ``min_estimates`` estimates in ``frames``, keyframes every ``every`` frames
-        from its estimates (flag ``estimate``, meta["run_track"] = its run id). One undoable
-        step; ``change.created`` holds the new ids. ``skip_annotated``: leave out road users
-        that a track is linked to already (meta["run_track"])."""
+        at least ``min_estimates`` estimates where a camera sees it in ``frames``: keyframes
+        every ``every`` frames from its estimates and at both ends of each run of frames where
+        its masks are (flag ``estimate``: unchecked), gaps marked occluded (short) or outside
+        (presence.py), meta["run_track"] = its run id. One undoable step; ``change.created``
+        holds the new ids. ``skip_annotated``: leave out road users already annotated: linked
+        to a track (meta["run_track"]) or lying where a track is (``annotated_run_tracks``)."""
         run = self.run
         ids = run.track_ids() if run_tracks is None else [int(r) for r in run_tracks]
         if skip_annotated:
             linked = {int(t.meta["run_track"]) for t in self.tracks.values() if "run_track" in t.meta}
+            linked |= annotated_run_tracks(run.table, self.poses())
             ids = [int(r) for r in ids if int(r) not in linked]
         next_id = max(self.tracks, default=0) + 1
         ops = []
         for rt in ids:
-            est = run.track(rt)
-            fr, xs, ys, hs = self._sample(est, every, frames)
-            if len(fr) < min_estimates:
+            p = self._plan(rt, every, frames)
+            if len(p.keyframes) < min_estimates:
                 continue
-            cls = str(est.cls[0])
+            cls = str(run.track(rt).cls[0])
             kfs = [keyframe_row(f, self._kf(next_id, f, x, y, h, ("estimate",)))
-                   for f, x, y, h in zip(fr, xs, ys, hs)]
+                   for f, x, y, h in p.keyframes]
             ops.append({"op": "put_track", "id": next_id, "track": {
                 "id": next_id, "cls": cls, "size": list(self._size(None, cls)), "interp": None,
-                "keyframes": kfs, "spans": [], "meta": {"run_track": int(rt)}}})
+                "keyframes": kfs, "spans": [list(s) for s in p.spans], "reviewed": [],
+                "meta": {"run_track": int(rt)}}})
             next_id += 1
         if not ops:
-            raise EditError("the run has no road user with enough estimates to pre-annotate")
+            raise EditError("the run has no road user with enough estimates to pre-annotate"
+                            + (" that is not annotated already" if skip_annotated else ""))
         return self._commit("preannotate", ops)

@@ -17,10 +17,11 @@ writes nothing (a second viewer of a scene being annotated); ``refresh()`` picks
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
+from annotate import history as H
 from annotate import journal as J
 from annotate.edits import EditsMixin
 from annotate.estimates import scene_frames
@@ -33,7 +34,7 @@ from seg2pose.core.errors import S2PError
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene, load_scene
 
-UNDO_LIMIT = 10_000      # edits kept for undo (the oldest are forgotten beyond this)
+UNDO_LIMIT = H.UNDO_LIMIT
 SNAPSHOT_EVERY = 5_000   # records per journal segment before a snapshot compacts it
 
 
@@ -57,22 +58,6 @@ class Change:
         return next(iter(pick)) if len(pick) == 1 else None
 
 
-@dataclass(slots=True)
-class _Entry:
-    seq: int
-    name: str
-    ops: list[dict]
-    inverse: list[dict]
-
-
-@dataclass
-class _State:
-    tracks: dict[int, Track] = field(default_factory=dict)
-    undo: list[_Entry] = field(default_factory=list)
-    redo: list[_Entry] = field(default_factory=list)
-    seq: int = 0
-
-
 class Project(EditsMixin, PlacementMixin):
     """An open annotation project (see the module docstring). Use ``Project.open``."""
 
@@ -87,7 +72,7 @@ class Project(EditsMixin, PlacementMixin):
         self.snapshot_every = int(snapshot_every)
         if self.snapshot_every < 1:
             raise EditError(f"snapshot_every must be >= 1 record, got {snapshot_every!r}")
-        self._s = _State()
+        self._s = H.State()
         self._cache: dict[int, PoseTable] = {}
         self._stale: dict[int, PoseTable] = {}  # tables of changed tracks: z to reuse
         self._subscribers: list[Callable[[Change], None]] = []
@@ -250,7 +235,7 @@ class Project(EditsMixin, PlacementMixin):
         before = set(self._s.tracks)
         seq, ops, inverse = self._apply_durably("edit", ops,
                                                   {"name": name, "ops": ops, "t": J.now()})
-        _record_edit(self._s, _Entry(seq, name, ops, inverse))
+        H.record_edit(self._s, H.Entry(seq, name, ops, inverse))
         return self._changed("edit", name, seq, op_tracks(ops), before)
 
     def undo(self) -> Change | None:
@@ -267,8 +252,8 @@ class Project(EditsMixin, PlacementMixin):
             return None
         e = src[-1]
         before = set(self._s.tracks)
-        seq, _, _ = self._apply_durably(kind, _step_ops(e, kind), {"of": e.seq})
-        _swap(self._s, kind, e.seq)
+        seq, _, _ = self._apply_durably(kind, H.step_ops(e, kind), {"of": e.seq})
+        H.swap(self._s, kind, e.seq)
         return self._changed(kind, e.name, seq, op_tracks(e.ops), before)
 
     def _changed(self, kind: str, name: str, seq: int, tracks: set[int], before: set[int]
@@ -296,7 +281,7 @@ class Project(EditsMixin, PlacementMixin):
         segs, snaps = J.list_files(self.folder)
         start = max(snaps) if snaps else 0
         if snaps:
-            self._s = _state_from_snapshot(J.load_json(snaps[start]), snaps[start], self.fingerprint)
+            self._s = H.state_from_snapshot(J.load_json(snaps[start]), snaps[start], self.fingerprint)
         later = sorted(a for a in segs if a >= start)
         if snaps and start not in segs and later:
             raise J.JournalError(f"{self.folder}: journal after snapshot {start} is missing")
@@ -333,9 +318,9 @@ class Project(EditsMixin, PlacementMixin):
         s.seq = seq
         if kind == "edit":
             ops = rec["ops"]
-            _record_edit(s, _Entry(seq, rec["name"], ops, apply_ops(s.tracks, ops)))
+            H.record_edit(s, H.Entry(seq, rec["name"], ops, apply_ops(s.tracks, ops)))
         elif kind in ("undo", "redo"):
-            apply_ops(s.tracks, _step_ops(_swap(s, kind, rec["of"]), kind))
+            apply_ops(s.tracks, H.step_ops(H.swap(s, kind, rec["of"]), kind))
         elif kind != "note":
             raise ValueError(f"unknown record kind {kind!r}")
 
@@ -352,7 +337,7 @@ class Project(EditsMixin, PlacementMixin):
         if self.read_only:
             raise EditError("this project is open read-only")
         seq = self._s.seq
-        path = J.write_snapshot(self.folder, seq, _snapshot_dict(self._s, self.scene.name,
+        path = J.write_snapshot(self.folder, seq, H.snapshot_dict(self._s, self.scene.name,
                                                                   self.fingerprint))
         old = self._segment
         try:
@@ -386,7 +371,7 @@ class Project(EditsMixin, PlacementMixin):
     def refresh(self) -> Change:
         """Read-only projects: pick up what the writer has journalled since (reloads)."""
         old = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
-        self._s = _State()
+        self._s = H.State()
         self._cache.clear()
         self._stale.clear()
         self.notes = []
@@ -394,7 +379,7 @@ class Project(EditsMixin, PlacementMixin):
             self._load()
         except J.JournalError:
             # the writer may have compacted the journal while we listed it: look again once
-            self._s, self.notes = _State(), []
+            self._s, self.notes = H.State(), []
             self._load()
         new = {t: tr.to_dict() for t, tr in self._s.tracks.items()}
         changed = {t for t in old.keys() | new.keys() if old.get(t) != new.get(t)}
@@ -422,46 +407,5 @@ class Project(EditsMixin, PlacementMixin):
             raise EditError(f"unknown interpolation {method!r}; known: {', '.join(METHODS)}")
 
 
-def _record_edit(s: _State, e: _Entry) -> None:
-    """A new edit joins the undo history (the oldest forgotten beyond UNDO_LIMIT) and ends the
-    redo history: the same for edits made now and edits replayed from the journal."""
-    s.undo.append(e)
-    if len(s.undo) > UNDO_LIMIT:
-        del s.undo[: len(s.undo) - UNDO_LIMIT]
-    s.redo.clear()
-
-
-def _swap(s: _State, kind: str, of: int) -> _Entry:
-    """Move edit ``of`` from the top of the undo history to the redo one (``kind`` "undo") or
-    back ("redo"); returns it. Raises ValueError when it is not on top (a damaged journal)."""
-    src, dst = (s.undo, s.redo) if kind == "undo" else (s.redo, s.undo)
-    if not src or src[-1].seq != of:
-        raise ValueError(f"{kind} of edit {of}, which is not next to {kind}")
-    dst.append(src.pop())
-    return dst[-1]
-
-
-def _step_ops(e: _Entry, kind: str) -> list[dict]:
-    """The ops that undo (its inverse) or redo (its ops) edit ``e``."""
-    return e.inverse if kind == "undo" else e.ops
-
-
-def _snapshot_dict(s: _State, scene: str, fingerprint: str) -> dict:
-    ent = lambda e: [e.seq, e.name, e.ops, e.inverse]  # noqa: E731
-    return {"kind": "snapshot", "version": J.VERSION, "scene": scene, "fingerprint": fingerprint,
-            "seq": s.seq, "tracks": [t.to_dict() for _, t in sorted(s.tracks.items())],
-            "undo": [ent(e) for e in s.undo], "redo": [ent(e) for e in s.redo]}
-
-
-def _state_from_snapshot(d: dict, path: Path, fingerprint: str) -> _State:
-    J.check_header(d, path, fingerprint)
-    try:
-        tracks = {int(t["id"]): Track.from_dict(t) for t in d["tracks"]}
-        ent = lambda r: _Entry(int(r[0]), str(r[1]), r[2], r[3])  # noqa: E731
-        return _State(tracks, [ent(r) for r in d["undo"]], [ent(r) for r in d["redo"]],
-                      int(d["seq"]))
-    except (KeyError, TypeError, ValueError, IndexError) as e:
-        raise J.JournalError(f"{path}: not a valid snapshot ({e})") from None
-
-
 __all__ = ["Project", "Change", "S2PError", "UNDO_LIMIT"]
+

@@ -1,9 +1,18 @@
 """Per-frame poses of annotated tracks: ``track_poses`` interpolates one track into a PoseTable
 with sizes and the ``source`` column.
 
-source: ``keyframe`` (placed by the annotator), ``interpolated``, or ``occluded`` (inside an
-occluded span, keyframe or not: training skips these). Frames inside ``outside`` spans, and the
-frames of a track beyond the keyframes on either side of an outside span, have no rows.
+source (provenance, one of ``SOURCES``):
+
+- a keyframe: ``keyframe`` (placed or corrected by the annotator), ``estimate-accepted`` (a
+  Seg2Pose estimate the annotator accepted one by one, flag ``accepted``, or inside a reviewed
+  span) or ``estimate-unchecked`` (pre-annotation, estimates taken every N frames);
+- between keyframes: ``reviewed`` inside a reviewed span, else ``estimate-unchecked`` where
+  either neighbouring keyframe is an unchecked estimate (nobody looked at either end), else
+  ``interpolated``;
+- ``occluded`` inside an occluded span, whatever the above (training skips these).
+
+Frames inside ``outside`` spans, and the frames of a track beyond the keyframes on either side
+of an outside span, have no rows. ``UNCHECKED`` rows are what an export refuses unless asked.
 """
 
 from __future__ import annotations
@@ -15,7 +24,55 @@ from annotate.model import Track
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.poses import SOURCES, PoseTable
 
-__all__ = ["SOURCES", "segments", "track_poses", "empty"]
+__all__ = ["SOURCES", "UNCHECKED", "segments", "track_poses", "empty", "source_counts"]
+
+UNCHECKED = "estimate-unchecked"
+
+
+def _keyframe_sources(track: Track, kf: np.ndarray) -> np.ndarray:
+    """Provenance (K,) of the keyframes at frames kf (K,)."""
+    out = np.empty(len(kf), object)
+    for i, f in enumerate(kf):
+        flags = track.keyframes[int(f)].flags
+        if "estimate" not in flags:
+            out[i] = "keyframe"
+        elif "accepted" in flags or track.is_reviewed(int(f)):
+            out[i] = "estimate-accepted"
+        else:
+            out[i] = UNCHECKED
+    return out
+
+
+def _sources(track: Track, kf: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Provenance (F,) of the frames q (F,) of one segment with keyframes kf (K,), K >= 1."""
+    ks = _keyframe_sources(track, kf)
+    unchecked = ks == UNCHECKED
+    # the keyframes on either side of each frame (the same one at a keyframe)
+    right = np.clip(np.searchsorted(kf, q, side="left"), 0, len(kf) - 1)
+    left = np.clip(np.searchsorted(kf, q, side="right") - 1, 0, len(kf) - 1)
+    source = np.where(unchecked[left] | unchecked[right], UNCHECKED, "interpolated").astype(object)
+    for a, b in track.reviewed:
+        source[(q >= a) & (q <= b)] = "reviewed"
+    at = np.searchsorted(q, kf)
+    ok = (at < len(q)) & (q[np.minimum(at, len(q) - 1)] == kf)
+    source[at[ok]] = ks[ok]
+    for a, b, k in track.spans:
+        if k == "occluded":
+            source[(q >= a) & (q <= b)] = "occluded"
+    return source
+
+
+def source_counts(table: PoseTable) -> dict[int, dict[str, int]]:
+    """Rows per provenance per track: {track id: {source: rows}} (sources without rows left
+    out)."""
+    out: dict[int, dict[str, int]] = {}
+    if not len(table) or table.source is None:
+        return out
+    keys, n = np.unique(np.stack([table.track_id.astype(object), table.source], 1).astype(str),
+                        axis=0, return_counts=True)
+    for (t, src), c in zip(keys, n):
+        out.setdefault(int(t), {})[str(src)] = int(c)
+    return out
 
 
 def empty() -> PoseTable:
@@ -66,12 +123,7 @@ def track_poses(track: Track, ground: GroundSurface, method: str,
         xy_k = np.array([(r.x, r.y) for r in rows], dtype=np.float64).reshape(-1, 2)
         hd_k = np.array([r.heading for r in rows], dtype=np.float64)
         xy, hd = interpolate(kf, xy_k, hd_k, q, method)
-        is_kf = np.zeros(len(q), bool)
-        is_kf[kf[(kf >= lo) & (kf <= hi)] - lo] = True
-        source = np.where(is_kf, "keyframe", "interpolated").astype(object)
-        for a, b, k in track.spans:
-            if k == "occluded":
-                source[(q >= a) & (q <= b)] = "occluded"
+        source = _sources(track, kf, q)
         parts.append((q, xy, hd, source))
     if not parts:
         return empty()

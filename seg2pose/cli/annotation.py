@@ -19,7 +19,7 @@ import typer
 from typer.core import TyperGroup
 
 from seg2pose.cli.common import ANNOTATION, speaks_flags
-from seg2pose.core.errors import InputError
+from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import check_writable, outputs, replacing
 
 OPEN = "open"
@@ -51,6 +51,8 @@ def _echo_notes(notes: list[str], limit: int = 5) -> None:
 
 def _status(scene: Path) -> None:
     from annotate import Project
+    from annotate.export import provenance_line
+    from annotate.table import SOURCES, source_counts
 
     with Project.open(scene, read_only=True) as p:
         _echo_notes(p.notes)
@@ -62,6 +64,15 @@ def _status(scene: Path) -> None:
         typer.echo(f"{p.scene.root}: {len(tracks)} tracks ("
                    + ", ".join(f"{n} {c}" for c, n in sorted(by_cls.items())) + f"), {kf} keyframes, "
                    f"{p.seq} journal records, frames {p.frame_range}")
+        table = p.poses()
+        counts = source_counts(table)
+        typer.echo(f"rows by provenance: {provenance_line(table)}")
+        for t in tracks:
+            c = counts.get(t.id, {})
+            reviewed = sum(b - a + 1 for a, b in t.reviewed)
+            typer.echo(f"  {t.cls} {t.id}: " + (", ".join(f"{c[k]} {k}" for k in SOURCES if k in c)
+                                                 or "no rows")
+                       + (f"; {reviewed} frames reviewed" if reviewed else ""))
 
 
 def _parse_start(text: str) -> int:
@@ -209,26 +220,38 @@ def export_cmd(
     start: str = typer.Option("00:00:00.000", "--start", help=START_HELP),
     force: bool = typer.Option(False, "--force", help="replace existing outputs (and "
                                "gt/poses.csv that did not come from an annotation export)"),
+    allow_unreviewed: bool = typer.Option(False, "--allow-unreviewed", help="also write rows "
+                                          "that are unchecked estimates (pre-annotation nobody "
+                                          "reviewed), marked estimate-unchecked in the source "
+                                          "column; without it such rows refuse the export"),
 ) -> None:
     """Export the annotations as ground truth, an MCAP set and a T-Analyst CSV.
 
     Ground truth for `s2p train`, an MCAP set that `s2p import-mcap` turns back into a working
-    annotation project, and T-Analyst's tracks CSV."""
+    annotation project (video of every frame, masks, calibration, the journal), and
+    T-Analyst's tracks CSV. Every gt row names its provenance (source column: keyframe,
+    estimate-accepted, estimate-unchecked, interpolated, reviewed, occluded); the counts are
+    printed. Rows that are unchecked estimates refuse the export unless --allow-unreviewed."""
     from annotate import Project
+    from annotate.export import UnreviewedError
 
     out = Path(out) if out is not None else Path(scene) / "export"
     with Project.open(scene, read_only=True) as p:
-        export_set(p, out, gt=gt, mcap=mcap, tanalyst=tanalyst, start=start, force=force)
+        try:
+            export_set(p, out, gt=gt, mcap=mcap, tanalyst=tanalyst, start=start, force=force,
+                       allow_unreviewed=allow_unreviewed)
+        except UnreviewedError as e:
+            raise S2PError(f"{e} (--allow-unreviewed)") from None
 
 
 def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str,
-               force: bool) -> None:
+               force: bool, allow_unreviewed: bool = False) -> None:
     """gt/poses.csv, OUT/annotations.mcap (+ its layout) and OUT/tanalyst.csv as one set:
     every output checked and locked before anything is written, each built beside its final
     name, all swapped in together at the end (atomic.outputs)."""
     import tempfile
 
-    from annotate.export import gt_replaceable, gt_table, journal_files, write_annotation_run
+    from annotate.export import gt_replaceable, gt_table, journal_files, provenance_line, write_annotation_run
     from annotate.tanalyst_io import annotations_to_tanalyst
     from s2p_review.annotated_mcap import export_annotated_mcap
     from s2p_review.foxglove_layout import layout_path
@@ -253,9 +276,9 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     with outputs(paths, force=True) as files:
         truth = None
         if gt:
-            truth = gt_table(p)
+            truth = gt_table(p, allow_unreviewed)
             write_poses(files.file(p.scene.gt_path), truth)
-            said.append(f"wrote {p.scene.gt_path}")
+            said.append(f"wrote {p.scene.gt_path}: {len(truth)} rows ({provenance_line(truth)})")
         if mcap:
             dst = out / "annotations.mcap"
             tmp = files.file(dst)

@@ -5,9 +5,13 @@ heading in radians counter-clockwise from +x; x, y, z is the road user's ground 
 (bottom centre). ``r90_m`` (estimated poses of ``s2p run``) is the pose's error bar: the radius,
 metres on the ground, around x, y that holds the true position with 90 % probability
 (``seg2pose.method.uncertainty``; NaN where the run had no calibration). Floats are written
-with ``repr`` so that a round trip is exact. ``source`` (annotated ground truth only) says where a row comes from: ``keyframe`` (placed by the annotator),
-``interpolated`` between keyframes, or ``occluded`` (inside a span marked occluded: training
-skips these). Files without ``source`` or ``r90_m`` stay valid.
+with ``repr`` so that a round trip is exact. ``source`` (annotated ground truth only) says where
+a row comes from (its provenance): ``keyframe`` (placed by the annotator), ``estimate-accepted``
+(a Seg2Pose estimate the annotator accepted or reviewed), ``estimate-unchecked`` (an estimate,
+or the interpolation next to one, that nobody has checked: exported only when asked),
+``interpolated`` between checked keyframes, ``reviewed`` (interpolated, in frames the annotator
+played back and passed), or ``occluded`` (inside a span marked occluded: training skips these).
+Files without ``source`` or ``r90_m`` stay valid.
 """
 
 from __future__ import annotations
@@ -31,7 +35,11 @@ BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
 SIZE_COLUMNS = ["l", "w", "h"]
 _INT = re.compile(r"^[+-]?[0-9]{1,19}$")
 SOURCE_COLUMN = "source"
-SOURCES = ("keyframe", "interpolated", "occluded")
+SOURCES = ("keyframe", "estimate-accepted", "estimate-unchecked", "interpolated", "reviewed",
+           "occluded")
+# rows a person placed or checked one by one, and the rows between them (training's two choices)
+CHECKED_KEYFRAME_SOURCES = ("keyframe", "estimate-accepted")
+TRUSTED_SOURCES = CHECKED_KEYFRAME_SOURCES + ("interpolated", "reviewed")
 R90_COLUMN = "r90_m"
 
 

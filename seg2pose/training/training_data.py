@@ -17,7 +17,7 @@ import numpy as np
 
 from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
-from seg2pose.io.poses import PoseTable
+from seg2pose.io.poses import CHECKED_KEYFRAME_SOURCES, TRUSTED_SOURCES, PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint, model_filename
 from seg2pose.method.net import NetConfig, Normalisation
@@ -81,7 +81,9 @@ def truth_sources(cfg: TrainConfig) -> tuple[str, ...]:
     """The ``source`` values of annotated truth that training uses (never ``occluded``)."""
     if cfg.annotated_rows not in ("interpolated", "keyframes"):
         raise ValueError(f"annotated_rows must be 'interpolated' or 'keyframes', got {cfg.annotated_rows!r}")
-    return ("keyframe",) if cfg.annotated_rows == "keyframes" else ("keyframe", "interpolated")
+    # provenance (io/poses.py): checked keyframes, or those and the rows between them; never
+    # unchecked estimates
+    return CHECKED_KEYFRAME_SOURCES if cfg.annotated_rows == "keyframes" else TRUSTED_SOURCES
 
 
 def _annotated(scene: Scene, gcams: list[str], gt: PoseTable | None, cfg: TrainConfig,

@@ -34,5 +34,8 @@ def test_config_names_the_rows():
     from seg2pose.training.config import TrainConfig
     from seg2pose.training.training_data import truth_sources
 
-    assert truth_sources(TrainConfig.quick()) == ("keyframe", "interpolated")
-    assert truth_sources(TrainConfig.quick().replace(annotated_rows="keyframes")) == ("keyframe",)
+    # never unchecked estimates nor occluded rows
+    assert truth_sources(TrainConfig.quick()) == ("keyframe", "estimate-accepted", "interpolated",
+                                                  "reviewed")
+    assert truth_sources(TrainConfig.quick().replace(annotated_rows="keyframes")) == (
+        "keyframe", "estimate-accepted")
