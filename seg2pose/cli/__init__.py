@@ -36,9 +36,10 @@ def _root() -> None:
     """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
 
 
-from seg2pose.cli import annotation, batch, demo, method, review, safety, scene, video  # noqa: E402  (after app exists)
+from seg2pose.cli import annotation, batch, calibration, demo, method, review, safety, scene, video  # noqa: E402  (after app exists)
 
 scene.register(app)
+calibration.register(app)
 video.register(app)
 method.register(app)
 review.register(app)
