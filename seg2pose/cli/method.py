@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Literal
 
@@ -19,7 +20,10 @@ def register(app: typer.Typer) -> None:
     app.command("run", rich_help_panel=METHOD)(speaks_flags(run_cmd))
     app.command("train", rich_help_panel=METHOD)(speaks_flags(train_cmd))
     app.command("eval", rich_help_panel=METHOD)(speaks_flags(eval_cmd))
-    app.command("calibrate", rich_help_panel=METHOD)(speaks_flags(calibrate_cmd))
+    app.command("calibrate-errors", rich_help_panel=METHOD)(speaks_flags(calibrate_cmd))
+    # the old name, for one release: a new user reads "calibrate" as the camera's calibration
+    app.command("calibrate", rich_help_panel=METHOD, hidden=True, deprecated=True)(
+        speaks_flags(calibrate_alias_cmd))
     app.command("paper-table", rich_help_panel=METHOD)(speaks_flags(paper_table_cmd))
     app.command("bench-accuracy", rich_help_panel=METHOD)(speaks_flags(bench_accuracy_cmd))
 
@@ -69,7 +73,7 @@ def run_cmd(
     ),
     r90: Path | None = typer.Option(
         None, "--r90",
-        help="calibration of the error bars r90_m (made by s2p calibrate; default: MODELS/r90.json, or "
+        help="calibration of the error bars r90_m (made by s2p calibrate-errors; default: MODELS/r90.json, or "
              "SCENE/r90-baseline.json for --baseline, where it exists; without one r90_m is nan)",
     ),
     force: bool = typer.Option(
@@ -110,7 +114,7 @@ def run_cmd(
     if not (meta.get("r90") or {}).get("calibration"):
         where = "SCENE/r90-baseline.json" if meta["method"] == "baseline" else "MODELS/r90.json"
         typer.echo("note: no r90 calibration, so r90_m (the error bars) is nan; fit one on a run "
-                   "of the validation split with s2p calibrate (a scene without truth: on other "
+                   "of the validation split with s2p calibrate-errors (a scene without truth: on other "
                    f"scenes' val runs, -o {where})", err=True)
     far = meta.get("far_residuals") or {}
     if far.get("flagged_views"):
@@ -314,6 +318,15 @@ def calibrate_cmd(
     typer.echo(f"r90 calibration ({cal.meta.get('method')}, --smooth {cal.meta.get('smooth_frames')}, "
                f"classes {', '.join(k for k in cal.pose.coef if k != '*')}) in {path}; coverage on "
                f"the fitted rows: views {cov['views']:.3f}, poses {cov['poses']:.3f}")
+
+
+@functools.wraps(calibrate_cmd)
+def calibrate_alias_cmd(*args, **kwargs) -> None:
+    """Deprecated name of ``s2p calibrate-errors``."""
+    typer.secho("note: `s2p calibrate` is now `s2p calibrate-errors` (error bars); cameras are "
+                "calibrated with `s2p calibrate-camera`. The old name goes in the next release.",
+                fg=typer.colors.YELLOW, err=True)
+    return calibrate_cmd(*args, **kwargs)
 
 
 def paper_table_cmd(
