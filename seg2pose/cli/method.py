@@ -255,7 +255,7 @@ def train_cmd(
 
 def eval_cmd(
     scene: Path = typer.Argument(..., help="scene folder with ground truth"),
-    run: Path = typer.Option(..., "--run", help="run folder (made by s2p run)"),
+    run: Path | None = typer.Option(None, "--run", help="run folder (made by s2p run)"),
     split: str | None = typer.Option(None, "--split", help="evaluate only this split's frames"),
     as_json: bool = typer.Option(False, "--json/--no-json", help="print JSON instead of a table"),
     match: Literal["auto", "ids", "nearest"] = typer.Option(
@@ -265,27 +265,66 @@ def eval_cmd(
              "says so",
     ),
     gate: float = typer.Option(3.0, "--gate", help="with --match nearest or auto: the farthest pair, metres"),
+    track_d0: float = typer.Option(
+        2.0, "--track-distance", min=0.01,
+        help="tracking metrics of the run's world tracks: similarity max(0, 1 - d / this) for positions d metres "
+             "apart, so MOTA and IDF1 match within half of it, HOTA averages thresholds from 0.05 to 0.95 of it",
+    ),
+    truth_masks: list[Path] | None = typer.Option(
+        None, "--truth-masks",
+        help="a camera's truth masks (MOTS txt named after the camera, e.g. truth/masks/c1.txt): HOTA, IDF1 and "
+             "MOTSA of SCENE/masks/<camera>.txt against them (mask IoU); repeatable",
+    ),
+    ignore_below: int = typer.Option(
+        0, "--ignore-below", min=0,
+        help="with --truth-masks: truth masks under this many pixels are ignore regions (neither found nor missed)",
+    ),
 ) -> None:
-    """Mean ground-plane error of a run against the ground truth.
+    """Errors and tracking metrics of a run (and of masks) against the ground truth.
 
-    Overall, per class and per 5 m of distance from the cameras."""
+    The run: mean ground-plane error overall, per class and per 5 m of distance from the cameras,
+    and the standard tracking metrics of its world tracks (HOTA with DetA, AssA, LocA; IDF1 with
+    IDP, IDR; MOTA with MOTP, IDSW, FP, FN; computed as TrackEval does). Masks (--truth-masks):
+    the same metrics on mask IoU, with MOTA as MOTS's MOTSA."""
     import json
 
     from seg2pose.eval.evaluate import format_r90_table, format_table
     from seg2pose.eval.paper_table import evaluate_run
+    from seg2pose.eval.tracking_inputs import mots_summary
+    from seg2pose.eval.tracking_metrics import format_summary
     from seg2pose.io.scene import load_scene
 
-    res = evaluate_run(load_scene(scene), run, split=split, match=match, gate=gate)
-    if res.match_note:
-        typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
+    if run is None and not truth_masks:
+        raise typer.BadParameter("give --run RUN (world tracks) or --truth-masks FILE (masks), or both")
+    sc = load_scene(scene)
+    out: dict = {}
+    if run is not None:
+        res = evaluate_run(sc, run, split=split, match=match, gate=gate, track_d0=track_d0)
+        if res.match_note:
+            typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
+        out = res.to_dict()
+    masks = {}
+    for path in truth_masks or []:
+        cam = path.stem
+        if cam not in sc.cameras:
+            raise typer.BadParameter(f"{path}: the file's name names no camera of the scene "
+                                     f"({', '.join(sc.cameras)}); name it <camera>.txt")
+        masks[cam] = mots_summary(path, sc.masks_path(cam), sc.split_range(split), ignore_below)
+    if masks:
+        out["masks"] = masks
     if as_json:
-        typer.echo(json.dumps(res.to_dict(), indent=1))
-    else:
+        typer.echo(json.dumps(out, indent=1))
+        return
+    if run is not None:
         typer.echo(format_table({Path(run).name: res}))
         r90 = format_r90_table({Path(run).name: res})
         if r90:
             typer.echo("error bars r90_m (coverage: share of poses within r90_m; the aim is 0.90)")
             typer.echo(r90)
+        if res.tracking:
+            typer.echo(f"tracking, world ({res.tracking['similarity']}): {format_summary(res.tracking)}")
+    for cam, d in masks.items():
+        typer.echo(f"tracking, masks of {cam} (mask IoU): {format_summary(d)}")
 
 
 def calibrate_cmd(

@@ -126,6 +126,8 @@ class EvalResult:
     # carrying its majority id, over road-user frames seen by 2+ cameras; None: not measured
     id_consistency: float | None = None
     n_multi_view: int = 0     # those road-user frames
+    # HOTA, IDF1, MOTA... of the world tracks (``tracking_metrics.summary``); None: not measured
+    tracking: dict | None = None
 
     @property
     def mean_heading_error_deg(self) -> float:
@@ -174,6 +176,7 @@ class EvalResult:
             "match": self.match,
             **({} if self.id_consistency is None else {
                 "id_consistency": num(self.id_consistency), "n_multi_view": int(self.n_multi_view)}),
+            **({} if self.tracking is None else {"tracking": self.tracking}),
             "bin_size": float(self.bin_size),
             "bins": [{"lo": float(lo), "hi": float(hi), "count": int(c), "mean_error": num(m)}
                      for lo, hi, c, m in self.bins],

@@ -11,6 +11,8 @@ import numpy as np
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.eval.evaluate import evaluate, format_table, plot_error_vs_distance
+from seg2pose.eval.tracking_inputs import sequence_from_poses
+from seg2pose.eval.tracking_metrics import summary
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_run_poses, read_views
@@ -21,10 +23,12 @@ from seg2pose.method.pipeline import RunOptions, compute_views, write_run
 
 
 def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
-                 match: str = "ids", gate: float = 3.0):
+                 match: str = "ids", gate: float = 3.0, track_d0: float | None = None):
     """EvalResult of RUN/poses.csv against SCENE/gt/poses.csv; distances from the rig centre
     (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
-    ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids)."""
+    ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids); ``track_d0``: also
+    the tracking metrics (HOTA, IDF1, MOTA) with similarity 1 - d / track_d0 metres
+    (``tracking_inputs.sequence_from_poses``)."""
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     run_dir = Path(run_dir)
@@ -34,6 +38,10 @@ def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
     gt = read_poses(scene.gt_path, known_classes=classes)
     res = evaluate(est, gt, scene.rig.center[:2], frame_range=scene.split_range(split),
                    match=match, gate=gate)
+    if track_d0 is not None:
+        fr = scene.split_range(split)
+        res.tracking = {"similarity": f"max(0, 1 - d / {track_d0:g} m)", "match_within_m": track_d0 / 2,
+                        **summary(sequence_from_poses(est.in_frames(fr), gt.in_frames(fr), track_d0))}
     views_path = run_dir / "views.csv"
     if res.match == "nearest" and views_path.exists():  # video input: ids of trackers
         from seg2pose.eval.evaluate import id_consistency

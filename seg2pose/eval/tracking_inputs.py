@@ -17,13 +17,14 @@ Both are class-agnostic: a pedestrian estimated as a car still counts as found, 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.errors import InputError
-from seg2pose.eval.tracking_metrics import Sequence
-from seg2pose.io.mots import MaskTable
+from seg2pose.eval.tracking_metrics import Sequence, summary
+from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.poses import PoseTable
 from seg2pose.structures.masks import iou, rle_stats
 
@@ -132,3 +133,13 @@ def sequence_from_poses(est: PoseTable, gt: PoseTable, d0: float = WORLD_D0) -> 
     n_g = int(g_all.max()) + 1 if len(g_all) else 0
     n_e = int(e_all.max()) + 1 if len(e_all) else 0
     return Sequence(gts, trs, sims, n_g, n_e, frames.astype(np.int64))
+
+
+def mots_summary(truth: str | Path, est: str | Path, frame_range: tuple[int, int] | None = None,
+                 min_area: int = 0) -> dict:
+    """HOTA, IDF1, MOTSA... (``tracking_metrics.summary``, kind "masks") of the MOTS file
+    ``est`` against the truth MOTS file ``truth`` of the same camera, over ``frame_range``
+    (inclusive; None: all frames); truth masks under ``min_area`` pixels are ignore regions."""
+    seq = sequence_from_masks(iter_mots(truth, frame_range=frame_range),
+                              iter_mots(est, frame_range=frame_range), min_area=min_area)
+    return {"similarity": "mask IoU", "ignored_below_px": int(min_area), **summary(seq, kind="masks")}

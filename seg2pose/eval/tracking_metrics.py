@@ -268,3 +268,14 @@ def summary(seq: Sequence, kind: str = "world") -> dict:
                 "gt_dets": seq.num_gt_dets, "est_dets": seq.num_tracker_dets,
                 "frames": len(seq.gt_ids)})
     return out
+
+
+def format_summary(d: dict) -> str:
+    """One line of a ``summary``: HOTA with DetA / AssA / LocA, IDF1 with IDP / IDR, MOTA (MOTSA
+    for masks) with MOTP, IDSW, FP, FN."""
+    mota = "MOTSA" if "MOTSA" in d else "MOTA"
+    motp = "MOTSP" if "MOTSP" in d else "MOTP"
+    return (f"HOTA {d['HOTA']:.3f} (DetA {d['DetA']:.3f}, AssA {d['AssA']:.3f}, LocA {d['LocA']:.3f})  "
+            f"IDF1 {d['IDF1']:.3f} (IDP {d['IDP']:.3f}, IDR {d['IDR']:.3f})  "
+            f"{mota} {d[mota]:.3f} ({motp} {d[motp]:.3f}, IDSW {d['IDSW']}, FP {d['FP']}, FN {d['FN']})  "
+            f"{d['gt_tracks']} truth / {d['est_tracks']} estimated tracks")

@@ -141,3 +141,43 @@ def test_equal_to_trackeval():
             assert c[k] == pytest.approx(ref_c[k], abs=1e-9), k
         for k in ("IDF1", "IDP", "IDR", "IDTP", "IDFN", "IDFP"):
             assert i[k] == pytest.approx(ref_i[k], abs=1e-9), k
+
+
+def test_s2p_eval_json_carries_world_and_mask_metrics(tmp_path, monkeypatch, capsys):
+    import json
+
+    from scene_fixtures import make_tiny_scene, s2p
+
+    from seg2pose.io.mots import read_mots, write_mots
+    from seg2pose.io.poses import read_poses
+    from seg2pose.io.run import write_run_folder
+
+    scene = make_tiny_scene(tmp_path / "sc", frames=8, n_users=3)
+    # the run: the truth itself, one road user's id changed from frame 4 on (one ID switch)
+    gt = read_poses(scene.gt_path)
+    est = read_poses(scene.gt_path)
+    est.track_id[(est.track_id == 1) & (est.frame >= 4)] = 99
+    run = tmp_path / "run"
+    write_run_folder(run, est, None, {"scene_fingerprint": scene.fingerprint(), "method": "test"})
+    # the masks: truth = the scene's masks of c1; the estimate swaps in the same id change
+    truth = tmp_path / "truth" / "c1.txt"
+    t = read_mots(scene.masks_path("c1"))
+    write_mots(truth, t)
+    t.track_id[(t.track_id == 1) & (t.frame >= 4)] = 99
+    write_mots(scene.masks_path("c1"), t)
+    code, out, err = s2p(monkeypatch, capsys, "eval", scene.root, "--run", run, "--truth-masks", truth, "--json")
+    assert code in (0, None), err
+    d = json.loads(out)
+    w, m = d["tracking"], d["masks"]["c1"]
+    n, n1 = len(gt.frame), int((gt.track_id == 1).sum())
+    # every position exact: TP = n, one IDSW; MOTA = 1 - 1 / n; IDF1 = 2 IDTP / 2n with IDTP = n - 4
+    # (road user 1's four frames 4..7 go to the unpaired id 99)
+    assert (w["TP"], w["FP"], w["FN"], w["IDSW"]) == (n, 0, 0, 1) and n1 == 8
+    assert w["MOTA"] == pytest.approx(1 - 1 / n) and w["IDF1"] == pytest.approx((n - 4) / n)
+    assert w["LocA"] == pytest.approx(1.0) and w["similarity"] == "max(0, 1 - d / 2 m)"
+    # HOTA: DetA 1; AssA = (4 * 4/8 + 4 * 4/8 + (n - 8) * 1) / n
+    assert w["HOTA"] == pytest.approx(np.sqrt((4 * 0.5 + 4 * 0.5 + n - 8) / n))
+    k = int((t.track_id == 99).sum())
+    assert m["IDSW"] == 1 and m["MOTSA"] == pytest.approx(1 - 1 / len(t.frame)) and m["FP"] == 0
+    assert m["IDF1"] == pytest.approx((len(t.frame) - min(k, int((t.track_id == 1).sum()))) / len(t.frame))
+    assert d["mean_error"] == pytest.approx(0.0, abs=1e-9)
