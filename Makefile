@@ -11,6 +11,9 @@ $(STAMP): pyproject.toml
 	# torch first, pinned, so pip takes the CPU build on disk instead of a multi-GB CUDA build
 	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
 	$(BIN)/pip install -q --disable-pip-version-check -e '.[test,app,scale]'
+	# TrackEval: the reference the tracking metrics are tested against (seg2pose/eval/tracking_metrics.py);
+	# --no-deps because its package requires opencv-python, which would shadow opencv-python-headless
+	$(BIN)/pip install -q --disable-pip-version-check --no-deps trackeval==1.3.0
 	touch $(STAMP)
 
 venv: $(STAMP)
