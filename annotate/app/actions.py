@@ -5,10 +5,15 @@ projects and undo work the same for every action)."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from annotate import EditError
 from annotate.edits import NUDGE_STEPS, ROTATE_STEPS
+
+if TYPE_CHECKING:
+    from annotate.project import Project
 
 CLICK_MODES = ("centre", "ground", "mask")
 CLICK_MODE_HELP = {
@@ -89,7 +94,49 @@ PAGE_ACTIONS = {"goto_frame"}  # done by the page itself (focus the frame field)
 CONFIRM_SECONDS = 5.0          # a second Shift+Delete within this long deletes the track
 
 
-class Actions:
+class ControllerState:
+    """What the mixins of ``Controller`` (``Actions``, ``Clicks``, ``PanelData``) use of it,
+    declared for the type checker only; ``annotate.app.controller.Controller`` defines them."""
+
+    if TYPE_CHECKING:
+        project: Project
+        cameras: list[str]
+        frame_range: tuple[int, int]
+        read_only_reason: str | None
+        frame: int
+        selected: int | None
+        previous: int | None
+        click_mode: str
+        new_class: str
+        every: int
+        message: str
+        last_click: dict | None
+        clicks: int
+        video_frames: dict
+        viewer_state: str
+        large_camera: str | None
+        lock: threading.RLock
+        _key: str
+        _run: Any
+
+        @property
+        def read_only(self) -> bool: ...
+        @property
+        def viewer_visible(self) -> bool: ...
+        def touch(self) -> None: ...
+        def goto(self, frame: int, from_viewer: bool = False) -> None: ...
+        def best_camera(self, tid: int) -> str | None: ...
+        def suggestions(self, threshold: float = 0.5) -> list[tuple[int, int, float]]: ...
+        def _save(self) -> None: ...
+        def _select(self, tid: int | None) -> None: ...
+        def _set_viewer(self, shown: bool) -> None: ...
+        def _show_large(self, cam: str) -> None: ...
+        def _tracks_changed(self, ids) -> None: ...
+        def _need_track(self) -> int: ...
+        def _edit(self, fn, *args, **kw): ...
+
+
+class Actions(ControllerState):
     """The actions of ``ACTIONS`` as methods ``_a_<name>``; ``_do`` dispatches a name (with the
     parametrised ones: ``goto:F``, ``select:T``, ``class:C``, ``every:N``, ``nudge:DX:DY``,
     ``rotate:DEG``). Needs the controller's ``project``, ``frame``, ``selected``, ``goto``,

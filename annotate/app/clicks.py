@@ -11,12 +11,13 @@ import math
 
 import numpy as np
 
+from annotate.app.actions import ControllerState
 from seg2pose.core.errors import S2PError
 
 GROUND_TOLERANCE = 0.25         # metres: a 3D click this close to the ground surface is on it
 
 
-class Clicks:
+class Clicks(ControllerState):
     """The clicks of the viewer and the large camera's picture; what each did is returned as
     the panel's message (a click the controller cannot use says why)."""
 

@@ -9,11 +9,11 @@ import math
 
 import numpy as np
 
-from annotate.app.actions import ACTIONS, CLICK_MODE_HELP
+from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, ControllerState
 from annotate.headings import AUTO
 
 
-class PanelData:
+class PanelData(ControllerState):
     """The panel's rows and state (see the module docstring)."""
 
     def suggestions(self, threshold: float = 0.5) -> list[tuple[int, int, float]]:
