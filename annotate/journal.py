@@ -30,6 +30,7 @@ from seg2pose.core.clock import utc_now, utc_stamp
 from seg2pose.core.errors import S2PError
 from seg2pose.core.locks import KernelLock, LockHolder
 from seg2pose.io.atomic import atomic_write_text, fsync_dir
+from seg2pose.io.nofollow import fdopen_nofollow, open_nofollow, refuse_links
 
 VERSION = 1
 ANNOTATIONS = "annotations"
@@ -122,7 +123,8 @@ class Segment:
 
     def __init__(self, path: Path):
         self.path = path
-        self.fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        # never through a link planted in the scene folder (its target would take the journal)
+        self.fd = open_nofollow(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         self.size = os.fstat(self.fd).st_size
         self.broken = False
 
@@ -179,11 +181,14 @@ def write_snapshot(folder: Path, after: int, state: dict) -> Path:
 
 def move_torn(path: Path, good: int) -> Path:
     """Cut a torn tail off a segment, keeping it in ``torn-<time>.jsonl`` beside it."""
-    data = path.read_bytes()
-    stamp = utc_stamp(microseconds=True)
-    keep = path.parent / f"torn-{stamp}.jsonl"
-    keep.write_bytes(data[good:])
-    with open(path, "r+b") as f:
+    with fdopen_nofollow(path, "r+b") as f:  # a linked segment is refused, never cut
+        data = f.read()
+        stamp = utc_stamp(microseconds=True)
+        keep = path.parent / f"torn-{stamp}.jsonl"
+        with fdopen_nofollow(keep, "xb") as k:
+            k.write(data[good:])
+            k.flush()
+            os.fsync(k.fileno())
         f.truncate(good)
         f.flush()
         os.fsync(f.fileno())
@@ -200,6 +205,7 @@ class Lock:
     def __init__(self, folder: Path, scene_name: str):
         self.path = folder / "lock"
         self.note: str | None = None
+        refuse_links(self.path)  # annotations/ itself a link: refused, like a linked lock file
 
         def busy(h: LockHolder | None) -> LockedError:
             who = f"pid {h.pid} on {h.host} since {h.since}" if h else "another process"

@@ -45,16 +45,17 @@ from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.digest import file_fingerprint, file_sha256
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import atomic_write_text, check_writable, outputs, replacing
+from seg2pose.io.atomic import atomic_write_text, check_writable, replacing
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
+from seg2pose.io.track_ids import stage_ids
 from seg2pose.io.video import image_files
 from seg2pose.structures.masks import iou
 from seg2pose.video.classify import classify_mots, size_rules
 from seg2pose.video.fragments import join_fragments
 from seg2pose.video.track import TrackConfig, track_mots
 from seg2pose.video.video_masks import BgConfig, masks_from_video
-from seg2pose.video.video_scene import associate_step, camera_reader, scene_masks_from_video
+from seg2pose.video.video_scene import associate_step, camera_reader, masks_outputs, scene_masks_from_video
 
 SEGMENTS_DIR = "batch/segments"
 LINK_IOU = 0.5  # masks of the two segments in an overlap frame are the same road user above this
@@ -348,7 +349,8 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
                                      associate=False, log=log)
         for c, r in res.items():
             out[c] = {"frames": r.n_frames, "masks": r.n_masks, "segments": 1, "seams": []}
-    with outputs([scene.masks_path(c) for c in cut], force) as files:
+    built = {}
+    with masks_outputs(scene, cut, force) as files:
         for c in cut:
             segs = plans[c]
             list((map_segments or map)(lambda s: run_segment(scene.root, s, log), segs))
@@ -359,12 +361,13 @@ def scene_masks_segmented(scene_dir: str | Path, segment_frames: int, *, overlap
             join_fragments(tmp, tmp, scene.cameras[c], scene.ground, rules, scene.fps, tcfg,
                            log=log)  # as masks-from-video does, over the stitched tracks
             classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules, fps=scene.fps, log=log)
-            files.commit(dst)
+            built[c] = tmp
             log(f"{c}: {info['frames']} frames in {info['segments']} segments -> {info['tracks']} "
                 f"tracks ({info['masks']} masks); at the seams: "
                 f"{sum(x['id_changes'] for x in info['seams'])} id changes, "
                 f"{sum(x['unlinked'] for x in info['seams'])} tracks not continued")
             out[c] = info
-    associate_step(scene, cut, False, log)
+        if cut:  # the cut cameras' masks and their record, swapped in together
+            stage_ids(files, scene.root / "masks", {c: "tracker" for c in cut}, built)
     associate_step(scene, [], True, log)
     return out

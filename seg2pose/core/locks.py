@@ -16,6 +16,7 @@ holding a lock file, each where its property is needed:
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import json
 import os
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seg2pose.core.clock import utc_now
+from seg2pose.core.errors import S2PError
 
 
 def pid_alive(pid: int, since: float | None = None) -> bool:
@@ -136,7 +138,7 @@ class ExclusiveLock:
         me = LockHolder.me()
         for attempt in range(3):
             try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | os.O_NOFOLLOW, 0o644)
             except FileExistsError:
                 try:
                     text = self.path.read_text(encoding="utf-8", errors="replace")
@@ -173,7 +175,13 @@ class KernelLock:
     def __init__(self, path: Path, busy: Callable[[LockHolder | None], Exception],
                  timespec: str = "milliseconds"):
         self.path = Path(path)
-        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:  # never through a link planted under the lock's name (it would be truncated)
+            self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise S2PError(f"{self.path} is a symbolic link; s2p does not write through links "
+                               "inside a scene or output folder (remove it)") from None
+            raise
         try:
             fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

@@ -41,6 +41,7 @@ from seg2pose.core.locks import ExclusiveLock, LockHolder
 from seg2pose.core.say import say
 from seg2pose.io.atomic_names import clean_stale_partials, final_name, is_temporary, lock_path, partial_prefix
 from seg2pose.io.atomic_set import commit_set, finish_commits, fsync_dir, remove_partial_folder, remove_path, swap_in
+from seg2pose.io.nofollow import refuse_links
 
 __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text",
            "check_writable", "clean_stale_partials", "final_name", "finish_commits", "fsync_dir",
@@ -195,6 +196,7 @@ def output_lock(path: str | Path) -> Iterator[Path]:
     holder makes this raise S2PError naming it; the lock of a process on this machine that no
     longer runs is taken over with a note."""
     path = Path(path)
+    refuse_links(path)  # a linked folder: the lock and the output would land where it points
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
     lock = lock_path(path)
@@ -307,19 +309,25 @@ class OutputSet:
 
 
 @contextlib.contextmanager
-def outputs(paths, force: bool = False) -> Iterator[OutputSet]:
+def outputs(paths, force: bool = False, records=()) -> Iterator[OutputSet]:
     """The outputs ``paths`` (files or folders) of one command: each locked (``output_lock``)
     and checked (``check_writable``) before anything is written, a killed writer's set
     finished and its partial builds removed; yields an ``OutputSet`` to build them in, swapped
-    in as a set when the block ends (those not committed earlier)."""
-    paths = list(dict.fromkeys(Path(p) for p in paths))
+    in as a set when the block ends (those not committed earlier). ``records``: outputs of the
+    set that are replaced without ``force`` (a record of the others, such as masks/ids.json,
+    which must change together with the masks it describes)."""
+    records = [Path(p) for p in records]
+    paths = list(dict.fromkeys([*(Path(p) for p in paths), *records]))
     with contextlib.ExitStack() as stack:
+        for p in paths:
+            refuse_links(p)
         for p in paths:
             stack.enter_context(output_lock(p))
         for p in paths:
             finish_commits(p)
         for p in paths:
-            check_writable(p, force)
+            if p not in records:
+                check_writable(p, force)
         for p in paths:
             clean_stale_partials(p)
         out = OutputSet(paths)

@@ -19,6 +19,7 @@ import shutil
 from pathlib import Path
 
 from seg2pose.io.atomic_names import COMMIT_RECORD, commit_record_path, dead_writers_leftovers, owner
+from seg2pose.io.nofollow import fdopen_nofollow
 
 
 def fsync_dir(path: str | Path) -> None:
@@ -120,8 +121,8 @@ def commit_set(builds: list[Path], finals: list[Path]) -> None:
     # before any swap, so means none), made durable before the first swap
     rows = json.dumps([[str(t), str(p), os.lstat(t).st_ino] for t, p in zip(builds, finals)])
     records = _record_paths(finals)
-    for record in records:
-        with open(record, "w", encoding="utf-8") as f:
+    for record in records:  # never through a link planted under the record's name
+        with fdopen_nofollow(record, "w", encoding="utf-8") as f:
             f.write(rows)
             f.flush()
             os.fsync(f.fileno())

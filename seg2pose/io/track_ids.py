@@ -28,7 +28,8 @@ from pathlib import Path
 from seg2pose.core.clock import utc_now
 from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import atomic_write_text, output_lock
+from seg2pose.io.atomic import OutputSet, atomic_write_text, output_lock
+from seg2pose.io.nofollow import write_new_text
 
 IDS_FILE = "ids.json"
 KINDS = ("tracker", "associated", "truth")
@@ -57,15 +58,17 @@ def read_ids(masks_dir: str | Path) -> dict[str, dict]:
     return cams
 
 
-def entries(masks_dir: str | Path, kinds: dict[str, str], with_cameras: list[str] | None = None
-            ) -> dict[str, dict]:
-    """New entries for the written masks files ``masks_dir/<camera>.txt``: camera -> kind."""
+def entries(masks_dir: str | Path, kinds: dict[str, str], with_cameras: list[str] | None = None,
+            built: dict[str, Path] | None = None) -> dict[str, dict]:
+    """New entries for the written masks files ``masks_dir/<camera>.txt`` (or, for a camera
+    in ``built``, the file built to replace it): camera -> kind."""
     made = utc_now()
     out = {}
     for c, kind in kinds.items():
         if kind not in KINDS:
             raise ValueError(f"unknown kind of ids {kind!r}")
-        e = {"ids": kind, "sha256": file_sha256(Path(masks_dir) / f"{c}.txt"), "made": made}
+        f = (built or {}).get(c) or Path(masks_dir) / f"{c}.txt"
+        e = {"ids": kind, "sha256": file_sha256(f), "made": made}
         if kind == "associated":
             e["with"] = list(with_cameras or kinds)
         out[c] = e
@@ -74,6 +77,19 @@ def entries(masks_dir: str | Path, kinds: dict[str, str], with_cameras: list[str
 
 def ids_text(cams: dict[str, dict]) -> str:
     return json.dumps({"version": 1, "cameras": dict(sorted(cams.items()))}, indent=1) + "\n"
+
+
+def stage_ids(files: OutputSet, masks_dir: str | Path, kinds: dict[str, str],
+              built: dict[str, Path], with_cameras: list[str] | None = None) -> None:
+    """Build the new ``masks/ids.json`` in the output set ``files`` (which holds it and the
+    masks ``built``: camera -> where its new masks file is built): the masks and the record of
+    how their ids were made are swapped in together (``atomic.outputs(..., records=[ids])``),
+    so that no kill leaves one camera's new tracker ids beside a record (or no record) that
+    calls them something else. Other cameras' entries stay."""
+    p = ids_path(masks_dir)
+    cams = read_ids(masks_dir)
+    cams.update(entries(masks_dir, kinds, with_cameras, built))
+    write_new_text(files.file(p), ids_text(cams))
 
 
 def mark_ids(masks_dir: str | Path, kinds: dict[str, str], with_cameras: list[str] | None = None

