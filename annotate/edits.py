@@ -13,6 +13,8 @@ a warning*: flagged ``off_support`` and noted in ``project.notes``. Beyond ``REF
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,7 +30,42 @@ MAX_SIZE = 30.0          # metres: no road user is longer, wider or taller
 CHECKED = {"estimate", "accepted", "normal"}  # flags a correction removes (the pose is now checked)
 
 
-class EditsMixin:
+if TYPE_CHECKING:
+    from seg2pose.io.poses import PoseTable
+    from seg2pose.io.scene import Scene
+
+
+class ProjectState:
+    """What the mixins of ``Project`` (``EditsMixin``, ``annotate.place.PlacementMixin``) use of
+    it and of each other, declared for the type checker only; ``annotate.project.Project`` and
+    the mixins define them. (``Change`` is Any here: naming it would be an import cycle.)"""
+
+    if TYPE_CHECKING:
+        scene: Scene
+        read_only: bool
+        notes: list[str]
+        frame_range: tuple[int, int] | None
+        _run: Any
+
+        @property
+        def tracks(self) -> Mapping[int, Track]: ...
+        @property
+        def run(self) -> Any: ...
+        def track(self, track_id: int) -> Track: ...
+        def track_poses(self, track_id: int) -> PoseTable: ...
+        def poses(self, tracks=None, frames: tuple[int, int] | None = None) -> PoseTable: ...
+        def check_methods(self, method: str | None) -> None: ...
+        def _commit(self, name: str, ops: list[dict]) -> Any: ...
+        def _frame(self, frame) -> int: ...
+        def _class(self, cls: str) -> str: ...
+        def _size(self, size, cls: str) -> tuple[float, float, float]: ...
+        def _kf(self, track: int, frame: int, x, y, heading, flags=()) -> Keyframe: ...
+        def _free(self, t: Track, frame: int) -> None: ...
+        def _heading(self, track_id: int, frame: int, x: float, y: float, heading, flags
+                     ) -> tuple[float, tuple[str, ...]]: ...
+
+
+class EditsMixin(ProjectState):
     """Edit methods of ``Project``; every one returns a ``Change``."""
 
     # --- validation ------------------------------------------------------------------------------
@@ -154,7 +191,7 @@ class EditsMixin:
     def set_class(self, track_id: int, cls: str, resize: bool = False):
         """Change a track's class (and, with ``resize``, its size to the class's typical one)."""
         self.track(track_id)
-        fields = {"cls": self._class(cls)}
+        fields: dict[str, Any] = {"cls": self._class(cls)}
         if resize:
             fields["size"] = list(self._size(None, cls))
         return self._commit("set_class", [{"op": "set_fields", "id": int(track_id), "fields": fields}])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from annotate.edits import ProjectState
 from annotate.estimates import MaskIndex
 from annotate.model import EditError, keyframe_row, mark_spans
 from annotate.presence import annotated_run_tracks, plan
@@ -53,7 +54,7 @@ def motion_headings(xy: np.ndarray, heading: np.ndarray, min_step: float = 0.3) 
     return np.where(np.isfinite(h), h, h[nearest])
 
 
-class PlacementMixin:
+class PlacementMixin(ProjectState):
     """Placement edits of ``Project``; every one returns a ``Change``."""
 
     @property
@@ -118,7 +119,8 @@ class PlacementMixin:
             if est is None:
                 raise EditError(f"the run has no estimate of road user {rt} at frame {f}")
             self._free(t, f)
-            k = self._kf(t.id, f, *est, flags=("accepted", "estimate"))
+            x, y, heading = est
+            k = self._kf(t.id, f, x, y, heading, flags=("accepted", "estimate"))
             return self._commit("accept_estimate", [{"op": "set_keyframes", "id": t.id,
                                                      "set": [keyframe_row(f, k)]}])
         p = self._plan(rt, every, frames)

@@ -196,6 +196,7 @@ class Project(EditsMixin, PlacementMixin):
         if self.read_only:
             raise EditError("this project is open read-only")
         seq = self._s.seq + 1
+        assert self._segment is not None  # a writable project has its segment open
         self._segment.append({"seq": seq, **record})
         self._s.seq = seq
         return seq
@@ -340,6 +341,7 @@ class Project(EditsMixin, PlacementMixin):
         path = J.write_snapshot(self.folder, seq, H.snapshot_dict(self._s, self.scene.name,
                                                                   self.fingerprint))
         old = self._segment
+        assert old is not None  # a writable project has its segment open
         try:
             new = J.new_segment(self.folder, seq, self._header())
         except (S2PError, OSError) as e:
