@@ -93,6 +93,9 @@ class ExportOptions:
     attachments: dict[str, bytes] | None = None
     conflicts: Path | None = None  # a conflicts.csv: its rows as events on /s2p/conflicts
     gt: PoseTable | None = None
+    # more message streams, each made from the selection and the timebase and yielding Items in
+    # log-time order (e.g. the annotated set's video, ``annotated_mcap``)
+    extra_streams: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -304,6 +307,7 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
                    _road_user_stream(scene, sel, tb, poses, psz, gt), iter(events)]
         streams += [_camera_stream(scene, name, 3 + k, sel, tb, poses, psz, run, opts)
                     for k, name in enumerate(sel.cameras)]
+        streams += [make(sel, tb) for make in opts.extra_streams]
         for ns, _rank, topic, payload in heapq.merge(*streams, key=lambda m: (m[0], m[1])):
             out.write(ns, topic, payload)
         out.pb.finish()

@@ -10,7 +10,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from s2p_review import mcap_records as R
-from s2p_review.annotated_mcap import PREFIX, restore_annotation_files
+from s2p_review.annotated_mcap import (
+    PREFIX,
+    SCENE_FILES,
+    read_video,
+    restore_annotation_files,
+    restore_scene_files,
+    restore_video,
+)
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.core.validate import inside, safe_name
 from seg2pose.io.atomic import os_errors, outputs, replacing
@@ -92,9 +99,10 @@ def _check_restored(run_dir: Path, path: Path) -> None:
 
 
 def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRecords,
-             meta: dict, path: Path, check_annotations) -> None:
+             meta: dict, path: Path, check_annotations, video: dict) -> None:
     """Write the restored scene into the new folder ``tmp``: scene.json, the ground points,
-    the run folder ``run_rel`` and the annotation journal (checked by ``check_annotations``)."""
+    the run folder ``run_rel``, an annotated set's masks and video (``annotated_mcap``) and
+    the annotation journal (checked by ``check_annotations``)."""
     with os_errors(tmp):
         (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
@@ -106,6 +114,14 @@ def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRe
              if meta.get("has_views") == "true" or rec.views else None)
     write_run_folder(tmp / run_rel, table, views, run_meta)
     _check_restored(tmp / run_rel, path)
+    restore_scene_files(att, tmp, path)
+    if video:
+        try:
+            fps, start_ns = float(meta["fps"]), int(meta.get("start_ns") or 0)
+        except (KeyError, ValueError):
+            raise InputError("metadata s2p: fps and start_ns are needed to number the video",
+                             file=path) from None
+        restore_video(video, tmp, fps, start_ns, path)
     restored = restore_annotation_files(att, tmp, path)
     if restored and check_annotations is not None:
         # the command layer opens the restored project (s2p_review cannot import annotate)
@@ -147,11 +163,12 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False,
                     meta.get("poses_with_size", "true") == "true")
 
     journal = any(a.startswith(PREFIX) for a in att)
+    video = read_video(path)
     run_rel = Path("out") / run_name
     if not out_dir.exists() or not any(out_dir.iterdir()):
         # a new scene folder: built beside it and renamed into place as a whole
         with replacing(out_dir, force=True) as tmp:
-            _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations)
+            _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations, video)
         return out_dir / run_rel
     # into an existing folder (--force): what the import writes (scene.json, the ground points,
     # the run folder and the annotation journal) as one set of outputs, each locked and
@@ -160,9 +177,13 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False,
     finals = [out_dir / SCENE_FILE, out_dir / gfile, out_dir / run_rel]
     if journal:
         finals.append(out_dir / PREFIX.rstrip("/"))
+    if any(a.startswith(f"{SCENE_FILES}masks/") for a in att):
+        finals.append(out_dir / "masks")
+    if video:
+        finals.append(out_dir / "video")
     with outputs(finals, force=True) as files:
         tmp = files.file(out_dir / SCENE_FILE).parent
-        _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations)
+        _restore(tmp, att, gfile, run_rel, table, rec, meta, path, check_annotations, video)
         for final in finals[1:]:
             files.adopt(final, tmp / final.relative_to(out_dir))
     return out_dir / "out" / run_name

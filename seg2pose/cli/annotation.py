@@ -286,7 +286,8 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
                 run = write_annotation_run(p, Path(d) / "annotations")
                 # the MCAP shows the set's own gt, not the gt/poses.csv this set replaces
                 res = export_annotated_mcap(p.scene, run, tmp, journal_files(p),
-                                            ExportOptions(gt=truth), force=True)
+                                            ExportOptions(gt=truth, frames=p.frame_range),
+                                            force=True)
             files.adopt(layout_path(dst), res.layout or layout_path(tmp))
             said += [f"note: {n}" for n in res.notes]
             said.append(f"wrote {dst} ({tmp.stat().st_size / 1e6:.1f} MB); `s2p import-mcap` "

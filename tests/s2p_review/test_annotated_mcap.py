@@ -58,6 +58,25 @@ def test_export_import_restores_the_annotation_project(monkeypatch, capsys, tmp_
 
     run = read_poses(tmp_path / "restored" / "out" / "annotations" / "poses.csv")
     assert list(run.source) == list(poses.source)
+    # the set restores a scene with pictures: every frame's video (H.264, the Foxglove schema)
+    # and the masks files byte for byte
+    from s2p_review.imagery import video_frames
+    from seg2pose.io.scene import load_scene
+
+    with open(mcap, "rb") as f:
+        video = [(ch.topic, sch.name) for sch, ch, _ in make_reader(f).iter_messages()
+                 if ch.topic.endswith("/video")]
+    assert sorted(set(video)) == [("/cameras/c0/video", "foxglove.CompressedVideo"),
+                                  ("/cameras/c1/video", "foxglove.CompressedVideo")]
+    assert len(video) == 2 * 12
+    restored = load_scene(tmp_path / "restored")
+    for cam in scene.cameras:
+        assert (restored.masks_path(cam).read_bytes() == scene.masks_path(cam).read_bytes())
+        want = dict(video_frames(scene, cam, 0, 11))
+        got = dict(video_frames(restored, cam, 0, 11))
+        assert sorted(got) == list(range(12))
+        for f, img in got.items():  # lossy H.264: the picture, not the bytes
+            assert np.abs(img.astype(float).mean((0, 1)) - want[f].mean((0, 1))).max() < 4.0
 
 
 def test_attachment_names_cannot_leave_the_folder(tmp_path):
