@@ -123,6 +123,15 @@ def run_cmd(
                    f"than the network's training residuals; {what} in {d / 'flagged.csv'}", err=True)
 
 
+FROM_HELP = ("fine-tune these models on the scene's annotations (gt/poses.csv: keyframes placed or "
+             "accepted weigh four times an interpolated row, reviewed rows twice, unchecked "
+             "estimates are not used; the test split never): rough examples in every batch, early stopping on "
+             "held-out annotated road users, per class; a class without annotations keeps its "
+             "start model. --epochs, --batches, --lr, --seed, --threads, --device, --camera and "
+             "--class apply; the protocol's options do not. Minutes on a CPU for tens of "
+             "keyframes (docs/guide/fine-tuning.md)")
+
+
 def train_cmd(
     scene: Path = typer.Argument(..., help="scene folder (with ground truth, unless --zero-annotation)"),
     out: Path | None = typer.Option(None, "-o", "--out", help="model folder (default: SCENE/models)"),
@@ -209,6 +218,7 @@ def train_cmd(
     threads: int | None = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default 2)"),
     seed: int | None = typer.Option(None, "--seed", help="seed of the first run (run r uses seed + r)"),
     force: bool = typer.Option(False, "--force", help="retrain models that exist already"),
+    from_models: Path | None = typer.Option(None, "--from", help=FROM_HELP),
     parallel: int | None = typer.Option(
         None, "--parallel", min=1,
         help="train in parallel as Ray tasks on this many local CPUs: every camera x class x run is a task, the best "
@@ -227,8 +237,15 @@ def train_cmd(
 
     Without annotation: --zero-annotation trains on rough 3D models only; adding
     --self-train fused (or track, views) then fine-tunes those models on pseudo poses the scene's own
-    unlabelled train split gives them."""
+    unlabelled train split gives them.
+
+    From a start: --from MODELS fine-tunes those models (the shipped demo models, a
+    zero-annotation run's, another scene's) on this scene's annotations in minutes."""
     from seg2pose.io.scene import load_scene
+
+    if from_models is not None:
+        return _fine_tune(scene, from_models, out, zero_annotation or bool(self_train), epochs,
+                          batches, lr, seed, threads, device, camera, cls)
     from seg2pose.training.config import TrainConfig, TrainSettings
     from seg2pose.training.self_training import train_self_trained
     from seg2pose.training.train import train_scene
@@ -251,6 +268,27 @@ def train_cmd(
                   progress=True, settings=settings,
                   map_groups=ray_map(address, parallel) if parallel or address else None)
     typer.echo(f"models in {out_dir}")
+
+
+def _fine_tune(scene, start, out, zero, epochs, batches, lr, seed, threads, device, camera, cls) -> None:
+    """``s2p train --from``: the fine-tuning of seg2pose.training.fine_tune, its lines echoed."""
+    from seg2pose.core.errors import InputError
+    from seg2pose.io.scene import load_scene
+    from seg2pose.training.fine_tune import FineTuneOptions, fine_tune_scene
+
+    if zero:
+        raise InputError("--from fine-tunes on annotations; it does not combine with "
+                         "--zero-annotation or --self-train", field="--from")
+    d = FineTuneOptions()
+    opts = FineTuneOptions(epochs=epochs or d.epochs, batches_per_epoch=batches or d.batches_per_epoch,
+                           lr=d.lr if lr is None else lr, seed=seed or 0,
+                           threads=threads or d.threads, device=device)
+    sc = load_scene(scene)
+    res = fine_tune_scene(sc, start, out, opts, cameras=camera or None, classes=cls or None)
+    typer.echo(f"fine-tuned from {start} in {res.wall_s:.0f} s:")
+    for line in res.lines.values():
+        typer.echo(f"  {line}")
+    typer.echo(f"models in {out or sc.root / 'models'}")
 
 
 def eval_cmd(

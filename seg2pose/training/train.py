@@ -119,6 +119,18 @@ def _evaluate(net: Seg2PoseNet, data: TrainData, device, residual_scale: float, 
     return se / (4 * n), err / n
 
 
+def evaluate_net(net: Seg2PoseNet, data: TrainData, device, residual_scale: float,
+                 loss: str = "mse") -> tuple[float, float]:
+    """(validation loss, mean Euclidean error in metres) of ``net`` on ``data`` (for loops
+    beside this one, e.g. ``seg2pose.training.fine_tune``)."""
+    return _evaluate(net, data, device, residual_scale, loss=loss)
+
+
+def residual_loss(p: torch.Tensor, y: torch.Tensor, kind: str = "mse") -> torch.Tensor:
+    """The training loss of predicted vs target normalised residuals (B, 2) (``_loss``)."""
+    return _loss(p, y, kind)
+
+
 def _lr_factor(schedule: str, steps: int):
     """Multiplier of the learning rate at step k: constant, or a cosine decay to 5 %."""
     if schedule == "cosine":
