@@ -91,6 +91,12 @@ def run_cmd(
              "(refused otherwise: run s2p associate first)",
     ),
     track_heights: bool = typer.Option(False, "--track-heights/--no-track-heights", help=TRACK_HEIGHTS_HELP),
+    missing: Literal["refuse", "baseline"] = typer.Option(
+        "refuse", "--missing",
+        help="cameras and classes the models folder has no model for (e.g. after annotating and training only "
+             "cars): refuse the run, or run the baseline (normal positions) for them; run.json lists them in "
+             "baseline_fallback",
+    ),
 ) -> None:
     """Estimate world pose tracks of a scene's road users.
 
@@ -107,7 +113,7 @@ def run_cmd(
                   split=split, force=force, center_method=center, arch=arch, device=device,
                   allow_incomplete=allow_incomplete, smooth=smooth, far_residuals=far_residuals,
                   fuse_unassociated=fuse_unassociated, confirm=confirm, r90=r90,
-                  track_heights=track_heights))
+                  track_heights=track_heights, missing=missing))
     meta = read_run_meta(d)
     typer.echo(f"{meta['method']} run of {meta['n_frames']} frames, {meta['n_views']} detections "
                f"-> {meta['n_poses']} poses in {d}")
@@ -116,6 +122,9 @@ def run_cmd(
         typer.echo("note: no r90 calibration, so r90_m (the error bars) is nan; fit one on a run "
                    "of the validation split with s2p calibrate-errors (a scene without truth: on other "
                    f"scenes' val runs, -o {where})", err=True)
+    if meta.get("baseline_fallback"):
+        typer.echo(f"note: no model for {', '.join(meta['baseline_fallback'])}: the baseline (normal "
+                   "positions) there (--missing baseline)", err=True)
     far = meta.get("far_residuals") or {}
     if far.get("flagged_views"):
         what = "kept at their normal positions" if far["policy"] == "fallback" else "listed"

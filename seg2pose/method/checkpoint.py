@@ -181,12 +181,18 @@ class ModelSet:
 
     models: dict[tuple[str, str], Checkpoint | Ensemble] = field(default_factory=dict)
     paths: dict[tuple[str, str], Path | list[Path]] = field(default_factory=dict)
+    # (camera, class) pairs without a model, run with the baseline (``missing="baseline"``)
+    fallback: list[tuple[str, str]] = field(default_factory=list)
 
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
              arch: str | None = None, fingerprint: str | None = None, device=None,
-             allow_incomplete: bool = False, cameras_fingerprint: str | None = None) -> ModelSet:
+             allow_incomplete: bool = False, cameras_fingerprint: str | None = None,
+             missing: str = "refuse") -> ModelSet:
         """The models of one folder, or of several folders as ensembles (residuals averaged).
+        A camera and class without a model is refused (``missing="refuse"``), or with
+        ``missing="baseline"`` left to the baseline (normal positions) and listed in
+        ``fallback`` (a partial annotation trains models for some classes only).
         A checkpoint whose training did not finish (metadata "complete": false) is refused
         unless ``allow_incomplete``. ``fingerprint`` / ``cameras_fingerprint``: the scene's
         (``Scene.fingerprint`` / ``Scene.cameras_fingerprint``); a checkpoint made for a scene
@@ -195,11 +201,15 @@ class ModelSet:
         if isinstance(models_dir, (list, tuple)):
             if len(models_dir) == 1:
                 return cls.load(models_dir[0], cameras, classes, arch, fingerprint, device,
-                                allow_incomplete, cameras_fingerprint)
+                                allow_incomplete, cameras_fingerprint, missing)
             sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete,
-                             cameras_fingerprint) for d in models_dir]
+                             cameras_fingerprint, missing) for d in models_dir]
             ms, made = cls(), {}
+            # a pair missing from any folder falls back (only with missing="baseline")
+            ms.fallback = sorted({k for s in sets for k in s.fallback})
             for key in sets[0].models:
+                if key in ms.fallback:
+                    continue
                 members = tuple(s.models[key] for s in sets)
                 ids = tuple(map(id, members))  # one Ensemble per distinct member set (shared models)
                 ms.models[key] = made.setdefault(ids, Ensemble(members))
@@ -207,7 +217,7 @@ class ModelSet:
             return ms
         models_dir = Path(models_dir)
         ms = cls()
-        missing = []
+        absent: list[tuple[str, str]] = []
         cache: dict[Path, Checkpoint] = {}
         for cam in cameras:
             for c in classes:
@@ -240,10 +250,15 @@ class ModelSet:
                         ms.paths[(cam, c)] = p
                         break
                 else:
-                    missing.append(f"{cam}/{c}")
-        if missing:
-            raise S2PError(f"no Seg2PoseNet model in {models_dir} for {', '.join(missing)}; "
-                           "train models for them, or run the baseline (normal positions only)")
+                    absent.append((cam, c))
+        if missing not in ("refuse", "baseline"):
+            raise InputError(f"unknown policy {missing!r} for missing models; use refuse or "
+                             "baseline", field="missing")
+        if absent and missing == "refuse":
+            raise S2PError(f"no Seg2PoseNet model in {models_dir} for "
+                           f"{', '.join(f'{a}/{b}' for a, b in absent)}; train models for them, "
+                           "or run the baseline (normal positions only) for them")
+        ms.fallback = absent
         return ms
 
 
@@ -295,9 +310,11 @@ def model_dirs(scene: Scene, models_dir) -> list[Path]:
 
 
 def load_models(scene: Scene, cams: list[str], models_dir=None, arch: str | None = None,
-                device: str | None = None, allow_incomplete: bool = False) -> ModelSet:
-    """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``)."""
+                device: str | None = None, allow_incomplete: bool = False,
+                missing: str = "refuse") -> ModelSet:
+    """The ModelSet of ``cams`` x the scene's classes from ``models_dir`` (see ``model_dirs``;
+    ``missing``: see ``ModelSet.load``)."""
     return ModelSet.load(model_dirs(scene, models_dir), cams, scene.class_names, arch=arch,
                          fingerprint=scene.fingerprint(), device=pick_device(device),
                          allow_incomplete=allow_incomplete,
-                         cameras_fingerprint=scene.cameras_fingerprint())
+                         cameras_fingerprint=scene.cameras_fingerprint(), missing=missing)

@@ -229,6 +229,8 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
         "config": config, "cameras": cams, "method": "baseline" if models is None else "seg2posenet",
         "center_method": center_method, **({"smooth_frames": int(smooth)} if smooth else {}),
         "models": entries,
+        **({"baseline_fallback": [f"{c}/{k}" for c, k in models.fallback if c in cams]}
+           if models is not None and models.fallback else {}),
         "split": split, "frame_range": None if fr is None else list(fr), "created": utc_now(),
     }
 
@@ -360,6 +362,9 @@ class RunOptions:
     r90: str | Path | None = None
     # one height per tracked road user fitted before fusion (``seg2pose.method.track_heights``)
     track_heights: bool = False
+    # cameras and classes without a model: "refuse" the run, or run the "baseline" there (said
+    # in run.json's baseline_fallback and on the output)
+    missing: str = "refuse"
 
 
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:
@@ -374,7 +379,8 @@ def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()
     frame_range = scene.split_range(opts.split)
     models = None
     if not opts.baseline:
-        models = load_models(scene, cams, opts.models_dir, opts.arch, opts.device, opts.allow_incomplete)
+        models = load_models(scene, cams, opts.models_dir, opts.arch, opts.device, opts.allow_incomplete,
+                             opts.missing)
     far = None if models is None else FarResiduals(opts.far_residuals)
     r90_path = Path(opts.r90) if opts.r90 is not None else default_r90_path(scene, opts.models_dir,
                                                                             opts.baseline)
