@@ -93,5 +93,9 @@ def layout_path(mcap_path: Path) -> Path:
     return Path(mcap_path).with_suffix(".layout.json")
 
 
+def layout_text(doc: dict) -> str:
+    return json.dumps(doc, indent=1) + "\n"
+
+
 def write_layout(path: Path, doc: dict) -> None:
-    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+    atomic_write_text(path, layout_text(doc))

@@ -55,7 +55,8 @@ from s2p_review.runs import Run
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import Timebase, scene_timebase
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import check_writable, replacing
+from seg2pose.io.atomic import check_writable, outputs
+from seg2pose.io.nofollow import fdopen_nofollow, write_new_text
 from seg2pose.io.poses import PoseTable, read_poses
 from seg2pose.io.scene import SCENE_FILE, Scene
 
@@ -272,6 +273,12 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
     sel = select(scene, [Path(run_dir)], opts.frames, opts.cameras, opts.mask_every,
                  opts.video_every, video=opts.video)
     run = sel.runs[0]
+    # Foxglove's calibrations know plumb_bob only: other lens models are fitted, or refused
+    # here, before anything is written, when no fit is within F.PLUMB_BOB_TOLERANCE_PX
+    fits = {name: F.plumb_bob(scene.cameras[name]) for name in sel.cameras}
+    fit_notes = [f"camera {name}: its {getattr(scene.cameras[name].distortion, 'model', '?')} distortion is "
+                 f"written as plumb_bob k1..k3 fitted over the image (max {fit.max_px:.3f} px, "
+                 f"mean {fit.mean_px:.3f} px off)" for name, fit in fits.items() if fit.fitted]
     tb = scene_timebase(scene, opts.start_ns)
     poses = run.poses.in_frames((sel.first, sel.last))
     psz = C.sizes_of(poses, scene)
@@ -283,7 +290,10 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
         from s2p_review import conflicts as CF
 
         events = CF.mcap_items(CF.read_conflicts(opts.conflicts), tb, sel.first, sel.last)
-    with replacing(out_path, force, folder=False) as tmp, open(tmp, "wb") as f:
+    # the MCAP and its layout: one set of outputs, swapped in together (a kill between two
+    # separate swaps left a new MCAP beside the old layout)
+    finals = [out_path] + ([lay_path] if lay_path is not None else [])
+    with outputs(finals, force) as files, fdopen_nofollow(files.file(out_path), "xb") as f:
         out = _Writer(f)
         out.pb.add_attachment(create_time=0, log_time=t0, name=SCENE_FILE, media_type=MEDIA_JSON,
                               data=(scene.root / SCENE_FILE).read_bytes())
@@ -311,6 +321,6 @@ def export_mcap(scene: Scene, run_dir: Path, out_path: Path, options: ExportOpti
         for ns, _rank, topic, payload in heapq.merge(*streams, key=lambda m: (m[0], m[1])):
             out.write(ns, topic, payload)
         out.pb.finish()
-    if lay_path is not None:
-        FL.write_layout(lay_path, _layout(scene, sel, gt))
-    return ExportResult(out_path, lay_path, sel, out.count, tuple(sel.cadence.notes()))
+        if lay_path is not None:
+            write_new_text(files.file(lay_path), FL.layout_text(_layout(scene, sel, gt)))
+    return ExportResult(out_path, lay_path, sel, out.count, tuple(sel.cadence.notes() + fit_notes))

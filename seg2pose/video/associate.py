@@ -215,7 +215,8 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
         piece[c] = inv + n_pieces
         first, last = _track_spans(inv, v.frame, len(uk))
         o = np.lexsort((v.frame, inv))
-        starts = np.flatnonzero(np.r_[True, inv[o][1:] != inv[o][:-1]])
+        # a camera without masks has no pieces (np.r_[True] would make one at index 0)
+        starts = np.flatnonzero(np.r_[True, inv[o][1:] != inv[o][:-1]]) if len(o) else np.zeros(0, int)
         ends = np.r_[starts[1:], len(o)] - 1
         p_start_xy.append(v.xy[o[starts]])
         p_end_xy.append(v.xy[o[ends]])

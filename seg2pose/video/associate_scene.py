@@ -223,6 +223,11 @@ def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
         raise S2PError(f"the masks of {', '.join(names)} are associated already ({ids_path(masks_dir)}); "
                        "pass --force to associate them again")
     tables = {c: scene.read_masks(c) for c in names}
+    empty = [c for c in names if not len(tables[c])]
+    if len(names) - len(empty) < 2:  # nothing to associate with: every file stays as it is
+        log(f"association: fewer than two cameras with masks ({', '.join(empty)} without any); "
+            "ids stay as they are")
+        return None
     views, heights = {}, {}
     for c in names:
         views[c], heights[c] = camera_views(scene, c, tables[c], cfg)

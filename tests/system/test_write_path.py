@@ -175,3 +175,51 @@ def test_a_linked_annotations_folder_is_refused(tmp_path):
     with pytest.raises(S2PError, match="annotations is a symbolic link"), Project.open(root) as p:
         p.create_track("car")
     assert list((tmp_path / "elsewhere").iterdir()) == []
+
+
+# --- (3) sets that are sets ------------------------------------------------------------------------
+
+def test_import_detections_of_nothing_then_association_does_not_crash(two_cameras, tmp_path):
+    """A detector that found nothing in c0: the empty masks and their record are swapped in,
+    then the association (crashed with IndexError after c0.txt was replaced) leaves every
+    camera's ids as they are."""
+    from seg2pose.video.associate_scene import associate_scene
+    from seg2pose.video.video_scene import scene_import_detections
+
+    (tmp_path / "empty.json").write_text("[]")
+    assert scene_import_detections(two_cameras, "c0", tmp_path / "empty.json", force=True,
+                                   **QUIET) == 0
+    ids = read_ids(two_cameras / "masks")
+    assert ids["c0"]["ids"] == "tracker" and ids["c1"]["ids"] == "associated"
+    assert associate_scene(two_cameras, force=True, **QUIET) is None
+
+
+def test_export_swaps_the_mcap_and_its_layout_in_as_one_set(tmp_path, monkeypatch):
+    """Stopped after the MCAP was complete (where a kill left a new MCAP beside the old
+    layout), the old MCAP and layout are both kept; complete, both are new."""
+    from hostile_fixtures import write_scene
+
+    import s2p_review.mcap_export as ME
+    from seg2pose.io.scene import load_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+
+    scene = write_scene(tmp_path / "scene", frames=4, users=2)
+    run_scene(scene, tmp_path / "run", RunOptions(baseline=True, progress=False))
+    out = tmp_path / "x.mcap"
+    ME.export_mcap(load_scene(scene.root), tmp_path / "run", out)
+    lay = out.with_suffix(".layout.json")
+    old = (out.read_bytes(), lay.read_bytes())
+    real = ME._layout
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ME, "_layout", boom)
+    opts = ME.ExportOptions(frames=(0, 2))
+    with pytest.raises(KeyboardInterrupt):
+        ME.export_mcap(load_scene(scene.root), tmp_path / "run", out, opts, force=True)
+    assert (out.read_bytes(), lay.read_bytes()) == old
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+    monkeypatch.setattr(ME, "_layout", real)
+    ME.export_mcap(load_scene(scene.root), tmp_path / "run", out, opts, force=True)
+    assert out.read_bytes() != old[0]
