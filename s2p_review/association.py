@@ -45,7 +45,7 @@ def log_masks_by_id(rec, scene: Scene, tb: Timebase, cameras: list[str], first: 
 
     ctx = rr.AnnotationContext([rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
                                + [rr.AnnotationInfo(id=i, label=f"id {i} (mod {N_COLORS})",
-                                                    color=tuple(int(x) for x in id_color([i])[0]))
+                                                    color=tuple(int(x) for x in id_color(np.array([i]))[0]))
                                   for i in range(1, N_COLORS + 1)])
     for cam in cameras:
         ent = L.cam_path(cam) + "/masks_by_id"
@@ -84,7 +84,7 @@ def log_association(rec, run: Run, tb: Timebase, cameras: list[str], first: int,
     if not run_cams:
         return
     frames, strips, ids = association_strips(run, run_cams, first, last)
-    ent = f"world/association/{run.name}"
+    ent = f"world/association/{L.entity_part(run.name)}"
     rec.log(ent, rr.LineStrips3D.from_fields(radii=0.04), static=True)
     rec.send_columns(ent, indexes=tb.rerun_columns(np.arange(first, last + 1)),
                      columns=rr.LineStrips3D.columns(strips=list(strips), colors=id_color(ids))

@@ -6,10 +6,14 @@ right, y down, z forward).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from s2p_review import columns as C
 from s2p_review import layout as L
+from seg2pose.core.errors import InputError
+from seg2pose.geometry.camera import OpenCVDistortion
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 
@@ -40,14 +44,78 @@ def class_rgb(scene: Scene) -> dict[str, tuple[int, int, int]]:
     return {c.name: L.class_color(c.name, c.id) for c in scene.classes}
 
 
+PLUMB_BOB_TOLERANCE_PX = 0.5  # the largest pixel error a plumb-bob stand-in may make anywhere
+FIT_GRID = 81                 # pixels sampled per image side for the fit and its error
+
+
+@dataclass(frozen=True)
+class PlumbBobFit:
+    """Foxglove's distortion (ROS plumb_bob: D = k1, k2, p1, p2, k3) for a camera, and how far
+    it lands from the camera's own model over the image: max_px and mean_px pixels (0 where
+    the camera's model is OpenCV's, written as it is)."""
+
+    D: tuple[float, float, float, float, float]
+    max_px: float
+    mean_px: float
+    fitted: bool
+
+
+def fit_plumb_bob(cam) -> PlumbBobFit:
+    """The plumb-bob distortion of ``cam`` (a ``geometry.camera.Camera``).
+
+    OpenCV's model is plumb-bob itself. Another model (Tsai's, from T-Analyst's .tacal files,
+    radial: x_u = x_d (1 + kappa |x_d|^2)) is fitted: pixels over the whole image (a
+    FIT_GRID x FIT_GRID grid, borders included) are undistorted with the camera's model, and
+    k1, k2, k3 (p1 = p2 = 0: the model is radial) minimise, by linear least squares,
+    |x_d| - |x_u| (1 + k1 r^2 + k2 r^4 + k3 r^6), r = |x_u|, on normalised coordinates. The
+    error is then measured in pixels: where the fitted model sends each undistorted point,
+    against the pixel it came from (Brown-Conrady's polynomial, Brown 1966, of which plumb-bob
+    is the first terms; Tsai 1987 for the one-term model)."""
+    d = cam.distortion
+    if d is None:
+        return PlumbBobFit((0.0, 0.0, 0.0, 0.0, 0.0), 0.0, 0.0, False)
+    if isinstance(d, OpenCVDistortion):
+        return PlumbBobFit((d.k1, d.k2, d.p1, d.p2, d.k3), 0.0, 0.0, False)
+    u, v = np.meshgrid(np.linspace(0.0, cam.width, FIT_GRID), np.linspace(0.0, cam.height, FIT_GRID))
+    uv = np.c_[u.ravel(), v.ravel()]
+    Kinv = np.linalg.inv(cam.K[:2, :2])
+    xd = (uv - cam.K[:2, 2]) @ Kinv.T
+    xu = d.undistort(xd)
+    r2 = np.einsum("nk,nk->n", xu, xu)
+    r = np.sqrt(r2)
+    A = r[:, None] * np.stack([r2, r2 ** 2, r2 ** 3], axis=1)
+    b = np.linalg.norm(xd, axis=1) - r
+    scale = np.maximum(np.abs(A).max(axis=0), 1e-300)  # columns of one size: a stable solve
+    k = np.linalg.lstsq(A / scale, b, rcond=None)[0] / scale
+    D = (float(k[0]), float(k[1]), 0.0, 0.0, float(k[2]))
+    back = OpenCVDistortion(k1=D[0], k2=D[1], k3=D[4]).distort(xu)
+    err = np.linalg.norm((back - xd) @ cam.K[:2, :2].T, axis=1)
+    if not np.isfinite(err).all():
+        return PlumbBobFit(D, float("inf"), float("inf"), True)
+    return PlumbBobFit(D, float(err.max()), float(err.mean()), True)
+
+
+def plumb_bob(cam, tolerance_px: float = PLUMB_BOB_TOLERANCE_PX) -> PlumbBobFit:
+    """``fit_plumb_bob``, refused with one line when its error exceeds ``tolerance_px``
+    anywhere in the image (Foxglove would draw the annotations that far off)."""
+    fit = fit_plumb_bob(cam)
+    if fit.max_px > tolerance_px:
+        d = cam.distortion.to_dict() if cam.distortion is not None else {}
+        raise InputError(f"camera {cam.name!r}: its {d.get('model', '?')} distortion {d} cannot be "
+                         f"written as Foxglove's plumb_bob within {tolerance_px:g} px (the best "
+                         f"fit is off by up to {fit.max_px:.2f} px, {fit.mean_px:.2f} px on "
+                         "average, over the image)", field=f"cameras[{cam.name}].distortion")
+    return fit
+
+
 def camera_calibration(scene: Scene, name: str, ns: int, scale: float = 1.0):
     """CameraCalibration of camera ``name`` for images ``scale`` times its size: K (first two
-    rows scaled), P = [K | 0], plumb-bob distortion (unchanged by scaling)."""
+    rows scaled), P = [K | 0], plumb-bob distortion (``plumb_bob``: fitted for a Tsai camera,
+    refused when no fit is close enough; unchanged by scaling)."""
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 
     cam = scene.cameras[name]
-    d = cam.distortion.to_dict() if cam.distortion is not None else {}
-    D = [float(d.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2", "k3")]
+    D = list(plumb_bob(cam).D)
     K = np.diag([scale, scale, 1.0]) @ cam.K
     w, h = scaled_size(cam, scale)
     P = np.hstack([K, np.zeros((3, 1))])

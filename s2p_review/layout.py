@@ -2,7 +2,10 @@
 default blueprint.
 
 One recording may hold several runs of the same scene (e.g. baseline and Seg2PoseNet side by
-side), so every run-specific entity has the run's name as one more path level::
+side), so every run-specific entity has the run's name as one more path level; every road user
+of a run is an entity of its own, as in Rerun's tracking examples, so that it can be selected,
+hidden and plotted alone. Run and camera names enter paths through Rerun's own escaping
+(``entity_part``): names that differ stay apart ("tri T" and "tri_T" are two runs)::
 
     world/ground/points, world/ground/mesh          ground points and the eq. (1) surface
     world/cameras/<cam>                             Transform3D + Pinhole
@@ -11,18 +14,26 @@ side), so every run-specific entity has the run's name as one more path level::
     world/cameras/<cam>/normal/<run>                Points2D: mask centres of the run's views
     world/cameras/<cam>/poses/<run>                 LineStrips2D: fused boxes projected
     world/cameras/<cam>/gt                          LineStrips2D: true boxes projected
-    world/road_users/<run>                          Boxes3D: fused road users
-    world/road_users/<run>/trails                   LineStrips3D: the last TRAIL_FRAMES positions
+    world/road_users/<run>/<track id>               Boxes3D (class ids of the AnnotationContext)
+                                                    + AnyValues: track id, class, speed, r90,
+                                                    source -- one road user of the run
+    world/road_users/<run>/<track id>/trail         LineStrips3D: one segment per frame (from the
+                                                    previous pose), shown over the last
+                                                    TRAIL_FRAMES by a visible time range
+    world/road_users/<run>/<track id>/r90           LineStrips3D: the error disc (runs with r90)
     world/estimates/<run>/<cam>                     Points3D: normal positions of one view
     world/estimates/<run>/<cam>/residuals           Arrows3D: Seg2PoseNet residuals
     world/gt                                        Boxes3D: ground truth, drawn in grey
     metrics/error/<run>/mean, .../<class>           Scalars: per-frame mean error (metres),
                                                     one plot per run
+    metrics/road_users/<run>/<quantity>/<track id>  Scalars per road user: speed (m/s), error
+                                                    against the truth (m, where there is truth),
+                                                    r90 (m, runs with r90); a plot per quantity
 """
 
 from __future__ import annotations
 
-import re
+from typing import Any
 
 import numpy as np
 
@@ -75,13 +86,49 @@ def labels(names: np.ndarray, track_ids: np.ndarray) -> list[str]:
     return [f"{str(n)[:1]}{int(t)}" for n, t in zip(names, track_ids)]
 
 
-def safe_name(name: str) -> str:
-    """A run or camera name usable as one entity path part."""
-    return re.sub(r"[^A-Za-z0-9_.\-]", "_", name) or "_"
+def entity_part(name: str) -> str:
+    """A run, camera or class name as one entity path part, losslessly: Rerun's own escaping
+    (``rr.escape_entity_path_part``), so that names that differ give parts that differ."""
+    import rerun as rr
+
+    return rr.escape_entity_path_part(str(name))
 
 
 def cam_path(cam: str) -> str:
-    return f"world/cameras/{safe_name(cam)}"
+    return f"world/cameras/{entity_part(cam)}"
+
+
+def run_path(run: str) -> str:
+    """The entity under which a run's road users are (one child per track id)."""
+    return f"world/road_users/{entity_part(run)}"
+
+
+def road_user_path(run: str, track_id: int) -> str:
+    return f"{run_path(run)}/{int(track_id)}"
+
+
+ROAD_USER_SERIES = {"speed": "speed (m/s)", "error": "error against the truth (m)",
+                    "r90": "r90 error bar (m)"}
+
+
+def road_user_series_path(run: str, quantity: str, track_id: int | None = None) -> str:
+    """metrics/road_users/<run>/<quantity>[/<track id>]: a road user's time series of
+    ``quantity`` (a key of ROAD_USER_SERIES), or the folder of all road users' series."""
+    base = f"metrics/road_users/{entity_part(run)}/{quantity}"
+    return base if track_id is None else f"{base}/{int(track_id)}"
+
+
+def trail_ranges(trail: int, fps: float | None):
+    """Visible time ranges that show the last ``trail`` frames up to the time cursor, on both
+    timelines (frame numbers and time)."""
+    import rerun.blueprint as rrb
+
+    ranges = [rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.cursor_relative(seq=-trail),
+                                   end=rrb.TimeRangeBoundary.cursor_relative())]
+    if fps:
+        ranges.append(rrb.VisibleTimeRange(TIME, start=rrb.TimeRangeBoundary.cursor_relative(
+            seconds=-trail / float(fps)), end=rrb.TimeRangeBoundary.cursor_relative()))
+    return rrb.VisibleTimeRanges(ranges)
 
 
 def annotation_context(classes):
@@ -109,31 +156,53 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
               fps: float | None = None, error_max: float | None = None,
-              timeline: str = TIMELINE, more_views=()):
-    """The 3D world over the error plots (one per run, side by side, so that every series and
-    its legend entry shows) on the left; one 2D view per camera on the right. eye: (position,
-    look target) of the 3D view, metres (see ``default_eye``); fps: frames per second, so that
-    playback runs in real time; error_max: the top of the error plots' common y axis, metres;
-    timeline: the timeline the time panel opens on; more_views: more views, in a row under the
-    world (e.g. ``s2p_review.conflicts.views()``)."""
+              timeline: str = TIMELINE, more_views=(), tracks: dict | None = None,
+              series: dict | None = None, trail: int = TRAIL_FRAMES):
+    """The 3D world over the plots (one group per run, side by side) on the left; one 2D view
+    per camera on the right. eye: (position, look target) of the 3D view, metres (see
+    ``default_eye``); fps: frames per second, so that playback runs in real time; error_max:
+    the top of the error plots' common y axis, metres; timeline: the timeline the time panel
+    opens on; more_views: more views, in a row under the world (e.g.
+    ``s2p_review.conflicts.views()``); tracks: run name -> its road users' track ids, whose
+    trails the 3D view shows over the last ``trail`` frames (a visible time range per trail
+    entity: Rerun's overrides take whole paths, no patterns); series: run name -> the road-user
+    series it has (keys of ROAD_USER_SERIES), each a plot of all its road users, in tabs after
+    the run's error plot (``with_metrics``). Rerun's blueprints cannot make a view follow the
+    selection: a road user is found in its plot by hovering (the series is named by its
+    label, e.g. ``c12``) and selected there or in the 3D view, and its values at the cursor
+    are in the selection panel (AnyValues)."""
     import rerun.blueprint as rrb
 
     cams = [rrb.Spatial2DView(origin=cam_path(c), name=f"camera {c}") for c in cameras]
-    extra = {}
+    extra: dict[str, Any] = {}
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
+    if tracks and trail > 1:
+        ranges = trail_ranges(trail, fps)
+        extra["overrides"] = {f"{road_user_path(r, tid)}/trail": ranges
+                              for r, ids in tracks.items() for tid in ids}
     world = rrb.Spatial3DView(origin="world", name="world",
                               contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
-    axis = {} if error_max is None else {
+    axis: dict[str, Any] = {} if error_max is None else {
         "axis_y": rrb.ScalarAxis(range=(0.0, float(error_max)), zoom_lock=False)}
-    plots = [rrb.TimeSeriesView(origin=f"metrics/error/{safe_name(r)}", name=f"error (m): {r}",
-                                plot_legend=rrb.PlotLegend(corner="lefttop", visible=True), **axis)
-             for r in runs]
-    # left: the world over the error plots; right: the cameras stacked (16:9 images use the
-    # width of a half screen better stacked than side by side), a grid beyond three
-    left = (rrb.Vertical(world, rrb.Horizontal(*plots), row_shares=[3, 1])
-            if with_metrics and plots else world)
+    groups = []
+    for r in runs:
+        views = []
+        if with_metrics:
+            views.append(rrb.TimeSeriesView(origin=f"metrics/error/{entity_part(r)}", name=f"error (m): {r}",
+                                            plot_legend=rrb.PlotLegend(corner="lefttop", visible=True),
+                                            **axis))
+        for q in (series or {}).get(r, []):
+            views.append(rrb.TimeSeriesView(origin=road_user_series_path(r, q),
+                                            name=f"{ROAD_USER_SERIES[q]}: {r}",
+                                            plot_legend=rrb.PlotLegend(visible=False),
+                                            **(axis if q == "error" else {})))
+        if views:
+            groups.append(views[0] if len(views) == 1 else rrb.Tabs(*views, active_tab=0))
+    # left: the world over the plots; right: the cameras stacked (16:9 images use the width of
+    # a half screen better stacked than side by side), a grid beyond three
+    left: Any = rrb.Vertical(world, rrb.Horizontal(*groups), row_shares=[3, 1]) if groups else world
     if more_views:
         left = rrb.Vertical(left, rrb.Horizontal(*more_views), row_shares=[3, 1])
     if not cams:

@@ -22,7 +22,8 @@ Views = ViewTable
 
 @dataclass
 class Run:
-    """A run folder in memory: name (entity path part), meta (run.json), poses, views."""
+    """A run folder in memory: name (its folder's name as it is; entity paths escape it:
+    ``layout.entity_part``), meta (run.json), poses, views."""
 
     path: Path
     name: str
@@ -43,8 +44,6 @@ class Run:
 def load_run(path: Path, scene: Scene, scene_last_frame: int | None = None) -> Run:
     """Read a run folder and check it against ``scene``: its cameras must exist in the scene,
     its classes must be known and its frames must lie within ``scene_last_frame`` (when known)."""
-    from s2p_review.layout import safe_name
-
     path = Path(path)
     folder = read_run(path, known_classes=[c.name for c in scene.classes])
     meta, poses, views = folder.meta, folder.poses, folder.views
@@ -74,13 +73,13 @@ def load_run(path: Path, scene: Scene, scene_last_frame: int | None = None) -> R
             if fr is not None and len(fr) and (fr.max() > scene_last_frame or fr.min() < 0):
                 raise InputError(f"{what} reach frame {int(fr.max())} (min {int(fr.min())}) but the "
                                  f"scene's frames are 0..{scene_last_frame}", file=f, field="frame")
-    return Run(path=path, name=safe_name(path.name), meta=meta, poses=poses, views=views)
+    return Run(path=path, name=path.name, meta=meta, poses=poses, views=views)
 
 
 def scene_last_frame(scene: Scene) -> int | None:
     """The last frame the scene knows: from the split table, the truth, or the masks' last line
     (read from the file's end, not parsed whole)."""
-    last = []
+    last: list[int | None] = []
     if scene.splits:
         last.append(max(b for _, b in scene.splits.values()))
     if scene.gt_path.exists():
@@ -89,8 +88,8 @@ def scene_last_frame(scene: Scene) -> int | None:
         p = scene.masks_path(cam)
         if p.exists():
             last.append(_last_int_field(p, 0, None))
-    last = [v for v in last if v is not None]
-    return max(last) if last else None
+    known = [v for v in last if v is not None]
+    return max(known) if known else None
 
 
 def _last_int_field(path: Path, col: int, sep: str | None) -> int | None:

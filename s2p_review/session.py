@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from s2p_review import layout as L
+from s2p_review import road_users as RU
 from s2p_review.recording import LogStats, LogStyle, log_all
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
@@ -109,11 +110,19 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
         from s2p_review import conflicts as CF
 
         conflicts = CF.read_conflicts(opts.conflicts)
+    gt = None
+    if style.gt and scene.gt_path.exists():
+        from seg2pose.io.poses import read_poses
+
+        gt = read_poses(scene.gt_path).in_frames((sel.first, sel.last))
+    users = RU.prepare(scene, sel, gt)
     bp = L.blueprint(sel.cameras, [r.name for r in sel.runs],
                      with_metrics=scene.gt_path.exists() and bool(sel.runs),
                      eye=L.default_eye(scene), fps=scene.fps, error_max=_error_max(scene, sel),
                      timeline=L.TIME if tb.start_ns is not None else L.TIMELINE,
-                     more_views=CF.views() if conflicts is not None else ())
+                     more_views=CF.views() if conflicts is not None else (),
+                     tracks={k: RU.track_ids(u) for k, u in users.items()},
+                     series={k: RU.series_present(u) for k, u in users.items()}, trail=style.trail)
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in sel.runs) if sel.runs else "scene")
     shot_viewer = None
@@ -136,7 +145,7 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
             # cameras) would otherwise keep showing that one
             rec.send_blueprint(bp, make_active=True, make_default=True)
             rec.send_recording_name(title)
-            stats = log_all(rec, scene, sel, tb, style)
+            stats = log_all(rec, scene, sel, tb, style, users)
             if conflicts is not None:
                 from seg2pose.io.poses import read_poses
 
@@ -161,7 +170,7 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
         if shot_viewer is not None:
             k = sel.cadence.masks if style.masks else 1  # a frame that has masks, not a stale one
             frame = to.frame if to.frame is not None else sel.first + (sel.n_frames - 1) // 2 // k * k
-            V.screenshot_when_loaded(shot_viewer, Path(to.screenshot), frame=frame, force=to.force)
+            V.screenshot_when_loaded(shot_viewer, Path(str(to.screenshot)), frame=frame, force=to.force)
     finally:
         rec.disconnect()  # before the viewers go: no "connection severed" noise
         if shot_viewer is not None:

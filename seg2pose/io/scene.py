@@ -85,7 +85,7 @@ def road_user_sizes(cls, own: np.ndarray | None = None,
             looked[name] = (float(size[0]), float(size[1]), float(size[2]))
         run = np.array([looked[str(c)] for c in cls[heads]], np.float64).reshape(-1, 3)
         out = np.repeat(run, np.diff(np.r_[heads, n]), axis=0)
-    if own is not None:
+    if own is not None and n:
         own = np.asarray(own, np.float64).reshape(n, -1)
         k = min(3, own.shape[1])
         have = np.isfinite(own[:, :k])

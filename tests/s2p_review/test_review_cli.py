@@ -35,7 +35,7 @@ def test_cli_review_and_errors(tiny):
     assert r.exit_code == 0, r.output
     assert "rerun " + str(out) in r.output
     rows, _, _ = rrd_rows(out)
-    assert rows["/world/road_users/run-s2pn"] == 6
+    assert rows["/world/road_users/run-s2pn/12"] == 6
     r = runner.invoke(app, ["review", str(scene.root), "--run", str(base), "-o", str(out)])
     assert r.exit_code != 0 and "--force" in str(r.exception)
 

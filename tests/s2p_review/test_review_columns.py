@@ -97,7 +97,7 @@ def test_layout_labels_and_colours(tiny):
     assert L.labels(np.array(["car", "pedestrian"]), np.array([12, 4])) == ["c12", "p4"]
     cols = L.class_colors(np.array(["car", "bicyclist"]), scene.classes)
     assert cols.dtype == np.uint8 and tuple(cols[0]) == L.CLASS_COLORS["car"]
-    assert L.safe_name("run a/b") == "run_a_b"
+    assert L.entity_part("run a/b") == "run\\ a\\/b"  # Rerun's escaping: lossless
 
 
 def test_trail_points_match_trail_strips():

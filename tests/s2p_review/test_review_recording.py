@@ -41,8 +41,11 @@ def test_rrd_holds_expected_entities_and_rows(tiny):
         assert rows[f"/world/estimates/run-s2pn/{cam}/residuals"] == n
         assert f"/world/estimates/run-base/{cam}/residuals" not in rows  # baseline: no residuals
     for r in ("run-base", "run-s2pn"):
-        assert rows[f"/world/road_users/{r}"] == n
-        assert rows[f"/world/road_users/{r}/trails"] == n
+        for tid in TRACKS:  # one entity per road user, on every frame it is seen
+            assert rows[f"/world/road_users/{r}/{tid}"] == n
+            assert rows[f"/world/road_users/{r}/{tid}/trail"] == n - 1  # a segment per step
+            assert rows[f"/metrics/road_users/{r}/speed/{tid}"] == n
+            assert rows[f"/metrics/road_users/{r}/error/{tid}"] == n
         for k in ("mean", "car", "pedestrian", "bicyclist"):
             assert rows[f"/metrics/error/{r}/{k}"] == n
     assert rows["/world/gt"] == n
@@ -58,7 +61,7 @@ def test_rrd_values(tiny):
     out = record(scene, [base], root / "values.rrd", NO_IMAGES).rrd
     boxes, errors, masks = None, None, []
     for ch in rc.RrdReader(out).stream():
-        if ch.entity_path == "/world/road_users/run-base" and not ch.is_static:
+        if ch.entity_path == "/world/road_users/run-base/12" and not ch.is_static:
             boxes = ch.to_record_batch()
         if ch.entity_path == "/metrics/error/run-base/mean" and not ch.is_static:
             errors = ch.to_record_batch()
@@ -69,7 +72,8 @@ def test_rrd_values(tiny):
     i = frames.index(5)
     labels = boxes.column("Boxes3D:labels").to_pylist()[i]
     centers = np.array(boxes.column("Boxes3D:centers").to_pylist()[i])
-    k = labels.index("c12")
+    assert labels == ["c12"] and boxes.column("Boxes3D:class_ids").to_pylist()[i] == [CLASS_ID["car"]]
+    k = 0
     x = TRACKS[12][1][0] + 5 * TRACKS[12][2][0] + EST_OFFSET[0]
     np.testing.assert_allclose(centers[k, 0], x, atol=1e-5)
     err = np.array([v[0] for v in errors.column("Scalars:scalars").to_pylist()])
@@ -248,7 +252,7 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     for ch in rc.RrdReader(out).stream():
         b = ch.to_record_batch()
         for run in ("run-base", "run-s2pn"):
-            if ch.entity_path != f"/world/road_users/{run}":
+            if ch.entity_path != f"/world/road_users/{run}/12":  # the car
                 continue
             if ch.is_static:
                 static[run] = {n: b.column(n).to_pylist()[0] for n in b.schema.names

@@ -62,7 +62,7 @@ def test_rrd_has_frame_and_real_time_timelines(tmp_path):
                  RecordOptions(start_ns=START_NS, style=LogStyle(masks=False)))
     assert scene_timebase(scene, START_NS).start_ns == START_NS
     for ch in rc.RrdReader(res.rrd).stream():
-        if ch.entity_path == "/world/road_users/r" and not ch.is_static:
+        if ch.entity_path == "/world/road_users/r/12" and not ch.is_static:
             b = ch.to_record_batch()
             frames = b.column("frame").to_pylist()
             times = b.column("time").cast("int64").to_pylist()

@@ -71,8 +71,10 @@ def test_views_report_no_warnings(viewer, data):
     time.sleep(1.5)  # let every view paint once so that it has reported
     st = viewer.get_state()
     names = sorted(v.name for v in st.views)
-    assert names == sorted(["world", "camera c0", "camera c1", "error (m): run-base",
-                            "error (m): run-s2pn"])
+    # per run its error plot, then its road users' speed and error, one plot each (in tabs)
+    assert names == sorted(["world", "camera c0", "camera c1"] +
+                           [f"{what}: {r}" for r in ("run-base", "run-s2pn")
+                            for what in ("error (m)", "speed (m/s)", "error against the truth (m)")])
     assert all(v.visible for v in st.views)
     assert V.view_reports(viewer) == []
     # the cameras sit on the right half and show the video there, not elsewhere

@@ -1,0 +1,192 @@
+"""The road users of a run in a review recording, one entity per road user (``layout``:
+``world/road_users/<run>/<track id>``), as Rerun's tracking examples log tracks: a road user
+selected or hovered at one frame is the same road user at every other frame, can be hidden
+alone, and has time series of its own.
+
+Per road user (track id), each sent with ``send_columns`` over the frames it is seen on:
+
+- its box (Boxes3D, class ids through the recording's AnnotationContext, colours in the run's
+  look) with ``AnyValues`` for the selection panel: track id, class, speed (m/s), r90 (m) and
+  source (the row's provenance, else the run's method);
+- its trail: one segment per frame from its previous pose, which the blueprint shows over the
+  last ``LogStyle.trail`` frames with a visible time range (``layout.trail_ranges``), so no
+  point is sent twice over;
+- its error disc (runs with r90, ``error_discs``);
+- series under ``metrics/road_users/<run>/<quantity>/<track id>``: speed, error against the
+  truth (rows whose (frame, track id) the truth has: ``seg2pose.eval.evaluate.match_poses``,
+  as the run's error plot) and r90.
+
+Where a road user is not seen (a gap, or after its last frame) its box and disc are emptied on
+the first frame without it, so nothing lingers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from s2p_review import columns as C
+from s2p_review import layout as L
+from s2p_review.error_discs import disc_outlines, r90_colors
+from seg2pose.io.poses import PoseTable
+
+TRAIL_LIFT_M = 0.05  # trails drawn this far above the ground contact point
+
+
+@dataclass(frozen=True)
+class RoadUsers:
+    """A run's rows in (track id, frame) order with what is logged per row: sizes (N, 3)
+    l, w, h metres; speed (N,) m/s (NaN for a track of one row); error (N,) metres against the
+    truth (NaN without truth); starts (T,) the first row of each track."""
+
+    table: PoseTable
+    sizes: np.ndarray
+    speed: np.ndarray
+    error: np.ndarray
+    starts: np.ndarray
+
+    def track_rows(self):
+        """(track id, row slice) per track, in track id order."""
+        ends = np.r_[self.starts[1:], len(self.table)]
+        for a, b in zip(self.starts.tolist(), ends.tolist()):
+            yield int(self.table.track_id[a]), slice(a, b)
+
+
+def speeds(track_id: np.ndarray, frame: np.ndarray, xy: np.ndarray, fps: float) -> np.ndarray:
+    """(N,) ground speed, m/s, of rows sorted by (track id, frame): the centred difference of
+    the positions xy (N, 2) metres between the row before and the row after within the track
+    (one-sided at a track's ends, over the frames between them at ``fps``); NaN for a track of
+    one row. A constant velocity is reproduced exactly."""
+    n = len(track_id)
+    if n == 0:
+        return np.zeros(0)
+    i = np.arange(n)
+    same_prev = np.r_[False, track_id[1:] == track_id[:-1]]
+    same_next = np.r_[track_id[1:] == track_id[:-1], False]
+    prev = np.where(same_prev, i - 1, i)
+    nxt = np.where(same_next, i + 1, i)
+    dt = (frame[nxt] - frame[prev]) / float(fps)
+    dist = np.linalg.norm(xy[nxt] - xy[prev], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(dt > 0, dist / np.where(dt > 0, dt, 1.0), np.nan)
+
+
+def road_users(poses: PoseTable, sizes: np.ndarray, fps: float, gt: PoseTable | None = None
+               ) -> RoadUsers:
+    """The rows of ``poses`` with a finite position, in (track id, frame) order, with their
+    speeds and (with ``gt``) errors on the ground plane."""
+    ok = np.flatnonzero(np.isfinite(poses.xyz).all(axis=1))
+    ok = ok[np.lexsort((poses.frame[ok], poses.track_id[ok]))]
+    t, sz = poses.take(ok), np.asarray(sizes, float)[ok]
+    err = np.full(len(t), np.nan)
+    if gt is not None and len(gt) and len(t):
+        from seg2pose.eval.evaluate import match_poses
+
+        ie, ig = match_poses(t, gt)
+        err[ie] = np.linalg.norm(t.xyz[ie, :2] - gt.xyz[ig, :2], axis=1)
+    starts = np.flatnonzero(np.r_[True, t.track_id[1:] != t.track_id[:-1]]) if len(t) else \
+        np.zeros(0, np.int64)
+    return RoadUsers(t, sz, speeds(t.track_id, t.frame, t.xyz[:, :2], fps), err, starts)
+
+
+def shown_frames(frame: np.ndarray, last: int) -> tuple[np.ndarray, np.ndarray]:
+    """One track's frames (K,) sorted -> the frames to send (the frames it is on, and the first
+    frame after each stretch of them, up to ``last``, where it is emptied) and the rows per sent
+    frame (0 on the emptying ones)."""
+    frames, counts = np.unique(frame, return_counts=True)
+    after = frames + 1
+    gaps = after[~np.isin(after, frames) & (after <= last)]
+    out = np.union1d(frames, gaps)
+    lengths = np.zeros(len(out), np.int64)
+    lengths[np.searchsorted(out, frames)] = counts
+    return out, lengths
+
+
+def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source: str = "",
+                   trail: int = L.TRAIL_FRAMES) -> list[int]:
+    """Log every road user of ``run`` (see the module docstring) through ``ctx`` (a
+    ``recording.LogContext``); ``source``: what the AnyValues say where rows carry no source
+    (the run's method). Returns the track ids logged."""
+    import rerun as rr
+
+    t = users.table
+    scene = ctx.scene
+    class_id = {c.name: c.id for c in scene.classes}
+    ids = np.array([class_id.get(str(c), 0) for c in t.cls], np.uint16)
+    box_colors = L.run_colors(t.cls, scene.classes, look, solid=True)
+    line_colors = L.run_colors(t.cls, scene.classes, look)
+    fill = rr.components.FillMode.Solid if L.RUN_LOOKS[look]["solid"] else rr.components.FillMode.MajorWireframe
+    fields = C.box_columns(t.xyz, t.heading, users.sizes)
+    labels = np.array(L.labels(t.cls, t.track_id), object)
+    r90 = t.r90 if t.r90 is not None else np.full(len(t), np.nan)
+    src = t.source if t.source is not None else np.full(len(t), source, object)
+    has_r90 = bool(np.isfinite(r90).any())
+    has_error = bool(np.isfinite(users.error).any())
+    done = []
+    for tid, rows in users.track_rows():
+        ent = L.road_user_path(run, tid)
+        fr = t.frame[rows]
+        frames, lengths = shown_frames(fr, ctx.last)
+        ctx.static(ent, rr.Boxes3D.from_fields(show_labels=False, fill_mode=fill))
+        box = rr.Boxes3D.columns(centers=fields["centers"][rows], half_sizes=fields["half_sizes"][rows],
+                                 quaternions=fields["quaternions"][rows], class_ids=ids[rows],
+                                 colors=box_colors[rows], labels=labels[rows].tolist()).partition(lengths)
+        info = rr.AnyValues.columns(track_id=np.full(len(fr), tid, np.int64),
+                                    **{"class": t.cls[rows].astype(str)},
+                                    speed_mps=users.speed[rows], r90_m=r90[rows],
+                                    source=src[rows].astype(str)).partition(lengths)
+        ctx.send(ent, frames, [*box, *info])
+        if trail > 1 and len(fr) > 1:
+            p = t.xyz[rows] + [0.0, 0.0, TRAIL_LIFT_M]
+            segs = np.stack([p[:-1], p[1:]], axis=1)
+            ctx.static(ent + "/trail", rr.LineStrips3D.from_fields(radii=0.04))
+            ctx.send(ent + "/trail", fr[1:], rr.LineStrips3D.columns(
+                strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch),
+                colors=line_colors[rows][1:]))
+        rr90 = r90[rows]
+        okr = np.isfinite(rr90)
+        if okr.any():
+            f_r, l_r = shown_frames(fr[okr], ctx.last)
+            rings = disc_outlines(t.xyz[rows][okr], rr90[okr])
+            ctx.static(ent + "/r90", rr.LineStrips3D.from_fields(radii=0.03))
+            ctx.send(ent + "/r90", f_r, rr.LineStrips3D.columns(
+                strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
+                colors=r90_colors(rr90[okr])).partition(l_r))
+        color = L.class_colors(t.cls[rows][:1], scene.classes)[0].tolist()
+        for quantity, values, wanted in (("speed", users.speed, True), ("error", users.error, has_error),
+                                         ("r90", r90, has_r90)):
+            v = values[rows]
+            if not wanted or not np.isfinite(v).any():
+                continue
+            series = L.road_user_series_path(run, quantity, tid)
+            ctx.static(series, rr.SeriesLines(colors=[color], names=[str(labels[rows][0])]))
+            C.send_scalars(ctx.rec, series, ctx.tb, fr, v)
+        done.append(tid)
+    return done
+
+
+def series_present(users: RoadUsers) -> list[str]:
+    """The road-user series a run has (keys of ``layout.ROAD_USER_SERIES``), for the blueprint."""
+    t = users.table
+    out = ["speed"] if np.isfinite(users.speed).any() else []
+    if np.isfinite(users.error).any():
+        out.append("error")
+    if t.r90 is not None and np.isfinite(t.r90).any():
+        out.append("r90")
+    return out
+
+
+def prepare(scene, sel, gt: PoseTable | None) -> dict[str, RoadUsers]:
+    """Run name -> its road users over the selection's frames (``road_users``), sized by the
+    scene (``columns.sizes_of``): computed once, before logging, so that the blueprint can name
+    every road user's trail and series."""
+    out = {}
+    for run in sel.runs:
+        poses = run.poses.in_frames((sel.first, sel.last))
+        out[run.name] = road_users(poses, C.sizes_of(poses, scene), scene.fps, gt)
+    return out
+
+
+def track_ids(users: RoadUsers) -> list[int]:
+    return [int(tid) for tid in users.table.track_id[users.starts]]
