@@ -10,8 +10,9 @@ gives the image pixel exactly (no selection events to interpret). The Rerun view
 3D world, the other cameras and the keyframe timeline.
 
 Frames come from the viewer's cached H.264 asset of the camera (``s2p_review.video_asset``:
-a keyframe every 12 frames), decoded with OpenCV: a step to the next frame reads one frame,
-a jump seeks (at most 11 frames decoded after the keyframe). Tracks are drawn from the same
+a keyframe every 12 frames), decoded frame-exactly by presentation timestamp
+(``seg2pose.io.video_decode``): a step to the next frame decodes one frame, a jump seeks (at
+most 11 frames decoded after the keyframe). Tracks are drawn from the same
 columns the viewer gets (``TrackColumns``), projected with ``s2p_review.columns``.
 """
 
@@ -24,7 +25,8 @@ import numpy as np
 from s2p_review import columns as C
 from s2p_review import layout as L
 from s2p_review.annotation_log import OCCLUDED_SHADE, SELECTED_COLOR, TrackColumns
-from s2p_review.video_asset import GOP, video_asset
+from s2p_review.video_asset import video_asset
+from seg2pose.io.video_decode import VideoDecoder
 
 JPEG_QUALITY = 82
 THICKNESS = {"keyframe": 3, "interpolated": 1, "occluded": 1}
@@ -43,38 +45,28 @@ class Picture:
 
 
 class _Reader:
-    """Sequential-friendly random access to one camera's video asset (scene frame -> BGR)."""
+    """Frame-exact random access to one camera's video asset (scene frame -> BGR), by
+    presentation timestamp (``seg2pose.io.video_decode``): a step forward decodes on, a jump
+    seeks to the keyframe before it."""
 
     def __init__(self, asset):
-        import cv2
-
         self.asset = asset
         self.index = {int(f): i for i, f in enumerate(asset.frames)}
-        self.cap = cv2.VideoCapture(str(asset.path))
-        self.pos = 0  # the index of the frame the next read returns
+        self.decoder = VideoDecoder(asset.path)
         self.last = None  # (index, image) of the last frame read
 
     def read(self, frame: int) -> np.ndarray | None:
-        import cv2
-
         i = self.index.get(int(frame))
-        if i is None or not self.cap.isOpened():
+        if i is None:
             return None
         if self.last is not None and self.last[0] == i:  # redrawn after an edit: no seek back
             return self.last[1].copy()
-        if i != self.pos:
-            if 0 < i - self.pos < GOP:  # a short step forward: decode on, no seek
-                for _ in range(i - self.pos):
-                    self.cap.grab()
-            else:
-                self.cap.set(cv2.CAP_PROP_POS_FRAMES, i)
-        ok, img = self.cap.read()
-        self.pos = i + 1 if ok else -1
-        self.last = (i, img) if ok else None
-        return img.copy() if ok else None
+        img = self.decoder.read(i)
+        self.last = (i, img) if img is not None else None
+        return None if img is None else img.copy()
 
     def close(self) -> None:
-        self.cap.release()
+        self.decoder.close()
 
 
 class FrameImages:

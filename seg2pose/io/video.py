@@ -2,9 +2,12 @@
 
 A camera's frames come from ``video/<camera>.mp4`` (or .avi/.mkv/.mov) or an image folder
 ``video/<camera>/NNNNNN.jpg``. The k-th frame of a video is scene frame ``first + k * step``
-(``scene.json`` ``extra.video_frames.<camera>``, default first 0, step 1); an image's frame is
-the number in its file name. Nothing is loaded whole: ``FrameReader`` yields (frame, image)
-pairs and remembers where a truncated file stopped, so callers keep what was read.
+(``scene.json`` ``extra.video_frames.<camera>``, default first 0, step 1), the k-th in
+display order (presentation timestamps, decoded frame-exactly by ``io/video_decode.py``, also
+for H.264 with B-frames and seeks): a variable-frame-rate video's frames are numbered by their
+rank, not by their timestamps. An image's frame is the number in its file name. Nothing is
+loaded whole: ``FrameReader`` yields (frame, image) pairs and remembers where a truncated file
+stopped, so callers keep what was read.
 
 Images are BGR uint8 (H, W, 3), OpenCV's order.
 """
@@ -20,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from seg2pose.core.errors import InputError
+from seg2pose.io.video_decode import VideoDecoder, video_index
 
 if TYPE_CHECKING:
     from seg2pose.io.scene import Scene
@@ -70,14 +74,8 @@ class FrameReader:
     def is_folder(self) -> bool:
         return self.path.is_dir()
 
-    def _open(self):
-        import cv2
-
-        cap = cv2.VideoCapture(str(self.path))
-        if not cap.isOpened():
-            raise InputError("cannot open video (unreadable file or unsupported codec)",
-                             file=self.path)
-        return cap
+    def _decoder(self) -> VideoDecoder:
+        return VideoDecoder(self.path)
 
     def header(self) -> tuple[int, int, int]:
         """(width, height, frame count) from the file header (image folders: first image);
@@ -92,14 +90,8 @@ class FrameReader:
             if im is None:
                 raise InputError("cannot read image", file=files[0][1])
             return im.shape[1], im.shape[0], len(files)
-        cap = self._open()
-        try:
-            w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
-            h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-            n = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 0)
-        finally:
-            cap.release()
-        return w, h, n
+        idx = video_index(self.path)
+        return idx.width, idx.height, max(idx.n_header, len(idx))
 
     def check_size(self, width: int, height: int) -> None:
         """Raise if the frames are not ``width`` x ``height`` pixels (the calibration's size)."""
@@ -144,30 +136,20 @@ class FrameReader:
                 self.last_good, self.n_read = f, self.n_read + 1
                 yield f, im
             return
-        cap = self._open()
-        try:
-            n_header = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 0)
-            k0 = 0 if first is None else max(0, -(-(first - self.first) // self.step))
-            if k0:
-                cap.set(cv2.CAP_PROP_POS_FRAMES, k0)
-            k = k0
-            while True:
+        k0 = 0 if first is None else max(0, -(-(first - self.first) // self.step))
+        k1 = None if last is None else (last - self.first) // self.step
+        with self._decoder() as dec:
+            k = k0 - 1
+            # skipped frames are decoded (the next needs them) but not converted to images
+            for k, im in dec.frames(k0, k1, every):
                 f = self.first + k * self.step
-                if last is not None and f > last:
-                    return
-                skip = (k - k0) % every != 0     # skipped frames are grabbed, not decoded
-                ok, im = (cap.grab(), None) if skip else cap.read()
-                if not ok or (im is None and not skip):
-                    if n_header and k < n_header:
-                        self.stopped = (f"video ends after {k} of the {n_header} frames its header "
-                                        "announces (truncated or damaged)")
-                    return
-                if not skip:
-                    self.last_good, self.n_read = f, self.n_read + 1
-                    yield f, im
-                k += 1
-        finally:
-            cap.release()
+                self.last_good, self.n_read = f, self.n_read + 1
+                yield f, im
+            n = max(dec.index.n_header, len(dec))
+            end = n - 1 if k1 is None else min(k1, n - 1)
+            if dec.stopped or k + every <= end:
+                self.stopped = (f"video ends after {k + 1} of the {n} frames its header announces "
+                                "(truncated or damaged)")
 
     def sample(self, frames: np.ndarray) -> list[tuple[int, np.ndarray]]:
         """The images of a few scene frames (sorted; frames past the end are skipped)."""
@@ -182,23 +164,11 @@ class FrameReader:
         if not want:
             return out
         ks = sorted((f - self.first) // self.step for f in want if (f - self.first) % self.step == 0)
-        if len(ks) > 1 and min(np.diff(ks)) < 48:  # close together: reading through is cheaper
-            # (from the first one: a segment late in a long video must not decode from frame 0)
-            for f, im in self.frames(first=self.first + ks[0] * self.step,
-                                     last=self.first + ks[-1] * self.step):
-                if f in want:
-                    out.append((f, im))
-            return out
-        import cv2
-        cap = self._open()
-        try:
+        # one decoder: frames close together are decoded on, far ones sought (video_decode)
+        with self._decoder() as dec:
             for k in ks:
-                cap.set(cv2.CAP_PROP_POS_FRAMES, k)
-                ok, im = cap.read()
-                if ok and im is not None:
+                if (im := dec.read(k)) is not None:
                     out.append((self.first + k * self.step, im))
-        finally:
-            cap.release()
         return out
 
 
