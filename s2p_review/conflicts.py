@@ -128,13 +128,13 @@ def _pair(tracks, a: int, b: int, f0: int, f1: int):
 def pair_series(tracks, conflicts: Conflicts, k: int, opts=None):
     """(frames (P,), TTC (P,) s with NaN, distance (P,) m, Tracks of the pair, Motion) of
     conflict ``k`` over its encounter, recomputed from ``tracks`` with ``opts``
-    (ConflictOptions; default: the defaults, with no distance limit)."""
+    (ConflictOptions; default: the defaults)."""
     from seg2pose.safety.conflicts import ConflictOptions, pair_frames
     from seg2pose.safety.kinematics import motion
 
     c = conflicts.columns
-    opts = opts or ConflictOptions(near_m=1e5)
-    margin = int(math.ceil(2 * opts.motion.window_s * tracks.fps)) + 2
+    opts = opts or ConflictOptions()
+    margin = int(math.ceil(opts.motion.max_window_s * tracks.fps)) + 2
     sub = _pair(tracks, int(c["track_a"][k]), int(c["track_b"][k]),
                 int(c["first_frame"][k]) - margin, int(c["last_frame"][k]) + margin)
     mot = motion(sub, opts.motion)

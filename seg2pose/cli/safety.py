@@ -53,6 +53,21 @@ def _scene_of(tracks: Path) -> Path:
     return (tracks / scene).resolve()
 
 
+def _say_least(c: dict) -> None:
+    """One line on the conflict with the least TTC (the worked example's numbers)."""
+    import numpy as np
+
+    k = np.flatnonzero(c["conflict"] == 1)
+    if not len(k):
+        return
+    i = k[np.nanargmin(c["min_ttc_s"][k])]
+    ta = c["ta_s"][i]
+    typer.echo(f"least TTC {c['min_ttc_s'][i]:.3f} s: {c['type'][i]}, {c['class_a'][i]} {int(c['track_a'][i])} x "
+               f"{c['class_b'][i]} {int(c['track_b'][i])} at frame {int(c['min_ttc_frame'][i])}; TA "
+               + (f"{ta:.3f} s at {c['conflicting_speed_mps'][i]:.1f} m/s by {int(c['evasive_track'][i])} "
+                  f"({c['tct_severity'][i]})" if np.isfinite(ta) else "none"))
+
+
 def register(app: typer.Typer) -> None:
     app.command("conflicts", rich_help_panel=SAFETY)(speaks_flags(conflicts))
 
@@ -73,31 +88,47 @@ def conflicts(
         None, "--start", help="T-Analyst file: the time stamp of frame 0, HH:MM:SS.mmm (default 00:00:00.000)",
     ),
     ttc_s: float = typer.Option(
-        1.5, "--ttc", min=0.0, help="TTC threshold, seconds: min TTC at or below it makes a conflict",
+        1.5, "--ttc", min=0.0,
+        help="SSAM's conflict threshold, seconds: a collision course with TTC at or below it makes a conflict",
     ),
     pet_s: float = typer.Option(
-        5.0, "--pet", min=0.0,
-        help="PET threshold, seconds: PET at or below it makes a conflict (also the longest PET looked for)",
+        5.0, "--pet", min=0.0, help="PET reported up to this, seconds (and the PET-only list's threshold)",
     ),
-    near_m: float = typer.Option(
-        25.0, "--near", min=0.1,
-        help="road users farther apart than this (metres, centre to centre) are not compared for TTC",
+    horizon_s: float = typer.Option(
+        10.0, "--horizon", min=0.1,
+        help="TTC is looked for this many seconds ahead (beyond it: none); road users are compared when they "
+             "could meet within it at their speeds, however far apart",
     ),
-    window_s: float = typer.Option(
-        1.0, "--window", min=0.01, help="seconds of track the velocity (and acceleration) is fitted over",
+    max_gap: float = typer.Option(
+        1.0, "--max-gap", min=0.0,
+        help="missing frames of a track are interpolated over gaps up to this many seconds; longer gaps split "
+             "the track's smoothing",
     ),
-    centred: bool = typer.Option(
-        False, "--centred/--trailing",
-        help="fit the velocity over a window around each frame instead of the one before it",
+    window_s: float | None = typer.Option(
+        None, "--window", min=0.01,
+        help="a fixed width (seconds) of the centred fits that give velocity and acceleration; default: each "
+             "track's from its noise",
     ),
     brake: float = typer.Option(
-        3.0, "--brake", min=0.0, help="evasive action: braking harder than this, m/s^2 (for Time-to-Accident)",
+        3.0, "--brake", min=0.0, help="evasive action: braking at least this hard, m/s^2 (for Time-to-Accident)",
     ),
     swerve: float = typer.Option(
-        3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration above this, m/s^2",
+        3.0, "--swerve", min=0.0, help="evasive action: lateral acceleration of at least this, m/s^2",
+    ),
+    yaw: float | None = typer.Option(
+        None, "--yaw", min=0.0,
+        help="evasive action: also a turning rate of at least this, degrees/s (default: lateral acceleration only)",
+    ),
+    pet_only: Path | None = typer.Option(
+        None, "--pet-only", help="also write the PET-only encounters (PET <= --pet, no collision course) to this CSV",
+    ),
+    conflict_map: Path | None = typer.Option(
+        None, "--map",
+        help="also draw the conflict map (PNG): where the conflicts' minimum TTC and the PET-only encounters lie",
     ),
     all_pairs: bool = typer.Option(
-        False, "--all-pairs", help="write every close encounter with its indicators, not only conflicts",
+        False, "--all-pairs",
+        help="write every encounter with its indicators (flagged conflict / pet_only), not only conflicts",
     ),
     pedestrian_pairs: bool = typer.Option(
         False, "--pedestrian-pairs",
@@ -135,21 +166,32 @@ def conflicts(
     ),
     force: bool = typer.Option(False, "--force", help="overwrite an existing output"),
 ) -> None:
-    """Find traffic conflicts in road-user tracks: TTC, PET, Time-to-Accident, speeds.
+    """Find traffic conflicts in road-user tracks: TTC, PET, Time-to-Accident, SSAM's measures.
 
-    One row per pair of road users that came close (min TTC <= --ttc or PET <= --pet; all
-    of them with --all-pairs), with the type (rear-end, crossing, head-on, pedestrian,
-    bicyclist), MaxS, DeltaS, max deceleration and, where the poses carry r90_m (or --r90
-    gives it), 90 % intervals of min TTC and PET."""
+    A conflict is SSAM's: a collision course with TTC (Hayward 1972: current velocities from a
+    smoother over the whole track, rectangular footprints) at or below --ttc; its PET is
+    reported with it (--pet-only writes the encounters with PET <= --pet and no collision
+    course). Per conflict: min TTC; Time-to-Accident and conflicting speed at the onset of the
+    evasive action, with the TCT severity (Hyden 1987); MaxS, DeltaS, DR, MaxD, MaxDeltaV, the
+    signed conflict angle and the type (rear-end, lane-change, crossing, head-on, pedestrian,
+    bicyclist); the least gap between the footprints; positions for conflict maps; and, where
+    the poses carry r90_m (or --r90 gives it), 90 % intervals of min TTC, PET and TA
+    (docs/guide/conflicts.md)."""
     import numpy as np
 
     from seg2pose.core.say import say
     from seg2pose.io.atomic import atomic_write_text, check_writable, output_lock
-    from seg2pose.safety.conflicts import INTERVAL_COLUMNS, ConflictOptions, analyse, format_conflicts
+    from seg2pose.safety.conflicts import ConflictOptions, analyse
+    from seg2pose.safety.evasive import EvasiveOptions
+    from seg2pose.safety.gaps import jump_note, jumps
     from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
     from seg2pose.safety.kinematics import MotionOptions
+    from seg2pose.safety.table import INTERVAL_COLUMNS, format_conflicts
     from seg2pose.safety.tracks import load_tracks
 
+    for extra in (pet_only, conflict_map):
+        if extra is not None:
+            check_writable(extra, force)
     check_writable(out, force)
     scene_dir = None
     if review is not None:
@@ -172,37 +214,52 @@ def conflicts(
             raise InputError(f"no error radius for classes {', '.join(missing)}", field="--r90")
         per_class = np.array([table_r90[str(c)] for c in tr.cls], float)
         tr.r90 = per_class if tr.r90 is None else np.where(np.isfinite(tr.r90), tr.r90, per_class)
-    h90 = None
     if table_h90 is not None:
         missing = sorted(set(tr.cls.astype(str)) - set(table_h90))
         if missing:
             raise InputError(f"no heading error for classes {', '.join(missing)}",
                              field="--heading90")
-        h90 = np.radians([table_h90[str(c)] for c in tr.cls])
     say(f"{len(tr):,} poses of {len(np.unique(tr.track_id)):,} road users, "
         f"{(tr.frame.max() - tr.frame.min() + 1) / tr.fps if len(tr) else 0:.0f} s at {tr.fps:g} fps")
-    opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, near_m=near_m, brake_mps2=brake,
-                           swerve_mps2=swerve, all_pairs=all_pairs,
-                           pedestrian_pairs=pedestrian_pairs, chunk_s=chunk_s,
-                           workers=workers, motion=MotionOptions(window_s=window_s, centred=centred))
+    bad = jumps(tr)
+    if len(bad):
+        say(jump_note(tr, bad), "warning")
+    opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, horizon_s=horizon_s, max_gap_s=max_gap,
+                           evasive=EvasiveOptions(brake_mps2=brake, swerve_mps2=swerve, yaw_dps=yaw),
+                           all_pairs=all_pairs, pedestrian_pairs=pedestrian_pairs, chunk_s=chunk_s,
+                           workers=workers, motion=MotionOptions(window_s=window_s))
     table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
-    n_conf = int(table.columns["conflict"].sum())
-    if draws > 0 and tr.r90 is not None and len(table):
+    for n in table.notes:
+        say(n, "note")
+    c = table.columns
+    n_conf, n_pet = int(c["conflict"].sum()), int(c["pet_only"].sum())
+    ft = table.tracks  # the tracks analysed: short gaps filled in
+    if draws > 0 and ft.r90 is not None and np.isfinite(ft.r90).any() and len(table):
         from tqdm import tqdm
 
-        iv = conflict_intervals(tr, table, opts, IntervalOptions(draws=draws, corr_s=corr_s, seed=seed),
-                                heading90=h90,
-                                progress=lambda it: tqdm(it, desc="intervals", unit="pair"))
+        h90 = None if table_h90 is None else np.radians([table_h90[str(x)] for x in ft.cls])
+        iv = conflict_intervals(ft, table, opts, IntervalOptions(draws=draws, corr_s=corr_s, seed=seed),
+                                heading90=h90, progress=lambda it: tqdm(it, desc="intervals", unit="pair"))
         table.columns.update({k: iv[k] for k in INTERVAL_COLUMNS})
-    elif draws > 0 and tr.r90 is None:
-        say("the poses carry no r90_m: no error intervals (give --r90 CLASS=METRES,... for "
+    elif draws > 0:
+        say("the poses carry no r90_m: error intervals none (give --r90 CLASS=METRES,... for "
             "a per-class error radius)", "note")
     with output_lock(out):
         check_writable(out, force)
-        atomic_write_text(out, format_conflicts(table, tr.fps))
-    typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s or PET <= {pet_s:g} s)"
+        atomic_write_text(out, format_conflicts(table if all_pairs else table.take(c["conflict"] == 1), tr.fps))
+    if pet_only is not None:
+        with output_lock(pet_only):
+            check_writable(pet_only, force)
+            atomic_write_text(pet_only, format_conflicts(table.take(c["pet_only"] == 1), tr.fps))
+    if conflict_map is not None:
+        from seg2pose.safety.conflict_map import draw_map
+
+        draw_map(conflict_map, table, force=force)
+    typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s on a collision course), "
+               f"{n_pet} PET-only encounters (PET <= {pet_s:g} s)"
                + (f" among {len(table)} encounters" if all_pairs else "")
                + f" in {time.perf_counter() - t0:.1f} s")
+    _say_least(c)
     if review is not None:
         from s2p_review.session import RecordOptions, Targets, record
         from seg2pose.io.scene import load_scene

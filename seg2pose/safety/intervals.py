@@ -7,7 +7,7 @@ one road user are not independent from frame to frame (the same mask errors pers
 draw moves a track by an AR(1) process with correlation time ``corr_s`` seconds (per axis:
 e_k = rho e_(k-1) + sqrt(1 - rho^2) z_k, rho = exp(-dt / corr_s)), scaled by each row's sigma.
 Velocities are re-estimated from the moved positions, so the interval of TTC carries the
-velocity error too. The interval is the central ``level`` share of the draws: min TTC and PET
+velocity error too. The interval is the central ``level`` share of the draws: min TTC, PET and TA
 at the 5th and 95th percentiles; ``*_found_share`` says in how many draws the indicator exists
 at all (a draw with no collision course has no TTC).
 
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from seg2pose.safety.evasive import onsets, time_to_accident
 from seg2pose.safety.footprints import overlaps
 from seg2pose.safety.kinematics import motion
 from seg2pose.safety.pet import closest_in_time, pet, refine
@@ -73,13 +74,13 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
     table was made with."""
     r90 = tracks.r90 if r90 is None else r90
     K = len(table)
-    out = {k: np.full(K, np.nan) for k in ("min_ttc_lo_s", "min_ttc_hi_s", "pet_lo_s",
-                                           "pet_hi_s", "ttc_found_share", "pet_found_share")}
+    out = {k: np.full(K, np.nan) for k in ("min_ttc_lo_s", "min_ttc_hi_s", "pet_lo_s", "pet_hi_s",
+                                           "ta_lo_s", "ta_hi_s", "ttc_found_share", "pet_found_share")}
     if r90 is None:
         return out
     c = table.columns
     fps = tracks.fps
-    margin = int(np.ceil(2 * opts.motion.window_s * fps)) + 2
+    margin = int(np.ceil(opts.motion.max_window_s * fps)) + 2
     rho = float(np.exp(-1.0 / (fps * iopts.corr_s)))
     q = (100 * (1 - iopts.level) / 2, 100 * (1 + iopts.level) / 2)
     search = None if iopts.pet_search_s is None else int(round(iopts.pet_search_s * fps))
@@ -89,6 +90,8 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         f0, f1 = int(c["first_frame"][k]) - margin, int(c["last_frame"][k]) + margin
         rows = np.r_[_rows_of(tracks, c["track_a"][k], f0, f1), _rows_of(tracks, c["track_b"][k], f0, f1)]
         sub = tracks.take(rows)
+        if not np.isfinite(r90[rows]).any():
+            continue  # no uncertainty known: no interval (not one of zero width)
         sig = np.nan_to_num(r90[rows] * SIGMA_PER_R90)  # rows: a's then b's, as sub sorts them
         D = iopts.draws
         # one Tracks with D copies of the pair, copy d's ids offset so they stay apart
@@ -123,6 +126,11 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         out["ttc_found_share"][k] = found.mean()
         if found.any() and np.isfinite(c["min_ttc_s"][k]):
             out["min_ttc_lo_s"][k], out["min_ttc_hi_s"][k] = np.percentile(mins[found], q)
+        if np.isfinite(c["ta_s"][k]):
+            tas = _ta_draws(big, mot, D, f0 + margin, f1 - margin, opts)
+            ok = np.isfinite(tas)
+            if ok.any():
+                out["ta_lo_s"][k], out["ta_hi_s"][k] = np.percentile(tas[ok], q)
         if np.isfinite(c["pet_s"][k]):
             pets = (_pet_draws_whole(big, mot, a, b, x, opts, D) if search is None
                     else _pet_draws(big, mot, c, k, search, opts.pet_s, D))
@@ -131,6 +139,14 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
             if ok.any():
                 out["pet_lo_s"][k], out["pet_hi_s"][k] = np.percentile(pets[ok], q)
     return out
+
+
+def _ta_draws(big: Tracks, mot, D: int, f0: int, f1: int, opts) -> np.ndarray:
+    """(D,) Time-to-Accident of each draw's pair (ids 4d, 4d + 1) over frames [f0, f1]."""
+    ids = np.arange(D) * 4
+    ta = time_to_accident(big, mot, onsets(big, mot, opts.evasive), ids, ids + 1,
+                          np.full(D, f1), np.full(D, f0), opts.horizon_s)
+    return ta["ta_s"]
 
 
 def _pet_draws_whole(big: Tracks, mot, a: np.ndarray, b: np.ndarray, x: np.ndarray, opts,

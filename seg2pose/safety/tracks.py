@@ -24,16 +24,14 @@ from seg2pose.core.errors import InputError
 from seg2pose.core.validate import FPS_RANGE, MAX_COORD
 from seg2pose.io.poses import BASE_COLUMNS, SIZE_COLUMNS, PoseTable, read_poses
 from seg2pose.io.poses import R90_COLUMN as POSE_R90
+from seg2pose.io.scene import DEFAULT_CLASS_SIZES, UNKNOWN_CLASS, road_user_sizes
 from seg2pose.io.tanalyst import TYPE_TO_CLASS, read_tanalyst, times_to_frames
 from seg2pose.safety.workers import map_chunks
 
 R90_COLUMN = "r90_m"
-# typical footprints (length, width, metres) where a row gives none: a mid-size car, an adult
-# walking (shoulders and stride), a bicycle with rider, a rigid truck, a city bus
-CLASS_SIZES = {"car": (4.4, 1.8), "pedestrian": (0.6, 0.6), "bicyclist": (1.8, 0.6),
-               "truck": (8.0, 2.5), "bus": (12.0, 2.55), "motorcycle": (2.2, 0.8),
-               "moped": (1.8, 0.7)}
-UNKNOWN_SIZE = (4.4, 1.8)  # a class not in CLASS_SIZES: treated as a car (said in a note)
+# the typical footprints (length, width, metres) of rows that give none: the scene's class
+# sizes where the tracks belong to a scene, else these (``seg2pose.io.scene``: one source)
+CLASS_SIZES = {k: (v[0], v[1]) for k, v in DEFAULT_CLASS_SIZES.items()}
 
 
 @dataclass
@@ -104,32 +102,27 @@ class Tracks:
         return out
 
 
-def class_sizes(cls: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """(N,) class names -> (N, 2) typical length, width; and the classes not known (sized as
-    cars). Looked up once per run of equal names (rows come track by track or frame by
-    frame: millions of rows, a few runs each)."""
-    n = len(cls)
-    if n == 0:
-        return np.zeros((0, 2), np.float64), []
-    heads = np.flatnonzero(np.r_[True, cls[1:] != cls[:-1]])
-    names = sorted({str(c) for c in cls[heads]})
-    table = {n_: CLASS_SIZES.get(n_.lower(), UNKNOWN_SIZE) for n_ in names}
-    unknown = [n_ for n_ in names if n_.lower() not in CLASS_SIZES]
-    run = np.array([table[str(c)] for c in cls[heads]], np.float64).reshape(-1, 2)
-    return np.repeat(run, np.diff(np.r_[heads, n]), axis=0), unknown
+def class_sizes(cls: np.ndarray, sizes: dict | None = None) -> tuple[np.ndarray, list[str]]:
+    """(N,) class names -> (N, 2) typical length, width (``sizes``: a scene's class sizes,
+    default ``seg2pose.io.scene.DEFAULT_CLASS_SIZES``); and the classes not known (sized as
+    UNKNOWN_CLASS)."""
+    out, unknown = road_user_sizes(cls, None, sizes)
+    return out[:, :2], unknown
 
 
-def from_poses(poses: PoseTable, fps: float, r90: np.ndarray | None = None) -> tuple[Tracks, list[str]]:
-    """A pose table -> Tracks (sizes from the rows, else the class's typical size) and notes."""
+def from_poses(poses: PoseTable, fps: float, r90: np.ndarray | None = None,
+               sizes: dict | None = None) -> tuple[Tracks, list[str]]:
+    """A pose table -> Tracks (sizes from the rows, else the class's typical size: ``sizes``,
+    a scene's ``Scene.class_sizes()``, default the defaults) and notes."""
     notes = []
-    size, unknown = class_sizes(poses.cls)
-    if poses.size is not None:
-        lw = poses.size[:, :2]
-        have = np.isfinite(lw).all(axis=1)
-        size[have] = lw[have]
+    own = None if poses.size is None else poses.size[:, :2]
+    if own is not None:
+        own = np.where(np.isfinite(own).all(axis=1)[:, None], own, np.nan)  # l and w, or neither
+    full, unknown = road_user_sizes(poses.cls, own, sizes)
+    size = full[:, :2]
     if unknown:
         notes.append(f"classes {', '.join(unknown)} have no typical size; rows without l, w are "
-                     f"sized as cars ({UNKNOWN_SIZE[0]} x {UNKNOWN_SIZE[1]} m)")
+                     f"sized as a {UNKNOWN_CLASS}")
     keep = poses.track_id >= 0  # negative ids: untracked detections
     if not keep.all():
         notes.append(f"{int((~keep).sum())} rows with a negative track id (untracked) left out")
@@ -289,6 +282,33 @@ def _rows_valid(frame, tid, num, with_size: bool, with_r90: bool) -> bool:
     return not ((np.diff(f[o]) == 0) & (np.diff(t[o]) == 0)).any()
 
 
+def scene_of(path: Path) -> Path | None:
+    """The scene folder a pose file or run folder belongs to, where it can be found: RUN's
+    run.json's scene, or the scene around SCENE/gt/poses.csv."""
+    run_dir = path if path.is_dir() else path.parent
+    meta = run_dir / "run.json"
+    if meta.exists():
+        try:
+            scene = json.loads(meta.read_text(encoding="utf-8")).get("scene")
+        except (ValueError, AttributeError):
+            raise InputError("invalid JSON", file=meta) from None
+        if isinstance(scene, str) and ((run_dir / scene) / "scene.json").exists():
+            return (run_dir / scene).resolve()
+    if path.is_file() and path.parent.name == "gt" and (path.parent.parent / "scene.json").exists():
+        return path.parent.parent
+    return None
+
+
+def scene_class_sizes(path: Path) -> dict | None:
+    """The class sizes of the scene ``path`` belongs to (``scene_of``), or None."""
+    scene = scene_of(Path(path))
+    if scene is None:
+        return None
+    from seg2pose.io.scene import load_scene
+
+    return load_scene(scene).class_sizes()
+
+
 def _scene_fps(scene_dir: Path) -> float | None:
     p = scene_dir / "scene.json"
     if not p.exists():
@@ -327,7 +347,8 @@ def is_tanalyst(path: Path) -> bool:
 def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0,
                 workers: int = 1) -> tuple[Tracks, list[str]]:
     """Tracks from ``path``: a run folder (RUN/poses.csv), a pose CSV (optionally with r90_m)
-    or a T-Analyst tracks CSV (positions only: headings from motion, sizes by class). ``fps``:
+    or a T-Analyst tracks CSV (positions only: headings from motion, sizes by class: the
+    scene's class sizes where the poses belong to a scene, ``scene_of``). ``fps``:
     needed where no scene says it (a pose CSV outside a run or scene, a T-Analyst file);
     ``start_ms``: a T-Analyst file's time of frame 0; ``workers``: processes a long pose CSV
     is parsed in. Returns the tracks and notes."""
@@ -355,4 +376,4 @@ def load_tracks(path: str | Path, fps: float | None = None, start_ms: int = 0,
     if fps is None:
         raise InputError("no scene gives the frame rate of these poses: pass --fps", file=pose_file)
     poses, r90 = read_poses_r90(pose_file, workers)
-    return from_poses(poses, fps, r90)
+    return from_poses(poses, fps, r90, scene_class_sizes(path))

@@ -73,7 +73,7 @@ class FrameRenderer:
                 alone = np.zeros(crop.shape, np.uint8)
                 fill_parts(alone, uv_sel[mine] - np.array([x0, y0]), np.ones(int(mine.sum()), np.int64))
                 vis = n_vis / max(int(np.count_nonzero(alone)), n_vis)
-            dets.append(Det(crop, x0, y0, int(w.track[r][a]), int(w.cls[r][a]), float(depth[a]), vis))
+            dets.append(Det(crop, x0, y0, int(w.ids[r][a]), int(w.cls[r][a]), float(depth[a]), vis))
         return r, dets
 
     def render(self, f: int) -> list[tuple[int, int, bytes]]:
@@ -99,7 +99,7 @@ class FrameRenderer:
         centre = w.xyz[r] + np.outer(0.5 * w.size[w.track[r] - 1, 2], [0.0, 0.0, 1.0])
         uv, _, front = self.cam.project_points(centre)
         uv = np.where(front[:, None], uv, np.nan)
-        row = {int(t): k for k, t in enumerate(w.track[r])}
+        row = {int(t): k for k, t in enumerate(w.ids[r])}
         k = np.array([row.get(tid, -1) for tid, _, _ in out])
         pts = np.where((k >= 0)[:, None], uv[np.maximum(k, 0)], np.nan)
         same = np.array([kk >= 0 and int(w.cls[r][kk]) + 1 == cid for kk, (_, cid, _) in zip(k, out)])

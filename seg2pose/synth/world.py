@@ -32,6 +32,15 @@ class World:
     part_ptr: np.ndarray   # (T + 1,) parts of track k (1-based) are part_ptr[k-1]:part_ptr[k]
     size: np.ndarray       # (T, 3) l, w, h metres per track
     colour: np.ndarray     # (T, 3) uint8 BGR body / clothing colour per track
+    # (R,) int64, 1-based id of each row's visit (one pass through the scene): the track id the
+    # ground truth and the masks carry. ``track`` indexes the road user's shape (a re-entering
+    # road user looks the same, so the pixels do not depend on the id scheme); None: = track
+    visit: np.ndarray | None = None
+
+    @property
+    def ids(self) -> np.ndarray:
+        """(R,) the track ids written to gt/poses.csv and the masks: one per visit."""
+        return self.track if self.visit is None else self.visit
 
     @property
     def n_frames(self) -> int:
@@ -61,7 +70,7 @@ class World:
 
     def poses(self) -> PoseTable:
         names = np.array(CLASS_NAMES, dtype=object)
-        return PoseTable(self.frame, self.track, names[self.cls], self.xyz, self.heading,
+        return PoseTable(self.frame, self.ids, names[self.cls], self.xyz, self.heading,
                          self.size[self.track - 1])
 
 
@@ -78,10 +87,13 @@ def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_
                 makers: dict | None = None) -> World:
     """Shapes and the frame-sorted pose table.
 
-    ids: "road_user" = one track id per population member, kept over all its visits (the
-    paper's 83 road users; a re-entering road user has its old id and shape), or "visit" = a
-    new id and shape for every visit (as a tracker would see re-entries). Ids are 1, 2, ...
-    in order of first appearance. makers: class -> shape maker (default ``shapes.MAKERS``;
+    ids: "road_user" = one shape per population member, kept over all its visits (the paper's
+    83 road users: a re-entering road user looks as before), or "visit" = a new shape for
+    every visit. Either way every visit has its own track id in ``World.ids`` (the ground
+    truth's and the masks'): a road user that leaves and comes back, or a population slot
+    used again, is a new road user to a tracker, and one id over two visits made a track
+    jump across the scene between frames. Ids are 1, 2, ... in order of first appearance.
+    makers: class -> shape maker (default ``shapes.MAKERS``;
     the wide preset's ``shapes_wide.WIDE_MAKERS``)."""
     makers = MAKERS if makers is None else makers
     if ids not in ("road_user", "visit"):
@@ -110,6 +122,11 @@ def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_
         colours.append(pal[int(rng.integers(len(pal)))])
     frame = np.concatenate([v.frames for v in visits]).astype(np.int64)
     track = np.concatenate([np.full(len(v.frames), tid[k]) for k, v in zip(keys, visits)]).astype(np.int64)
+    # visits come sorted by first frame: visit k is track k + 1 in order of first appearance
+    start = sorted(range(len(visits)), key=lambda k: (int(visits[k].frames[0]), k))
+    vid = np.empty(len(visits), np.int64)
+    vid[start] = np.arange(1, len(visits) + 1)
+    visit = np.concatenate([np.full(len(v.frames), vid[k]) for k, v in enumerate(visits)])
     order = np.lexsort((track, frame))
     xy = np.concatenate([v.xy for v in visits])[order]
     xyz = np.column_stack([xy, J.true_height(xy)])
@@ -121,4 +138,4 @@ def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_
                  frame_ptr=np.searchsorted(frame, np.arange(n_frames + 1)),
                  verts=np.concatenate(verts), swing=np.concatenate(swing),
                  kind=np.concatenate(kind), part_ptr=np.concatenate([[0], np.cumsum(counts)]),
-                 size=np.array(sizes), colour=np.array(colours, np.uint8))
+                 size=np.array(sizes), colour=np.array(colours, np.uint8), visit=visit[order])
