@@ -82,6 +82,8 @@ ACTIONS: list[Action] = [
     Action("split", "split here", "Shift+x", "span"),
     Action("merge", "merge previous track into this", "m", "span"),
     Action("interpolation", "cycle interpolation", "i", "span"),
+    Action("next_queued", "next road user to annotate (scene-wide queue)", "u", "time"),
+    Action("train_now", "train now: fine-tune on the annotations (background)", "Shift+u", "track"),
     Action("undo", "undo", "Ctrl+z", "history"),
     Action("redo", "redo", "Ctrl+y", "history"),
     *_nudges(), *_rotations(),
@@ -219,6 +221,16 @@ class Actions(ControllerState):
         if not earlier:
             return "no keyframe before this frame"
         self.goto(earlier[-1])
+
+    def _a_next_queued(self):  # annotate/app/fine_tune_job.py
+        from annotate.app.fine_tune_job import next_queued
+
+        return next_queued(self)
+
+    def _a_train_now(self):
+        from annotate.app.fine_tune_job import train_now
+
+        return train_now(self)
 
     def _a_next_suggestion(self):
         s = self.suggestions()

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from annotate.app.actions import ACTIONS, CLICK_MODE_HELP, ControllerState
+from annotate.app.fine_tune_job import job_status, queue_rows
 from annotate.headings import AUTO
 
 
@@ -85,4 +86,5 @@ class PanelData(ControllerState):
                     "viewer": self.viewer_state,
                     "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
                     "has_run": getattr(self.project, "_run", None) is not None,
+                    "queue": queue_rows(self), "train_job": job_status(self),
                     "actions": [a.__dict__ for a in ACTIONS]}
