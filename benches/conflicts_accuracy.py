@@ -37,7 +37,7 @@ from seg2pose.io.poses import read_poses
 from seg2pose.safety.conflicts import ConflictOptions, analyse
 from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
 from seg2pose.safety.kinematics import MotionOptions
-from seg2pose.safety.tracks import from_poses, load_tracks
+from seg2pose.safety.tracks import from_poses, load_tracks, scene_class_sizes
 
 TTC, PET = 1.5, 5.0
 
@@ -49,19 +49,20 @@ def table_of(tracks, opts):
 
 
 def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
-            window_s: float = 1.0, corr_s: float = 3.0, heading90: dict | None = None) -> dict:
+            window_s: float | None = None, corr_s: float = 3.0, heading90: dict | None = None) -> dict:
     est, _ = load_tracks(run)
     fps = est.fps
     gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
-    truth, _ = from_poses(gt, fps)
+    truth, _ = from_poses(gt, fps, sizes=scene_class_sizes(scene / "gt" / "poses.csv"))
     opts = ConflictOptions(all_pairs=True, motion=MotionOptions(window_s=window_s))
     tt, ti = table_of(truth, opts)
     et, ei = table_of(est, opts)
     if r90 is not None:
-        est.r90 = np.array([r90[str(c)] for c in est.cls], float)
+        ft = et.tracks  # the analysed tracks (short gaps filled)
+        ft.r90 = np.array([r90[str(c)] for c in ft.cls], float)
         conf = et.take(et.columns["conflict"].astype(bool))
-        h90 = None if heading90 is None else np.radians([heading90[str(c)] for c in est.cls])
-        iv = conflict_intervals(est, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s),
+        h90 = None if heading90 is None else np.radians([heading90[str(c)] for c in ft.cls])
+        iv = conflict_intervals(ft, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s),
                                 heading90=h90)
         pos = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(conf.columns["track_a"],
                                                                   conf.columns["track_b"]))}
@@ -85,6 +86,18 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                     width.append(iv[hi][pos[k]] - iv[lo][pos[k]])
             out[name]["inside"] = np.array(inside, bool)
             out[name]["width"] = np.array(width)
+    # SSAM conflicts by the truth's type: found (a conflict in the run too), missed; the run's
+    # false ones by their own type
+    types = {}
+    for k, i in ti.items():
+        if tc["conflict"][i] == 1:
+            d = types.setdefault(tc["type"][i], {"truth": 0, "found": 0, "false": 0})
+            d["truth"] += 1
+            d["found"] += int(k in ei and ec["conflict"][ei[k]] == 1)
+    for k, i in ei.items():
+        if ec["conflict"][i] == 1 and not (k in ti and tc["conflict"][ti[k]] == 1):
+            types.setdefault(ec["type"][i], {"truth": 0, "found": 0, "false": 0})["false"] += 1
+    out["types"] = types
     ta = [k for k, i in ti.items() if tc["min_ttc_s"][i] <= TTC and np.isfinite(tc["ta_s"][i])]
     both = [k for k in ta if k in ei and np.isfinite(ec["ta_s"][ei[k]])]
     out["ta"] = {"truth": len(ta), "found": len(both),
@@ -92,6 +105,10 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                  "err": np.array([abs(ec["ta_s"][ei[k]] - tc["ta_s"][ti[k]]) for k in both]),
                  "speed_err": np.array([abs(ec["conflicting_speed_mps"][ei[k]]
                                             - tc["conflicting_speed_mps"][ti[k]]) for k in both])}
+    if r90 is not None:
+        ins = [iv["ta_lo_s"][pos[k]] - 1e-9 <= tc["ta_s"][ti[k]] <= iv["ta_hi_s"][pos[k]] + 1e-9
+               for k in both if k in pos and np.isfinite(iv["ta_lo_s"][pos[k]])]
+        out["ta"]["inside"] = np.array(ins, bool)
     return out
 
 
@@ -102,7 +119,9 @@ def ta_line(m: dict) -> str:
     return (f"ta: truth's TTC conflicts with a TA {m['truth']}, with a TA in the run too "
             f"{m['found']} (same evasive road user {m['same']}); |TA error| median "
             f"{q(m['err'], 50):.2f} s, p90 {q(m['err'], 90):.2f} s; |conflicting speed error| "
-            f"median {q(m['speed_err'], 50):.2f} m/s, p90 {q(m['speed_err'], 90):.2f} m/s")
+            f"median {q(m['speed_err'], 50):.2f} m/s, p90 {q(m['speed_err'], 90):.2f} m/s"
+            + (f"; TA coverage {100 * m['inside'].mean():.0f} % (n={len(m['inside'])})"
+               if len(m.get("inside", [])) else ""))
 
 
 def line(name: str, m: dict) -> str:
@@ -124,7 +143,8 @@ def main() -> None:
     ap.add_argument("--r90", default=None, help="class=metres,... (90 %% error radius per class)")
     ap.add_argument("--draws", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--window", type=float, default=1.0, help="velocity window, s (--window of s2p conflicts)")
+    ap.add_argument("--window", type=float, default=None, help="a fixed smoothing window, s (--window of s2p "
+                    "conflicts; default: each track's from its noise)")
     ap.add_argument("--corr", type=float, default=3.0, help="error correlation time, s (--error-corr)")
     ap.add_argument("--heading90", default=None, help="class=degrees,... (90 %% heading error per class; "
                     "intervals then also perturb headings)")
@@ -136,7 +156,10 @@ def main() -> None:
         m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90)
         print(f"{m['scene']} {m['run']} ({m['method']})")
         print("  " + ta_line(m["ta"]))
-        for name in ("ttc", "pet", "ta"):
+        print("  SSAM conflicts by type (truth / found / missed / false): " + "; ".join(
+            f"{t} {d['truth']}/{d['found']}/{d['truth'] - d['found']}/{d['false']}"
+            for t, d in sorted(m["types"].items())))
+        for name in ("ttc", "pet", "ta"):  # (the types are per run only)
             if name != "ta":
                 print("  " + line(name, m[name]))
             p = pooled.setdefault((m["method"], name), {})

@@ -13,6 +13,11 @@ Entities (``layout``'s naming)::
     world/conflicts/c<k>/pet            LineStrips3D: the first road user's footprint as it
                                         leaves the shared spot and the second's as it enters
                                         (yellow), from the PET entry frame
+    world/conflicts/map                 Points3D (static): the conflict map, each conflict's
+                                        predicted point of contact at its minimum TTC
+    conflicts/tct                       Points2D and LineStrips2D (static): the TCT chart, each
+                                        conflict's (TA s, conflicting speed km/h) with its TA
+                                        interval, and the serious / slight boundary
 
 The highlights stay for ``HOLD_S`` seconds from their frame (then cleared); the plots cover
 the ``BEFORE_S`` seconds before the conflict's frame to ``HOLD_S`` after it, so that a
@@ -41,7 +46,7 @@ TOPIC = "/s2p/conflicts"
 REQUIRED = ["track_a", "class_a", "track_b", "class_b", "type", "conflict", "first_frame",
             "last_frame", "min_ttc_s", "min_ttc_frame", "pet_s", "pet_first_track",
             "pet_exit_frame", "pet_enter_frame"]
-TEXT = {"class_a", "class_b", "type"}
+TEXT = {"class_a", "class_b", "type", "ssam_type", "evasive_kind", "tct_severity"}
 RED, ORANGE, YELLOW = (255, 40, 40), (255, 150, 40), (255, 230, 40)
 BEFORE_S, HOLD_S = 3.0, 1.0
 SCHEMA = {"title": "s2p.Conflict", "type": "object",
@@ -75,9 +80,11 @@ class Conflicts:
         def num(key: str, unit: str) -> str:
             return "none" if not math.isfinite(c[key][k]) else f"{c[key][k]:.2f} {unit}"
 
+        ta = (f", TA {num('ta_s', 's')} at {num('conflicting_speed_mps', 'm/s')}"
+              if "ta_s" in c and "conflicting_speed_mps" in c else "")
         return (f"conflict {k}: {c['type'][k]}, {c['class_a'][k]} {int(c['track_a'][k])} x "
                 f"{c['class_b'][k]} {int(c['track_b'][k])}: min TTC {num('min_ttc_s', 's')}, "
-                f"PET {num('pet_s', 's')}")
+                f"PET {num('pet_s', 's')}{ta}")
 
 
 def read_conflicts(path: str | Path) -> Conflicts:
@@ -154,6 +161,7 @@ def log_conflicts(rec, conflicts: Conflicts, poses: PoseTable, fps: float, tb, f
     tracks, _ = from_poses(poses, fps)
     frames = conflicts.frame()
     c = conflicts.columns
+    _log_map_and_chart(rec, conflicts, frames, first, last)
     shown = 0
     for k in range(len(conflicts)):
         if not (first <= frames[k] <= last):
@@ -193,6 +201,43 @@ def log_conflicts(rec, conflicts: Conflicts, poses: PoseTable, fps: float, tb, f
     return shown
 
 
+def _log_map_and_chart(rec, conflicts: Conflicts, frames: np.ndarray, first: int, last: int) -> None:
+    """The conflict map (world/conflicts/map) and the TCT chart (conflicts/tct), static, of
+    the conflicts within [first, last] (columns of an older conflicts.csv missing: skipped)."""
+    import rerun as rr
+
+    from seg2pose.safety.evasive import tct_boundary_s
+
+    c = conflicts.columns
+    inside = (frames >= first) & (frames <= last)
+    if "min_ttc_x" in c:
+        m = inside & np.isfinite(c["min_ttc_x"])
+        if m.any():
+            pts = np.c_[c["min_ttc_x"][m], c["min_ttc_y"][m], np.full(int(m.sum()), 0.1)]
+            labels = [f"c{k}: {c['type'][k]}, TTC {c['min_ttc_s'][k]:.2f} s" for k in np.flatnonzero(m)]
+            rec.log("world/conflicts/map", rr.Points3D(pts, colors=RED, radii=0.5, labels=labels), static=True)
+    if "ta_s" in c and "conflicting_speed_mps" in c:
+        m = inside & np.isfinite(c["ta_s"]) & np.isfinite(c["conflicting_speed_mps"])
+        v = np.linspace(0, 30, 50)
+        rec.log("conflicts/tct/boundary", rr.LineStrips2D([np.c_[tct_boundary_s(v), -v * 3.6]], colors=(0, 0, 0)),
+                static=True)
+        if m.any():
+            ta, kmh = c["ta_s"][m], c["conflicting_speed_mps"][m] * 3.6
+            serious = ta <= tct_boundary_s(c["conflicting_speed_mps"][m])
+            cols = np.where(serious[:, None], np.array(RED), np.array((40, 90, 255)))
+            labels = [f"c{k}: TA {c['ta_s'][k]:.2f} s at {c['conflicting_speed_mps'][k] * 3.6:.0f} km/h"
+                      for k in np.flatnonzero(m)]
+            # y down in a 2D view: speeds are drawn negative so that faster is higher
+            rec.log("conflicts/tct/points", rr.Points2D(np.c_[ta, -kmh], colors=cols, radii=0.05, labels=labels),
+                    static=True)
+            if "ta_lo_s" in c:
+                lo, hi = c["ta_lo_s"][m], c["ta_hi_s"][m]
+                ok = np.isfinite(lo) & np.isfinite(hi)
+                if ok.any():
+                    bars = [np.array([[a, -y], [b, -y]]) for a, b, y in zip(lo[ok], hi[ok], kmh[ok])]
+                    rec.log("conflicts/tct/intervals", rr.LineStrips2D(bars, colors=(120, 120, 120)), static=True)
+
+
 def _log_at(rec, tb, frame: int, until: int, ent: str, archetype) -> None:
     """``archetype`` at ``ent`` from ``frame``, cleared after ``until``."""
     import rerun as rr
@@ -214,6 +259,7 @@ def views():
 
     return [rrb.TimeSeriesView(origin="conflicts/ttc", name="conflicts: TTC (s)"),
             rrb.TimeSeriesView(origin="conflicts/distance", name="conflicts: distance (m)"),
+            rrb.Spatial2DView(origin="conflicts/tct", name="conflicts: TCT chart (TA s, -speed km/h)"),
             rrb.TextLogView(origin=EVENTS, name="conflicts")]
 
 

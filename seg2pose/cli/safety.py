@@ -95,7 +95,7 @@ def conflicts(
         5.0, "--pet", min=0.0, help="PET reported up to this, seconds (and the PET-only list's threshold)",
     ),
     horizon_s: float = typer.Option(
-        10.0, "--horizon", min=0.1,
+        5.0, "--horizon", min=0.1,
         help="TTC is looked for this many seconds ahead (beyond it: none); road users are compared when they "
              "could meet within it at their speeds, however far apart",
     ),

@@ -73,7 +73,7 @@ class ConflictOptions:
 
     ttc_s: float = 1.5
     pet_s: float = 5.0
-    horizon_s: float = 10.0
+    horizon_s: float = 5.0
     max_gap_s: float = 1.0
     evasive: EvasiveOptions = field(default_factory=EvasiveOptions)
     all_pairs: bool = False
@@ -105,7 +105,7 @@ class RowData:
     the track ids)."""
 
     def __init__(self, tracks: Tracks, mot: Motion, fp: Footprints | None = None,
-                 horizon_s: float = 10.0):
+                 horizon_s: float = 5.0):
         self.fp = Footprints(tracks.xy, mot.heading, tracks.size) if fp is None else fp
         self.heading = mot.heading
         self.vx, self.vy = mot.vel[:, 0], mot.vel[:, 1]  # views

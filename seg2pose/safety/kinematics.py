@@ -6,7 +6,7 @@ standard deviation sigma metres per axis (the same over the track), the motion i
 (bounded jerk). sigma is measured per track (per segment without a gap) from the third
 differences of its positions: at the frame rate of video the motion's own third difference
 (jerk x dt^3) is below a millimetre, so d3 = x[k+3] - 3x[k+2] + 3x[k+1] - x[k] is noise of
-variance 20 sigma^2; sigma = 1.4826 median(|d3|) / sqrt(20) (robust to a few outliers).
+variance 20 sigma^2; sigma = sqrt(pi / 2) mean(|d3|) / sqrt(20) over both axes.
 
 **Smoother.** At each frame a quadratic is fitted by least squares to the n frames centred on
 it (local polynomial regression, Savitzky and Golay 1964); its first and second derivative
@@ -36,8 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.tracks import Tracks
-
-MAD = 1.4826  # median absolute deviation -> standard deviation (Gaussian)
 
 
 @dataclass(frozen=True)
@@ -90,29 +88,19 @@ def segments(tracks: Tracks) -> tuple[np.ndarray, np.ndarray]:
 
 
 def noise_sigma(tracks: Tracks, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """(N,) each row's segment's position noise, metres (the module's noise model); 0 for a
+    """(N,) each row's segment's position noise, metres (the module's noise model, from the
+    mean absolute third difference: sigma = sqrt(pi / 2) mean|d3| / sqrt(20)); 0 for a
     segment of fewer than 4 frames."""
     n = len(tracks)
     out = np.zeros(n)
     if n < 4:
         return out
     xy = tracks.xy
-    d3 = xy[3:] - 3 * xy[2:-1] + 3 * xy[1:-2] - xy[:-3]  # rows k .. k + 3
-    k = np.arange(n - 3)
-    ok = ends[k] >= k + 3  # within one segment
-    seg = starts[k][ok]
-    a = np.abs(d3[ok]).ravel()
-    g = np.repeat(seg, 2)
-    if not len(g):
-        return out
-    order = np.lexsort((a, g))
-    a, g = a[order], g[order]
-    head = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    cnt = np.diff(np.r_[head, len(g)])
-    med = np.where(cnt % 2 == 1, a[head + cnt // 2],
-                   0.5 * (a[head + np.maximum(cnt // 2 - 1, 0)] + a[head + cnt // 2]))
-    per_seg = np.zeros(n)
-    per_seg[g[head]] = MAD * med / np.sqrt(20.0)
+    d3 = np.abs(xy[3:] - 3 * xy[2:-1] + 3 * xy[1:-2] - xy[:-3]).sum(axis=1)  # rows k .. k + 3
+    ok = ends[:-3] >= np.arange(3, n)  # within one segment
+    total = np.bincount(starts[:-3][ok], d3[ok], minlength=n)
+    count = np.bincount(starts[:-3][ok], minlength=n)
+    per_seg = np.where(count > 0, total / np.maximum(2 * count, 1), 0.0) * np.sqrt(np.pi / 2) / np.sqrt(20.0)
     return per_seg[starts]
 
 
@@ -135,12 +123,13 @@ def window_sizes(sigma: np.ndarray, fps: float, opts: MotionOptions) -> tuple[np
     s2, s4 = _sums(cand)
     v_sd = np.sqrt(12.0 / (cand * (cand * cand - 1))) * fps  # per metre of sigma
     a_sd = 2.0 * fps * fps / np.sqrt(s4 - s2 * s2 / cand)
-    sig = np.asarray(sigma, np.float64)[:, None]
+    values, inv = np.unique(np.asarray(sigma, np.float64), return_inverse=True)  # one per segment
+    sig = values[:, None]
 
     def pick(sd, target):
         ok = sig * sd[None, :] <= target
         first = np.where(ok.any(axis=1), ok.argmax(axis=1), len(cand) - 1)
-        return cand[first].astype(np.int64)
+        return cand[first].astype(np.int64)[inv.reshape(-1)]
 
     return pick(v_sd, opts.speed_sd_mps), pick(a_sd, opts.acc_sd_mps2)
 

@@ -33,7 +33,7 @@ def tiny(tmp_path_factory):
     run = make_run(scene, root / "run")
     csv_path = root / "conflicts.csv"
     with pytest.raises(SystemExit) as e:
-        main(["conflicts", str(run), "-o", str(csv_path), "--all-pairs", "--near", "100"])
+        main(["conflicts", str(run), "-o", str(csv_path), "--all-pairs", "--horizon", "10"])
     assert e.value.code == 0
     return scene, run, csv_path, root
 
@@ -92,7 +92,7 @@ def test_conflicts_review_option(tiny, capsys):
 
     scene, run, _, root = tiny
     for argv, code in (([str(run), "-o", str(root / "c2.csv"), "--review", str(root / "r.rrd"),
-                         "--all-pairs", "--near", "100"], 0),
+                         "--all-pairs", "--horizon", "10"], 0),
                        ([str(run / "poses.csv"), "-o", str(root / "c3.csv"), "--review",
                          str(root / "r3.rrd")], 2)):
         with pytest.raises(SystemExit) as e:
