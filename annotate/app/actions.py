@@ -54,6 +54,19 @@ def _rotations() -> list[Action]:
     return out
 
 
+# review mode and box size (annotate/app/review_mode.py does them)
+SIZE_STEP = 0.10    # metres per key press (Shift: the other way)
+REVIEW_ACTIONS: list[Action] = [
+    Action("play", "▶ play to where to look", "p", "review"),
+    Action("mark_reviewed", "reviewed up to here", "r", "review"),
+    Action("mark_reviewed_all", "whole track reviewed", "Shift+r", "review"),
+    Action("next_look", "next frame to look at (all tracks)", "g", "review"),
+    Action("only_selected", "hide / show the other tracks", "b", "view"),
+    *[Action(f"size:{d}:{s * SIZE_STEP:g}", f"{d} {'+' if s > 0 else '−'}{SIZE_STEP * 100:.0f} cm",
+             f"{'' if s > 0 else 'Shift+'}{key}", "size")
+      for d, key in (("l", "l"), ("w", "j"), ("h", "h")) for s in (1, -1)],
+]
+
 ACTIONS: list[Action] = [
     Action("prev_frame", "◀ frame", "ArrowLeft", "time"),
     Action("next_frame", "frame ▶", "ArrowRight", "time"),
@@ -61,7 +74,7 @@ ACTIONS: list[Action] = [
     Action("fwd10", "10 ▶▶", "Shift+ArrowRight", "time"),
     Action("prev_keyframe", "◀ keyframe", "[", "time"),
     Action("next_keyframe", "keyframe ▶", "]", "time"),
-    Action("next_suggestion", "next suggested keyframe", "g", "time"),
+    Action("next_suggestion", "next suggested keyframe", "Shift+g", "time"),
     Action("prev_track", "◀ track", "Shift+t", "track"),
     Action("next_track", "track ▶", "t", "track"),
     Action("new_track", "new track", "n", "track"),
@@ -86,7 +99,7 @@ ACTIONS: list[Action] = [
     Action("train_now", "train now: fine-tune on the annotations (background)", "Shift+u", "track"),
     Action("undo", "undo", "Ctrl+z", "history"),
     Action("redo", "redo", "Ctrl+y", "history"),
-    *_nudges(), *_rotations(),
+    *REVIEW_ACTIONS, *_nudges(), *_rotations(),
     *[Action(f"class_key:{i}", f"class {i}", str(i), "class") for i in range(1, 10)],
 ]
 ACTION_BY_NAME = {a.name: a for a in ACTIONS}
@@ -116,6 +129,11 @@ class ControllerState:
         clicks: int
         video_frames: dict
         viewer_state: str
+        play_to: int | None
+        play_reason: str
+        review_from: int | None
+        only_selected: bool
+        panel_lists: dict
         large_camera: str | None
         lock: threading.RLock
         _key: str
@@ -136,6 +154,10 @@ class ControllerState:
         def _tracks_changed(self, ids) -> None: ...
         def _need_track(self) -> int: ...
         def _edit(self, fn, *args, **kw): ...
+        def _size_step(self, dim: str, step: float) -> str: ...
+        def _reference(self) -> Any: ...
+        def looks(self, top: int = 50) -> list[dict]: ...
+        def _set_size(self, text: str) -> str: ...
 
 
 class Actions(ControllerState):
@@ -165,6 +187,12 @@ class Actions(ControllerState):
             except ValueError:
                 raise EditError(f"go to frame: {name.split(':')[1]!r} is not a frame number") from None
             return None
+        if name.startswith("look:"):  # a row of a list in the panel: that track at that frame
+            _, tid, frame = name.split(":")
+            if int(tid) in p.tracks:
+                self._select(int(tid))
+            self.goto(int(frame))
+            return None
         if name.startswith("select:"):
             tid = int(name.split(":")[1])
             self._select(tid if tid in p.tracks else None)
@@ -186,6 +214,11 @@ class Actions(ControllerState):
             _, dx, dy = name.split(":")
             self._edit(p.nudge, self._need_track(), self.frame, float(dx), float(dy))
             return f"moved by ({float(dx) * 100:+.0f}, {float(dy) * 100:+.0f}) cm"
+        if name.startswith("size:"):
+            _, dim, step = name.split(":")
+            return self._size_step(dim, float(step))
+        if name.startswith("set_size:"):
+            return self._set_size(name.split(":", 1)[1])
         if name.startswith("rotate:"):
             deg = float(name.split(":")[1])
             self._edit(p.rotate, self._need_track(), self.frame, deg)

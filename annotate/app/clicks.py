@@ -135,3 +135,67 @@ class Clicks(ControllerState):
                 return int(t.track_id[i]), spec.name if spec else self.new_class
         return None
 
+
+    # --- dragging the box in the large camera's picture (frame_view.py) ---------------------------
+    def _ground_at(self, camera: str, uv) -> tuple[float, float]:
+        from annotate.place import pixel_to_ground
+
+        cam = self.project.scene.cameras[camera]
+        return pixel_to_ground(cam, self.project.scene.ground, (float(uv[0]), float(uv[1])), 0.0)
+
+    def drag(self, camera: str, uv0, uv1) -> str:
+        """The selected box's base dragged from pixel ``uv0`` to ``uv1`` of ``camera``: the
+        pose at the current frame moves on the ground by the difference of the two ground
+        points (a keyframe, checked: its estimate flag goes)."""
+        with self.lock:
+            self.touch()
+            try:
+                tid = self._need_track()
+                (x0, y0), (x1, y1) = self._ground_at(camera, uv0), self._ground_at(camera, uv1)
+                x, y, _ = self.project.pose_at(tid, self.frame)
+                self._edit(self.project.move_keyframe, tid, self.frame, x + x1 - x0, y + y1 - y0)
+                self.message = (f"track {tid}: moved by ({x1 - x0:+.2f}, {y1 - y0:+.2f}) m at "
+                                f"frame {self.frame}")
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def rotate_to(self, camera: str, uv) -> str:
+        """The selected box's handle dragged to pixel ``uv``: the pose at the current frame
+        turns to face the ground point there."""
+        with self.lock:
+            self.touch()
+            try:
+                tid = self._need_track()
+                gx, gy = self._ground_at(camera, uv)
+                x, y, _ = self.project.pose_at(tid, self.frame)
+                h = math.atan2(gy - y, gx - x)
+                self._edit(self.project.move_keyframe, tid, self.frame, x, y, h)
+                self.message = f"track {tid}: heading {math.degrees(h):.1f}° at frame {self.frame}"
+            except S2PError as e:
+                self.message = str(e)
+            return self.message
+
+    def box_handles(self, camera: str) -> dict | None:
+        """The selected track's base at the current frame in ``camera``'s image: {"base": four
+        corners [[u, v]...], "handle": [u, v] a point ahead of its front} (None: no pose
+        here, or not wholly in front of the camera)."""
+        from seg2pose.safety.footprints import corners as footprint
+
+        tid = self.selected
+        if tid is None or tid not in self.project.tracks:
+            return None
+        try:
+            x, y, h = self.project.pose_at(tid, self.frame)
+        except S2PError:
+            return None
+        t = self.project.track(tid)
+        z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
+        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([t.size]))[0]  # (4, 2)
+        ahead = t.size[0] / 2 + max(0.6, 0.25 * t.size[0])
+        pts = np.vstack([np.c_[foot, np.full(4, z)],
+                         [[x + ahead * math.cos(h), y + ahead * math.sin(h), z]]])
+        uv, _, front = self.project.scene.cameras[camera].project_points(pts)
+        if not front.all():
+            return None
+        return {"base": np.round(uv[:4], 1).tolist(), "handle": np.round(uv[4], 1).tolist()}

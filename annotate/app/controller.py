@@ -24,6 +24,7 @@ from annotate import LockedError, Project
 from annotate.app.actions import CLICK_MODES, Actions
 from annotate.app.clicks import Clicks
 from annotate.app.panel_data import PanelData
+from annotate.app.review_mode import ReviewActions
 from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
@@ -52,7 +53,7 @@ def close_all() -> None:
 
 
 @dataclass
-class Controller(Actions, Clicks, PanelData):
+class Controller(Actions, ReviewActions, Clicks, PanelData):
     """The state of one page of the app (see the module docstring). Build with ``open``."""
 
     project: Project
@@ -77,6 +78,13 @@ class Controller(Actions, Clicks, PanelData):
     viewer_shown: bool | None = None  # the Rerun viewer on/off as the annotator chose (remembered); None: automatic
     software_rendering: bool = False  # the browser renders WebGL in software (its hello says)
     on_viewer: list[Callable[[bool], None]] = field(default_factory=list)
+    play_to: int | None = None        # playing the selected track up to this frame (review mode)
+    play_reason: str = ""             # why the playback stops there
+    review_from: int | None = None    # where the review of the selected track started
+    only_selected: bool = False       # the picture draws the selected track only
+    # more lists for the panel: title -> function giving rows {"track", "frame", "text"} (e.g.
+    # what to annotate next); each row is a link to its frame
+    panel_lists: dict = field(default_factory=dict)
     lock: threading.RLock = field(default_factory=threading.RLock)
 
     # --- opening, closing, holding -------------------------------------------------------------
@@ -295,6 +303,8 @@ class Controller(Actions, Clicks, PanelData):
         requests (no track selected, read-only, an edit the engine refuses) become messages."""
         with self.lock:
             self.touch()
+            if name != "play":
+                self.play_to = None  # any other action stops a playback
             try:
                 self.message = self._do(name) or ""
             except S2PError as e:

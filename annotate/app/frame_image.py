@@ -29,7 +29,9 @@ from s2p_review.video_asset import video_asset
 from seg2pose.io.video_decode import VideoDecoder
 
 JPEG_QUALITY = 82
-THICKNESS = {"keyframe": 3, "interpolated": 1, "occluded": 1}
+THICKNESS = {"keyframe": 3, "estimate-accepted": 3, "estimate-unchecked": 1, "interpolated": 1,
+             "reviewed": 2, "occluded": 1}
+LABEL_MARK = {"keyframe": " key", "estimate-accepted": " key", "estimate-unchecked": " ?"}
 NO_VIDEO_GREY = 90
 
 
@@ -161,7 +163,8 @@ class FrameImages:
         cv2.polylines(img, [pts], False, bgr, THICKNESS.get(source, 1) + (1 if selected else 0),
                       cv2.LINE_AA)
         top = pts[pts[:, 1].argmin()]
-        label = f"{t.cls[:1]}{t.track_id}" + (" key" if source == "keyframe" else "")
+        # "car 10", never "c10" (which reads like a camera's name); "?": an unchecked estimate
+        label = f"{t.cls} {t.track_id}" + LABEL_MARK.get(source, "")
         cv2.putText(img, label, (int(top[0]) + 4, max(12, int(top[1]) - 4)),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.5, bgr, 1, cv2.LINE_AA)
 

@@ -165,6 +165,45 @@ def _warnings(w: list[str]) -> str:
             + "".join(f"<div>{_e(x)}</div>" for x in w[1:]) + "</details>")
 
 
+def _link_rows(rows: list[dict], testid: str) -> str:
+    """Rows {"track", "frame", "text"} as a table whose rows go to their track and frame."""
+    body = "".join(f'<tr data-action="look:{int(r["track"])}:{int(r["frame"])}" '
+                   f'data-track="{int(r["track"])}" data-frame="{int(r["frame"])}">'
+                   f'<td>{int(r["track"])}</td><td>{int(r["frame"])}</td><td>{_e(r["text"])}</td></tr>'
+                   for r in rows)
+    return (f'<table data-testid="{testid}"><tr><th>track</th><th>frame</th><th></th></tr>'
+            f'{body}</table>')
+
+
+def _review(p: dict) -> list[str]:
+    """The selected track's box size, provenance and distance to its reference; the review
+    queue; the lists others provide."""
+    out = []
+    info = p.get("info")
+    if info is not None:
+        size = ",".join(f"{v:.2f}" for v in info["size"])
+        src = ", ".join(f"{n} {k}" for k, n in sorted(info["sources"].items())) or "no rows"
+        rev = ", ".join(f"{a}..{b}" for a, b in info["reviewed"]) or "none"
+        dist = ("–" if info["distance"] is None else f'{info["distance"]:.2f} m')
+        out.append(f'<div>box l,w,h <input data-testid="size" data-prefix="set_size:" '
+                   f'value="{size}" style="width:9em"> m <kbd>l j h</kbd> · from the '
+                   f'{_e(info["reference"])} here: <b data-testid="distance">{dist}</b></div>'
+                   f'<div data-testid="provenance">rows: {_e(src)} · reviewed: '
+                   f'<span data-testid="reviewed">{_e(rev)}</span></div>')
+    if p.get("playing") is not None:
+        out.append(f'<div data-testid="playing">playing to frame {p["playing"]} (any key stops)</div>')
+    looks = [{"track": r["track"], "frame": r["frame"],
+              "text": f'{r["score"]:.2f} m · frames {r["first"]}..{r["last"]}'} for r in p["review"]]
+    out.append('<h4>to review (worst first) <kbd>g</kbd></h4>'
+               + (_link_rows(looks, "review-queue") if looks else
+                  '<div data-testid="review-queue">nothing unchecked</div>'))
+    for title, rows in (p.get("lists") or {}).items():
+        out.append(f"<h4>{_e(title)}</h4>" + _link_rows(
+            [{"track": r.get("track", 0), "frame": r.get("frame", 0), "text": r.get("text", "")}
+             for r in rows], "list"))
+    return out
+
+
 def render(p: dict) -> str:
     """The panel's HTML from ``Controller.panel()`` data."""
     out = []
@@ -217,6 +256,7 @@ def render(p: dict) -> str:
                         f'<td>{_e(", ".join(k["flags"]))}</td></tr>')
         out.append(f'<h4>keyframes of track {sel}</h4><table data-testid="keyframes">'
                    f'{"".join(rows)}</table>')
+    out += _review(p)
     groups: dict[str, list[str]] = {}
     ro = bool(p["read_only"])
     classes = p["classes"]

@@ -62,6 +62,50 @@ class PanelData(ControllerState):
                  "flags": [fl for fl in k.flags if fl != AUTO], "current": f == self.frame}
                 for f, k in sorted(t.keyframes.items())]
 
+    def review_rows(self) -> list[dict]:
+        """The review queue (cached per journal record: a frame step does not recompute it)."""
+        key = self.project.seq
+        cached = getattr(self, "_looks_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, self.looks(top=12))
+            self._looks_cache = cached
+        return cached[1]
+
+    def selected_info(self) -> dict | None:
+        """The selected track's size, provenance counts, reviewed spans and the distance
+        between its pose here and its road user's reference (the run's estimate, else the
+        masks' normal position)."""
+        from annotate.review import distance_series
+        from annotate.review_queue import reference_source
+        from annotate.table import source_counts
+
+        tid = self.selected
+        if tid is None or tid not in self.project.tracks:
+            return None
+        t = self.project.track(tid)
+        key = (self.project.seq, tid)
+        cached = getattr(self, "_dist_cache", None)
+        if cached is None or cached[0] != key:
+            frames, dist = distance_series(self.project, tid, reference_source(self.project),
+                                           ref=self._reference())
+            cached = (key, dict(zip(frames.tolist(), dist.tolist())))
+            self._dist_cache = cached
+        d = cached[1].get(self.frame)
+        return {"size": list(t.size), "reviewed": [list(r) for r in t.reviewed],
+                "sources": source_counts(self.project.track_poses(tid)).get(tid, {}),
+                "distance": None if d is None or not math.isfinite(d) else d,
+                "reference": reference_source(self.project)}
+
+    def extra_lists(self) -> dict[str, list[dict]]:
+        """The lists others provide (``panel_lists``); one that fails says so in its title."""
+        out = {}
+        for title, fn in list(self.panel_lists.items()):
+            try:
+                out[str(title)] = [dict(r) for r in fn()][:20]
+            except Exception as e:  # noqa: BLE001 - a helper list never breaks the panel
+                out[f"{title} (failed: {type(e).__name__}: {e})"] = []
+        return out
+
     def panel(self) -> dict:
         """Everything the panel shows, as plain data."""
         with self.lock:
@@ -87,4 +131,7 @@ class PanelData(ControllerState):
                     "can_undo": self.project.can_undo, "can_redo": self.project.can_redo,
                     "has_run": getattr(self.project, "_run", None) is not None,
                     "queue": queue_rows(self), "train_job": job_status(self),
+                    "review": self.review_rows(), "info": self.selected_info(),
+                    "lists": self.extra_lists(), "playing": self.play_to,
+                    "only_selected": self.only_selected,
                     "actions": [a.__dict__ for a in ACTIONS]}

@@ -187,16 +187,25 @@ class Session:
     def show_frame(self) -> None:
         """Send the large camera's picture of the current frame, unless it is already shown."""
         cam = self.ctl.large_camera
-        key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version, self.ctl.viewer_visible)
+        key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version, self.ctl.viewer_visible,
+               self.ctl.only_selected)
         if cam is None or key == self._shown:
             return
-        tracks = list(self.cols.values())
+        tracks = [c for t, c in self.cols.items()
+                  if not self.ctl.only_selected or t == self.ctl.selected]
         pic = self.pictures.render(cam, self.ctl.frame, tracks, self.ctl.selected)
+        extra = ""
+        info = self.ctl.selected_info()
+        if info is not None:
+            label = f"{self.ctl.project.track(self.ctl.selected).cls} {self.ctl.selected}"
+            extra = (f"{label}: {info['distance']:.2f} m from the {info['reference']}"
+                     if info["distance"] is not None else label)
         # the other cameras small, unless the viewer shows them
         thumbs = {} if self.ctl.viewer_visible else {
             c: self.pictures.render(c, self.ctl.frame, tracks, self.ctl.selected, width=THUMB_WIDTH).jpeg
             for c in self.ctl.cameras if c != cam}
-        self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note, thumbs)
+        self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note, thumbs,
+                             box=self.ctl.box_handles(cam), extra=extra)
         self._shown = key
 
     # --- events -----------------------------------------------------------------------------------
@@ -204,8 +213,11 @@ class Session:
         if not isinstance(content, dict):
             return
         if "action" in content:
-            self.ctl.do(str(content["action"]))
-            self.refresh_panel()
+            with self.ctl.lock:
+                self.ctl.do(str(content["action"]))
+                self.refresh_panel()
+            if self.ctl.play_to is not None:
+                self._start_playback()
         elif "canvas_click" in content:
             self._on_canvas_click(content["canvas_click"], content.get("frame"))
         elif "hello" in content:
@@ -223,21 +235,64 @@ class Session:
             self.ctl.show_large(str(content["large"]))  # a small picture clicked
             self.refresh_panel()
             return
-        if not isinstance(content, dict) or "click" not in content:
+        if not isinstance(content, dict) or not {"click", "drag", "rotate_to"} & set(content):
             return
         try:
-            u, v = float(content["click"][0]), float(content["click"][1])
             cam, frame = str(content["camera"]), int(content["frame"])
+            if "click" in content:
+                uv = [(float(content["click"][0]), float(content["click"][1]))]
+            elif "drag" in content:
+                uv = [(float(a), float(b)) for a, b in content["drag"][:2]]
+            else:
+                uv = [(float(content["rotate_to"][0]), float(content["rotate_to"][1]))]
         except (TypeError, ValueError, KeyError, IndexError):
             return
         if cam not in self.ctl.cameras:
             return
-        if frame != self.ctl.frame:
-            self.ctl.message = (f"click ignored: it was made on the picture of frame {frame}, the "
-                                f"page is at frame {self.ctl.frame} now; click again")
-        else:
-            self.ctl.click(cam, (u, v))
-        self.refresh_panel()
+        with self.ctl.lock:
+            self.ctl.play_to = None
+            if frame != self.ctl.frame:
+                what = "click" if "click" in content else "drag"
+                self.ctl.message = (f"{what} ignored: it was made on the picture of frame {frame}, "
+                                    f"the page is at frame {self.ctl.frame} now; {what} again")
+            elif "click" in content:
+                self.ctl.click(cam, uv[0])
+            elif "drag" in content and len(uv) == 2:
+                self.ctl.drag(cam, uv[0], uv[1])
+            elif "rotate_to" in content:
+                self.ctl.rotate_to(cam, uv[0])
+            self.refresh_panel()
+
+    def _start_playback(self) -> None:
+        """Play the selected track at the scene's frame rate (review mode): a thread steps the
+        controller one frame per 1/fps and redraws; it ends where ``play_to`` says, or when any
+        action clears it. A step that took longer than a frame is not caught up on."""
+        if getattr(self, "_player", None) is not None and self._player.is_alive():
+            return
+        try:
+            import marimo as mo
+            thread_cls = mo.Thread  # carries the page's context: its widgets can be updated
+        except (ImportError, AttributeError):
+            import threading
+            thread_cls = threading.Thread
+        self._player = thread_cls(target=self._play, daemon=True)
+        self._player.start()
+
+    def _play(self) -> None:
+        dt = 1.0 / max(float(self.ctl.project.scene.fps), 1e-3)
+        due = time.monotonic()
+        while True:
+            due += dt
+            wait = due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            else:
+                due = time.monotonic()
+            with self.ctl.lock:
+                going = self.ctl.play_step()
+                self.refresh_panel()
+            if not going:
+                return
 
     def _on_viewer_event(self, e) -> None:
         kind = getattr(e, "type", "")
