@@ -106,12 +106,12 @@ class LiveTracks:
 
     def take(self, rows: np.ndarray) -> LiveTracks:
         """The rows ``rows`` (indices), in that order."""
-        return LiveTracks(**{f.name: [col[i] for i in rows] if isinstance(col, list) else col[rows]
+        return LiveTracks(**{f.name: [col[i] for i in rows] if isinstance(col, list) else col[rows]  # type: ignore[arg-type]  # list or array columns, by field
                              for f in fields(self) for col in [getattr(self, f.name)]})
 
     def append(self, more: LiveTracks) -> LiveTracks:
         """These rows, then ``more``'s."""
-        return LiveTracks(**{f.name: a + b if isinstance(a, list) else np.concatenate([a, b])
+        return LiveTracks(**{f.name: a + b if isinstance(a, list) else np.concatenate([a, b])  # type: ignore[arg-type]  # list or array columns, by field
                              for f in fields(self)
                              for a, b in [(getattr(self, f.name), getattr(more, f.name))]})
 

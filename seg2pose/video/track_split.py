@@ -10,6 +10,9 @@ the masks' runs decoded (docs/BENCHMARKS.md, the tracker's speed)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 from pycocotools import mask as mask_util
 
@@ -25,6 +28,15 @@ class BlobSplitting:
     assignment, ``_predicted`` for a track whose mask was a part of a split blob. Needs the
     tracker's ``cfg``, ``size``, ``live``, ``length``, ``positions``, and sets its ``_pred``
     (predicted masks by track row) and ``_lazy`` (rows with a predicted mask: their shift)."""
+
+    if TYPE_CHECKING:  # Tracker's (seg2pose.video.track: naming its types would be an import cycle)
+        cfg: Any                # TrackConfig
+        live: Any               # LiveTracks
+        size: list[int]         # [height, width] pixels
+        length: list[int]
+        positions: Callable[[list[bytes]], np.ndarray] | None
+        _pred: dict[int, bytes]
+        _lazy: dict[int, int]
 
     def _split_merged(self, frame: int, rles: list[bytes], xy: np.ndarray, bd: np.ndarray,
                       ad: np.ndarray) -> tuple[list[bytes], np.ndarray, np.ndarray]:
