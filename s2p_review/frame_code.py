@@ -48,7 +48,7 @@ def write_code_video(path: Path, width: int, height: int, frames: int, fps: floa
     base = None
     if texture:
         base = cv2.GaussianBlur(rng.integers(0, 256, (height, width, 3), dtype=np.uint8), (0, 0), 2)
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), fps, (width, height))
     for f in range(frames):
         img = code_image(f, width, height)
         if base is not None:
@@ -60,3 +60,37 @@ def write_code_video(path: Path, width: int, height: int, frames: int, fps: floa
                 img[y:y + 60, x:x + 120] = (40 + 50 * k, 200 - 40 * k, 120)
         vw.write(img)
     vw.release()
+
+
+def write_code_video_h264(path: Path, width: int, height: int, frames: int, bframes: int = 3,
+                          gop: int = 25, vfr: bool = True, seed: int = 7) -> np.ndarray:
+    """An H.264 MP4 (libx264 through PyAV) whose frame f is ``code_image(f)`` with a changing
+    lower part, stored with ``bframes`` B-frames between references (out of display order) and
+    a keyframe every ``gop`` frames; ``vfr``: timestamps 1/60 s to 1/15 s apart at random (a
+    variable frame rate), else 1/30 s. Returns the frames' presentation timestamps (1/90000 s):
+    what a phone or a surveillance camera records, and where a seek by frame count goes wrong."""
+    from fractions import Fraction
+
+    import av
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    tb = Fraction(1, 90000)
+    steps = rng.choice([1500, 3000, 3003, 4500, 6000], frames) if vfr else np.full(frames, 3000)
+    pts = np.cumsum(steps)
+    with av.open(str(path), "w", format="mp4") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = width, height, "yuv420p"
+        s.time_base = s.codec_context.time_base = tb
+        s.codec_context.max_b_frames = bframes
+        # b-adapt=0: B-frames where asked, not where x264's look-ahead finds them worth it
+        s.options = {"preset": "veryfast", "x264-params":
+                     f"bframes={bframes}:b-adapt=0:keyint={gop}:min-keyint={gop}:scenecut=0"}
+        for f in range(frames):
+            img = code_image(f, width, height)
+            img[height // 5:, :] = 60 + (f * 7) % 120      # the rest changes too: real P/B work
+            vf = av.VideoFrame.from_ndarray(img, format="bgr24")
+            vf.pts, vf.time_base = int(pts[f]), tb
+            c.mux(s.encode(vf))
+        c.mux(s.encode())
+    return pts

@@ -142,6 +142,7 @@ class FrameReader:
             k = k0 - 1
             # skipped frames are decoded (the next needs them) but not converted to images
             for k, im in dec.frames(k0, k1, every):
+                assert im is not None   # images=True
                 f = self.first + k * self.step
                 self.last_good, self.n_read = f, self.n_read + 1
                 yield f, im

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ class VideoDecoder:
         self.path = Path(path)
         self.index = video_index(self.path)
         self._keys = np.flatnonzero(self.index.keyframe)   # frame numbers of the keyframes
-        self._container = None
+        self._container: Any = None       # av.InputContainer while open
         self._frames: Iterator | None = None
         self._next = -1          # the frame number the decoder yields next (-1: none)
         self.stopped: str | None = None    # why decoding ended early (damaged data), else None

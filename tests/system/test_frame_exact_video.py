@@ -8,13 +8,12 @@ MJPG and mp4v videos the other tests use stay exact, with OpenCV's pixels."""
 
 from __future__ import annotations
 
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from s2p_review.frame_code import code_image, read_code
+from s2p_review.frame_code import code_image, read_code, write_code_video_h264
 from seg2pose.io.video_decode import VideoDecoder, video_index
 
 W, H = 320, 240          # the tiny scene's cameras (tests/scene_fixtures.py)
@@ -32,37 +31,12 @@ def code(img: np.ndarray) -> int:
     return read_code(sample)
 
 
-def write_bframe_vfr_video(path: Path, n: int = N, w: int = W, h: int = H) -> np.ndarray:
-    """H.264 (libx264) with 3 B-frames between references, a keyframe every 25 frames, and
-    timestamps 1/60 s to 1/15 s apart at random; frame k shows code k. Returns the pts."""
-    import av
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(7)
-    tb = Fraction(1, 90000)
-    pts = np.cumsum(rng.choice([1500, 3000, 3003, 4500, 6000], n))
-    with av.open(str(path), "w", format="mp4") as c:
-        s = c.add_stream("libx264", rate=30)
-        s.width, s.height, s.pix_fmt = w, h, "yuv420p"
-        s.time_base = s.codec_context.time_base = tb
-        s.codec_context.max_b_frames = 3
-        s.options = {"preset": "veryfast", "x264-params": "bframes=3:b-adapt=0:keyint=25:min-keyint=25:scenecut=0"}
-        for k in range(n):
-            img = code_image(k, w, h)
-            img[h // 5:, :] = 60 + (k * 7) % 120           # the rest changes too: real P/B work
-            vf = av.VideoFrame.from_ndarray(img, format="bgr24")
-            vf.pts, vf.time_base = int(pts[k]), tb
-            c.mux(s.encode(vf))
-        c.mux(s.encode())
-    return pts
-
-
 @pytest.fixture(scope="module")
 def bvideo(tmp_path_factory) -> Path:
     import av
 
     p = tmp_path_factory.mktemp("bframes") / "c1.mp4"
-    pts = write_bframe_vfr_video(p)
+    pts = write_code_video_h264(p, W, H, N, bframes=3, gop=25, vfr=True)
     # the file is what the test claims: B-frames (decode order != display order), variable rate
     with av.open(str(p)) as c:
         st = c.streams.video[0]
