@@ -21,6 +21,7 @@ from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, loa
 from seg2pose.io.text import load_json, read_text
 from seg2pose.io.track_ids import ids_path, stage_ids
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
+from seg2pose.io.video_decode import video_index
 from seg2pose.video.classify import classify_mots, size_rules
 from seg2pose.video.detections import DetectionConfig, import_detections
 from seg2pose.video.fragments import join_fragments
@@ -293,15 +294,12 @@ def new_scene(out: str | Path, videos: dict[str, str | Path], calibration: str |
 
 
 def _video_fps(reader: FrameReader) -> float:
-    """The container's frame rate (10 for image folders and files that do not say)."""
+    """The video stream's mean frame rate (10 for image folders and files that do not say). A
+    variable-frame-rate video's frames are numbered by rank (``io/video_decode.py``), so its
+    scene time k / fps is its mean pace, not each frame's own timestamp."""
     if reader.is_folder:
         return 10.0
-    import cv2
-
-    cap = cv2.VideoCapture(str(reader.path))
-    fps = float(cap.get(cv2.CAP_PROP_FPS)) or 10.0
-    cap.release()
-    return fps
+    return video_index(reader.path).fps or 10.0
 
 
 def copy_video(src: Path, dst: Path) -> None:
