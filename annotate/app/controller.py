@@ -12,6 +12,7 @@ undo/redo, selection), ``on_frame(frame)`` when the controller moves the time cu
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -28,6 +29,7 @@ from annotate.app.review_mode import ReviewActions
 from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_write_text
 
+LOG = logging.getLogger("s2p.annotate")
 STATE_FILE = "app_state.json"   # in SCENE/annotations/: selection, frame, modes of the last session
 HOLD_SECONDS = 15.0             # a tab silent for this long no longer holds the project
 
@@ -42,6 +44,12 @@ class _Holder:
 
 _HOLDERS: dict[str, _Holder] = {}
 _HOLDERS_LOCK = threading.RLock()  # open() closes a silent holder while holding it
+
+
+def _log_change(ch) -> None:
+    """One line per edit, undo and redo in the server's log."""
+    if ch.kind != "refresh":
+        LOG.info("%s %s (record %d) tracks %s", ch.kind, ch.name, ch.seq, sorted(ch.tracks)[:10])
 
 
 def close_all() -> None:
@@ -117,6 +125,8 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
                 raise S2PError(f"unknown cameras {unknown}; the scene has {sorted(scene.cameras)}")
             fr = project.frame_range or (0, 0)
             c = cls(project, cams, (int(fr[0]), int(fr[1])), read_only_reason=reason)
+            project.subscribe(_log_change)
+            LOG.info("page opened %s (%s)", scene.root, reason or "editing")
             c.new_class = scene.classes[0].name if scene.classes else ""
             c.frame = c.frame_range[0]
             c.large_camera = cams[0] if cams else None
@@ -147,6 +157,7 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
                 return
             self.project.close()
             self.project = project
+            project.subscribe(_log_change)
             self.read_only_reason = None
             _HOLDERS[self._key] = _Holder(self, time.strftime("%H:%M:%S"), time.monotonic(),
                                           str(tab))

@@ -11,6 +11,10 @@ request (page, static files, API, websocket) that
 
 A refused HTTP request gets 403 with one line saying why; a refused websocket is closed
 before it opens (the client sees 403). Nothing reaches marimo or the project.
+
+Every page it lets through carries a Content-Security-Policy whose ``connect-src`` is this
+server alone: nothing in the page (the Rerun viewer's check for a newer version included) can
+reach another machine. Each websocket connection is logged, one line with a timestamp.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+import time
 from http.cookies import SimpleCookie
 from urllib.parse import parse_qs
 
@@ -48,6 +53,9 @@ class Guard:
         # the cookie holds a keyed hash, not the token itself
         self.cookie_value = hmac.new(token.encode(), b"s2p-annotate-cookie",
                                      hashlib.sha256).hexdigest()
+        # fetches, websockets and workers' requests may go to this server only
+        self.csp = ("connect-src 'self' " + " ".join(f"ws://{h}" for h in sorted(self.hosts))
+                    + " blob: data:").encode()
 
     def refusal(self, scope) -> tuple[str | None, bool]:
         """(why the request is refused or None, whether it brought the token in its URL)."""
@@ -74,6 +82,9 @@ class Guard:
         got = jar.get(self.cookie)
         if got is not None and hmac.compare_digest(got.value, self.cookie_value):
             return None, False
+        if got is not None:  # a tab of an earlier start of the server on this port
+            return ("refused: this page is from an earlier start of the annotation server; open "
+                    f"the URL that `s2p annotate` printed at its new start (?{TOKEN_PARAM}=...)"), False
         return ("refused: no valid access token; open the URL that `s2p annotate` printed "
                 f"(it ends in ?{TOKEN_PARAM}=...)"), False
 
@@ -92,14 +103,18 @@ class Guard:
                                     (b"content-length", str(len(body)).encode())]})
             await send({"type": "http.response.body", "body": body})
             return
-        if in_url and scope["type"] == "http":
-            cookie = (f"{self.cookie}={self.cookie_value}; Path=/; HttpOnly; SameSite=Strict"
-                      ).encode()
+        if scope["type"] == "websocket":
+            print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} websocket {scope.get('path', '')} "
+                  f"from {(scope.get('client') or ['?'])[0]}", flush=True)
+            return await self.app(scope, receive, send)
+        extra = [(b"content-security-policy", self.csp)]
+        if in_url:
+            extra.append((b"set-cookie", (f"{self.cookie}={self.cookie_value}; Path=/; HttpOnly; "
+                                          "SameSite=Strict").encode()))
 
-            async def send_with_cookie(msg):
-                if msg["type"] == "http.response.start":
-                    msg = {**msg, "headers": list(msg.get("headers", [])) + [(b"set-cookie", cookie)]}
-                await send(msg)
+        async def send_with_headers(msg):
+            if msg["type"] == "http.response.start":
+                msg = {**msg, "headers": list(msg.get("headers", [])) + extra}
+            await send(msg)
 
-            return await self.app(scope, receive, send_with_cookie)
-        return await self.app(scope, receive, send)
+        return await self.app(scope, receive, send_with_headers)

@@ -176,6 +176,22 @@ def run_app(scene: Path, run: Path | None = None, cameras: list[str] | None = No
     if browser:
         webbrowser.open(server.url)
     try:
-        server.proc.wait()
+        code = server.proc.wait()
     finally:
         server.stop()
+    if code != 0:  # it died on its own (a stop by Ctrl-C or SIGTERM exits this process first)
+        raise S2PError(f"the annotation server stopped with exit code {code}: "
+                       f"{_last_line(server.log)} (log: {server.log})")
+    raise S2PError(f"the annotation server stopped unexpectedly (log: {server.log})")
+
+
+def _last_line(log: Path | None) -> str:
+    """The last non-empty line of the server's log (why it stopped), or a placeholder."""
+    try:
+        with open(log, "rb") as f:  # type: ignore[arg-type]
+            f.seek(0, 2)
+            f.seek(max(0, f.tell() - 4096))
+            lines = [ln.strip() for ln in f.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+        return lines[-1] if lines else "its log is empty"
+    except (OSError, TypeError):
+        return "no log"

@@ -21,6 +21,17 @@ NOTEBOOK = Path(__file__).with_name("notebook.py")
 SESSION_TTL = 5  # seconds marimo keeps a page's session after its tab is gone
 
 
+# the log (SCENE/annotations/server.log): a timestamp on every line; uvicorn's warnings and
+# errors, one line per websocket connection (guard.py) and per edit (controller.py)
+LOG_CONFIG = {
+    "version": 1, "disable_existing_loggers": False,
+    "formatters": {"ts": {"format": "%(asctime)s %(levelname)s %(name)s: %(message)s"}},
+    "handlers": {"out": {"class": "logging.StreamHandler", "formatter": "ts",
+                         "stream": "ext://sys.stdout"}},
+    "loggers": {"uvicorn": {"handlers": ["out"], "level": "WARNING", "propagate": False},
+                "uvicorn.access": {"handlers": ["out"], "level": "WARNING", "propagate": False},
+                "s2p.annotate": {"handlers": ["out"], "level": "INFO", "propagate": False}},
+}
 ASSET_PREFIX = "/s2p-viewer/"  # + the rerun-notebook version + /widget.js, /re_viewer_bg.wasm
 
 
@@ -125,7 +136,7 @@ def main() -> None:
     server = uvicorn.Server(uvicorn.Config(
         build_app(int(args["port"]), token), host="127.0.0.1", port=int(args["port"]),
         log_level="warning", timeout_keep_alive=300, ws_ping_interval=1, ws_ping_timeout=60,
-        timeout_graceful_shutdown=1))
+        timeout_graceful_shutdown=1, log_config=LOG_CONFIG))
     # uvicorn handles SIGINT / SIGTERM (graceful shutdown), then raises the signal again with
     # the handler it found: make that an exit that runs the ``finally`` below
     import signal

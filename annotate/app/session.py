@@ -131,6 +131,8 @@ class Session:
         """Send the changed tracks (and the selected one's timeline) to the viewer."""
         if not self._unsent and not self._unsent_timeline:
             return
+        if not self.ctl.viewer_visible:
+            return  # kept until the viewer is shown: a hidden viewer costs the page nothing
         t0 = time.perf_counter()
         for tid, cols in sorted(self._unsent.items()):
             self.logger.send_track(cols, selected=tid == self.ctl.selected)
@@ -143,6 +145,7 @@ class Session:
     def _show_viewer(self, shown: bool) -> None:
         self.panel.hide_viewer = not shown  # the panel's script hides the viewer's element
         if shown:
+            self._send_tracks()
             self._move_cursor(self.ctl.frame)
 
     def _send_layout(self, large: str | None) -> None:
@@ -386,7 +389,7 @@ def prepare_viewer(scene_dir, run=None, cameras=None) -> None:
     scene = load_scene(scene_dir)
     frames = scene_frames(scene) or (0, 0)
     sel = select(scene, [run] if run is not None else [], frames, cameras)
-    for cam in tqdm(sel.cameras, desc="camera views for the viewer (first time only)",
+    for cam in tqdm(sel.cameras, desc="camera views for the viewer (cached: quick after the first start)",
                     unit="camera", leave=False):
         video_asset(scene, cam, sel.first, sel.last)
         if scene.masks_path(cam).exists():
