@@ -98,6 +98,20 @@ def _check_restored(run_dir: Path, path: Path) -> None:
                                  file=path) from None
 
 
+def _check_scene(tmp: Path, path: Path) -> None:
+    """Read the restored scene.json and ground points back with ``load_scene`` (the reader
+    every command uses): a scene it would refuse (a camera named '../x', fps -1, two ground
+    points, ...) is refused here, naming the MCAP file, before anything is swapped in."""
+    from seg2pose.io.scene import load_scene
+
+    try:
+        load_scene(tmp)
+    except InputError as e:
+        where = Path(e.file).name if e.file else SCENE_FILE
+        where += (f" line {e.line}" if e.line else "") + (f" field {e.field}" if e.field else "")
+        raise InputError(f"the restored scene would be invalid ({where}): {e.message}", file=path) from None
+
+
 def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRecords,
              meta: dict, path: Path, check_annotations, video: dict) -> None:
     """Write the restored scene into the new folder ``tmp``: scene.json, the ground points,
@@ -107,13 +121,19 @@ def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRe
         (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
         (tmp / gfile).write_bytes(att[gfile])
-    run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+    try:
+        run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"the run.json attachment is not JSON ({e})", file=path) from None
+    if not isinstance(run_meta, dict):
+        raise InputError("the run.json attachment is not a JSON object", file=path)
     if "scene" in run_meta:  # the restored layout: OUT/out/<run> in the scene folder OUT
         run_meta["scene"] = "../.."
     views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
              if meta.get("has_views") == "true" or rec.views else None)
     write_run_folder(tmp / run_rel, table, views, run_meta)
     _check_restored(tmp / run_rel, path)
+    _check_scene(tmp, path)
     restore_scene_files(att, tmp, path)
     if video:
         try:
@@ -157,6 +177,9 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False,
            what="ground points file")
     if gfile not in att:
         raise InputError(f"no {gfile} attachment", file=path)
+    if Path(gfile) == Path(SCENE_FILE):
+        raise InputError(f"the ground points file cannot be named {SCENE_FILE}", file=path,
+                         field="scene.json attachment: ground_points")
     run_name = safe_name(meta.get("run") or "run", file=path, field="metadata s2p.run",
                          what="run name")
     table = _parsed(R.pose_table, rec.poses, R.POSES_TOPIC, path,

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from seg2pose.core.validate import MAX_ID
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.run import BOX_COLUMNS, CUE_COLUMNS, VIEW_COLUMNS, ViewTable
 
@@ -74,6 +75,13 @@ def pose_messages(table: PoseTable) -> Iterator[tuple[int, dict]]:
         yield f, {"frame": f, "rows": rows}
 
 
+def _int(v) -> int:
+    """A JSON integer (frames and track ids): 1.5 or true is refused, never rounded."""
+    if isinstance(v, bool) or not isinstance(v, int) or abs(v) > MAX_ID:
+        raise ValueError(f"expected an integer frame or track id, got {v!r}")
+    return v
+
+
 def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
     """The PoseTable of /s2p/poses messages (inverse of ``pose_messages``)."""
     rows = [r for m in messages for r in m["rows"]]
@@ -81,7 +89,7 @@ def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
         return PoseTable.empty(with_size)
     size = (np.array([[unnum(r.get("l")), unnum(r.get("w")), unnum(r.get("h"))] for r in rows])
             if with_size else None)
-    return PoseTable([r["frame"] for r in rows], [r["track_id"] for r in rows],
+    return PoseTable([_int(r["frame"]) for r in rows], [_int(r["track_id"]) for r in rows],
                      np.array([r["class"] for r in rows], dtype=object),
                      [[r["x"], r["y"], r["z"]] for r in rows], [unnum(r["heading"]) for r in rows],
                      size, [r["source"] for r in rows] if all("source" in r for r in rows) else None,
@@ -114,7 +122,7 @@ def views_table(messages: list[dict]) -> ViewTable:
     box = all(k == len(CUE_COLUMNS) + len(BOX_COLUMNS) for k in n_cols)
     nums = np.array([[unnum(x) for x in r[5:(20 if box else 16) if cues else 12]] for r in rows],
                     float)
-    return ViewTable([r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
+    return ViewTable([_int(r[1]) for r in rows], [_int(r[2]) for r in rows], [r[3] for r in rows],
                      [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7],
                      nums[:, 7:10] if cues else None, nums[:, 10] if cues else None,
                      nums[:, 11:15] if box else None)

@@ -84,6 +84,9 @@ def write_s2p_mcap(path: Path, scene_d: dict, ground_name: str, poses: list | No
     metadata, /s2p/poses messages), with the given contents, for crafted-file tests."""
     from mcap.writer import Writer
 
+    if isinstance(scene_d, dict):  # the fields not given: a valid scene's (import-mcap reads it back)
+        cam = Camera.look_at("c0", [0.0, 0.0, 6.0], [12.0, 0.0, 0.0], 40.0, W, H)
+        scene_d = {"fps": 10.0, "cameras": [cam.to_dict()], "configs": {"mono-1": ["c0"]}, **scene_d}
     with open(path, "wb") as f:
         w = Writer(f)
         w.start()

@@ -34,8 +34,9 @@ from seg2pose.core.errors import InputError
 from seg2pose.core.validate import FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number, safe_name
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.geometry.ground import GroundSurface
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic import atomic_write_text, outputs
 from seg2pose.io.mots import MaskTable, iter_mots
+from seg2pose.io.nofollow import write_new_text
 from seg2pose.io.text import load_json, read_text
 
 SCENE_VERSION = 1
@@ -245,11 +246,27 @@ class Scene:
         return d
 
     def save(self, root: str | Path | None = None) -> None:
-        """Write scene.json and the ground points (atomically) into ``root``."""
+        """Write scene.json and the ground points into ``root`` as one set (``atomic.outputs``),
+        read back by ``load_scene`` first: what the reader would refuse (fps 0 or nan, two
+        ground points, ...) is refused with the reader's message, and nothing is written."""
         root = Path(root) if root is not None else self.root
-        root.mkdir(parents=True, exist_ok=True)
-        write_ground_points(root / self.ground_file, self.ground_points)
-        atomic_write_text(root / SCENE_FILE, json.dumps(self.to_dict(), indent=1) + "\n")
+        try:
+            text = json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n"
+        except ValueError:
+            raise InputError(f"cannot write a scene with fps {self.fps!r} or another value that is "
+                             "not a finite number", file=root / SCENE_FILE) from None
+        with outputs([root / SCENE_FILE, root / self.ground_file], force=True) as out:
+            write_new_text(sj := out.file(root / SCENE_FILE), text)
+            g = sj.parent / self.ground_file
+            g.parent.mkdir(parents=True, exist_ok=True)
+            write_new_text(g, ground_points_text(self.ground_points))
+            out.adopt(root / self.ground_file, g)
+            try:
+                load_scene(sj.parent)
+            except InputError as e:
+                f = SCENE_FILE if e.file is None or Path(e.file).name == SCENE_FILE else self.ground_file
+                raise InputError(f"this scene would not be readable: {e.message}", file=root / f,
+                                 field=e.field, line=e.line) from None
 
 
 def read_ground_points(path: str | Path) -> np.ndarray:
@@ -296,12 +313,16 @@ def _parse_ground_points(reader, path: Path) -> tuple[np.ndarray, list[int]]:
     return np.array(rows, dtype=np.float64).reshape(-1, 3), lines
 
 
-def write_ground_points(path: str | Path, points: np.ndarray) -> None:
+def ground_points_text(points: np.ndarray) -> str:
     buf = io.StringIO()
     buf.write("x,y,z\n")
     for x, y, z in np.asarray(points, float).tolist():  # Python floats: repr is a plain number
         buf.write(f"{x!r},{y!r},{z!r}\n")
-    atomic_write_text(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def write_ground_points(path: str | Path, points: np.ndarray) -> None:
+    atomic_write_text(path, ground_points_text(points))
 
 
 def _req(d: dict, key: str, file: Path, where: str = ""):
@@ -382,6 +403,8 @@ def load_scene(root: str | Path) -> Scene:
         splits[k] = (v[0], v[1])
     gfile = d.get("ground_points", "ground_points.csv")
     gpath = inside(root, gfile, file=path, field="ground_points", what="ground points file")
+    if gpath == path:
+        raise InputError(f"the ground points cannot be in {SCENE_FILE}", file=path, field="ground_points")
     extra = d.get("extra") or {}
     if not isinstance(extra, dict):
         raise InputError("expected an object", file=path, field="extra")
@@ -417,4 +440,11 @@ def parse_start_time(text, file: str | Path | None = None, field: str | None = N
     if t.tzinfo is None:
         raise InputError(f"{want} (no zone in {text!r})", file=file, field=field)
     delta = t - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
-    return (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+    ns = (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+    if not 0 <= ns < MAX_START_NS:
+        raise InputError(f"expected a time from 1970 to 2199 (MCAP and Rerun count unsigned / "
+                         f"signed 64-bit ns from 1970), got {text!r}", file=file, field=field)
+    return ns
+
+
+MAX_START_NS = 7_258_118_400 * 10**9  # 2200-01-01Z: 62 years below Rerun's end (2262-04-11)

@@ -223,3 +223,69 @@ def test_export_swaps_the_mcap_and_its_layout_in_as_one_set(tmp_path, monkeypatc
     monkeypatch.setattr(ME, "_layout", real)
     ME.export_mcap(load_scene(scene.root), tmp_path / "run", out, opts, force=True)
     assert out.read_bytes() != old[0]
+
+
+# --- (4) writers refuse what readers refuse ---------------------------------------------------------
+
+@pytest.mark.parametrize("fps", [0, float("nan"), float("inf"), -1, 1e300])
+def test_new_scene_refuses_an_fps_that_load_scene_refuses(tmp_path, fps):
+    from seg2pose.core.errors import InputError
+    from seg2pose.video.video_scene import new_scene
+
+    calibration(tmp_path)
+    write_folder(tmp_path / "f0", 3, BOXES)
+    with pytest.raises(InputError, match="fps"):
+        new_scene(tmp_path / "sc", {"c0": tmp_path / "f0"}, tmp_path / "calib.json",
+                  tmp_path / "ground.csv", fps=fps, **QUIET)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calib.json", "f0", "ground.csv"]
+
+
+def _mcap(path: Path, scene_d: dict, attachments: dict, rows: list[dict]) -> Path:
+    """An `s2p export`-shaped MCAP: scene.json, the given attachments, one /s2p/poses message."""
+    from hostile_fixtures import H, W
+    from mcap.writer import Writer
+
+    from seg2pose.geometry.camera import Camera
+
+    cam = Camera.look_at("c0", [0.0, 0.0, 6.0], [12.0, 0.0, 0.0], 40.0, W, H)
+    scene_d = {"version": 1, "fps": 10.0, "cameras": [cam.to_dict()], "configs": {"mono-1": ["c0"]},
+               **scene_d}
+    attachments = {"ground_points.csv": b"x,y,z\n0,0,0\n1,0,0\n0,1,0\n", **attachments}
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        for name, data in {"scene.json": json.dumps(scene_d).encode(), **attachments}.items():
+            w.add_attachment(create_time=0, log_time=0, name=name, media_type="text/plain", data=data)
+        w.add_metadata("s2p", {"run": "run", "poses_with_size": "false"})
+        sid = w.register_schema(name="s2p.PoseFrame", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/s2p/poses", message_encoding="json", schema_id=sid)
+        w.add_message(channel_id=cid, log_time=0, publish_time=0,
+                      data=json.dumps({"frame": 0, "rows": rows}).encode())
+        w.finish()
+    return path
+
+
+ROW = {"frame": 0, "track_id": 1, "class": "car", "x": 1.0, "y": 2.0, "z": 0.0, "heading": 0.5}
+CAM_X = {"name": "../x", "width": 64, "height": 48, "K": [[40, 0, 32], [0, 40, 24], [0, 0, 1]],
+         "R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 6]}
+
+
+@pytest.mark.parametrize("scene_d,att,rows,match", [
+    ({"cameras": [CAM_X]}, {}, [ROW], r"camera name '\.\./x' cannot be used"),
+    ({"fps": -1}, {}, [ROW], r"fps"),
+    ({}, {"ground_points.csv": b"x,y,z\n0,0,0\n1,0,0\n"}, [ROW], r"ground"),
+    ({}, {"ground_points.csv": b"\x00\xff garbage"}, [ROW], r"ground"),
+    ({"ground_points": "scene.json"}, {}, [ROW], r"ground points file cannot be named scene\.json"),
+    ({"start_time": "9999-01-01T00:00:00Z"}, {}, [ROW], r"expected a time from 1970 to 2199"),
+    ({}, {}, [dict(ROW, track_id=1.5)], r"expected an integer frame or track id, got 1\.5"),
+    ({}, {"run.json": b"{not json"}, [ROW], r"the run\.json attachment is not JSON"),
+])
+def test_import_mcap_restores_only_what_the_readers_accept(tmp_path, scene_d, att, rows, match):
+    from s2p_review.mcap_import import import_mcap
+    from seg2pose.core.errors import InputError
+
+    f = _mcap(tmp_path / "x.mcap", scene_d, att, rows)
+    with pytest.raises(InputError, match=match) as e:
+        import_mcap(f, tmp_path / "out")
+    assert str(e.value).startswith(str(f)) and "\n" not in str(e.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.mcap"]
