@@ -3,6 +3,8 @@
 Entities (beside those of ``layout``)::
 
     world/annotation/t<id>                  Boxes3D: the track's box in every frame of its span
+                                            (class ids of the AnnotationContext) + AnyValues:
+                                            track id, class, source
     world/annotation/t<id>/trail            LineStrips3D: its last TRAIL_FRAMES positions
     world/cameras/<cam>/annotation/t<id>    LineStrips2D: the box projected into the camera
 
@@ -20,6 +22,7 @@ from __future__ import annotations
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +48,7 @@ def camera_track_path(cam: str, track_id: int) -> str:
 def camera_of_view(view_name: str | None, entity_path: str | None, cameras) -> str | None:
     """The camera a click landed in, from the view's name ("camera c1") or, failing that, the
     clicked entity's path (world/cameras/<cam>/...); None for the 3D view or anything else."""
-    names = {L.safe_name(c): c for c in cameras}
+    names = {L.entity_part(c): c for c in cameras}
     if view_name and view_name.startswith(VIEW_PREFIX) and view_name[len(VIEW_PREFIX):] in cameras:
         return view_name[len(VIEW_PREFIX):]
     parts = (entity_path or "").strip("/").split("/")
@@ -74,8 +77,8 @@ class AnnotationLogger:
     """Sends annotation tracks to a recording (anything with ``log``/``send_columns``/
     ``flush``, e.g. a RecordingStream or ``Tee``). Remembers each track's last sent span."""
 
-    rec: object
-    scene: object
+    rec: Any
+    scene: Any
     cameras: list[str]
     trail: int = L.TRAIL_FRAMES
     sent: dict[int, tuple[int, int]] = field(default_factory=dict)
@@ -115,9 +118,16 @@ class AnnotationLogger:
         labels = [f"{label} key" if s == "keyframe" else label for s in t.source]
         r3 = np.array([RADII_3D.get(s, 0.03) for s in t.source], np.float32)
         ent = track_path(t.track_id)
-        self.rec.send_columns(ent, indexes=times, columns=rr.Boxes3D.columns(
+        n = len(t.frame)
+        cid = {c.name: c.id for c in self.scene.classes}.get(t.cls, 0)
+        # class ids through the AnnotationContext; AnyValues for the selection panel
+        values: dict[str, Any] = {"track_id": np.full(n, t.track_id, np.int64), "class": [t.cls] * n,
+                                  "source": t.source.astype(str)}
+        info = rr.AnyValues.columns(**values)
+        self.rec.send_columns(ent, indexes=times, columns=[*rr.Boxes3D.columns(
             **C.box_columns(t.xyz, t.heading, t.size), colors=colors, radii=r3, labels=labels,
-            fill_mode=["majorwireframe"] * len(t.frame)).partition(lengths))
+            class_ids=np.full(n, cid, np.uint16), fill_mode=["majorwireframe"] * n).partition(lengths),
+            *info.partition(lengths)])
         if self.trail > 1:
             pts, offs = C.trail_points(np.full(len(t.frame), t.track_id), t.frame,
                                        t.xyz + [0, 0, 0.05], self.trail)
@@ -190,17 +200,22 @@ TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (
 
 
 def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | None = None,
-                  timeline: str = L.TIMELINE, large_in_page: bool = False):
+                  timeline: str = L.TIMELINE, large_in_page: bool = False,
+                  tracks: dict | None = None):
     """The annotation app's layout: camera ``large`` big on the left over the selected track's
     keyframe timeline; the 3D world and the other cameras small on the right.
     ``large_in_page``: the page shows camera ``large`` itself (annotate.app.frame_view), so
-    the viewer shows the 3D world and the other cameras over the timeline."""
+    the viewer shows the 3D world and the other cameras over the timeline. tracks: the run's
+    road users (run name -> track ids, ``LogStats.tracks`` of ``log_scene``), whose trails
+    the 3D view then shows over the last TRAIL_FRAMES frames (without: their last step)."""
     import rerun.blueprint as rrb
 
     large = large if large in cameras else (cameras[0] if cameras else None)
-    extra = {}
+    extra: dict = {}
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
+    if tracks:
+        extra["overrides"] = L.trail_overrides(tracks, L.TRAIL_FRAMES, fps)
     world = rrb.Spatial3DView(origin="world", name="world", contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
     small = [rrb.Spatial2DView(origin=L.cam_path(c), name=f"{VIEW_PREFIX}{c}")
@@ -210,7 +225,7 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
                               plot_legend=rrb.PlotLegend(corner="lefttop", visible=True))
     if large_in_page and large is not None:
         top = [world] + ([rrb.Grid(*small, grid_columns=2)] if len(small) > 1 else small)
-        body = rrb.Vertical(rrb.Horizontal(*top), plot, row_shares=[2, 1])
+        body: Any = rrb.Vertical(rrb.Horizontal(*top), plot, row_shares=[2, 1])
     elif large is None:
         body = rrb.Vertical(world, plot, row_shares=[4, 1])
     else:
@@ -238,7 +253,7 @@ def send_timeline(rec, scene, frames: np.ndarray, distance: np.ndarray, keyframe
         fr = np.arange(lo, hi + 1)
         for ent in (f"{TIMELINE_PATH}/distance", f"{TIMELINE_PATH}/keyframes"):
             rec.send_columns(ent, indexes=tb.rerun_columns(fr),
-                             columns=rr.Clear.columns(is_recursive=np.zeros(len(fr), bool)))
+                             columns=rr.Clear.columns(is_recursive=[False] * len(fr)))
     rec.log(f"{TIMELINE_PATH}/distance", rr.SeriesLines(colors=[(230, 120, 40)],
                                                         names=["distance to the estimates"]),
             static=True)

@@ -154,6 +154,13 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
     return pos, target
 
 
+def trail_overrides(tracks: dict, trail: int, fps: float | None) -> dict:
+    """3D-view overrides that show every road user's trail (run name -> track ids) over the
+    last ``trail`` frames: one per trail entity (Rerun's overrides take whole paths)."""
+    ranges = trail_ranges(trail, fps)
+    return {f"{road_user_path(r, tid)}/trail": ranges for r, ids in tracks.items() for tid in ids}
+
+
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
               fps: float | None = None, error_max: float | None = None,
               timeline: str = TIMELINE, more_views=(), tracks: dict | None = None,
@@ -178,9 +185,7 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
     if tracks and trail > 1:
-        ranges = trail_ranges(trail, fps)
-        extra["overrides"] = {f"{road_user_path(r, tid)}/trail": ranges
-                              for r, ids in tracks.items() for tid in ids}
+        extra["overrides"] = trail_overrides(tracks, trail, fps)
     world = rrb.Spatial3DView(origin="world", name="world",
                               contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)

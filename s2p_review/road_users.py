@@ -23,6 +23,7 @@ the first frame without it, so nothing lingers.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -132,18 +133,21 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
         box = rr.Boxes3D.columns(centers=fields["centers"][rows], half_sizes=fields["half_sizes"][rows],
                                  quaternions=fields["quaternions"][rows], class_ids=ids[rows],
                                  colors=box_colors[rows], labels=labels[rows].tolist()).partition(lengths)
-        info = rr.AnyValues.columns(track_id=np.full(len(fr), tid, np.int64),
-                                    **{"class": t.cls[rows].astype(str)},
-                                    speed_mps=users.speed[rows], r90_m=r90[rows],
-                                    source=src[rows].astype(str)).partition(lengths)
+        values: dict[str, Any] = {"track_id": np.full(len(fr), tid, np.int64),
+                                  "class": t.cls[rows].astype(str), "speed_mps": users.speed[rows],
+                                  "r90_m": r90[rows], "source": src[rows].astype(str)}
+        info = rr.AnyValues.columns(**values).partition(lengths)
         ctx.send(ent, frames, [*box, *info])
         if trail > 1 and len(fr) > 1:
+            # a segment per step, emptied where the road user is not seen: a view without the
+            # trail's time range (latest-at) then shows its last step, never a stale one
             p = t.xyz[rows] + [0.0, 0.0, TRAIL_LIFT_M]
             segs = np.stack([p[:-1], p[1:]], axis=1)
+            f_t, l_t = shown_frames(fr[1:], ctx.last)
             ctx.static(ent + "/trail", rr.LineStrips3D.from_fields(radii=0.04))
-            ctx.send(ent + "/trail", fr[1:], rr.LineStrips3D.columns(
+            ctx.send(ent + "/trail", f_t, rr.LineStrips3D.columns(
                 strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch),
-                colors=line_colors[rows][1:]))
+                colors=line_colors[rows][1:]).partition(l_t))
         rr90 = r90[rows]
         okr = np.isfinite(rr90)
         if okr.any():
@@ -154,9 +158,9 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
                 strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
                 colors=r90_colors(rr90[okr])).partition(l_r))
         color = L.class_colors(t.cls[rows][:1], scene.classes)[0].tolist()
-        for quantity, values, wanted in (("speed", users.speed, True), ("error", users.error, has_error),
+        for quantity, column, wanted in (("speed", users.speed, True), ("error", users.error, has_error),
                                          ("r90", r90, has_r90)):
-            v = values[rows]
+            v = column[rows]
             if not wanted or not np.isfinite(v).any():
                 continue
             series = L.road_user_series_path(run, quantity, tid)
