@@ -170,12 +170,17 @@ def test_shown_frames_empty_the_road_user_after_each_stretch():
     assert frames.tolist() == [2, 3] and lengths.tolist() == [1, 1]
 
 
-def test_speeds_centred_within_tracks_and_none_for_a_single_row():
+def test_speeds_are_slopes_within_tracks_and_none_for_a_single_row():
     tid = np.array([1, 1, 1, 2, 5, 5])
     frame = np.array([0, 1, 3, 0, 4, 6])
     xy = np.array([[0, 0], [1, 0], [3, 0], [9, 9], [0, 0], [0, 4]], float)
-    s = RU.speeds(tid, frame, xy, fps=10.0)
-    # row 0: (1 m in 1 frame) = 10 m/s; row 1: 3 m over frames 0..3 = 10 m/s; row 2: 2 m in 2
-    # frames = 10 m/s; track 2 has one row; track 5: 4 m over 2 frames = 20 m/s at both ends
+    s = RU.speeds(tid, frame, xy, fps=10.0, half=1)
+    # track 1 moves 1 m per frame (x = frame): 10 m/s from every window; track 2 has one row;
+    # track 5: 4 m over 2 frames = 20 m/s at both ends
     np.testing.assert_allclose(s[[0, 1, 2, 4, 5]], [10.0, 10.0, 10.0, 20.0, 20.0])
     assert np.isnan(s[3])
+    # a window of three rows (-1, 0, +1 frames) over x = 0, 0, 3: slope (3 - 0) / 0.2 s = 15 m/s,
+    # the first row's window (0, +1) slope 0; far-away frame numbers change nothing
+    s = RU.speeds(np.array([3, 3, 3]), np.array([0, 1, 2]) + 10**7, np.array([[0, 0], [0, 0], [3, 0]], float),
+                  fps=10.0, half=1)
+    np.testing.assert_allclose(s, [0.0, 15.0, 30.0], atol=1e-6)
