@@ -14,7 +14,8 @@ first frame to where the signal (deceleration, |lateral acceleration|) rose thro
 the run's peak: the smoother spreads a sudden change evenly over its window, so the midpoint
 of the rise is where the change happened (a gradual onset -- a jerk-limited braking -- is
 dated half its rise time late). The speed "just before" is taken at the last frame whose
-velocity window ends before the onset.
+velocity window ends before the onset. Of the actions during an encounter on a collision
+course, the strongest is the evasive action (noise makes weak ones).
 
 **Severity** (TCT): serious when TA is at or below the boundary for the conflicting speed,
 slight above it. The TCT draws that boundary as a curve in the TA-speed chart; it is taken
@@ -125,10 +126,10 @@ def _run_max(sig: np.ndarray, b: np.ndarray, e: np.ndarray) -> np.ndarray:
 def time_to_accident(tracks: Tracks, mot: Motion, ons: Onsets, track_a: np.ndarray,
                      track_b: np.ndarray, last_frame: np.ndarray, first_frame: np.ndarray,
                      horizon_s: float) -> dict:
-    """TA of K pairs (track_a, track_b (K,) ids): the first onset of an evasive action of
-    either road user within frames [first_frame, last_frame] (K,) at which the two, with the
+    """TA of K pairs (track_a, track_b (K,) ids): of the evasive actions of either road user
+    with their onset within frames [first_frame, last_frame] (K,) at which the two, with the
     evasive one at its speed from just before, are on a collision course within
-    ``horizon_s``. Returns (K,) arrays: ta_s, ta_frame, evasive_track, conflicting_speed_mps,
+    ``horizon_s``, the strongest (highest peak deceleration or lateral acceleration). Returns (K,) arrays: ta_s, ta_frame, evasive_track, conflicting_speed_mps,
     evasive_kind ("" where none)."""
     K = len(track_a)
     out = {"ta_s": np.full(K, np.nan), "ta_frame": np.full(K, np.nan),
@@ -172,8 +173,9 @@ def time_to_accident(tracks: Tracks, mot: Motion, ons: Onsets, track_a: np.ndarr
             tracks.xy[r_other], mot.heading[r_other], tracks.size[r_other], mot.vel[r_other], horizon_s)
     hit = np.isfinite(x)
     k, e, f, x, r_bef = k[hit], e[hit], f[hit], x[hit], r_bef[hit]
-    # the first onset per pair (ties: the lower row, i.e. track a's)
-    o = np.lexsort((ons.row[e], f, k))
+    # per pair the strongest action (highest peak; ties: the earlier): noise makes weak
+    # spurious "actions" that a first-onset rule would take
+    o = np.lexsort((ons.row[e], f, -ons.peak[e], k))
     k, e, f, x, r_bef = k[o], e[o], f[o], x[o], r_bef[o]
     first = np.r_[True, k[1:] != k[:-1]] if len(k) else np.zeros(0, bool)
     k, e, f, x, r_bef = k[first], e[first], f[first], x[first], r_bef[first]

@@ -7,9 +7,11 @@ one road user are not independent from frame to frame (the same mask errors pers
 draw moves a track by an AR(1) process with correlation time ``corr_s`` seconds (per axis:
 e_k = rho e_(k-1) + sqrt(1 - rho^2) z_k, rho = exp(-dt / corr_s)), scaled by each row's sigma.
 Velocities are re-estimated from the moved positions, so the interval of TTC carries the
-velocity error too. The interval is the central ``level`` share of the draws: min TTC, PET and TA
-at the 5th and 95th percentiles; ``*_found_share`` says in how many draws the indicator exists
-at all (a draw with no collision course has no TTC).
+velocity error too. The interval is the basic bootstrap interval of the central ``level`` of
+the draws (``_basic``: the draws' 5th and 95th percentiles reflected around the estimate, so
+that the bias of a minimum over noisy frames is corrected, not doubled) for min TTC, PET and
+TA; ``*_found_share`` says in how many draws the indicator exists at all (a draw with no
+collision course has no TTC).
 
 Only the encounter's own frames (with a margin for the velocity window) are redrawn, so this
 costs little per conflict. PET is searched in each draw as the table searches it, over the
@@ -125,20 +127,29 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         found = np.isfinite(mins)
         out["ttc_found_share"][k] = found.mean()
         if found.any() and np.isfinite(c["min_ttc_s"][k]):
-            out["min_ttc_lo_s"][k], out["min_ttc_hi_s"][k] = np.percentile(mins[found], q)
+            out["min_ttc_lo_s"][k], out["min_ttc_hi_s"][k] = _basic(c["min_ttc_s"][k], mins[found], q)
         if np.isfinite(c["ta_s"][k]):
             tas = _ta_draws(big, mot, D, f0 + margin, f1 - margin, opts)
             ok = np.isfinite(tas)
             if ok.any():
-                out["ta_lo_s"][k], out["ta_hi_s"][k] = np.percentile(tas[ok], q)
+                out["ta_lo_s"][k], out["ta_hi_s"][k] = _basic(c["ta_s"][k], tas[ok], q)
         if np.isfinite(c["pet_s"][k]):
             pets = (_pet_draws_whole(big, mot, a, b, x, opts, D) if search is None
                     else _pet_draws(big, mot, c, k, search, opts.pet_s, D))
             ok = np.isfinite(pets)
             out["pet_found_share"][k] = ok.mean()
             if ok.any():
-                out["pet_lo_s"][k], out["pet_hi_s"][k] = np.percentile(pets[ok], q)
+                out["pet_lo_s"][k], out["pet_hi_s"][k] = _basic(c["pet_s"][k], pets[ok], q)
     return out
+
+
+def _basic(est: float, draws: np.ndarray, q) -> tuple[float, float]:
+    """The basic bootstrap interval of an indicator estimated as ``est`` whose draws (with
+    the poses moved once more) are ``draws``: [2 est - q_hi, 2 est - q_lo], at least 0. A
+    minimum over noisy frames is biased low, and the draws are biased low again by about as
+    much: the percentile interval of the draws would sit on the wrong side of the truth."""
+    lo, hi = np.percentile(draws, q)
+    return max(0.0, 2.0 * est - hi), max(0.0, 2.0 * est - lo)
 
 
 def _ta_draws(big: Tracks, mot, D: int, f0: int, f1: int, opts) -> np.ndarray:
