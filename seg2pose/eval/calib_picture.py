@@ -46,10 +46,11 @@ def cost_picture(rep: CameraReport, frame: np.ndarray | None = None) -> bytes:
         cv2.circle(out, q, 14, (0, 230, 255), 3, cv2.LINE_AA)
         _text(out, "next point", (q[0] + 17, q[1] + 5))
     # the legend: the colour scale with its ends
-    bar = cv2.applyColorMap(np.linspace(0, 255, 200).astype(np.uint8)[None, :].repeat(12, 0),
+    bw = max(10, min(200, w - 20))
+    bar = cv2.applyColorMap(np.linspace(0, 255, bw).astype(np.uint8)[None, :].repeat(12, 0),
                             cv2.COLORMAP_TURBO)
-    y0 = h - 40
-    out[y0:y0 + 12, 10:210] = bar
+    y0 = max(h - 40, 0)
+    out[y0:y0 + 12, 10:10 + bw] = bar[:max(0, min(12, h - y0)), :max(0, w - 10)]
     _text(out, f"metres per pixel at 0.9 m: {LO:g} .. {HI:g} (log); hatched: extrapolating; "
                "lines: residual x10", (10, y0 - 6))
     ok, png = cv2.imencode(".png", out)

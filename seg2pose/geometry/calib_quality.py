@@ -51,7 +51,7 @@ def params_of(sol: Solution) -> np.ndarray:
     return np.concatenate([p, rotation_vector(cam.R), cam.t])
 
 
-def _unpack(sol: Solution, p: np.ndarray):
+def _unpack(sol: Solution, p: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray]:
     names = sol.param_names
     f = float(np.exp(p[0]))
     c = p[1:3] if "cx" in names else np.array([sol.camera.width / 2, sol.camera.height / 2])
@@ -86,7 +86,10 @@ def pair_ground_errors(sol: Solution) -> np.ndarray:
     f, c, k1, R, t = _unpack(sol, params_of(sol))
     out = np.empty(len(sol.pairs.uv))
     for i, (uv, X) in enumerate(zip(sol.pairs.uv, sol.pairs.X, strict=True)):
-        hit = ground_hits(f, c, k1, R, t, uv[None], lambda xy, z=X[2]: np.full(len(xy), z))
+        def level(xy: np.ndarray, z: float = float(X[2])) -> np.ndarray:
+            return np.full(len(xy), z)
+
+        hit = ground_hits(f, c, k1, R, t, uv[None], level)
         out[i] = float(np.linalg.norm(hit[0, :2] - X[:2]))
     return out
 

@@ -33,11 +33,12 @@ Units: pixels (corner-origin convention of camera.py), metres, world z up.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.geometry.camera import Camera, OpenCVDistortion
+from seg2pose.geometry.camera import Camera, Distortion, OpenCVDistortion
 
 FOV_RANGE_DEG = (10.0, 140.0)  # horizontal fields of view the focal search spans
 FOCAL_GRID = 56  # focal lengths tried, log-spaced
@@ -207,7 +208,8 @@ def focal_search(p: PairSet, opts: SolveOptions) -> tuple[float, np.ndarray, np.
                                                  flags=cv2.SOLVEPNP_EPNP)
         except cv2.error:
             continue
-        if not ok or inl is None or len(inl) < 4:
+        n_inl = len(np.asarray(inl).reshape(-1)) if ok else 0  # inl is None when no pose was found
+        if n_inl < 4:
             continue
         inliers = np.zeros(len(obj), bool)
         inliers[inl.ravel()] = True
@@ -342,27 +344,37 @@ def solve_group(pairsets: list[PairSet], opts: SolveOptions = SolveOptions(),
     poses = [np.concatenate([s[1], s[2]]) for s in starts]
     blocks, off = [], 1 + 2 * opts.principal_point + opts.k1
     for k, p in enumerate(pairsets):
-        blocks.append(_Block(p, 0, slice(off + 6 * k, off + 6 * k + 6), np.ones(len(p.uv), bool)))
-    dropped: list[str] = []
+        floor = opts.min_pairs if len(p.uv) >= opts.min_pairs else 4
+        inl = starts[k][3] if starts[k][3].sum() >= floor else np.ones(len(p.uv), bool)
+        blocks.append(_Block(p, 0, slice(off + 6 * k, off + 6 * k + 6), inl.copy()))
+    readmitted = False
     while True:
         x, goff, s, cov = refine(blocks, [np.array(intr, float)], poses, opts)
         intr = list(x[:off])
         poses = [x[b.pose] for b in blocks]
-        worst = None
+        worst, back = None, False
         for b in blocks:
             d = _mahalanobis(x, goff, b, opts, 1.0)
-            d_used = d[b.used]
-            robust = max(float(np.median(d_used)) / 1.1774, 0.25)  # median of a 2-dof chi
+            robust = max(float(np.median(d[b.used])) / 1.1774, 0.25)  # median of a 2-dof chi
             k = int(np.argmax(np.where(b.used, d, -1)))
             floor = opts.min_pairs if len(b.used) >= opts.min_pairs else 4
             if d[k] > opts.outlier_sigma * robust and b.used.sum() > floor:
                 if worst is None or d[k] / robust > worst[0]:
                     worst = (d[k] / robust, b, k)
-        if worst is None:
+            if worst is None and not readmitted:
+                # pairs the RANSAC search left out come back where the refined camera fits them
+                fits = ~b.used & (d <= opts.outlier_sigma * robust)
+                if fits.any():
+                    b.used |= fits
+                    back = True
+        if worst is None and not back:
             break
-        _, b, k = worst
-        b.used[k] = False
-        dropped.append(f"{b.pairs.camera}: {b.pairs.names[k]}")
+        if worst is not None:
+            _, b, k = worst
+            b.used[k] = False
+        else:
+            readmitted = True
+    dropped = [f"{b.pairs.camera}: {b.pairs.names[k]}" for b in blocks for k in np.flatnonzero(~b.used)]
     if dropped:
         notes.append(f"dropped as outliers: {', '.join(dropped)}")
     names = [f"{n}" for n in _intrinsic_names(opts)]
@@ -370,11 +382,13 @@ def solve_group(pairsets: list[PairSet], opts: SolveOptions = SolveOptions(),
     for b in blocks:
         f, c, k1, R, t = _unpack(x, goff[b.group], b, opts)
         K = np.array([[f, 0, c[0]], [0, f, c[1]], [0, 0, 1.0]])
-        cam = Camera(b.pairs.camera, K, R, t, b.pairs.width, b.pairs.height,
-                     distortion=OpenCVDistortion(k1=k1) if k1 else None)
+        # a frozen dataclass's read-only model field vs the Protocol's attribute: the same thing
+        dist = cast(Distortion, OpenCVDistortion(k1=k1)) if k1 else None
+        cam = Camera(b.pairs.camera, K, R, t, b.pairs.width, b.pairs.height, distortion=dist)
         uv, _ = project(f, c, k1, R, t, b.pairs.X)
         idx = np.r_[np.arange(off), np.arange(b.pose.start, b.pose.stop)]
-        sub = cov[np.ix_(idx, idx)] * s * s
+        # the uncertainty of the stated noise at least: a small s from few pairs is luck
+        sub = cov[np.ix_(idx, idx)] * (max(s, 1.0) / s) ** 2  # refine's cov is at noise s
         out.append(Solution(camera=cam, pairs=b.pairs, used=b.used.copy(),
                             residual_px=uv - b.pairs.uv,
                             mahalanobis=_mahalanobis(x, goff, b, opts, s), scale=s,

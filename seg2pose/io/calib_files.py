@@ -94,7 +94,8 @@ def read_pairs(path: str | Path) -> dict[str, dict]:
 def read_survey(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Names and points (n, 3) metres (z NaN when empty) of a survey CSV ``name,x,y,z``."""
     path = Path(path)
-    names, pts = [], []
+    names: list[str] = []
+    pts: list[list[float]] = []
     for line, row in _rows(path, "survey file"):
         if not pts and row[0].lower() == "name":
             continue
