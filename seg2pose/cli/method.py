@@ -347,6 +347,7 @@ def eval_cmd(
     out: dict = {}
     if run is not None:
         res = evaluate_run(sc, run, split=split, match=match, gate=gate, track_d0=track_d0)
+        _warn_jumps([sc.gt_path, Path(run) / "poses.csv"], sc.fps)
         if res.match_note:
             typer.echo(f"note: {res.match_note} (--match nearest)", err=True)
         out = res.to_dict()
@@ -372,6 +373,21 @@ def eval_cmd(
             typer.echo(f"tracking, world ({res.tracking['similarity']}): {format_summary(res.tracking)}")
     for cam, d in masks.items():
         typer.echo(f"tracking, masks of {cam} (mask IoU): {format_summary(d)}")
+
+
+def _warn_jumps(paths: list[Path], fps: float) -> None:
+    """A warning per pose file with a track that moves farther between two of its rows than
+    its class can (two road users under one id: identity figures would count them as one)."""
+    from seg2pose.io.poses import read_poses
+    from seg2pose.safety.gaps import jump_note, jumps
+    from seg2pose.safety.tracks import from_poses
+
+    for p in paths:
+        if p.exists():
+            tr, _ = from_poses(read_poses(p), fps)
+            bad = jumps(tr)
+            if len(bad):
+                typer.echo(f"warning: {p}: {jump_note(tr, bad)}", err=True)
 
 
 def calibrate_cmd(
