@@ -117,6 +117,9 @@ def sequence_from_poses(est: PoseTable, gt: PoseTable, d0: float = WORLD_D0) -> 
     and estimated position, d the ground-plane distance in metres (module docstring)."""
     if not d0 > 0:
         raise ValueError(f"d0 must be > 0 metres, got {d0}")
+    # a row without a position (NaN) is no detection
+    est = est.take(np.flatnonzero(np.isfinite(est.xyz[:, :2]).all(axis=1)))
+    gt = gt.take(np.flatnonzero(np.isfinite(gt.xyz[:, :2]).all(axis=1)))
     frames = np.union1d(gt.frame, est.frame)
     og, oe = np.argsort(gt.frame, kind="stable"), np.argsort(est.frame, kind="stable")
     gf, ef = gt.frame[og], est.frame[oe]

@@ -100,6 +100,13 @@ def test_masks_iou_motsa_and_ignored_small_truth():
     assert (s0["TP"], s0["FN"], s0["FP"]) == (2, 1, 1)
 
 
+def test_rows_without_a_position_are_no_detections():
+    est = poses([(0, 1, 0, 0), (1, 1, np.nan, 0), (2, 2, 0, 0), (3, 2, 0, 0), (0, 3, 10, 0), (3, 4, 50, 0)])
+    s = summary(sequence_from_poses(est, TRUTH))
+    # as the hand-made case with A's frame 1 missed: one more FN, no IDSW on the way (1 -> 2 still one)
+    assert (s["TP"], s["FN"], s["FP"], s["IDSW"]) == (4, 2, 1, 1) and s["est_dets"] == 5
+
+
 def test_empty_sides():
     none = poses([])
     s = summary(sequence_from_poses(none, TRUTH))
