@@ -151,7 +151,19 @@ class PlacementMixin(ProjectState):
             est = est.in_frames((self._frame(frames[0]), self._frame(frames[1])))
         if self.frame_range is not None:
             est = est.in_frames(self.frame_range)
-        return plan(est, self.masks.seen(rt), int(every))
+        seen = self.masks.seen(rt)
+        if seen is None and self._run_ids_in_masks():
+            seen = np.zeros(0, np.int64)  # the masks name the run's road users, never this one
+        return plan(est, seen, int(every))
+
+    def _run_ids_in_masks(self) -> bool:
+        """Whether the masks' track ids are the run's (some run track has masks): then a run
+        track without masks is seen nowhere; else presence is unknown and the run's own
+        frames stand for it."""
+        if getattr(self, "_ids_match", None) is None:
+            known = self.masks.presence()
+            self._ids_match = any(int(r) in known for r in self.run.track_ids())
+        return self._ids_match
 
     def import_poses(self, table, every: int = 1, flags=("imported",), keep_ids: bool = True,
                      name: str = "import_poses"):
