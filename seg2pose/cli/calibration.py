@@ -133,6 +133,9 @@ def calibrate_camera_cmd(
         return
     from annotate.app.calib_serve import PageArgs, run_page
 
+    if out is not None and out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it when saving", field="out")
+
     run_page(PageArgs(source=source, aerial=aerial, world_file=world_file, reference=list(reference or []),
                       survey=survey, cameras=list(camera or []), sizes=parse_sizes(image_size),
                       out=out, devices=parse_devices(device), opts=opts, force=force, port=port),
@@ -144,56 +147,11 @@ def solve_and_write(pairs: dict, sizes: dict, frames: dict, scene, out: Path | N
     """Solve, print the report, write calib.json (or the scene's next version)."""
     from seg2pose.eval.calib_picture import cost_picture
     from seg2pose.geometry.calib_site import SiteInput, calibrate_site
-    from seg2pose.io.calib_files import write_calibration
+    from seg2pose.io.calib_files import write_result
 
     res = calibrate_site(SiteInput(pairs, sizes, devices, survey, opts))
     text = res.text()
     echo(text.rstrip())
     pictures = {c: cost_picture(r, frames.get(c)) for c, r in res.cameras.items()}
-    if out is not None or scene is None:
-        if out is None:
-            raise InputError("give -o calib.json (or a scene folder to write a new version into)", field="out")
-        names = write_calibration(out, res.camera_dicts(), res.report(), text, res.ground.points,
-                                  pictures, force)
-        echo(f"written: {names['calib']} (s2p new-scene --calibration {names['calib']} --ground "
-             f"{names['ground']}), {names['report'].name}, " + ", ".join(
-                 names[k].name for k in names if k.startswith("png:")))
-        return
-    write_scene_version(scene, res, text, pictures, force, echo)
-
-
-def write_scene_version(scene, res, text: str, pictures: dict, force: bool, echo) -> None:
-    """The scene's cameras replaced as its next calibration version (never silently)."""
-    import json
-
-    from seg2pose.geometry.camera import Rig
-    from seg2pose.io.calib_files import calib_json, next_version
-    from seg2pose.io.calib_files import write_scene_version as write
-    from seg2pose.io.scene import SCENE_FILE
-    from seg2pose.io.text import read_text
-
-    missing = [c for c in scene.cameras if c not in res.cameras]
-    if missing:
-        raise InputError(f"the pairs calibrate {sorted(res.cameras)} but the scene also has "
-                         f"{missing}; give pairs for every camera", file=scene.root / SCENE_FILE)
-    if not force:
-        raise InputError("the scene has cameras already; --force replaces them as the scene's next "
-                         "calibration version (the old scene.json is kept in calibrations/vN/)",
-                         file=scene.root / SCENE_FILE)
-    old_text = read_text(scene.root / SCENE_FILE, "scene file")
-    version = next_version(scene.root)
-    cams = {c: res.cameras[c].solution.camera for c in scene.cameras}
-    for c, cam in cams.items():
-        old = scene.cameras[c]
-        echo(f"camera {c}: focal {old.K[0, 0]:.1f} -> {cam.K[0, 0]:.1f} px, centre moved "
-             f"{np.linalg.norm(cam.center - old.center):.2f} m")
-    scene.rig = Rig(cameras=cams, configs=scene.rig.configs, name=scene.rig.name)
-    history = list(scene.extra.get("calibration", {}).get("history", []))
-    history.append(f"calibrations/v{version}")
-    scene.extra["calibration"] = {"version": version, "history": history,
-                                  "ground": res.ground.summary}
-    files = {"calib.json": calib_json(res.camera_dicts(), res.report()).encode(),
-             "report.txt": text.encode(), **{f"{c}.png": b for c, b in pictures.items()}}
-    vdir = write(scene.root, json.dumps(scene.to_dict(), indent=1) + "\n", old_text, files, version)
-    echo(f"scene {scene.root}: cameras replaced as calibration version {version} ({vdir}); the "
-         "scene's ground points are kept (the clicked elevations' ground is in the report)")
+    for line in write_result(res, text, pictures, out, scene, force):
+        echo(line)

@@ -241,3 +241,49 @@ def write_scene_version(root: str | Path, new_scene_json: str, old_scene_json: s
             atomic_write_bytes(tmp / name, data)
         atomic_write_text(out.file(scene_path), new_scene_json)
     return vdir
+
+
+def write_result(res, text: str, pictures: dict[str, bytes], out: Path | None, scene=None,
+                 force: bool = False) -> list[str]:
+    """A solved site (geometry.calib_site.SiteResult) written where the user asked: calib.json
+    and the files beside it at ``out``, else into ``scene`` (io.scene.Scene) as its next
+    calibration version, which needs ``force`` (never a silent change of a scene's cameras)
+    and pairs for each of its cameras. Returns lines that say what was written."""
+    if out is not None or scene is None:
+        if out is None:
+            raise InputError("give -o calib.json (or a scene folder to write a new version into)", field="out")
+        names = write_calibration(out, res.camera_dicts(), res.report(), text, res.ground.points,
+                                  pictures, force)
+        return [f"written: {names['calib']} (s2p new-scene --calibration {names['calib']} --ground "
+                f"{names['ground']}), {names['report'].name}, "
+                + ", ".join(names[k].name for k in names if k.startswith("png:"))]
+    from seg2pose.geometry.camera import Rig
+    from seg2pose.io.scene import SCENE_FILE
+
+    missing = [c for c in scene.cameras if c not in res.cameras]
+    if missing:
+        raise InputError(f"the pairs calibrate {sorted(res.cameras)} but the scene also has "
+                         f"{missing}; give pairs for every camera", file=scene.root / SCENE_FILE)
+    if not force:
+        raise InputError("the scene has cameras already; --force replaces them as the scene's next "
+                         "calibration version (the old scene.json is kept in calibrations/vN/)",
+                         file=scene.root / SCENE_FILE)
+    old_text = read_text(scene.root / SCENE_FILE, "scene file")
+    version = next_version(scene.root)
+    cams = {c: res.cameras[c].solution.camera for c in scene.cameras}
+    lines = []
+    for c, cam in cams.items():
+        old = scene.cameras[c]
+        lines.append(f"camera {c}: focal {old.K[0, 0]:.1f} -> {cam.K[0, 0]:.1f} px, centre moved "
+                     f"{np.linalg.norm(cam.center - old.center):.2f} m")
+    scene.rig = Rig(cameras=cams, configs=scene.rig.configs, name=scene.rig.name)
+    history = list((scene.extra.get("calibration") or {}).get("history", []))
+    history.append(f"{CALIBRATIONS}/v{version}")
+    scene.extra["calibration"] = {"version": version, "history": history, "ground": res.ground.summary}
+    files = {"calib.json": calib_json(res.camera_dicts(), res.report()).encode(),
+             "report.txt": text.encode(), **{f"{c}.png": b for c, b in pictures.items()}}
+    vdir = write_scene_version(scene.root, json.dumps(scene.to_dict(), indent=1) + "\n", old_text,
+                               files, version)
+    lines.append(f"scene {scene.root}: cameras replaced as calibration version {version} ({vdir}); the "
+                 "scene's ground points are kept (the clicked elevations' ground is in the report)")
+    return lines
