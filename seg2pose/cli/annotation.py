@@ -252,6 +252,7 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
     import tempfile
 
     from annotate.export import gt_replaceable, gt_table, journal_files, provenance_line, write_annotation_run
+    from annotate.table import SOURCES, source_counts
     from annotate.tanalyst_io import annotations_to_tanalyst
     from s2p_review.annotated_mcap import export_annotated_mcap
     from s2p_review.foxglove_layout import layout_path
@@ -279,6 +280,9 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
             truth = gt_table(p, allow_unreviewed)
             write_poses(files.file(p.scene.gt_path), truth)
             said.append(f"wrote {p.scene.gt_path}: {len(truth)} rows ({provenance_line(truth)})")
+            for t, c in sorted(source_counts(truth).items()):  # per track, as `annotate status`
+                said.append(f"  {p.track(t).cls} {t}: "
+                            + ", ".join(f"{c[k]} {k}" for k in SOURCES if k in c))
         if mcap:
             dst = out / "annotations.mcap"
             tmp = files.file(dst)

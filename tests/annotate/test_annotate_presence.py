@@ -137,3 +137,23 @@ def test_every_source_round_trips_through_the_gt_file(tmp_path):
                   np.zeros(n), np.ones((n, 3)), np.array(SOURCES, object))
     write_poses(tmp_path / "p.csv", t)
     assert read_poses(tmp_path / "p.csv").source.tolist() == list(SOURCES)
+
+
+def test_status_and_export_count_provenance_per_track(scene, tmp_path, monkeypatch, capsys):
+    from scene_fixtures import s2p
+
+    run = make_run(scene, tmp_path / "run")
+    with Project.open(scene, run=run) as p:
+        ped = p.preannotate(every=10, run_tracks=[4]).track
+    code, out, err = s2p(monkeypatch, capsys, "annotate", "status", scene.root)
+    assert code == 0, err
+    assert f"rows by provenance: {N} estimate-unchecked" in out
+    assert f"  pedestrian {ped}: {N} estimate-unchecked" in out
+    args = ("annotate", "export", scene.root, "--no-mcap", "--no-tanalyst", "--force")
+    code, out, err = s2p(monkeypatch, capsys, *args)
+    assert code != 0 and f"{N} rows of 1 tracks are unchecked estimates" in err
+    assert "--allow-unreviewed" in err
+    code, out, err = s2p(monkeypatch, capsys, *args, "--allow-unreviewed")
+    assert code == 0, err
+    assert f"{N} rows ({N} estimate-unchecked)" in out and f"  pedestrian {ped}: {N} estimate-unchecked" in out
+    assert set(read_poses(scene.gt_path).source) == {"estimate-unchecked"}
