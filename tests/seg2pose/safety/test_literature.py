@@ -52,6 +52,29 @@ def test_braking_follower_min_ttc_and_ta():
     assert r["min_distance_m"] == pytest.approx(1.5, abs=1e-6)  # 4 - (5 - 2.5) m, bumper to bumper
 
 
+def test_cut_in_then_braking():
+    """Car 2 (10 m/s) moves from the next lane (3.5 m) into car 1's lane between t = 0.5 and
+    4 s (a half cosine: at most 1.6 m/s and 1.4 m/s^2 sideways, no evasive action); at 4.5 s
+    its rear 4 m ahead of car 1's front (15 m/s), which brakes at
+    5 m/s^2 for 1 s from 4.5 s: from there it is the braking follower, min TTC 0.775 s (during
+    the cut-in the TTC, bound by the 5 m/s closing along the lane, is above 0.8 s), a
+    rear-end conflict once car 2 is in the lane; TA 0.8 s at 15 m/s by car 1."""
+    t = np.arange(0, 7, 1 / FPS)
+    f = np.arange(len(t))
+    u = np.clip(t - 4.5, 0, 1)
+    x1 = np.where(t < 4.5, 15 * t, 67.5 + 15 * u - 2.5 * u ** 2 + 10 * np.maximum(t - 5.5, 0))
+    x2 = 67.5 + 4.0 + 4.0 + 10 * (t - 4.5)
+    y2 = 3.5 * (1 + np.cos(np.pi * np.clip(t - 0.5, 0, 3.5) / 3.5)) / 2
+    tr = make_tracks([(1, "car", f, np.c_[x1, np.zeros(len(t))], np.nan, CAR),
+                      (2, "car", f, np.c_[x2, y2], np.nan, CAR)])
+    r = one(analyse(tr, OPTS))
+    assert r["min_ttc_s"] == pytest.approx(0.7746, abs=0.01)
+    assert r["min_ttc_frame"] == pytest.approx(30 * (4.5 + 1 - np.sqrt(0.6)), abs=1)
+    assert r["ssam_type"] == "rear-end" and r["conflict"] == 1
+    assert r["ta_s"] == pytest.approx(0.8, abs=0.01) and r["evasive_track"] == 1
+    assert r["conflicting_speed_mps"] == pytest.approx(15.0, abs=0.05)
+
+
 def test_stop_behind_standing_car():
     """10 m/s braking at 2.5 m/s^2, stopping 2 m short of a standing car: tau s before the
     stop, gap 2 + 1.25 tau^2 and speed 2.5 tau, TTC = 0.8 / tau + 0.5 tau, least at tau =
