@@ -52,3 +52,18 @@ def render_aerial(lo: tuple[float, float] = (-40.0, -40.0), hi: tuple[float, flo
         out[lanes | zebra] = MARK
         img[r0:r0 + len(v)] = out.reshape(len(v), w, 3)
     return img, A
+
+
+def camera_view(aerial: np.ndarray, A: np.ndarray, cam, sky=(200, 180, 150)) -> np.ndarray:
+    """The aerial image seen through a camera (H, W, 3) BGR: each pixel's ray met with the
+    junction's true surface and the aerial image sampled there (sky where a ray does not
+    meet the ground or leaves the aerial image)."""
+    import cv2
+
+    U, V = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
+    uv = np.column_stack([U.ravel(), V.ravel()])
+    X = J.ray_ground_points(cam.center, cam.unproject(uv))
+    p = np.linalg.solve(A[:, :2], (X[:, :2] - A[:, 2]).T).T - 0.5  # aerial pixel centres
+    mx = np.nan_to_num(p[:, 0], nan=-1e6).reshape(cam.height, cam.width).astype(np.float32)
+    my = np.nan_to_num(p[:, 1], nan=-1e6).reshape(cam.height, cam.width).astype(np.float32)
+    return cv2.remap(aerial, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=sky)
