@@ -62,9 +62,9 @@ from seg2pose.training.train import TrainData, check_finite_loss, evaluate_net, 
 class FineTuneOptions:
     """How long and how hard to fine-tune (defaults measured in benches/annotation_curve.py)."""
 
-    epochs: int = 10
-    batches_per_epoch: int = 24
-    batch_size: int = 32
+    epochs: int = 8
+    batches_per_epoch: int = 16
+    batch_size: int = 24
     lr: float = 3e-4
     rough_every: int = 4          # every 4th example of a batch rough (0: none)
     rough_per_class: int = 200    # rough-model pool per class (split over the cameras)
