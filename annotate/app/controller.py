@@ -85,6 +85,7 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
     large_camera: str | None = None   # the camera shown large (remembered)
     viewer_shown: bool | None = None  # the Rerun viewer on/off as the annotator chose (remembered); None: automatic
     software_rendering: bool = False  # the browser renders WebGL in software (its hello says)
+    renderer_known: bool = False      # the page has said how it renders (until then: no viewer)
     on_viewer: list[Callable[[bool], None]] = field(default_factory=list)
     play_to: int | None = None        # playing the selected track up to this frame (review mode)
     play_reason: str = ""             # why the playback stops there
@@ -238,8 +239,11 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
     def viewer_visible(self) -> bool:
         """Whether the page shows the Rerun viewer: the annotator's choice, else on unless the
         browser renders in software (there one repaint of the viewer takes seconds and holds
-        up the page: docs/BENCHMARKS.md, "Annotation app")."""
-        return self.viewer_shown if self.viewer_shown is not None else not self.software_rendering
+        up the page: docs/BENCHMARKS.md, "Annotation app"); off until the page has said how it
+        renders (the scene is sent to the viewer only once it is shown)."""
+        if self.viewer_shown is not None:
+            return self.viewer_shown
+        return self.renderer_known and not self.software_rendering
 
     def _set_viewer(self, shown: bool) -> None:
         self.viewer_shown = bool(shown)
@@ -251,6 +255,7 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
         """The browser's WebGL renderer (from the page): software rendering hides the viewer
         unless the annotator chose otherwise."""
         r = str(renderer).lower()
+        self.renderer_known = True
         self.software_rendering = any(k in r for k in ("swiftshader", "llvmpipe", "software", "lavapipe"))
         if self.software_rendering and self.viewer_shown is None:
             self.message = ("software rendering in this browser: the 3D viewer is off so that "

@@ -80,9 +80,10 @@ class Session:
             target = Tee(self.rec, other)
         self.target = target
         p = self.ctl.project
-        bp, cams, (first, last), self.notes, video = log_scene(target, p.scene, run, self.ctl.cameras,
-                                                               frames=self.ctl.frame_range)
-        self.ctl.video_frames = {c: set(map(int, f)) for c, f in video.items()}
+        self._run_dir, self._logged = run, False
+        cams, first, last, video = _page_frames(p.scene, run, self.ctl.cameras, self.ctl.frame_range)
+        self.notes: list[str] = []
+        self.ctl.video_frames = video
         self.pictures = FrameImages(p.scene, cams, first, last)
         self.frame_view = FrameView()
         self._shown = None
@@ -95,9 +96,6 @@ class Session:
         self._ref = None
         self.logger = AnnotationLogger(target, p.scene, cams)
         self.last_send_ms = 0.0
-        for tid in p.tracks:
-            self.logger.send_track(self.cols[tid], selected=tid == self.ctl.selected)
-        target.flush()
         self.timeline = "frame"
         self.panel = Panel(shortcuts=SHORTCUTS, hide_viewer=self.ctl.viewer_shown is not True)
         if self.notes:
@@ -106,12 +104,31 @@ class Session:
         self.ctl.on_frame.append(self._move_cursor)
         self.ctl.on_layout.append(self._send_layout)
         self.ctl.on_viewer.append(self._show_viewer)
-        self._send_timeline()
+        if native:
+            self._log_scene()
         self.viewer.on_event(self._on_viewer_event)
         self.panel.on_msg(self._on_panel_msg)
         self.frame_view.on_msg(self._on_frame_msg)
         self.viewer.set_time_ctrl(sequence=self.ctl.frame, timeline="frame")
         self.refresh_panel()
+
+    def _log_scene(self) -> None:
+        """The scene, the tracks and the timeline to the viewer, once, when it is first shown
+        (a hidden viewer is sent nothing: the page's first steps are not held up by it)."""
+        if self._logged:
+            return
+        self._logged = True
+        p = self.ctl.project
+        _, _, _, notes, _ = log_scene(self.target, p.scene, self._run_dir, self.ctl.cameras,
+                                      frames=self.ctl.frame_range)
+        if notes:
+            self.ctl.message = "; ".join(notes)
+        for tid, cols in sorted(self.cols.items()):
+            self.logger.send_track(cols, selected=tid == self.ctl.selected)
+        self._unsent = {}
+        self._send_timeline()
+        self._unsent_timeline = False
+        self.target.flush()
 
     # --- controller -> viewer / panel ---------------------------------------------------------------
     def _resend(self, ids: set[int], selected: int | None) -> None:
@@ -131,7 +148,7 @@ class Session:
         """Send the changed tracks (and the selected one's timeline) to the viewer."""
         if not self._unsent and not self._unsent_timeline:
             return
-        if not self.ctl.viewer_visible:
+        if not self.ctl.viewer_visible or not self._logged:
             return  # kept until the viewer is shown: a hidden viewer costs the page nothing
         t0 = time.perf_counter()
         for tid, cols in sorted(self._unsent.items()):
@@ -145,6 +162,7 @@ class Session:
     def _show_viewer(self, shown: bool) -> None:
         self.panel.hide_viewer = not shown  # the panel's script hides the viewer's element
         if shown:
+            self._log_scene()
             self._send_tracks()
             self._move_cursor(self.ctl.frame)
 
@@ -372,6 +390,20 @@ class Session:
                 self.refresh_panel()
                 return
             self._apply_click(*self._last_click)
+
+
+def _page_frames(scene, run, cameras, frames) -> tuple[list[str], int, int, dict]:
+    """(cameras shown, first, last frame, camera -> frames with video) of a page: what
+    ``log_scene`` would log, from the selection and the cached video assets alone."""
+    from s2p_review.selection import select
+    from s2p_review.video_asset import video_asset
+
+    sel = select(scene, [run] if run is not None else [], frames, cameras)
+    video = {}
+    for c in sel.cameras:
+        asset = video_asset(scene, c, sel.first, sel.last)  # cached by prepare_viewer
+        video[c] = set(map(int, asset.frames)) if asset is not None else set()
+    return sel.cameras, sel.first, sel.last, video
 
 
 def prepare_viewer(scene_dir, run=None, cameras=None) -> None:

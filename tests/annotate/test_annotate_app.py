@@ -319,6 +319,9 @@ def test_session_wiring_without_a_browser(scene_dir):
     try:
         sent = []
         s.viewer._viewer.send_rrd = lambda data: sent.append(len(data))
+        assert not s._logged  # nothing goes to the viewer before the page says it shows it
+        s._on_panel_msg(None, {"hello": "tab", "renderer": "ANGLE (NVIDIA GeForce)"}, [])
+        assert s._logged and s.ctl.viewer_visible
         ev = dict(application_id="s2p-annotate", recording_id="r", segment_id=None)
         moves = []
         s.viewer.set_time_ctrl = lambda **k: moves.append(k["sequence"])
