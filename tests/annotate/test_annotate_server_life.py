@@ -1,0 +1,42 @@
+"""The annotation server's life: every page it admits may reach this server only (CSP), a tab
+of an earlier start is told so in one line, and `s2p annotate` exits non-zero with the log's
+last line when its server dies."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from test_annotate_server import PORT, TOKEN, _call
+
+from seg2pose.core.errors import S2PError
+
+
+def test_pages_may_reach_this_server_only():
+    code, headers, reached = _call(query=f"access_token={TOKEN}".encode())
+    assert code == 200 and reached
+    csp = headers[b"content-security-policy"].decode()
+    assert csp.startswith("connect-src 'self' ") and f"ws://127.0.0.1:{PORT}" in csp
+    assert "https:" not in csp and "*" not in csp
+    # a cookie of this port from an earlier start (another token): one line saying so
+    code, headers, reached = _call(cookie=f"s2p_annotate_{PORT}=stale")
+    assert code == 403 and not reached
+
+
+def test_s2p_annotate_exits_with_the_reason_when_its_server_dies(tmp_path, monkeypatch):
+    from annotate.app import serve
+
+    log = tmp_path / "server.log"
+    with open(log, "w") as f:  # noqa: S2P-write -- a test's stand-in server writes its own log
+        proc = subprocess.Popen([sys.executable, "-c", "print('2026-01-01 boom: port gone');"
+                                 "import sys; sys.exit(3)"], stdout=f)
+    monkeypatch.setattr(serve, "check_scene", lambda *a: None)
+    monkeypatch.setattr(serve, "start", lambda *a, **k: serve.Server(proc, PORT, TOKEN, log))
+    import annotate.app.session as session
+
+    monkeypatch.setattr(session, "prepare_viewer", lambda *a: None)
+    said = []
+    with pytest.raises(S2PError, match="stopped with exit code 3: 2026-01-01 boom: port gone"):
+        serve.run_app(tmp_path, browser=False, echo=said.append)
+    assert said and "annotation app for" in said[0]
