@@ -28,7 +28,7 @@ def test_s2p_annotate_exits_with_the_reason_when_its_server_dies(tmp_path, monke
     from annotate.app import serve
 
     log = tmp_path / "server.log"
-    with open(log, "w") as f:  # noqa: S2P-write -- a test's stand-in server writes its own log
+    with open(log, "w") as f:  # a stand-in server writes its own log (a test, not the library)
         proc = subprocess.Popen([sys.executable, "-c", "print('2026-01-01 boom: port gone');"
                                  "import sys; sys.exit(3)"], stdout=f)
     monkeypatch.setattr(serve, "check_scene", lambda *a: None)
