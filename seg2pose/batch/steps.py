@@ -87,15 +87,18 @@ def eval_path(scene_dir: Path, opts: BatchOptions) -> Path:
 
 def _eval_run(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
     from seg2pose.eval.paper_table import evaluate_run
+    from seg2pose.eval.tracking_inputs import WORLD_D0
     from seg2pose.io.scene import load_scene
 
     scene = load_scene(scene_dir)
     if not scene.gt_path.exists():  # nothing to evaluate: not a failure
         atomic_write_text(eval_path(scene_dir, opts), json.dumps(None))
         return {"ground_truth": False}
-    res = evaluate_run(scene, run_dir(scene_dir, opts)).to_dict()
+    # as s2p eval --json: the errors and the tracking metrics (HOTA, IDF1, MOTA) of the world tracks
+    res = evaluate_run(scene, run_dir(scene_dir, opts), track_d0=WORLD_D0).to_dict()
     atomic_write_text(eval_path(scene_dir, opts), json.dumps(res, indent=1))
-    return {"ground_truth": True, "mean_error": res["mean_error"], "recall": res["recall"]}
+    return {"ground_truth": True, "mean_error": res["mean_error"], "recall": res["recall"],
+            "HOTA": res["tracking"]["HOTA"], "IDF1": res["tracking"]["IDF1"], "MOTA": res["tracking"]["MOTA"]}
 
 
 MASKS_FROM_VIDEO = Step("masks-from-video", lambda s, o: [s / "scene.json", s / "video"],
