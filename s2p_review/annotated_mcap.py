@@ -84,7 +84,8 @@ def camera_video(scene: Scene, cam: str, first: int, last: int) -> Iterator[tupl
     first..last, in order; nothing when the camera has no video."""
     import av
 
-    cc, frames = None, []
+    cc = None
+    frames: list[int] = []
     for f, img in imagery.video_frames(scene, cam, first, last):
         if cc is None:
             h, w = img.shape[0] // 2 * 2, img.shape[1] // 2 * 2
@@ -187,7 +188,7 @@ def read_video(path: Path) -> dict[str, list[tuple[int, bytes]]]:
         if not topics:
             return out
         for _schema, channel, msg in reader.iter_messages(topics=topics, log_time_order=True):
-            cam = VIDEO_TOPIC.match(channel.topic).group(1)
+            cam = channel.topic.split("/")[2]  # /cameras/<cam>/video
             out.setdefault(cam, []).append((msg.log_time, CompressedVideo.FromString(msg.data).data))
     return out
 
@@ -211,7 +212,7 @@ def restore_video(video: dict[str, list[tuple[int, bytes]]], folder: Path, fps: 
         rel = f"video/{cam}.mp4"
         (folder / "video").mkdir(parents=True, exist_ok=True)
         try:
-            inp = av.open(io.BytesIO(b"".join(d for _, d in msgs)), format="h264")
+            inp = av.open(io.BytesIO(b"".join(d for _, d in msgs)), "r", format="h264")
             ins = inp.streams.video[0]
             buf = io.BytesIO()
             out = av.open(buf, "w", format="mp4")
