@@ -2,9 +2,15 @@
 masks, once with column logging (``s2p_review.record``: rr.send_columns over whole frame
 ranges) and once with one ``rr.log`` call per entity per frame (the naive way).
 
-Prints seconds, MB/s and .rrd bytes per frame for both, the speed-up, and peak memory.
+Prints seconds, MB/s and .rrd bytes per frame for both, the speed-up, and peak memory; the
+entities of the recording, the recording's CPU time, how long reading it back takes, and with
+``--viewer`` how long a headless viewer takes to load it (wall and the viewer's CPU).
 
     .venv/bin/python benches/bench_review.py [--frames 1000] [--width 640] [--height 360]
+        [--track-frames N] [--skip-per-frame] [--viewer]
+
+``--track-frames 50`` gives every road user a new track id every 50 frames (road users coming
+and going: 400 tracks instead of 20), the case one entity per road user costs most in.
 
 The scene is built once (masks rendered from boxes with cv2) and cached under the system temp
 folder; building it is not timed.
@@ -28,8 +34,11 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 
-def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int, seed: int = 0):
-    """A 3-camera junction with n_users road users driving straight lines (wrapping around)."""
+def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int, seed: int = 0,
+                track_frames: int = 0):
+    """A 3-camera junction with n_users road users driving straight lines (wrapping around);
+    track_frames > 0: each road user takes a new track id every track_frames frames (road users
+    coming and going: n_users * n_frames / track_frames tracks), else one track each."""
     import cv2
 
     from s2p_review.columns import box_corners
@@ -42,7 +51,8 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     from seg2pose.structures.masks import encode, mask_centers
 
     marker = root / "built.json"
-    want = {"n_frames": n_frames, "n_users": n_users, "w": width, "h": height, "seed": seed, "v": 2}
+    want = {"n_frames": n_frames, "n_users": n_users, "w": width, "h": height, "seed": seed, "v": 2,
+            "track_frames": track_frames}
     if marker.exists() and json.loads(marker.read_text()) == want:
         return load_scene(root), root / "run"
     shutil.rmtree(root, ignore_errors=True)
@@ -68,7 +78,8 @@ def build_scene(root: Path, n_frames: int, n_users: int, width: int, height: int
     xy = start[uid] * 0.3 + s[:, None] * np.stack([np.cos(ang[uid]), np.sin(ang[uid])], 1)
     z = scene.ground.height(xy)
     size = np.array([sizes[c] for c in cls[uid]])
-    gt = PoseTable(fr, uid + 1, cls[uid], np.c_[xy, z], ang[uid], size)
+    tid = uid + 1 if track_frames <= 0 else (fr // track_frames) * n_users + uid + 1
+    gt = PoseTable(fr, tid, cls[uid], np.c_[xy, z], ang[uid], size)
     (root / "gt").mkdir(exist_ok=True)
     write_poses(root / "gt" / "poses.csv", gt)
     cid = {"pedestrian": 1, "bicyclist": 2, "car": 3}
@@ -167,6 +178,48 @@ def log_per_frame(scene, run_dir: Path, rrd: Path) -> None:
     rec.disconnect()
 
 
+def _proc_cpu(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
+    import os
+
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def load_times(rrd: Path, last_frame: int, viewer: bool) -> dict:
+    """Seconds to read every chunk of ``rrd`` back (rerun.chunk) and, with ``viewer``, for a
+    headless viewer to open it until its frame timeline reaches ``last_frame`` with nothing
+    loading (polled every 20 ms; wall time and the viewer's CPU time); also the number of
+    entities with data."""
+    import rerun.chunk as rc
+
+    t = time.perf_counter()
+    entities = {ch.entity_path for ch in rc.RrdReader(rrd).stream()}
+    out = {"read_s": time.perf_counter() - t, "entities": len(entities)}
+    if viewer:
+        from s2p_review import viewer as V
+
+        client = V.spawn_viewer(headless=True)
+        try:
+            cpu0 = _proc_cpu(client._pid)
+            t = time.perf_counter()
+            client.open(str(rrd.resolve()))
+            while True:
+                st = client.get_state()
+                rec = next((r for r in st.recordings if r.store_id == st.active_recording), None)
+                tl = None if rec is None else next((x for x in rec.timelines if x.name == "frame"), None)
+                if tl is not None and tl.end is not None and tl.end >= last_frame and not st.loading:
+                    break
+                if time.perf_counter() - t > 300:
+                    raise RuntimeError("the viewer did not load the recording within 300 s")
+                time.sleep(0.02)
+            out["viewer_s"] = time.perf_counter() - t
+            out["viewer_cpu_s"] = _proc_cpu(client._pid) - cpu0
+        finally:
+            V.stop(client)
+    return out
+
+
 def _time_rerun_calls() -> dict:
     """Wrap RecordingStream.log / send_columns / flush to add up the time spent inside them."""
     import rerun as rr
@@ -193,24 +246,30 @@ def main() -> None:
     ap.add_argument("--users", type=int, default=20)
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=360)
+    ap.add_argument("--track-frames", type=int, default=0,
+                    help="a new track id every N frames per road user (0: one track each)")
     ap.add_argument("--skip-per-frame", action="store_true")
+    ap.add_argument("--viewer", action="store_true",
+                    help="also time a headless viewer loading the .rrd (needs Vulkan, e.g. Mesa)")
     a = ap.parse_args()
     import rerun  # noqa: F401 - imported before timing: both ways pay it once per process
 
     from s2p_review.session import RecordOptions, record
 
-    cache = Path(tempfile.gettempdir()) / f"s2p-bench-review-{a.frames}-{a.users}-{a.width}x{a.height}"
+    cache = Path(tempfile.gettempdir()) / f"s2p-bench-review-{a.frames}-{a.users}-{a.width}x{a.height}-{a.track_frames}"
     t0 = time.perf_counter()
-    scene, run = build_scene(cache, a.frames, a.users, a.width, a.height)
+    scene, run = build_scene(cache, a.frames, a.users, a.width, a.height, track_frames=a.track_frames)
     print(f"scene: {a.frames} frames, 3 cameras {a.width}x{a.height}, {a.users} road users "
           f"(built/loaded in {time.perf_counter() - t0:.1f} s, cached in {cache})")
     out = Path(tempfile.mkdtemp(prefix="s2p-bench-"))
     results = {}
     timer = _time_rerun_calls()
     timer["s"] = 0.0
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     record(scene, [run], out / "columns.rrd", RecordOptions(mask_every=1))
     results["columns (send_columns)"] = (time.perf_counter() - t, timer["s"], (out / "columns.rrd").stat().st_size)
+    record_cpu = time.process_time() - cpu
+    loads = load_times(out / "columns.rrd", a.frames - 1, a.viewer)
     if not a.skip_per_frame:
         timer["s"] = 0.0
         t = time.perf_counter()
@@ -226,6 +285,11 @@ def main() -> None:
     if len(results) == 2:
         (c, cr, _), (p, pr, _) = results.values()
         print(f"speed-up columns vs per-frame: whole recording {p / c:.1f}x, Rerun calls {pr / cr:.1f}x")
+    print(f"columns.rrd: {loads['entities']} entities; recording {record_cpu:.2f} s CPU (this process: "
+          f"less sensitive to other load than the wall time); read back (rerun.chunk.RrdReader, all "
+          f"chunks) {loads['read_s']:.2f} s" + (f"; headless viewer open -> loaded {loads['viewer_s']:.2f} s "
+                                                 f"wall, {loads['viewer_cpu_s']:.2f} s viewer CPU"
+                                                 if "viewer_s" in loads else ""))
     print(f"peak memory (max RSS): {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     shutil.rmtree(out, ignore_errors=True)
 

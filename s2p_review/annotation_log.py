@@ -201,21 +201,21 @@ TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (
 
 def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | None = None,
                   timeline: str = L.TIMELINE, large_in_page: bool = False,
-                  tracks: dict | None = None):
+                  runs=()):
     """The annotation app's layout: camera ``large`` big on the left over the selected track's
     keyframe timeline; the 3D world and the other cameras small on the right.
     ``large_in_page``: the page shows camera ``large`` itself (annotate.app.frame_view), so
-    the viewer shows the 3D world and the other cameras over the timeline. tracks: the run's
-    road users (run name -> track ids, ``LogStats.tracks`` of ``log_scene``), whose trails
-    the 3D view then shows over the last TRAIL_FRAMES frames (without: their last step)."""
+    the viewer shows the 3D world and the other cameras over the timeline. runs: the names of
+    the runs shown, whose trails the 3D view then shows over the last TRAIL_FRAMES frames
+    (without: each road user's last step)."""
     import rerun.blueprint as rrb
 
     large = large if large in cameras else (cameras[0] if cameras else None)
     extra: dict = {}
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
-    if tracks:
-        extra["overrides"] = L.trail_overrides(tracks, L.TRAIL_FRAMES, fps)
+    if runs:
+        extra["overrides"] = L.trail_overrides(runs, L.TRAIL_FRAMES, fps)
     world = rrb.Spatial3DView(origin="world", name="world", contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
     small = [rrb.Spatial2DView(origin=L.cam_path(c), name=f"{VIEW_PREFIX}{c}")

@@ -16,19 +16,21 @@ hidden and plotted alone. Run and camera names enter paths through Rerun's own e
     world/cameras/<cam>/gt                          LineStrips2D: true boxes projected
     world/road_users/<run>/<track id>               Boxes3D (class ids of the AnnotationContext)
                                                     + AnyValues: track id, class, speed, r90,
-                                                    source -- one road user of the run
-    world/road_users/<run>/<track id>/trail         LineStrips3D: one segment per frame (from the
-                                                    previous pose), shown over the last
-                                                    TRAIL_FRAMES by a visible time range
-    world/road_users/<run>/<track id>/r90           LineStrips3D: the error disc (runs with r90)
+                                                    source + Scalars: speed (m/s) -- one road
+                                                    user of the run
+    world/road_users/<run>/trails                   LineStrips3D: per frame a segment per road
+                                                    user (from its previous pose), shown over
+                                                    the last TRAIL_FRAMES by a visible time range
+    world/road_users/<run>/r90                      LineStrips3D: error discs (runs with r90)
     world/estimates/<run>/<cam>                     Points3D: normal positions of one view
     world/estimates/<run>/<cam>/residuals           Arrows3D: Seg2PoseNet residuals
     world/gt                                        Boxes3D: ground truth, drawn in grey
     metrics/error/<run>/mean, .../<class>           Scalars: per-frame mean error (metres),
                                                     one plot per run
-    metrics/road_users/<run>/<quantity>/<track id>  Scalars per road user: speed (m/s), error
-                                                    against the truth (m, where there is truth),
-                                                    r90 (m, runs with r90); a plot per quantity
+    metrics/road_users/<run>/<quantity>/<track id>  Scalars per road user: error against the
+                                                    truth (m, where there is truth), r90 (m,
+                                                    runs with r90); a plot per quantity, and
+                                                    one of the speeds (world/road_users/<run>)
 """
 
 from __future__ import annotations
@@ -113,7 +115,8 @@ ROAD_USER_SERIES = {"speed": "speed (m/s)", "error": "error against the truth (m
 
 def road_user_series_path(run: str, quantity: str, track_id: int | None = None) -> str:
     """metrics/road_users/<run>/<quantity>[/<track id>]: a road user's time series of
-    ``quantity`` (a key of ROAD_USER_SERIES), or the folder of all road users' series."""
+    ``quantity`` ("error" or "r90"; the speed is on the road user's own entity), or the folder
+    of all road users' series."""
     base = f"metrics/road_users/{entity_part(run)}/{quantity}"
     return base if track_id is None else f"{base}/{int(track_id)}"
 
@@ -154,25 +157,24 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
     return pos, target
 
 
-def trail_overrides(tracks: dict, trail: int, fps: float | None) -> dict:
-    """3D-view overrides that show every road user's trail (run name -> track ids) over the
-    last ``trail`` frames: one per trail entity (Rerun's overrides take whole paths)."""
+def trail_overrides(runs, trail: int, fps: float | None) -> dict:
+    """3D-view overrides that show the trails of ``runs`` (run names) over the last ``trail``
+    frames: one per run's trails entity (Rerun's overrides take whole paths, no patterns)."""
     ranges = trail_ranges(trail, fps)
-    return {f"{road_user_path(r, tid)}/trail": ranges for r, ids in tracks.items() for tid in ids}
+    return {f"{run_path(r)}/trails": ranges for r in runs}
 
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
               fps: float | None = None, error_max: float | None = None,
-              timeline: str = TIMELINE, more_views=(), tracks: dict | None = None,
-              series: dict | None = None, trail: int = TRAIL_FRAMES):
+              timeline: str = TIMELINE, more_views=(), series: dict | None = None,
+              trail: int = TRAIL_FRAMES):
     """The 3D world over the plots (one group per run, side by side) on the left; one 2D view
     per camera on the right. eye: (position, look target) of the 3D view, metres (see
     ``default_eye``); fps: frames per second, so that playback runs in real time; error_max:
     the top of the error plots' common y axis, metres; timeline: the timeline the time panel
     opens on; more_views: more views, in a row under the world (e.g.
-    ``s2p_review.conflicts.views()``); tracks: run name -> its road users' track ids, whose
-    trails the 3D view shows over the last ``trail`` frames (a visible time range per trail
-    entity: Rerun's overrides take whole paths, no patterns); series: run name -> the road-user
+    ``s2p_review.conflicts.views()``); trail: the frames of the runs' trails the 3D view shows
+    (a visible time range on each run's trails entity); series: run name -> the road-user
     series it has (keys of ROAD_USER_SERIES), each a plot of all its road users, in tabs after
     the run's error plot (``with_metrics``). Rerun's blueprints cannot make a view follow the
     selection: a road user is found in its plot by hovering (the series is named by its
@@ -184,8 +186,8 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     extra: dict[str, Any] = {}
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
-    if tracks and trail > 1:
-        extra["overrides"] = trail_overrides(tracks, trail, fps)
+    if runs and trail > 1:
+        extra["overrides"] = trail_overrides(runs, trail, fps)
     world = rrb.Spatial3DView(origin="world", name="world",
                               contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
@@ -199,7 +201,8 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
                                             plot_legend=rrb.PlotLegend(corner="lefttop", visible=True),
                                             **axis))
         for q in (series or {}).get(r, []):
-            views.append(rrb.TimeSeriesView(origin=road_user_series_path(r, q),
+            # speed: Scalars on the road users' own entities (their boxes select their lines)
+            views.append(rrb.TimeSeriesView(origin=run_path(r) if q == "speed" else road_user_series_path(r, q),
                                             name=f"{ROAD_USER_SERIES[q]}: {r}",
                                             plot_legend=rrb.PlotLegend(visible=False),
                                             **(axis if q == "error" else {})))

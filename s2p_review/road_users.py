@@ -7,17 +7,18 @@ Per road user (track id), each sent with ``send_columns`` over the frames it is 
 
 - its box (Boxes3D, class ids through the recording's AnnotationContext, colours in the run's
   look) with ``AnyValues`` for the selection panel: track id, class, speed (m/s), r90 (m) and
-  source (the row's provenance, else the run's method);
-- its trail: one segment per frame from its previous pose, which the blueprint shows over the
-  last ``LogStyle.trail`` frames with a visible time range (``layout.trail_ranges``), so no
-  point is sent twice over;
-- its error disc (runs with r90, ``error_discs``);
-- series under ``metrics/road_users/<run>/<quantity>/<track id>``: speed, error against the
-  truth (rows whose (frame, track id) the truth has: ``seg2pose.eval.evaluate.match_poses``,
-  as the run's error plot) and r90.
+  source (the row's provenance, else the run's method); what is constant along the track
+  (class, colour, label, track id, source) once, statically; its speed as Scalars on the same
+  entity, so that selecting the box selects its line in the run's speed plot;
+- series under ``metrics/road_users/<run>/<quantity>/<track id>``: error against the truth
+  (rows whose (frame, track id) the truth has: ``seg2pose.eval.evaluate.match_poses``, as the
+  run's error plot) and r90.
 
-Where a road user is not seen (a gap, or after its last frame) its box and disc are emptied on
-the first frame without it, so nothing lingers.
+Where a road user is not seen (a gap, or after its last frame) its box is emptied on the first
+frame without it, so nothing lingers. The run's trails (``world/road_users/<run>/trails``, one
+segment per road user and frame, shown over the last ``LogStyle.trail`` frames by a visible
+time range) and error discs (``world/road_users/<run>/r90``, runs with r90) are one entity per
+run each: hiding a road user hides its box, its values and its series, not its trail or disc.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 
 from s2p_review import columns as C
 from s2p_review import layout as L
-from s2p_review.error_discs import disc_outlines, r90_colors
+from s2p_review.error_discs import log_error_discs
 from seg2pose.io.poses import PoseTable
 
 TRAIL_LIFT_M = 0.05  # trails drawn this far above the ground contact point
@@ -139,6 +140,7 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
     ids = np.array([class_id.get(str(c), 0) for c in t.cls], np.uint16)
     box_colors = L.run_colors(t.cls, scene.classes, look, solid=True)
     line_colors = L.run_colors(t.cls, scene.classes, look)
+    series_colors = L.class_colors(t.cls, scene.classes)
     fill = rr.components.FillMode.Solid if L.RUN_LOOKS[look]["solid"] else rr.components.FillMode.MajorWireframe
     fields = C.box_columns(t.xyz, t.heading, users.sizes)
     labels = np.array(L.labels(t.cls, t.track_id), object)
@@ -151,45 +153,59 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
         ent = L.road_user_path(run, tid)
         fr = t.frame[rows]
         frames, lengths = shown_frames(fr, ctx.last)
-        ctx.static(ent, rr.Boxes3D.from_fields(show_labels=False, fill_mode=fill))
+        # one send per entity, nothing static: a chunk costs kilobytes of schema in the file
+        # and time in the viewer, while a constant column of a few bytes a row compresses away
+        n = len(fr)
         box = rr.Boxes3D.columns(centers=fields["centers"][rows], half_sizes=fields["half_sizes"][rows],
                                  quaternions=fields["quaternions"][rows], class_ids=ids[rows],
-                                 colors=box_colors[rows], labels=labels[rows].tolist()).partition(lengths)
-        values: dict[str, Any] = {"track_id": np.full(len(fr), tid, np.int64),
-                                  "class": t.cls[rows].astype(str), "speed_mps": users.speed[rows],
-                                  "r90_m": r90[rows], "source": src[rows].astype(str)}
+                                 colors=box_colors[rows], labels=labels[rows].tolist(),
+                                 fill_mode=[fill] * n, show_labels=[False] * n).partition(lengths)
+        values: dict[str, Any] = {"track_id": np.full(n, tid, np.int64), "class": t.cls[rows].astype(str),
+                                  "speed_mps": users.speed[rows].astype(np.float32),
+                                  "r90_m": r90[rows].astype(np.float32), "source": src[rows].astype(str)}
         info = rr.AnyValues.columns(**values).partition(lengths)
-        ctx.send(ent, frames, [*box, *info])
-        if trail > 1 and len(fr) > 1:
-            # a segment per step, emptied where the road user is not seen: a view without the
-            # trail's time range (latest-at) then shows its last step, never a stale one
-            p = t.xyz[rows] + [0.0, 0.0, TRAIL_LIFT_M]
-            segs = np.stack([p[:-1], p[1:]], axis=1)
-            f_t, l_t = shown_frames(fr[1:], ctx.last)
-            ctx.static(ent + "/trail", rr.LineStrips3D.from_fields(radii=0.04))
-            ctx.send(ent + "/trail", f_t, rr.LineStrips3D.columns(
-                strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch),
-                colors=line_colors[rows][1:]).partition(l_t))
-        rr90 = r90[rows]
-        okr = np.isfinite(rr90)
-        if okr.any():
-            f_r, l_r = shown_frames(fr[okr], ctx.last)
-            rings = disc_outlines(t.xyz[rows][okr], rr90[okr])
-            ctx.static(ent + "/r90", rr.LineStrips3D.from_fields(radii=0.03))
-            ctx.send(ent + "/r90", f_r, rr.LineStrips3D.columns(
-                strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
-                colors=r90_colors(rr90[okr])).partition(l_r))
-        color = L.class_colors(t.cls[rows][:1], scene.classes)[0].tolist()
-        for quantity, column, wanted in (("speed", users.speed, True), ("error", users.error, has_error),
-                                         ("r90", r90, has_r90)):
+        # the speed on the road user's own entity: selecting its box picks its line in the plot
+        sp = users.speed[rows]
+        ok = np.isfinite(sp)
+        speed_lengths = np.zeros(len(frames), np.int64)
+        np.add.at(speed_lengths, np.searchsorted(frames, fr[ok]), 1)
+        speed = [*rr.Scalars.columns(scalars=sp[ok]).partition(speed_lengths),
+                 *rr.SeriesLines.columns(colors=series_colors[rows][ok], names=labels[rows][ok].tolist())
+                 .partition(speed_lengths)]
+        ctx.send(ent, frames, [*box, *info, *speed])
+        for quantity, column, wanted in (("error", users.error, has_error), ("r90", r90, has_r90)):
             v = column[rows]
-            if not wanted or not np.isfinite(v).any():
+            okv = np.isfinite(v)
+            if not wanted or not okv.any():
                 continue
-            series = L.road_user_series_path(run, quantity, tid)
-            ctx.static(series, rr.SeriesLines(colors=[color], names=[str(labels[rows][0])]))
-            C.send_scalars(ctx.rec, series, ctx.tb, fr, v)
+            ctx.send(L.road_user_series_path(run, quantity, tid), fr[okv], [
+                *rr.Scalars.columns(scalars=v[okv]),
+                *rr.SeriesLines.columns(colors=series_colors[rows][okv], names=labels[rows][okv].tolist())])
         done.append(tid)
+    if trail > 1:
+        log_trails(ctx, run, users, line_colors)
+    log_error_discs(ctx, f"{L.run_path(run)}/r90", t)
     return done
+
+
+def log_trails(ctx, run: str, users: RoadUsers, colors: np.ndarray) -> None:
+    """The run's trails, ``world/road_users/<run>/trails``: at each frame, one segment per road
+    user seen there, from its previous pose; the blueprint shows them over the last frames with
+    a visible time range (``layout.trail_ranges``), so no point is sent twice over. One entity
+    for the run: an entity per road user's trail costs a chunk each (kilobytes of schema in the
+    file, and the viewer's time), and Rerun's time-range overrides take whole paths."""
+    import rerun as rr
+
+    t = users.table
+    step = np.flatnonzero(np.r_[False, t.track_id[1:] == t.track_id[:-1]])  # rows with a previous
+    p = t.xyz + [0.0, 0.0, TRAIL_LIFT_M]
+    segs = np.stack([p[step - 1], p[step]], axis=1)
+    order = np.argsort(t.frame[step], kind="stable")
+    ent = f"{L.run_path(run)}/trails"
+    ctx.static(ent, rr.LineStrips3D.from_fields(radii=0.04))
+    ctx.send_range(ent, rr.LineStrips3D.columns(
+        strips=C.segments_arrow(segs[order], rr.components.LineStrip3DBatch), colors=colors[step][order])
+        .partition(C.frame_lengths(t.frame[step][order], ctx.first, ctx.last)))
 
 
 def series_present(users: RoadUsers) -> list[str]:
