@@ -97,6 +97,11 @@ def calibrate_camera_cmd(
     force: bool = typer.Option(False, "--force",
         help="replace existing outputs; for a scene: write the new calibration as its next version (the old "
              "scene.json is kept in calibrations/vN/)"),
+    from_traffic: bool = typer.Option(False, "--from-traffic/--no-from-traffic",
+        help="from the traffic in the scene's masks (after masks-from-video): vanishing points of the road "
+             "users' motion, the height from pedestrians and bicyclists; alone it writes cameras in their "
+             "own frame (origin below the camera) with their expected error, with --points it is the focal "
+             "prior that makes 4 pairs a camera enough"),
     port: int | None = typer.Option(None, "--port", help="the page's port (default: a free one)"),
     browser: bool = typer.Option(True, "--browser/--no-browser", help="open the page in a browser"),
 ) -> None:
@@ -115,6 +120,11 @@ def calibrate_camera_cmd(
 
     opts = SolveOptions(pixel_sigma=pixel_sigma, world_sigma=world_sigma, focal_prior_px=focal_prior,
                         principal_point=principal_point, k1=k1)
+    traffic_note = None
+    if from_traffic:
+        opts, traffic_note = traffic_prior(source, camera, opts, points is None, out, force, typer.echo)
+        if traffic_note is None:
+            return
     if points is None and aerial is None and survey is None:
         raise InputError("give --points pairs.csv, or --aerial IMAGE / --survey points.csv for the page",
                          field="points")
@@ -155,3 +165,40 @@ def solve_and_write(pairs: dict, sizes: dict, frames: dict, scene, out: Path | N
     pictures = {c: cost_picture(r, frames.get(c)) for c, r in res.cameras.items()}
     for line in write_result(res, text, pictures, out, scene, force):
         echo(line)
+
+
+def traffic_prior(source: Path | None, cameras: list[str] | None, opts, alone: bool, out: Path | None,
+                  force: bool, echo):
+    """--from-traffic: the cameras from the scene's traffic. Alone: written to --out (their own
+    frames) and (opts, None) returned; else (opts with the traffic's focal as the prior and 4
+    pairs a camera, a note)."""
+    import dataclasses
+
+    from seg2pose.geometry.ground_fit import ground_from_elevations
+    from seg2pose.io.calib_files import write_calibration
+    from seg2pose.io.scene import SCENE_FILE, load_scene
+    from seg2pose.video.traffic_calib import traffic_calibration
+
+    if source is None or not (source / SCENE_FILE).exists():
+        raise InputError("--from-traffic needs a scene folder with masks (s2p masks-from-video)", field="source")
+    scene = load_scene(source)
+    results = {c: traffic_calibration(scene, c) for c in (cameras or list(scene.cameras))}
+    for r in results.values():
+        echo(r.text())
+    if not alone:
+        fs = [r.camera.K[0, 0] for r in results.values()]
+        rel = max(float(np.nanmax([r.focal_sd / r.camera.K[0, 0] for r in results.values()])), 0.02)
+        return dataclasses.replace(opts, focal_prior_px=float(np.median(fs)), focal_log_sigma=rel,
+                                   min_pairs=4), "traffic"
+    if out is None:
+        raise InputError("give -o calib.json for the cameras from the traffic", field="out")
+    report = {"from_traffic": {c: {"focal_px": float(r.camera.K[0, 0]), "focal_sd_px": r.focal_sd,
+                                   "height_m": r.height_m, "height_sd_m": r.height_sd,
+                                   "segments": r.segments, "upright_road_users": r.people,
+                                   "notes": r.notes} for c, r in results.items()}}
+    ground = ground_from_elevations(np.empty((0, 3)), np.array([[-30.0, -30.0], [30.0, 30.0]]))
+    text = "\n".join(r.text() for r in results.values()) + "\nground: " + ground.summary + "\n"
+    names = write_calibration(out, [r.camera.to_dict() for r in results.values()], report, text,
+                              ground.points, {}, force)
+    echo(f"written: {names['calib']}, {names['ground'].name}, {names['report'].name}")
+    return opts, None
