@@ -30,6 +30,7 @@ from seg2pose.core.clock import utc_now, utc_stamp
 from seg2pose.core.errors import S2PError
 from seg2pose.core.locks import KernelLock, LockHolder
 from seg2pose.io.atomic import atomic_write_text, fsync_dir
+from seg2pose.io.atomic_set import commit_step
 from seg2pose.io.nofollow import fdopen_nofollow, open_nofollow, refuse_links
 
 VERSION = 1
@@ -139,6 +140,7 @@ class Segment:
             while n < len(data):
                 n += os.write(self.fd, data[n:])
             os.fsync(self.fd)
+            commit_step("appended")  # the record is durable: the edit is saved (kill tests)
         except OSError as e:
             why = "the disk is full" if e.errno in (errno.ENOSPC, errno.EDQUOT) else e.strerror
             try:

@@ -19,7 +19,7 @@ would after a crash: "between" counts kills that left some steps done (each outp
 a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
 promise is 0 mixed. Then one full run checks that the dead writers' leftovers are removed.
 
-    python benches/bench_faults.py [--kills 100] [--seed 0] [--only run,synth] [--share 0.15,1.05]
+    python benches/bench_faults.py [--kills 100] [--steps 10] [--seed 0] [--only run,synth] [--share 0.15,1.05]
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in the killed commands
 from kill_cases import build_cases, build_training_cases, build_writer_cases  # noqa: E402
 
+STEPS = ["built", "swapped", "recorded", "set-swap", "unrecorded", "appended"]  # seg2pose.io.atomic_set.commit_step
+
 
 def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:
     """Ray's session folders on this machine and their bytes."""
@@ -51,6 +53,8 @@ def main() -> None:
     ap.add_argument("--kills", type=int, default=100, help="kills per command")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", default="", help="comma-separated commands (default: all)")
+    ap.add_argument("--steps", type=int, default=10, help="kills timed at each commit step: "
+                    "at most this many per step (0: none)")
     ap.add_argument("--share", default="0.15,1.05", help="kill after a random share in this "
                     "range of the command's duration (e.g. 0.3,0.8: fewer kills after the end)")
     args = ap.parse_args()
@@ -68,7 +72,7 @@ def main() -> None:
             cases = [c for c in cases if c.name in only]
         rng = np.random.default_rng(args.seed)
         share = tuple(float(x) for x in args.share.split(","))
-        print(f"{'command':>17} {'kills':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
+        print(f"{'command':>17} {'kills':>6} {'timed':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
               f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
         total_mixed = total_left = 0
         for c in cases:
@@ -79,12 +83,21 @@ def main() -> None:
                 c.kill_once(rng, share)
                 if k % 50 == 0 and k < args.kills:
                     print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
+            timed = 0
+            if args.steps and c.name not in ("train", "batch-ray"):
+                # killed exactly at each commit step, every time the command reaches it (up to
+                # --steps times a step; judged after the next writer's first step)
+                for step in STEPS:
+                    for n in range(1, args.steps + 1):
+                        if c.kill_at(step, n) == "not reached":
+                            break
+                        timed += 1
             c.run_fully()  # the next writer takes over and cleans up
             left = len(c.leftovers())
             n = c.counts
             total_mixed += n["mixed"]
             total_left += left
-            print(f"{c.name:>17} {args.kills:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
+            print(f"{c.name:>17} {args.kills:>6} {timed:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
                   f"{n['between']:>8} {n['mixed']:>6} {n['finished']:>9} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
             if c.tree:  # Ray: what the killed drivers' clusters left running or on disk

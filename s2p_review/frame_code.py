@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from seg2pose.io.atomic import atomic_path
+
 CODE_BITS = 10  # frames 0..1023
 
 
@@ -48,6 +50,13 @@ def write_code_video(path: Path, width: int, height: int, frames: int, fps: floa
     base = None
     if texture:
         base = cv2.GaussianBlur(rng.integers(0, 256, (height, width, 3), dtype=np.uint8), (0, 0), 2)
+    with atomic_path(path) as tmp:
+        _write_mp4v(tmp, base, width, height, frames, fps)
+
+
+def _write_mp4v(path: Path, base, width: int, height: int, frames: int, fps: float) -> None:
+    import cv2
+
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), fps, (width, height))
     for f in range(frames):
         img = code_image(f, width, height)
@@ -78,7 +87,7 @@ def write_code_video_h264(path: Path, width: int, height: int, frames: int, bfra
     tb = Fraction(1, 90000)
     steps = rng.choice([1500, 3000, 3003, 4500, 6000], frames) if vfr else np.full(frames, 3000)
     pts = np.cumsum(steps)
-    with av.open(str(path), "w", format="mp4") as c:
+    with atomic_path(path) as tmp, av.open(str(tmp), "w", format="mp4") as c:
         s = c.add_stream("libx264", rate=30)
         s.width, s.height, s.pix_fmt = width, height, "yuv420p"
         s.time_base = s.codec_context.time_base = tb

@@ -21,6 +21,7 @@ from s2p_review.annotated_mcap import (
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.core.validate import inside, safe_name
 from seg2pose.io.atomic import os_errors, outputs, replacing
+from seg2pose.io.nofollow import write_new_bytes
 from seg2pose.io.run import write_run_folder
 from seg2pose.io.scene import SCENE_FILE
 
@@ -118,9 +119,9 @@ def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRe
     the run folder ``run_rel``, an annotated set's masks and video (``annotated_mcap``) and
     the annotation journal (checked by ``check_annotations``)."""
     with os_errors(tmp):
-        (tmp / SCENE_FILE).write_bytes(att[SCENE_FILE])
+        write_new_bytes(tmp / SCENE_FILE, att[SCENE_FILE])
         (tmp / gfile).parent.mkdir(parents=True, exist_ok=True)
-        (tmp / gfile).write_bytes(att[gfile])
+        write_new_bytes(tmp / gfile, att[gfile])
     try:
         run_meta = json.loads(att["run.json"]) if "run.json" in att else {}
     except (ValueError, UnicodeDecodeError) as e:

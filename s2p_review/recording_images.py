@@ -10,6 +10,8 @@ import numpy as np
 from s2p_review import imagery
 from s2p_review import layout as L
 from s2p_review.log_context import IMAGE_BATCH, LogContext, batched
+from seg2pose.core.errors import S2PError
+from seg2pose.io.atomic import atomic_open
 from seg2pose.io.scene import Scene
 
 
@@ -107,12 +109,10 @@ def outline_table(scene: Scene, cam: str, first: int, last: int):
            np.concatenate(points).astype(np.float32) if points else np.zeros((0, 2), np.float32),
            np.concatenate(colors).astype(np.uint8) if colors else np.zeros((0, 3), np.uint8))
     try:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cached.with_name(cached.name + ".tmp.npz")
-        np.savez(tmp, frames=out[0], per_frame=out[1], lengths=out[2], points=out[3],
-                 colors=out[4])
-        tmp.replace(cached)
-    except OSError:
+        with atomic_open(cached, "wb") as f:
+            np.savez(f, frames=out[0], per_frame=out[1], lengths=out[2], points=out[3],
+                     colors=out[4])
+    except (OSError, S2PError):
         pass  # a cache we cannot write only costs time
     return out
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from s2p_review import imagery
 from seg2pose.core.errors import S2PError
+from seg2pose.io.atomic import atomic_path
 from seg2pose.io.scene import Scene
 
 GOP = 12          # frames between keyframes: bounds the decoding work of a jump
@@ -102,33 +103,44 @@ def _encode(scene: Scene, cam: str, first: int, last: int, scale: float, out: Pa
     w = max(2, int(round(camera.width * scale)) // 2 * 2)
     h = max(2, int(round(camera.height * scale)) // 2 * 2)
     rate = Fraction(scene.fps).limit_denominator(1001)
-    tmp = out.with_name(out.name + f".tmp{os.getpid()}")
-    frames = []
-    container = av.open(str(tmp), "w", format="mp4")
+    frames: list[int] = []
     try:
-        stream = container.add_stream("libx264", rate=rate)
-        stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
-        stream.options = {"preset": "ultrafast", "crf": str(CRF), "tune": "zerolatency"}
-        stream.codec_context.gop_size = GOP
-        for f, img in imagery.video_frames(scene, cam, first, last):
-            if img.shape[1] != w or img.shape[0] != h:
-                img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-            vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
-            vf.pts = len(frames)
-            container.mux(stream.encode(vf))
-            frames.append(f)
-        container.mux(stream.encode())
-    finally:
-        container.close()
-    if not frames:
-        tmp.unlink(missing_ok=True)
+        ts = _write_asset(out, av, cv2, scene, cam, first, last, w, h, rate, frames)
+    except _NoFrames:
         return None
-    import rerun as rr
-
-    ts = rr.AssetVideo(path=tmp, media_type="video/mp4").read_frame_timestamps_nanos()
-    if len(ts) != len(frames):
-        tmp.unlink(missing_ok=True)
-        raise S2PError(f"encoding the video of camera {cam} for the viewer gave {len(ts)} frames "
-                       f"for {len(frames)} read")
-    os.replace(tmp, out)
     return VideoAsset(out, np.asarray(frames, np.int64), np.asarray(ts, np.int64), w, h)
+
+
+class _NoFrames(Exception):
+    """The camera has no frames in the range: no asset (the partial file is removed)."""
+
+
+def _write_asset(out: Path, av, cv2, scene: Scene, cam: str, first: int, last: int, w: int, h: int,
+                 rate: Fraction, frames: list[int]):
+    """Encode the asset at ``out`` (frames appended to ``frames``); its frame timestamps (ns)."""
+    with atomic_path(out) as tmp:  # renamed to ``out`` when the asset checks out, else removed
+        container = av.open(str(tmp), "w", format="mp4")
+        try:
+            stream = container.add_stream("libx264", rate=rate)
+            stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+            stream.options = {"preset": "ultrafast", "crf": str(CRF), "tune": "zerolatency"}
+            stream.codec_context.gop_size = GOP
+            for f, img in imagery.video_frames(scene, cam, first, last):
+                if img.shape[1] != w or img.shape[0] != h:
+                    img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+                vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
+                vf.pts = len(frames)
+                container.mux(stream.encode(vf))
+                frames.append(f)
+            container.mux(stream.encode())
+        finally:
+            container.close()
+        if not frames:
+            raise _NoFrames
+        import rerun as rr
+
+        ts = rr.AssetVideo(path=tmp, media_type="video/mp4").read_frame_timestamps_nanos()
+        if len(ts) != len(frames):
+            raise S2PError(f"encoding the video of camera {cam} for the viewer gave {len(ts)} frames "
+                           f"for {len(frames)} read")
+    return ts

@@ -37,11 +37,12 @@ for m in ("Color", "CameraCalibration", "FrameTransform", "SceneUpdate", "PosesI
 out = os.fdopen(1, "w", buffering=1)
 out.write("ready\n")
 for line in sys.stdin:
-    argv, err = json.loads(line)
+    argv, err, env = json.loads(line)
     pid = os.fork()
     if pid == 0:
         code = 1
         try:
+            os.environ.update(env)  # S2P_KILL_AT: a kill at a commit step (seg2pose.io.atomic_set)
             os.setpgid(0, 0)
             null = os.open(os.devnull, os.O_RDWR)
             os.dup2(null, 0)
@@ -94,8 +95,8 @@ class Zygote:
         line, self.buf = self.buf.split(b"\n", 1)
         return line.decode()
 
-    def start(self, argv: list) -> int:
-        self.p.stdin.write((json.dumps([[str(a) for a in argv], str(self.err)]) + "\n").encode())
+    def start(self, argv: list, env: dict | None = None) -> int:
+        self.p.stdin.write((json.dumps([[str(a) for a in argv], str(self.err), env or {}]) + "\n").encode())
         self.p.stdin.flush()
         return int(self._line(60))
 

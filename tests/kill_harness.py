@@ -146,7 +146,14 @@ class Case:
             return "between"  # some outputs done, each one whole: the re-run goes on from there
         return "mixed"
 
-    def kill_once(self, rng: np.random.Generator, share: tuple[float, float] = (0.15, 1.05)) -> str:
+    def kill_at(self, step: str, n: int = 1) -> str:
+        """Like ``kill_once``, but the command kills itself (SIGKILL) the ``n``-th time it
+        reaches the commit step ``step`` (``seg2pose.io.atomic_set.commit_step``); a command
+        that never reaches it runs to its end. Returns the kind, or "not reached"."""
+        return self.kill_once(None, env={"S2P_KILL_AT": f"{step}:{n}"})
+
+    def kill_once(self, rng: np.random.Generator | None, share: tuple[float, float] = (0.15, 1.05),
+                  env: dict | None = None) -> str:
         """Put the old outputs back, start the command, SIGKILL it after a random ``share`` of
         its usual duration (sometimes after it finished), classify the outputs. With ``resume``
         the command is then run again (without --force, as after a crash) and a re-run that
@@ -156,8 +163,11 @@ class Case:
         self.old_state()
         self.put_old()
         z = zygote()
-        pid = z.start(self.argv)
-        code = z.wait(rng.uniform(*share) * self.seconds)
+        pid = z.start(self.argv, env)
+        code = z.wait(rng.uniform(*share) * self.seconds if rng is not None else 600)
+        if env and code == 0:  # the step was not reached: nothing to count
+            self.put_old()
+            return "not reached"
         if code is None:
             tree = descendants(pid) if self.tree else []
             with contextlib.suppress(ProcessLookupError):
@@ -183,6 +193,9 @@ class Case:
             finish_commits(o)
         if kind == "mixed" and self.classify() == "new":
             self.counts["finished"] += 1
+            if env:  # a kill timed among a set's swaps: judged after the next writer's first step
+                kind = "new"
+                self.mixed.pop()
         if self.resume and kind != "mixed":
             z.start(self.rerun or [a for a in self.argv if a != "--force"])
             code = z.wait(600)

@@ -28,6 +28,7 @@ from pathlib import Path
 from annotate.app.guard import TOKEN_PARAM, new_token
 from annotate.app.server import ARGS_ENV, TOKEN_ENV
 from seg2pose.core.errors import S2PError
+from seg2pose.io.nofollow import open_nofollow
 
 LOG_NAME = "server.log"
 STOP_SECONDS = 4.0  # SIGTERM, then SIGKILL after this long: stopped within 5 s
@@ -98,15 +99,15 @@ def open_log(scene: Path) -> tuple[int, Path]:
     private temporary folder; opened for appending without following a link, owner-only."""
     import tempfile
 
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
     folder = Path(scene) / "annotations"
     try:
         folder.mkdir(exist_ok=True)
         path = folder / LOG_NAME
-        return os.open(path, flags, 0o600), path
-    except OSError:
+        return open_nofollow(path, flags, 0o600), path
+    except (OSError, S2PError):  # a linked annotations/ or log is refused (S2PError)
         path = Path(tempfile.mkdtemp(prefix="s2p-annotate-")) / LOG_NAME  # mode 0700
-        return os.open(path, flags | os.O_EXCL, 0o600), path
+        return open_nofollow(path, flags | os.O_EXCL, 0o600), path
 
 
 def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None,
@@ -132,7 +133,7 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
     if log is None:
         fd, log = open_log(Path(scene))
     else:
-        fd = os.open(log, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o600)
+        fd = open_nofollow(log, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
     try:
         proc = subprocess.Popen(cmd, env=env, stdout=fd, stderr=subprocess.STDOUT,
                                 start_new_session=True)

@@ -96,16 +96,15 @@ def gz_path(src: Path) -> Path:
 def prepare_assets() -> None:
     """Gzip the Wasm into the cache once (level 6: a few seconds, once per installation)."""
     import gzip
-    import os
+
+    from seg2pose.io.atomic import atomic_write_bytes
 
     for src, _ in ViewerAssets._files().values():
         gz = gz_path(src)
         if gz.exists() or src.suffix != ".wasm":
             continue
         gz.parent.mkdir(parents=True, exist_ok=True)
-        tmp = gz.with_name(gz.name + f".tmp{os.getpid()}")
-        tmp.write_bytes(gzip.compress(src.read_bytes(), compresslevel=6))
-        os.replace(tmp, gz)
+        atomic_write_bytes(gz, gzip.compress(src.read_bytes(), compresslevel=6))
 
 
 def build_app(port: int, token: str):

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from seg2pose.core.errors import S2PError
 from seg2pose.eval.accuracy import SMOOTHED, SeedResult, read_table, smoothed_results, summary
-from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic import atomic_write_text, copy_tree
+from seg2pose.io.nofollow import fdopen_nofollow
 from seg2pose.training.config import ROUGH_STAGE
 
 # training variants: name -> the `s2p train` options (the CPU protocol of docs/RESULTS.md)
@@ -62,7 +63,7 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
         out = logs / f"seed{seed}-{what}.log"
         log(f"$ s2p {' '.join(argv)}    (output: {out})")
         t = time.perf_counter()
-        with open(out, "w") as f:
+        with fdopen_nofollow(out, "w") as f:  # a log planted as a link is refused, not truncated
             r = subprocess.run(s2p_command(*argv), stdout=f, stderr=subprocess.STDOUT, text=True)
         if r.returncode:
             raise S2PError(f"{what} failed for seed {seed}; its output: {out}")
@@ -79,11 +80,11 @@ def run_seed(root: Path, seed: int, preset: str = "bench", variants=("s2pn", "ze
         if not meta.exists() and v in ROUGH_STAGE_OF and (base / "bench.json").exists() \
                 and not (models / ROUGH_STAGE).exists():
             log(f"copying {base} to {models / ROUGH_STAGE} (the rough-only stage)")
-            shutil.copytree(base, models / ROUGH_STAGE, ignore=shutil.ignore_patterns("bench.json"))
+            copy_tree(base, models / ROUGH_STAGE, ignore=shutil.ignore_patterns("bench.json"))
         if not meta.exists():
             secs = step(["train", scene, *VARIANTS[v], *train_args, "--threads", threads,
                          "-o", models], f"train-{v}")
-            meta.write_text(json.dumps({"train_s": secs, "options": [*VARIANTS[v], *train_args]}))
+            atomic_write_text(meta, json.dumps({"train_s": secs, "options": [*VARIANTS[v], *train_args]}))
         res.train_s[v] = json.loads(meta.read_text())["train_s"]
         if not (table / "results.json").exists():
             step(["paper-table", scene, "--models", models, "-o", table, "--force"], f"paper-table-{v}")

@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,7 +47,8 @@ from seg2pose.io.nofollow import refuse_links
 __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text",
            "check_writable", "clean_stale_partials", "final_name", "finish_commits", "fsync_dir",
            "is_temporary", "lock_path", "os_error_message", "os_errors", "output_lock",
-           "OutputSet", "outputs", "replacing", "swap_in", "temp_sibling_dir"]
+           "OutputSet", "outputs", "replacing", "swap_in", "temp_sibling_dir", "rename", "link_or_copy",
+           "copy_tree"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -338,3 +340,38 @@ def outputs(paths, force: bool = False, records=()) -> Iterator[OutputSet]:
         except BaseException:
             out.discard()
             raise
+
+
+# ----------------------------------------------------------------------------------------------
+# moving and copying files of a build (inside a partial folder of a set, or set aside)
+
+
+def rename(src: str | Path, dst: str | Path) -> None:
+    """Rename ``src`` to ``dst`` (replacing it) in one step: a finished file of a build put
+    under its name inside the build, or a damaged file set aside beside itself. Neither name's
+    folder may be a link."""
+    src, dst = Path(src), Path(dst)
+    refuse_links(src)
+    refuse_links(dst)
+    with os_errors(dst):
+        os.replace(src, dst)
+
+
+def link_or_copy(src: str | Path, dst: str | Path) -> None:
+    """Put the file ``src`` at the new name ``dst`` inside a build: a hard link (no bytes
+    copied; the old output keeps its own name), else a copy."""
+    refuse_links(dst)
+    with os_errors(dst):
+        try:
+            os.link(src, dst, follow_symlinks=False)
+        except OSError:
+            shutil.copy2(src, dst, follow_symlinks=False)
+
+
+def copy_tree(src: str | Path, dst: str | Path, ignore=None, link: bool = False) -> None:
+    """Copy the folder ``src`` to the new folder ``dst`` inside a build (``link``: files hard
+    linked where possible); links inside ``src`` are copied as links, never followed."""
+    refuse_links(dst)
+    with os_errors(dst):
+        shutil.copytree(src, dst, symlinks=True, ignore=ignore,
+                        copy_function=link_or_copy if link else shutil.copy2)

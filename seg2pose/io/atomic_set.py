@@ -16,10 +16,31 @@ import errno
 import json
 import os
 import shutil
+import signal
 from pathlib import Path
 
 from seg2pose.io.atomic_names import COMMIT_RECORD, commit_record_path, dead_writers_leftovers, owner
 from seg2pose.io.nofollow import fdopen_nofollow
+
+# Fault injection for the kill tests (tests/system/test_kill_steps.py, benches/bench_faults.py):
+# S2P_KILL_AT="STEP:N" makes this process SIGKILL itself the N-th time (from 1) it reaches the
+# commit step STEP, exactly where a kill is hardest to survive. Steps: "built" (a single output
+# durable, before its swap), "swapped" (after a single output's swap, before the old one is
+# removed), "recorded" (a set's commit records durable, before its first swap), "set-swap"
+# (after each swap of a set: N picks which), "unrecorded" (a set's records removed, before its
+# old outputs are); "appended" (an annotation journal's record durable: annotate.journal).
+_reached: dict[str, int] = {}
+
+
+def commit_step(step: str) -> None:
+    """Mark the commit step ``step`` (see above); a no-op unless S2P_KILL_AT names it."""
+    kill_at = os.environ.get("S2P_KILL_AT")
+    if not kill_at:
+        return
+    _reached[step] = _reached.get(step, 0) + 1
+    name, _, n = kill_at.partition(":")
+    if name == step and _reached[step] == int(n or 1):
+        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def fsync_dir(path: str | Path) -> None:
@@ -64,17 +85,21 @@ def swap_in(tmp: Path, path: Path) -> None:
     """Put the finished ``tmp`` (file or folder) at ``path`` as a unit; an existing ``path``
     is exchanged with it in one step where possible, and removed only afterwards."""
     fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+    commit_step("built")
     if path.exists() or path.is_symlink():
         if exchange(tmp, path):
+            commit_step("swapped")
             remove_path(tmp)  # now the old output
         else:
             old = path.parent / f".{path.name}.old-{os.getpid()}"
             remove_path(old)
             os.replace(path, old)
             os.replace(tmp, path)
+            commit_step("swapped")
             remove_path(old)
     else:
         os.replace(tmp, path)
+        commit_step("swapped")
     fsync_dir(path.parent)
 
 
@@ -128,16 +153,21 @@ def commit_set(builds: list[Path], finals: list[Path]) -> None:
             os.fsync(f.fileno())
     for record in records:
         fsync_dir(record.parent)
+    commit_step("recorded")
     # each output exchanged with its build, one after another with nothing between:
     # every output stays whole (old or new); a writer killed among these swaps is
     # finished by the next writer of any output of the set (finish_commits)
-    olds = [_swap(tmp, p) for tmp, p in zip(builds, finals)]
+    olds = []
+    for tmp, p in zip(builds, finals):
+        olds.append(_swap(tmp, p))
+        commit_step("set-swap")
     for d in dict.fromkeys(p.parent for p in finals):
         fsync_dir(d)
     for record in records:
         os.unlink(record)
     for record in records:
         fsync_dir(record.parent)
+    commit_step("unrecorded")
     for old in olds:
         if old is not None:
             remove_path(old)

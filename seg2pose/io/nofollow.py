@@ -26,7 +26,7 @@ from pathlib import Path
 from seg2pose.core.errors import S2PError
 
 __all__ = ["LinkRefused", "open_nofollow", "fdopen_nofollow", "refuse_links", "link_message",
-           "write_new_text"]
+           "write_new_bytes", "write_new_text"]
 
 
 class LinkRefused(S2PError):
@@ -124,5 +124,13 @@ def write_new_text(path: str | Path, text: str) -> None:
     never an existing file or link), made durable."""
     with fdopen_nofollow(path, "x", encoding="utf-8", newline="") as f:
         f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def write_new_bytes(path: str | Path, data: bytes) -> None:
+    """``write_new_text`` for bytes."""
+    with fdopen_nofollow(path, "xb") as f:
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())

@@ -22,6 +22,7 @@ import numpy as np
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.geometry.camera import Rig
 from seg2pose.io.atomic import check_writable, replacing
+from seg2pose.io.nofollow import fdopen_nofollow
 from seg2pose.io.poses import write_poses
 from seg2pose.io.scene import DEFAULT_CLASSES, ClassSpec, Scene
 from seg2pose.synth import junction as J
@@ -307,8 +308,8 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
         files = {}
         with contextlib.ExitStack() as stack:
             for c in cams:
-                files[c] = stack.enter_context(open(tmp / "masks" / f"{c}.txt", "w",
-                                                    encoding="ascii", newline="\n"))
+                files[c] = stack.enter_context(fdopen_nofollow(tmp / "masks" / f"{c}.txt", "w",
+                                                               encoding="ascii", newline="\n"))
             for cam_name, _, _, text, _ in _run_tasks(_mask_task, tasks, workers, progress,
                                                        "masks", "chunk"):
                 files[cam_name].write(text)

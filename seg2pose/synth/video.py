@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from seg2pose.geometry.camera import Camera
+from seg2pose.io.atomic import atomic_path
 from seg2pose.synth import junction as J
 from seg2pose.synth.look import (
     AMBIENT,
@@ -201,17 +202,16 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
         track_cls = np.zeros(int(world.track.max(initial=0)), np.int8)  # each track's class
         track_cls[world.track - 1] = world.cls
         textures = draw_textures(track_cls, seed)
-    tmp = path.with_name(f".{path.stem}.partial.mp4")  # renamed when complete
-    wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
-                         (camera.width, camera.height))
-    if not wr.isOpened():
-        raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
-    try:
-        for f in (frames if frames is not None else range(world.n_frames)):
-            img = render_frame(camera, world, f, bg, float(sun[f]), textures)
-            k = int(rng.integers(len(bank)))
-            img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
-            wr.write(img)
-    finally:
-        wr.release()
-    tmp.replace(path)
+    with atomic_path(path) as tmp:  # .NAME.partial-PID-x.mp4, renamed when complete
+        wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
+                             (camera.width, camera.height))
+        if not wr.isOpened():
+            raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
+        try:
+            for f in (frames if frames is not None else range(world.n_frames)):
+                img = render_frame(camera, world, f, bg, float(sun[f]), textures)
+                k = int(rng.integers(len(bank)))
+                img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
+                wr.write(img)
+        finally:
+            wr.release()

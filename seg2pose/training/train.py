@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -43,7 +42,7 @@ from tqdm import tqdm
 from seg2pose.core.clock import utc_stamp
 from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
-from seg2pose.io.atomic import atomic_path
+from seg2pose.io.atomic import atomic_path, rename
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint
@@ -148,7 +147,7 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainCon
     optimiser starts afresh), or None to train from the start."""
     stamp = utc_stamp()
     bad = state_path.with_name(f"{state_path.name}.damaged-{stamp}")
-    os.replace(state_path, bad)
+    rename(state_path, bad)
     why = f"{type(err).__name__}: {(str(err).splitlines() or [''])[0][:100]}"
     last = None
     if path is not None and path.exists():

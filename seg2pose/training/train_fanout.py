@@ -18,11 +18,11 @@ may differ).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 
 from seg2pose.core.say import say
+from seg2pose.io.atomic import rename
 from seg2pose.method.checkpoint import Checkpoint
 from seg2pose.training.config import TrainConfig, same_protocol
 
@@ -47,8 +47,8 @@ def _finished_run(p: Path, cfg: TrainConfig, scene_fp: str, force: bool) -> dict
 
 
 def _move(src: Path, dst: Path) -> None:
-    os.replace(src.with_suffix(".json"), dst.with_suffix(".json"))
-    os.replace(src, dst)  # the weights last: a complete .safetensors marks a finished model
+    rename(src.with_suffix(".json"), dst.with_suffix(".json"))
+    rename(src, dst)  # the weights last: a complete .safetensors marks a finished model
 
 
 def fan_out(mapper: Callable, groups: list, group_jobs: Callable, train_job: Callable,

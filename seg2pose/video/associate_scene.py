@@ -13,8 +13,6 @@ boxes goes to the road user nearest the camera, a pixel inside none to the neare
 
 from __future__ import annotations
 
-import os
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,8 +21,9 @@ import numpy as np
 
 from seg2pose.core.errors import S2PError
 from seg2pose.geometry.normal import normal_positions
-from seg2pose.io.atomic import replacing
+from seg2pose.io.atomic import copy_tree, link_or_copy, replacing
 from seg2pose.io.mots import MaskTable, write_mots
+from seg2pose.io.nofollow import write_new_text
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.track_ids import entries, ids_path, ids_text, read_ids
 from seg2pose.structures.masks import decode, encode, mask_centers, rle_contains
@@ -190,13 +189,6 @@ def _split(rle: bytes, height: int, width: int, cam, scene: Scene, xy: np.ndarra
     return parts
 
 
-def _link(src, dst) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
-
-
 def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
                     cfg: dict | AssociateConfig | None = None, force: bool = False,
                     log: Callable[[str], None] = print) -> Association | None:
@@ -242,18 +234,18 @@ def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
     res.blobs = blobs
     with replacing(masks_dir, force=True) as tmp:
         for p in sorted(masks_dir.iterdir()):  # the rest of masks/ goes along, linked
-            if p.name.startswith(".") or p.name in {f"{c}.txt" for c in names}:
+            if p.name.startswith(".") or p.name in {f"{c}.txt" for c in names} | {ids_path(tmp).name}:
                 continue
-            if p.is_dir():
-                shutil.copytree(p, tmp / p.name, copy_function=_link)
-            elif p.is_file():
-                _link(p, tmp / p.name)
+            if p.is_dir() and not p.is_symlink():
+                copy_tree(p, tmp / p.name, link=True)
+            elif p.is_file() and not p.is_symlink():
+                link_or_copy(p, tmp / p.name)
         for c in names:
             t = out[c]
             write_mots(tmp / f"{c}.txt", t.take(np.lexsort((t.track_id, t.frame))))
         cams = {k: v for k, v in done.items() if k not in names}
         cams.update(entries(tmp, {c: "associated" for c in names}, names))
-        (tmp / ids_path(tmp).name).write_text(ids_text(cams), encoding="utf-8")
+        write_new_text(tmp / ids_path(tmp).name, ids_text(cams))
     s = res.summary()
     log(f"associated {', '.join(names)}: {s['road_users']} road users "
         f"({s['seen_by_several_cameras']} seen by several cameras), {s['cuts']} tracks cut where a "

@@ -17,6 +17,7 @@ from seg2pose.core.errors import InputError
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.atomic import outputs
 from seg2pose.io.mots import write_mots
+from seg2pose.io.nofollow import fdopen_nofollow
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
 from seg2pose.io.text import load_json, read_text
 from seg2pose.io.track_ids import ids_path, stage_ids
@@ -313,7 +314,7 @@ def copy_video(src: Path, dst: Path) -> None:
             if p.is_file():
                 copy_video(p, dst / p.name)
         return
-    with open(src, "rb") as a, open(dst, "wb") as b:
+    with open(src, "rb") as a, fdopen_nofollow(dst, "wb") as b:
         try:
             import fcntl
 

@@ -33,7 +33,7 @@ def cases(tmp_path_factory):
 @pytest.mark.parametrize("name", FIRST + WRITERS + ["batch-ray", "train"])
 def test_killed_command_leaves_old_or_new(cases, name):
     if name == "batch-ray":  # the driver killed, its local Ray with it; re-run serially
-        pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale]")
+        pytest.importorskip("ray", reason="Ray is the optional extra seg2pose[scale]")
     case = cases[name]
     case.run_fully()
     rng = np.random.default_rng(sum(map(ord, name)))
@@ -48,3 +48,35 @@ def test_killed_command_leaves_old_or_new(cases, name):
     # ...and it does: one more full run leaves nothing beside them
     case.run_fully()
     assert [n for n in case.leftovers() if not n.endswith(".lock")] == []
+
+
+STEPS = ["built", "swapped", "recorded", "set-swap", "unrecorded", "appended"]
+KILLS_PER_STEP = 10  # at most: the 1st, 2nd, ... time the command reaches the step
+
+
+@pytest.mark.parametrize("name", FIRST + WRITERS)
+def test_kills_timed_at_every_commit_step(cases, name):
+    """Issue 38: the command kills itself (SIGKILL) exactly at a commit step
+    (``seg2pose.io.atomic_set.commit_step``): a single output durable but not swapped in, or
+    swapped in with the old one not yet removed; a set's records durable before the first
+    swap, after each of its swaps, after its records are removed. Every time the command
+    reaches the step (up to 10) is one kill; each leaves the outputs old or new, never
+    mixed, once the next writer has done its first step. At least one step is reached."""
+    case = cases[name]
+    if case.new is None:
+        case.run_fully()
+    done = {}
+    for step in STEPS:
+        kinds = []
+        for n in range(1, KILLS_PER_STEP + 1):
+            kind = case.kill_at(step, n)
+            if kind == "not reached":
+                break
+            kinds.append(kind)
+        done[step] = kinds
+        assert case.counts["mixed"] == 0, (step, kinds, case.mixed)
+    assert any(done.values()), done
+    assert case.live_leftovers() == []
+    case.run_fully()
+    assert [n for n in case.leftovers() if not n.endswith(".lock")] == []
+
