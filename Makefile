@@ -4,16 +4,17 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.stamp-install
 
-.PHONY: demo screenshot test bench venv viewer-deps browser-deps clean
+.PHONY: demo screenshot test lint bench venv viewer-deps browser-deps clean
 
-$(STAMP): pyproject.toml
+# constraints.txt pins every distribution to the version the docs' figures were measured with
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	# torch first, pinned, so pip takes the CPU build on disk instead of a multi-GB CUDA build
-	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
-	$(BIN)/pip install -q --disable-pip-version-check -e '.[test,app,scale]'
+	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt torch==2.13.0
+	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[test,app,scale,dev]'
 	# TrackEval: the reference the tracking metrics are tested against (seg2pose/eval/tracking_metrics.py);
 	# --no-deps because its package requires opencv-python, which would shadow opencv-python-headless
-	$(BIN)/pip install -q --disable-pip-version-check --no-deps trackeval==1.3.0
+	$(BIN)/pip install -q --disable-pip-version-check --no-deps -c constraints.txt trackeval==1.3.0
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -41,7 +42,11 @@ demo: $(STAMP)
 screenshot: $(STAMP) viewer-deps
 	$(BIN)/s2p screenshot sample_logs/demo.rrd -o docs/screenshot.png --frame 600 --force
 
-test: $(STAMP) viewer-deps browser-deps
+# lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and types, configured in pyproject.toml
+lint: $(STAMP)
+	$(BIN)/ruff check seg2pose s2p_review annotate tests benches
+
+test: lint viewer-deps browser-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
 bench: $(STAMP)

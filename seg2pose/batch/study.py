@@ -296,7 +296,7 @@ def run_study(study: str | Path, steps: list[Step], opts: BatchOptions, *,
     scenes = find_scenes(study)
     ray = import_ray() if use_ray else None
     if use_ray and ray is None and address is not None:
-        raise S2PError("a Ray address was given but Ray is not installed: pip install 's2p[scale]'")
+        raise S2PError("a Ray address was given but Ray is not installed: pip install 'seg2pose[scale]'")
     out = StudyResult(backend="serial")
     t0 = time.perf_counter()
     remote = remote_part = None

@@ -112,7 +112,7 @@ def batch_cmd(
     use_ray = not serial and (ray_available() or address is not None)
     if not serial and not use_ray:
         typer.echo("note: Ray is not installed, running the scenes one after another; "
-                   "for parallelism: pip install 's2p[scale]'")
+                   "for parallelism: pip install 'seg2pose[scale]'")
     if cpus is not None and address is not None:
         raise InputError("--cpus is for the local Ray; a cluster at --address has its own",
                          field="--cpus")

@@ -1,4 +1,4 @@
-"""Ray, when it is installed (``pip install 's2p[scale]'``): the module, and a ``map`` whose items
+"""Ray, when it is installed (``pip install 'seg2pose[scale]'``): the module, and a ``map`` whose items
 run as Ray tasks. Batch runs (``seg2pose.batch``) and the training fan-out (``s2p train
 --parallel``) both use it; training is handed the mapper, so it knows nothing of Ray."""
 
@@ -38,7 +38,7 @@ def ray_map(address: str | None = None, num_cpus: int | None = None):
     cluster at ``address`` (``start_ray``), unless this process has started Ray already."""
     ray = import_ray()
     if ray is None:
-        raise S2PError("parallel training needs Ray: pip install 's2p[scale]'")
+        raise S2PError("parallel training needs Ray: pip install 'seg2pose[scale]'")
 
     def mapper(fn, items):
         if not ray.is_initialized():

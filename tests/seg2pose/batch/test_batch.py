@@ -19,7 +19,7 @@ from seg2pose.batch.steps import EVAL, RUN
 from seg2pose.batch.study import BatchOptions, Step, run_study
 from seg2pose.synth.generate import SynthOptions, generate_scene
 
-ray = pytest.importorskip("ray", reason="Ray is the optional extra s2p[scale] (make test installs it)")
+ray = pytest.importorskip("ray", reason="Ray is the optional extra seg2pose[scale] (make test installs it)")
 
 FRAMES = 4  # per split: 14 frames a scene
 
@@ -169,7 +169,7 @@ def test_serial_without_ray(scenes, study, tmp_path, monkeypatch):
     monkeypatch.setattr(cb, "ray_available", lambda: False)
     r = cli(["batch", str(st), "run", "--baseline", "--no-progress"])
     assert r.exit_code == 0, r.output
-    assert "Ray is not installed" in r.output and "s2p[scale]" in r.output and "on serial" in r.output
+    assert "Ray is not installed" in r.output and "seg2pose[scale]" in r.output and "on serial" in r.output
     for n in "ad":
         assert ((st / n / "batch" / "baseline" / "poses.csv").read_bytes()
                 == (study[0] / n / "batch" / "baseline" / "poses.csv").read_bytes())
