@@ -122,7 +122,7 @@ function render({ model, el }) {
       cap.textContent = v.caption;
       cap.classList.toggle('warn', !!v.note);
       drawBox(v);
-      thumbs(v);
+      if (v.thumbs) thumbs(v);  // none during a playback: the small pictures stay
       // when each frame's picture was shown (benches/bench_app.py reads it)
       (window.__s2p_shown = window.__s2p_shown || {})[v.frame] = performance.now();
     };
@@ -204,7 +204,8 @@ class FrameView(anywidget.AnyWidget):
              note: str = "", thumbs: dict[str, bytes] | None = None, box: dict | None = None,
              extra: str = "") -> None:
         """Show ``jpeg`` (camera ``camera``'s picture of ``frame``, ``width`` x ``height``
-        image pixels) with ``thumbs`` (camera -> small JPEG of the other cameras); ``box``:
+        image pixels) with ``thumbs`` (camera -> small JPEG of the other cameras; None: keep the
+        ones shown); ``box``:
         the selected track's base {"base": [[u, v] x 4], "handle": [u, v]} (image pixels) to
         drag; ``extra``: more of the caption (the estimate's distance)."""
         caption = (f"camera {camera} · frame {frame}" + (f" · {extra}" if extra else "")
@@ -212,7 +213,8 @@ class FrameView(anywidget.AnyWidget):
         self.view = {"src": _data_url(jpeg), "camera": camera, "frame": int(frame),
                      "width": int(width), "height": int(height), "caption": caption, "note": note,
                      "box": box,
-                     "thumbs": [{"camera": c, "src": _data_url(j)} for c, j in (thumbs or {}).items()]}
+                     "thumbs": None if thumbs is None else
+                     [{"camera": c, "src": _data_url(j)} for c, j in thumbs.items()]}
 
 
 def _data_url(jpeg: bytes) -> str:

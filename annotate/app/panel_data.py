@@ -30,7 +30,16 @@ class PanelData(ControllerState):
     def track_rows(self) -> list[dict]:
         """The track list: id, class, keyframes, span, interpolation, warnings (unchecked
         estimates, keyframes off the ground points, and annotate.review's gaps and implausible
-        speeds or accelerations)."""
+        speeds or accelerations). Cached per journal record and selection: a frame step does
+        not recompute it."""
+        key = (self.project.seq, self.selected)
+        cached = getattr(self, "_rows_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, self._track_rows())
+            self._rows_cache = cached
+        return cached[1]
+
+    def _track_rows(self) -> list[dict]:
         from annotate.review import plausibility_report
 
         issues: dict[int, list[str]] = {}

@@ -209,7 +209,7 @@ class Session:
         """Send the large camera's picture of the current frame, unless it is already shown."""
         cam = self.ctl.large_camera
         key = (cam, self.ctl.frame, self.ctl.selected, self._cols_version, self.ctl.viewer_visible,
-               self.ctl.only_selected)
+               self.ctl.only_selected, self.ctl.play_to is None)
         if cam is None or key == self._shown:
             return
         tracks = [c for t, c in self.cols.items()
@@ -221,8 +221,9 @@ class Session:
             label = f"{self.ctl.project.track(self.ctl.selected).cls} {self.ctl.selected}"
             extra = (f"{label}: {info['distance']:.2f} m from the {info['reference']}"
                      if info["distance"] is not None else label)
-        # the other cameras small, unless the viewer shows them
-        thumbs = {} if self.ctl.viewer_visible else {
+        # the other cameras small, unless the viewer shows them (or a playback runs: the large
+        # camera alone keeps the scene's frame rate; the small ones stay as they were)
+        thumbs = None if self.ctl.play_to is not None else {} if self.ctl.viewer_visible else {
             c: self.pictures.render(c, self.ctl.frame, tracks, self.ctl.selected, width=THUMB_WIDTH).jpeg
             for c in self.ctl.cameras if c != cam}
         self.frame_view.show(cam, self.ctl.frame, pic.jpeg, pic.width, pic.height, pic.note, thumbs,
