@@ -328,6 +328,10 @@ def solve_group(pairsets: list[PairSet], opts: SolveOptions = SolveOptions(),
         check_pairs(p, opts if ok or not any(full) else
                     SolveOptions(**{**opts.__dict__, "min_pairs": min(4, opts.min_pairs)}))
     notes: list[str] = []
+    # solved about the pairs' mean: survey coordinates (1e5 m eastings) keep their precision
+    originals = pairsets
+    origin = np.mean(np.vstack([p.X for p in pairsets]), axis=0)
+    pairsets = [PairSet(p.camera, p.width, p.height, p.uv, p.X - origin, p.names) for p in pairsets]
     starts = {k: focal_search(p, opts) for k, p in enumerate(pairsets) if full[k]}
     f_init = float(np.exp(np.median([np.log(s[0]) for s in starts.values()])))
     for k, p in enumerate(pairsets):
@@ -379,23 +383,35 @@ def solve_group(pairsets: list[PairSet], opts: SolveOptions = SolveOptions(),
         notes.append(f"dropped as outliers: {', '.join(dropped)}")
     names = [f"{n}" for n in _intrinsic_names(opts)]
     out = []
-    for b in blocks:
+    for b, orig in zip(blocks, originals, strict=True):
         f, c, k1, R, t = _unpack(x, goff[b.group], b, opts)
         K = np.array([[f, 0, c[0]], [0, f, c[1]], [0, 0, 1.0]])
         # a frozen dataclass's read-only model field vs the Protocol's attribute: the same thing
         dist = cast(Distortion, OpenCVDistortion(k1=k1)) if k1 else None
-        cam = Camera(b.pairs.camera, K, R, t, b.pairs.width, b.pairs.height, distortion=dist)
+        cam = Camera(b.pairs.camera, K, R, t - R @ origin, b.pairs.width, b.pairs.height, distortion=dist)
         uv, _ = project(f, c, k1, R, t, b.pairs.X)
         idx = np.r_[np.arange(off), np.arange(b.pose.start, b.pose.stop)]
         # the uncertainty of the stated noise at least: a small s from few pairs is luck
         sub = cov[np.ix_(idx, idx)] * (max(s, 1.0) / s) ** 2  # refine's cov is at noise s
-        out.append(Solution(camera=cam, pairs=b.pairs, used=b.used.copy(),
+        sub = _to_world(sub, x[b.pose][:3], origin, off)
+        out.append(Solution(camera=cam, pairs=orig, used=b.used.copy(),
                             residual_px=uv - b.pairs.uv,
                             mahalanobis=_mahalanobis(x, goff, b, opts, s), scale=s,
                             focal_sd=f * float(np.sqrt(max(sub[0, 0], 0.0))), cov=sub,
                             param_names=names + ["rx", "ry", "rz", "tx", "ty", "tz"],
                             notes=list(notes)))
     return out
+
+
+def _to_world(cov: np.ndarray, rvec: np.ndarray, origin: np.ndarray, off: int) -> np.ndarray:
+    """The covariance of (intrinsics, rvec, t) carried from the solve's frame (world minus
+    ``origin``) to the world: t_world = t - R(rvec) origin, its Jacobian by central differences."""
+    J = np.eye(len(cov))
+    for j in range(3):
+        d = np.zeros(3)
+        d[j] = 1e-7
+        J[off + 3:off + 6, off + j] = -(rodrigues(rvec + d) - rodrigues(rvec - d)) @ origin / 2e-7
+    return J @ cov @ J.T
 
 
 def _mahalanobis(x, goff, b: _Block, opts: SolveOptions, s: float) -> np.ndarray:

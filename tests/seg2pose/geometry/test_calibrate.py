@@ -163,3 +163,18 @@ def test_site_fills_unknown_elevations_from_the_plane():
     assert "without elevation placed on the ground" in " ".join(res.notes)
     assert res.cameras["c1"].solution.camera.K[0, 0] == pytest.approx(cam.K[0, 0], rel=0.02)
     assert "camera c1: focal" in res.text()
+
+
+def test_survey_coordinates_keep_their_precision():
+    """The same site in a national grid (400 km east, 600 km north, 50 m up): the same camera,
+    moved; the position covariance is carried to that frame (the focal's sd unchanged)."""
+    cam = make_device().cameras["c1"]
+    uv, X = noisy_clicks(*road_pairs(cam, 8, np.random.default_rng(9)), cam, np.random.default_rng(10))
+    shift = np.array([4e5, 6e5, 50.0])
+    a = solve_camera(PairSet("c1", W, H, uv, X))
+    b = solve_camera(PairSet("c1", W, H, uv, X + shift))
+    np.testing.assert_allclose(b.camera.K, a.camera.K, rtol=1e-7)
+    np.testing.assert_allclose(b.camera.R, a.camera.R, atol=1e-8)
+    np.testing.assert_allclose(b.camera.center, a.camera.center + shift, atol=1e-5)
+    assert b.focal_sd == pytest.approx(a.focal_sd, rel=1e-5)
+    np.testing.assert_allclose(Q.pair_ground_errors(b), Q.pair_ground_errors(a), atol=1e-6)
