@@ -91,7 +91,7 @@ class FrameReader:
                 raise InputError("cannot read image", file=files[0][1])
             return im.shape[1], im.shape[0], len(files)
         idx = video_index(self.path)
-        return idx.width, idx.height, max(idx.n_header, len(idx))
+        return idx.width, idx.height, idx.n_expected
 
     def check_size(self, width: int, height: int) -> None:
         """Raise if the frames are not ``width`` x ``height`` pixels (the calibration's size)."""
@@ -146,7 +146,7 @@ class FrameReader:
                 f = self.first + k * self.step
                 self.last_good, self.n_read = f, self.n_read + 1
                 yield f, im
-            n = max(dec.index.n_header, len(dec))
+            n = dec.index.n_expected
             end = n - 1 if k1 is None else min(k1, n - 1)
             if dec.stopped or k + every <= end:
                 self.stopped = (f"video ends after {k + 1} of the {n} frames its header announces "

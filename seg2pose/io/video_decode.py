@@ -37,7 +37,8 @@ class VideoIndex:
     """The frames of one video stream in display order: ``pts`` (K,) int64 presentation
     timestamps in ``time_base`` seconds, sorted; ``keyframe`` (K,) bool; the stream's size,
     average rate (frames per second; for a variable frame rate, the mean) and the frame count
-    its header announces (0 when it does not say; more than K for a truncated file)."""
+    its header announces (0 when it does not say; more than K for a truncated file) and the
+    empty packets (AVI's "repeat the last frame" marks: no frame of their own)."""
 
     pts: np.ndarray
     keyframe: np.ndarray
@@ -46,6 +47,12 @@ class VideoIndex:
     height: int
     fps: float
     n_header: int = 0
+    n_empty: int = 0
+
+    @property
+    def n_expected(self) -> int:
+        """The frames the file should hold: its header's count less empty packets, or K."""
+        return max(self.n_header - self.n_empty, len(self.pts))
 
     def __len__(self) -> int:
         return len(self.pts)
@@ -84,20 +91,22 @@ def video_index(path: str | Path) -> VideoIndex:
     container = _open(path)
     try:
         stream = container.streams.video[0]
-        ts, kf = [], []
+        ts, kf, empty = [], [], 0
         try:
             for p in container.demux(stream):
                 t = p.pts if p.pts is not None else p.dts
                 if p.size and t is not None:
                     ts.append(t)
                     kf.append(p.is_keyframe)
+                elif t is not None:
+                    empty += 1
         except av.error.FFmpegError:
             pass  # a damaged tail: the frames before it stay readable
         o = np.argsort(np.asarray(ts, np.int64), kind="stable")
         rate = stream.average_rate or stream.guessed_rate or 0
         idx = VideoIndex(np.asarray(ts, np.int64)[o], np.asarray(kf, bool)[o],
                          float(stream.time_base or 0), int(stream.codec_context.width),
-                         int(stream.codec_context.height), float(rate), int(stream.frames or 0))
+                         int(stream.codec_context.height), float(rate), int(stream.frames or 0), empty)
     finally:
         container.close()
     if len(np.unique(idx.pts)) != len(idx.pts):
