@@ -24,9 +24,10 @@ computes them, so that the figures can stand next to the literature's:
   detections match where similarity >= 0.5); IDF1 = 2 IDTP / (2 IDTP + IDFP + IDFN),
   IDP = IDTP / (IDTP + IDFP), IDR = IDTP / (IDTP + IDFN).
 
-The algorithms, their order of matching and their tie-breaking follow TrackEval 1.3.0's
-``trackeval.metrics.HOTA``, ``CLEAR`` and ``Identity`` step for step (the tests compare with
-them to 1e-9 when TrackEval is installed). TrackEval itself is not a run-time dependency: its
+HOTA and CLEAR follow TrackEval 1.3.0's ``trackeval.metrics.HOTA`` and ``CLEAR`` step for step
+(order of matching, tie-breaking); identity solves ``Identity``'s assignment in an equivalent
+smaller form (``identity``). The tests compare all three with TrackEval to 1e-9 when it is
+installed. TrackEval itself is not a run-time dependency: its
 package requires ``opencv-python``, which would sit beside this project's
 ``opencv-python-headless`` and break ``cv2``.
 
@@ -221,23 +222,21 @@ def identity(seq: Sequence, threshold: float = THRESHOLD) -> dict:
         i, j = np.nonzero(s >= threshold)
         pg.append(g[i])
         pt.append(t[j])
-    potential = _pair_counts(np.concatenate(pg), np.concatenate(pt),
-                             np.ones(sum(len(x) for x in pg)), n_gt, n_tr)
-    # the (G+T) square assignment of Ristani et al.: truth ids to estimated ids or to "nobody"
-    n = n_gt + n_tr
-    fp_mat, fn_mat = np.zeros((n, n)), np.zeros((n, n))
-    fp_mat[n_gt:, :n_tr] = 1e10
-    fn_mat[:n_gt, n_tr:] = 1e10
-    fn_mat[:n_gt, :n_tr] = gt_count[:, None]
-    fn_mat[np.arange(n_gt), n_tr + np.arange(n_gt)] = gt_count
-    fp_mat[:n_gt, :n_tr] = tr_count[None, :]
-    fp_mat[n_gt + np.arange(n_tr), np.arange(n_tr)] = tr_count
-    fn_mat[:n_gt, :n_tr] -= potential
-    fp_mat[:n_gt, :n_tr] -= potential
-    r, c = linear_sum_assignment(fn_mat + fp_mat)
-    res["IDFN"] = int(fn_mat[r, c].sum())
-    res["IDFP"] = int(fp_mat[r, c].sum())
-    res["IDTP"] = int(gt_count.sum() - res["IDFN"])
+    pg_all, pt_all = np.concatenate(pg), np.concatenate(pt)
+    # Ristani et al.'s (G+T) square assignment (truth ids to estimated ids or to "nobody", cost
+    # IDFN + IDFP) costs sum(gt_count) + sum(tr_count) - 2 * (the pairs' potential matches): its
+    # optimum is the maximum-weight matching of the ids that can match at all, the same IDTP at a
+    # fraction of the size ((G' x T') instead of (G + T)^2; TrackEval builds the square)
+    gi, g_inv = np.unique(pg_all, return_inverse=True)
+    ti, t_inv = np.unique(pt_all, return_inverse=True)
+    idtp = 0
+    if len(gi):
+        potential = _pair_counts(g_inv, t_inv, np.ones(len(g_inv)), len(gi), len(ti))
+        r, c = linear_sum_assignment(-potential)
+        idtp = int(round(potential[r, c].sum()))
+    res["IDTP"] = idtp
+    res["IDFN"] = int(gt_count.sum()) - idtp
+    res["IDFP"] = int(tr_count.sum()) - idtp
     return _identity_final(res)
 
 

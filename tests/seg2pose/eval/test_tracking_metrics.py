@@ -148,6 +148,14 @@ def test_equal_to_trackeval():
             assert c[k] == pytest.approx(ref_c[k], abs=1e-9), k
         for k in ("IDF1", "IDP", "IDR", "IDTP", "IDFN", "IDFP"):
             assert i[k] == pytest.approx(ref_i[k], abs=1e-9), k
+    # identity's smaller assignment against TrackEval's square one on many shapes of sequence
+    for n_gt, n_tr in [(1, 1), (2, 9), (9, 2), (5, 5), (20, 30), (40, 12)]:
+        for _ in range(4):
+            seq = random_sequence(rng, int(rng.integers(1, 40)), n_gt, n_tr)
+            if seq.num_gt_dets and seq.num_tracker_dets:
+                ref = te.Identity(cfg).eval_sequence(seq.as_trackeval())
+                got = identity(seq)
+                assert [got[k] for k in ("IDTP", "IDFN", "IDFP")] == [ref[k] for k in ("IDTP", "IDFN", "IDFP")]
 
 
 def test_s2p_eval_json_carries_world_and_mask_metrics(tmp_path, monkeypatch, capsys):
