@@ -141,8 +141,7 @@ def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     wx, wy = vx[b] - vx[a], vy[b] - vy[a]
     reach = fp.reach[a] + fp.reach[b]
     gap = d - reach
-    speed = np.hypot(wx, wy)
-    maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap > speed * opts.horizon_s)))
+    maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap * gap > (wx * wx + wy * wy) * opts.horizon_s ** 2)))
     x = np.full(len(a), np.nan)
     idx = np.flatnonzero(maybe)
     for i in range(0, len(idx), TTC_BLOCK):  # in blocks: the temporaries stay small

@@ -129,8 +129,9 @@ def time_to_accident(tracks: Tracks, mot: Motion, ons: Onsets, track_a: np.ndarr
     """TA of K pairs (track_a, track_b (K,) ids): of the evasive actions of either road user
     with their onset within frames [first_frame, last_frame] (K,) at which the two, with the
     evasive one at its speed from just before, are on a collision course within
-    ``horizon_s``, the strongest (highest peak deceleration or lateral acceleration). Returns (K,) arrays: ta_s, ta_frame, evasive_track, conflicting_speed_mps,
-    evasive_kind ("" where none)."""
+    ``horizon_s``, the strongest (highest peak deceleration or lateral acceleration).
+    Returns (K,) arrays: ta_s, ta_frame, evasive_track, conflicting_speed_mps, evasive_kind
+    ("" where none)."""
     K = len(track_a)
     out = {"ta_s": np.full(K, np.nan), "ta_frame": np.full(K, np.nan),
            "evasive_track": np.full(K, np.nan), "conflicting_speed_mps": np.full(K, np.nan),

@@ -9,8 +9,9 @@ e_k = rho e_(k-1) + sqrt(1 - rho^2) z_k, rho = exp(-dt / corr_s)), scaled by eac
 Velocities are re-estimated from the moved positions, so the interval of TTC carries the
 velocity error too. The interval is the basic bootstrap interval of the central ``level`` of
 the draws (``_basic``: the draws' 5th and 95th percentiles reflected around the estimate, so
-that the bias of a minimum over noisy frames is corrected, not doubled) for min TTC, PET and
-TA; ``*_found_share`` says in how many draws the indicator exists at all (a draw with no
+that the bias of a minimum over noisy frames is corrected, not doubled) for min TTC and TA;
+PET's is the draws' 5th to 95th percentile (PET is a fact of the positions, not of a
+velocity: no such bias); ``*_found_share`` says in how many draws the indicator exists at all (a draw with no
 collision course has no TTC).
 
 Only the encounter's own frames (with a margin for the velocity window) are redrawn, so this
@@ -139,7 +140,7 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
             ok = np.isfinite(pets)
             out["pet_found_share"][k] = ok.mean()
             if ok.any():
-                out["pet_lo_s"][k], out["pet_hi_s"][k] = _basic(c["pet_s"][k], pets[ok], q)
+                out["pet_lo_s"][k], out["pet_hi_s"][k] = np.percentile(pets[ok], q)
     return out
 
 
@@ -168,6 +169,8 @@ def _pet_draws_whole(big: Tracks, mot, a: np.ndarray, b: np.ndarray, x: np.ndarr
     encounter's length and more than the PET window: frames are integers, so the positions
     and the frames' differences stay exactly those of the draw)."""
     span = int(big.frame.max() - big.frame.min()) + 1 + int(np.ceil((opts.pet_s + 1.0) * big.fps))
+    step = max(1, int(round(opts.pet_options().sample_s * big.fps)))
+    span = -(-span // step) * step  # PET's coarse search samples frames by step: keep the phase
     apart = big.take(slice(None))
     apart.frame = big.frame + (big.track_id // 4) * span  # rows keep their order (by draw)
     touch = x == 0

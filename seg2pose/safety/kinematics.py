@@ -6,7 +6,8 @@ standard deviation sigma metres per axis (the same over the track), the motion i
 (bounded jerk). sigma is measured per track (per segment without a gap) from the third
 differences of its positions: at the frame rate of video the motion's own third difference
 (jerk x dt^3) is below a millimetre, so d3 = x[k+3] - 3x[k+2] + 3x[k+1] - x[k] is noise of
-variance 20 sigma^2; sigma = sqrt(pi / 2) mean(|d3|) / sqrt(20) over both axes.
+variance 20 sigma^2; sigma = 1.4826 median(|d3|) / sqrt(20) over both axes (robust to the
+few frames where the motion itself changes).
 
 **Smoother.** At each frame a quadratic is fitted by least squares to the n frames centred on
 it (local polynomial regression, Savitzky and Golay 1964); its first and second derivative
@@ -36,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.tracks import Tracks
+
+MAD = 1.4826  # median absolute deviation -> standard deviation (Gaussian)
 
 
 @dataclass(frozen=True)
@@ -89,19 +92,21 @@ def segments(tracks: Tracks) -> tuple[np.ndarray, np.ndarray]:
 
 def noise_sigma(tracks: Tracks, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """(N,) each row's segment's position noise, metres (the module's noise model, from the
-    mean absolute third difference: sigma = sqrt(pi / 2) mean|d3| / sqrt(20)); 0 for a
+    median absolute third difference: sigma = 1.4826 median|d3| / sqrt(20), robust to the few
+    frames where the motion itself changes: a turn's start, a braking's onset); 0 for a
     segment of fewer than 4 frames."""
     n = len(tracks)
     out = np.zeros(n)
     if n < 4:
         return out
     xy = tracks.xy
-    d3 = np.abs(xy[3:] - 3 * xy[2:-1] + 3 * xy[1:-2] - xy[:-3]).sum(axis=1)  # rows k .. k + 3
-    ok = ends[:-3] >= np.arange(3, n)  # within one segment
-    total = np.bincount(starts[:-3][ok], d3[ok], minlength=n)
-    count = np.bincount(starts[:-3][ok], minlength=n)
-    per_seg = np.where(count > 0, total / np.maximum(2 * count, 1), 0.0) * np.sqrt(np.pi / 2) / np.sqrt(20.0)
-    return per_seg[starts]
+    d3 = np.abs(xy[3:] - 3 * xy[2:-1] + 3 * xy[1:-2] - xy[:-3])  # rows k .. k + 3
+    heads = np.flatnonzero(np.r_[True, starts[1:] != starts[:-1]])
+    for s0 in heads:  # segments are contiguous runs of rows: one median each
+        e0 = int(ends[s0])
+        if e0 - s0 >= 3:
+            out[s0:e0 + 1] = MAD * float(np.median(d3[s0:e0 - 2])) / np.sqrt(20.0)
+    return out
 
 
 def _sums(n: np.ndarray):
