@@ -36,12 +36,13 @@ def _root() -> None:
     """s2p: the Seg2Pose tool. Run ``s2p COMMAND --help`` for a command's options."""
 
 
-from seg2pose.cli import annotation, batch, calibration, demo, method, review, safety, scene, video  # noqa: E402  (after app exists)
+from seg2pose.cli import annotation, batch, calibration, demo, evaluation, method, review, safety, scene, video  # noqa: E402  (after app exists)
 
 scene.register(app)
 calibration.register(app)
 video.register(app)
 method.register(app)
+evaluation.register(app)
 review.register(app)
 demo.register(app)
 annotation.register(app)
