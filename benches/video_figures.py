@@ -22,8 +22,8 @@ consecutive matched frames and ID switches per 100 truth tracks, classes right f
 pedestrians; the standard tracking metrics of the masks (HOTA, IDF1, MOTSA on mask IoU, truth
 masks under 150 px as ignore regions: ``s2p eval --truth-masks``); then ``s2p run --baseline``
 on the camera's mono configuration, ``s2p eval --match nearest`` (positions against
-gt/poses.csv) and the tracking metrics of its world tracks (similarity 1 - d / 2 m) against
-the truth of the road users the camera sees.
+gt/poses.csv) and, from the same ``s2p eval``, the tracking metrics of its world tracks
+(similarity 1 - d / 2 m) against the truth in view of the camera.
 """
 
 from __future__ import annotations
@@ -134,21 +134,6 @@ def s2p(*args: str) -> str:
     return r.stdout
 
 
-def world_tracking(truth: Path, run: Path, cam: str) -> dict:
-    """HOTA, IDF1, MOTA of the run's world tracks (similarity 1 - d / 2 m) against the truth of
-    the road users the camera sees (a mask in the truth scene's masks: a mono run cannot be
-    charged for road users outside its view)."""
-    from seg2pose.eval.evaluate import seen_truth
-    from seg2pose.eval.tracking_inputs import sequence_from_poses
-    from seg2pose.eval.tracking_metrics import summary
-    from seg2pose.io.poses import read_poses
-    from seg2pose.io.run import read_run_poses
-    from seg2pose.io.scene import load_scene
-
-    gt = seen_truth(load_scene(truth), [cam], read_poses(truth / "gt" / "poses.csv"), None)
-    return summary(sequence_from_poses(read_run_poses(run), gt, 2.0))
-
-
 def report(name: str, scene: Path, truth: Path, cam: str, config: str) -> dict:
     s = score_masks(iter_mots(truth / "masks" / f"{cam}.txt"), iter_mots(scene / "masks" / f"{cam}.txt"))
     est = read_mots(scene / "masks" / f"{cam}.txt")
@@ -157,8 +142,7 @@ def report(name: str, scene: Path, truth: Path, cam: str, config: str) -> dict:
     # background subtraction reports, are ignore regions) through s2p eval --json
     ev = json.loads(s2p("eval", str(scene), "--run", str(scene / "out" / "baseline"), "--match", "nearest",
                         "--truth-masks", str(truth / "masks" / f"{cam}.txt"), "--ignore-below", "150", "--json"))
-    mk = ev["masks"][cam]
-    wt = world_tracking(truth, scene / "out" / "baseline", cam)
+    mk, wt = ev["masks"][cam], ev["tracking"]     # the masks', and the run's world tracks' (in view of c1)
     row = {"input": name, "recall": s.recall, "precision": s.precision,
            "identity_kept": s.identity_kept, "switches_per_100": s.switches_per_100,
            "truth_tracks": s.tracks, "est_tracks": int(len(np.unique(est.track_id))),

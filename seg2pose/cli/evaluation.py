@@ -54,8 +54,8 @@ def eval_cmd(
 
     The run: mean ground-plane error overall, per class and per 5 m of distance from the cameras,
     and the standard tracking metrics of its world tracks (HOTA with DetA, AssA, LocA; IDF1 with
-    IDP, IDR; MOTA with MOTP, IDSW, FP, FN; computed as TrackEval does; every truth row of the
-    split counts, so a road user no camera of the run sees is missed). Masks (--truth-masks):
+    IDP, IDR; MOTA with MOTP, IDSW, FP, FN; computed as TrackEval does; against the truth whose
+    position lies in the image of one of the run's cameras). Masks (--truth-masks):
     the same metrics on mask IoU, with MOTA as MOTS's MOTSA."""
     import json
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.eval.evaluate import evaluate, format_table, plot_error_vs_distance
-from seg2pose.eval.tracking_inputs import sequence_from_poses
+from seg2pose.eval.tracking_inputs import in_view, sequence_from_poses
 from seg2pose.eval.tracking_metrics import summary
 from seg2pose.io.atomic import atomic_write_text
 from seg2pose.io.poses import read_poses
@@ -28,11 +28,12 @@ def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
     (mean of all camera centres); ``split`` restricts both to that split's frames; ``match``,
     ``gate``: see ``evaluate.evaluate`` (``nearest`` for a tracker's ids); ``track_d0``: also
     the tracking metrics (HOTA, IDF1, MOTA) with similarity 1 - d / track_d0 metres
-    (``tracking_inputs.sequence_from_poses``)."""
+    (``tracking_inputs.sequence_from_poses``) against the truth in view of the run's cameras
+    (``tracking_inputs.in_view``)."""
     if not scene.gt_path.exists():
         raise InputError("no ground truth to evaluate against", file=scene.gt_path)
     run_dir = Path(run_dir)
-    check_run_of_scene(run_dir, scene)
+    meta = check_run_of_scene(run_dir, scene)
     classes = [c.name for c in scene.classes]
     est = read_run_poses(run_dir, known_classes=classes)
     gt = read_poses(scene.gt_path, known_classes=classes)
@@ -40,8 +41,11 @@ def evaluate_run(scene: Scene, run_dir: str | Path, split: str | None = None,
                    match=match, gate=gate)
     if track_d0 is not None:
         fr = scene.split_range(split)
+        cams = [scene.cameras[c] for c in meta.get("cameras") or scene.cameras if c in scene.cameras]
+        seen = in_view(gt.in_frames(fr), cams)
         res.tracking = {"similarity": f"max(0, 1 - d / {track_d0:g} m)", "match_within_m": track_d0 / 2,
-                        **summary(sequence_from_poses(est.in_frames(fr), gt.in_frames(fr), track_d0))}
+                        "truth": f"{len(seen.frame)} rows in view of {', '.join(c.name for c in cams)}",
+                        **summary(sequence_from_poses(est.in_frames(fr), seen, track_d0))}
     views_path = run_dir / "views.csv"
     if res.match == "nearest" and views_path.exists():  # video input: ids of trackers
         from seg2pose.eval.evaluate import id_consistency

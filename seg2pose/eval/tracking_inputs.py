@@ -5,7 +5,8 @@
   ignore regions, as MOTChallenge's distractors: an estimate matched to one (IoU >= 0.5, in the
   frame's one-to-one matching) is neither TP nor FP, and the small truth mask is no FN.
 - **World tracks** (poses.csv): similarity = max(0, 1 - d / d0) with d the ground-plane
-  distance between the positions, metres, and ``d0`` = 2 m by default. CLEAR and IDF1 match at
+  distance between the positions, metres, and ``d0`` = 2 m by default; the truth is the rows in
+  view of the run's cameras (``in_view``). CLEAR and IDF1 match at
   similarity >= 0.5, i.e. within d0 / 2 = 1 m; HOTA averages its alphas 0.05..0.95, i.e.
   distance thresholds 1.9 m down to 0.1 m, and LocA is 1 - mean distance / d0 of the matches.
   (The distance-thresholded matching of nuScenes and of CLEAR MOT's 3D use, as a similarity.)
@@ -110,6 +111,19 @@ def sequence_from_masks(truth: Iterable[tuple[int, MaskTable]], est: Iterable[tu
         sims.append(np.asarray(s, float))
         frames.append(f)
     return Sequence(gts, trs, sims, gid.n, tid.n, np.asarray(frames, np.int64))
+
+
+def in_view(poses: PoseTable, cameras: Iterable) -> PoseTable:
+    """The rows of ``poses`` whose position (the ground point, world metres) projects in front
+    of and inside the image of at least one of ``cameras`` (``geometry.camera.Camera``): the
+    truth a configuration's cameras can see, occlusion aside (a mono run is not charged for
+    road users outside its view)."""
+    keep = np.zeros(len(poses.frame), bool)
+    for cam in cameras:
+        with np.errstate(invalid="ignore", over="ignore"):   # points at depth 0: NaN pixels, not kept
+            uv, _, front = cam.project_points(poses.xyz)
+            keep |= front & cam.in_image(uv)
+    return poses.take(np.flatnonzero(keep))
 
 
 def sequence_from_poses(est: PoseTable, gt: PoseTable, d0: float = WORLD_D0) -> Sequence:

@@ -107,6 +107,19 @@ def test_rows_without_a_position_are_no_detections():
     assert (s["TP"], s["FN"], s["FP"], s["IDSW"]) == (4, 2, 1, 1) and s["est_dets"] == 5
 
 
+def test_truth_in_view_of_the_run_cameras():
+    from seg2pose.eval.tracking_inputs import in_view
+    from seg2pose.geometry.camera import Camera
+
+    cam = Camera.look_at("c", np.array([0.0, 0.0, 10.0]), np.array([10.0, 0.0, 0.0]), 100.0, 200, 100)
+    # the point looked at (the image centre), one behind the camera, one 50 m to the side (its
+    # pixel ~ 100 * 50 / 14 px off the centre, past the 100 px half width)
+    p = poses([(0, 1, 10, 0), (0, 2, -10, 0), (0, 3, 10, 50)])
+    assert in_view(p, [cam]).track_id.tolist() == [1]
+    side = Camera.look_at("s", np.array([0.0, 0.0, 10.0]), np.array([10.0, 50.0, 0.0]), 100.0, 200, 100)
+    assert in_view(p, [cam, side]).track_id.tolist() == [1, 3]
+
+
 def test_empty_sides():
     none = poses([])
     s = summary(sequence_from_poses(none, TRUTH))
