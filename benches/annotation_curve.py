@@ -17,7 +17,8 @@ Per scene (camera c1 only, ``-c mono-1``; every step through the library, timed)
    (``evaluate_run --match nearest``: the tracker's ids are not the truth's);
 3. per chooser and K: a fresh annotation project on WORK; the scripted annotator takes road
    users from the chooser -- ``app``: ``annotate.suggest.annotation_queue`` on the start model's
-   run outside the test split; ``uniform``: the same tracks in a random order (seeded) -- and in
+   run outside the test split (the shipped start's for scratch, which has nothing to say);
+   ``uniform``: the same tracks in a random order (seeded) -- and in
    each of the candidate's frames clicks the truth road user whose projected box centre is
    nearest the mask's centre (a keyframe at its true x, y and heading, through the engine's
    API), until K keyframes; ``export_gt`` writes gt/poses.csv (keyframe / interpolated rows);
@@ -211,9 +212,11 @@ def main() -> None:
     center = load_scene(work).rig.center[:2]
     for start in a.start or ["shipped"]:
         sdir = start_folder(start, work, out, a.zero_models)
-        whole = out / "runs" / f"{start}-all"
+        # scratch has nothing to say about what to annotate: it gets the shipped start's queue
+        whole = out / "runs" / f"{'shipped' if start == 'scratch' else start}-all"
         if not (whole / "views.csv").exists():
-            run(work, whole, sdir, split=None)
+            run(work, whole, start_folder("shipped", work, out, None) if start == "scratch" else sdir,
+                split=None)
         if start != "scratch" and f"{start}-0" not in done:
             emit({"row": f"{start}-0", "start": start, "k": 0, **score(truth_scene, whole)})
         views = read_views(whole / "views.csv")

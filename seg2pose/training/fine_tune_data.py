@@ -61,6 +61,11 @@ def start_models(scene: Scene, folder: Path, cams: list[str], classes: list[str]
     another class list."""
     folder = Path(folder)
     files = sorted(folder.glob("*__*.safetensors"))
+    members = sorted(p.parent for p in folder.glob("*/*__*.safetensors"))
+    if not files and (folder / "demo_models.json").exists() and members:
+        # the shipped demo models' folder: its first member (one training scene's models)
+        say(f"{folder}: starting from its first member, {members[0].name}", "note")
+        return start_models(scene, members[0], cams, classes)
     if not files:
         raise S2PError(f"{folder}: no Seg2PoseNet models (*__*.safetensors) to start from")
     have = {p.name: p for p in files}

@@ -151,3 +151,15 @@ def test_start_models_that_do_not_fit_are_refused_in_one_line(scene, tmp_path, m
     assert err.count("\n") == 1 and err.startswith("error: ")
     assert said.format(root=scene.root) in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_shipped_folder_starts_from_its_first_member(scene):
+    """``--from seg2pose/data/demo_models`` (the manifest's folder) means its first member; its
+    models are for the device's images, not the tiny scene's 320x240."""
+    from seg2pose.core.errors import S2PError
+    from seg2pose.training.demo_models import SHIPPED
+    from seg2pose.training.fine_tune_data import start_models
+
+    with pytest.raises(S2PError, match=r"bench-seed7/all__car.safetensors was made for \d+x\d+ images; "
+                                       r"camera c0 .* has 320x240"):
+        start_models(scene, SHIPPED, ["c0"], ["car"])
