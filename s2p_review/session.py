@@ -5,6 +5,7 @@ then drive the viewers (time cursor, follow). ``record`` is the public entry poi
 
 from __future__ import annotations
 
+import contextlib
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +16,7 @@ from s2p_review.recording import LogStats, LogStyle, log_all
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_path, check_writable
+from seg2pose.io.atomic import atomic_path, check_writable, clean_stale_partials, output_lock
 from seg2pose.io.scene import Scene
 
 
@@ -87,12 +88,22 @@ def _error_max(scene: Scene, sel: Selection) -> float | None:
 def record(scene: Scene, runs: list[Path], to: Targets | Path,
            options: RecordOptions | None = None) -> RecordResult:
     """Record ``scene`` with ``runs`` (run folders) to Rerun; ``to``: where (a Path is short for
-    ``Targets(rrd=path)``)."""
+    ``Targets(rrd=path)``). The .rrd file and the screenshot are locked from the start (a
+    second writer of either is refused) and a killed writer's partial .rrd files removed."""
+    to = Targets(rrd=Path(to)) if isinstance(to, (str, Path)) else to
+    with contextlib.ExitStack() as locks:
+        for p in (to.rrd, to.screenshot):
+            if p is not None:
+                locks.enter_context(output_lock(p))
+                clean_stale_partials(p)
+        return _record(scene, runs, to, options)
+
+
+def _record(scene: Scene, runs: list[Path], to: Targets, options: RecordOptions | None) -> RecordResult:
     import rerun as rr
 
     from s2p_review import viewer as V
 
-    to = Targets(rrd=Path(to)) if isinstance(to, (str, Path)) else to
     opts = options or RecordOptions()
     if not to.any():
         raise S2PError("nothing to do: no .rrd file, viewer or screenshot was asked for")

@@ -18,7 +18,7 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_write_bytes, check_writable
+from seg2pose.io.atomic import atomic_write_bytes, check_writable, output_lock
 
 
 class ViewerError(S2PError):
@@ -101,11 +101,17 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
         state = tempfile.mkdtemp(prefix="s2p-viewer-state-")
         os.environ["XDG_DATA_HOME"] = os.path.join(state, "data")
         os.environ["XDG_CONFIG_HOME"] = os.path.join(state, "config")
+    else:
+        state = None
     try:
         client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
                                     executable_path=rerun_executable(),
                                     detach_process=not headless)
+        if headless:  # ended with this process, however it ends
+            _guard(getattr(client, "_pid", None), state)
     except (ConnectionError, RuntimeError, OSError) as e:
+        if state:
+            shutil.rmtree(state, ignore_errors=True)
         raise ViewerError(f"the viewer did not start on port {port}: {e}") from None
     finally:
         for k, v in saved.items():
@@ -125,6 +131,41 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
             time.sleep(0.2)
 
 
+# The guard of a headless viewer: a small Python that waits for this process to end (the pipe
+# it reads closes however this process ends, SIGKILL included), then kills the viewer and
+# removes its state folder. Rerun starts the viewer itself, so it cannot be given a
+# parent-death signal; without the guard a killed ``s2p screenshot`` left ~700 MB running.
+_GUARD = r"""
+import os, shutil, signal, sys
+sys.stdin.buffer.read()
+pid, state = int(sys.argv[1]), sys.argv[2]
+for kill in (os.killpg, os.kill):  # rerun's launcher leads the group its viewer runs in
+    try:
+        kill(pid, signal.SIGKILL)
+    except OSError:
+        pass
+if state:
+    shutil.rmtree(state, ignore_errors=True)
+"""
+_guards: dict[int, int] = {}  # viewer pid -> the write end of its guard's pipe
+
+
+def _guard(pid: int | None, state: str | None) -> None:
+    """Start the guard of viewer ``pid`` and its state folder (see ``_GUARD``)."""
+    import subprocess
+
+    if pid is None:
+        return
+    r, w = os.pipe()  # both ends close on exec: only the guard gets ``r``, as its stdin
+    try:
+        subprocess.Popen([sys.executable, "-c", _GUARD, str(pid), state or ""], stdin=r,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    finally:
+        os.close(r)
+    _guards[pid] = w
+
+
 def connect_viewer(url: str):
     from rerun.experimental import ViewerClient
 
@@ -134,11 +175,15 @@ def connect_viewer(url: str):
 
 def stop(client) -> None:
     """Quit a viewer this process spawned (no-op for connected ones)."""
-    if getattr(client, "_pid", None) is not None:
+    pid = getattr(client, "_pid", None)
+    if pid is not None:
         try:
             client.quit(timeout=5.0)
         except RuntimeError:
             pass
+        w = _guards.pop(pid, None)
+        if w is not None:  # the guard kills what is left and removes the state folder
+            os.close(w)
 
 
 def wait_loaded(client, timeline: str = "frame", min_end: int | None = None, timeout: float = 60.0):
@@ -213,12 +258,18 @@ def take_screenshot(source: Path | str, png_path: Path, *, frame: int | None = N
     its images, camera calibrations and poses, not its scene updates or image annotations) in a
     fresh headless viewer and save a screenshot of it (the README picture). ``frame``: where to
     put the time cursor (default: the middle)."""
-    import numpy as np
-
     source = Path(source)
     if not source.exists():
         raise S2PError(f"{source}: recording not found")
-    check_writable(Path(png_path), force)
+    with output_lock(png_path):  # from the start: a second screenshot of the same PNG is refused
+        check_writable(Path(png_path), force)
+        return _take_screenshot(source, Path(png_path), frame, force, max_size)
+
+
+def _take_screenshot(source: Path, png_path: Path, frame: int | None, force: bool,
+                     max_size: int | None) -> Path:
+    import numpy as np
+
     mcap = source.suffix.lower() == ".mcap"
     timeline = MCAP_TIMELINE if mcap else "frame"
     at = _mcap_time(source, frame) if mcap else frame

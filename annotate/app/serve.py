@@ -94,6 +94,18 @@ def check_scene(scene: Path, run: Path | None, cameras: list[str] | None) -> Non
         RunEstimates.load(run, s)  # refuses a run made on another scene (fingerprint)
 
 
+def die_with_parent() -> None:
+    """In a child between fork and exec (``preexec_fn``): the kernel sends it SIGTERM when
+    the process that started it ends, however it ends (Linux ``prctl(PR_SET_PDEATHSIG)``; a
+    SIGKILLed ``s2p annotate`` left its server listening). Elsewhere: nothing."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def open_log(scene: Path) -> tuple[int, Path]:
     """(fd, path) of the server's log: SCENE/annotations/server.log, else a file in a fresh
     private temporary folder; opened for appending without following a link, owner-only."""
@@ -136,7 +148,7 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
         fd = open_nofollow(log, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
     try:
         proc = subprocess.Popen(cmd, env=env, stdout=fd, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+                                start_new_session=True, preexec_fn=die_with_parent)
     finally:
         os.close(fd)
     server = Server(proc, port, token, log)

@@ -114,7 +114,7 @@ _OS_CAUSES = {
 
 def os_error_message(e: OSError, path: str | Path | None = None) -> str:
     """One line: the output, the cause in words, and the file the system named."""
-    cause = _OS_CAUSES.get(e.errno, e.strerror or type(e).__name__)
+    cause = _OS_CAUSES.get(e.errno or 0, e.strerror or type(e).__name__)
     fname = final_name(e.filename) if e.filename else None
     if path is None:
         return f"{fname or '?'}: {cause}"
@@ -144,6 +144,7 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     path = Path(path)
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_partials(path)  # a killed writer's, left for good before
         fd, tmp = _temp_sibling(path, ".tmp")
     try:
         with os_errors(path), os.fdopen(fd, mode, **kwargs) as f:
@@ -174,6 +175,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path = Path(path)
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_partials(path)  # a killed writer's (.r.rrd.partial-PID-x.rrd), left for good before
         fd, tmp = _temp_sibling(path, path.suffix or ".tmp")
         os.close(fd)
     try:
@@ -211,14 +213,27 @@ def output_lock(path: str | Path) -> Iterator[Path]:
         say(f"taking over the lock {lock} of process {h.pid if h else -1}, which no longer runs "
             f"(it started writing {path} at {h.since if h else '?'})", kind="note")
 
+    key = os.path.abspath(lock)
+    if key in _held:  # this process holds it already (a command locks its outputs from its
+        _held[key] += 1  # start; the writer it calls at the end locks them again)
+        try:
+            yield lock
+        finally:
+            _held[key] -= 1
+        return
     held = ExclusiveLock(lock, busy, taken_over)
     with os_errors(path):
         if not held.acquire():
             raise S2PError(f"could not take the lock {lock} of {path}")
+    _held[key] = 1
     try:
         yield lock
     finally:
+        del _held[key]
         held.release()
+
+
+_held: dict[str, int] = {}  # the output locks this process holds -> how many times
 
 
 @contextlib.contextmanager

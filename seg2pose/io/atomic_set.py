@@ -114,7 +114,7 @@ def remove_partial_folder(tmp: Path) -> None:
 def _record_paths(finals: list[Path], pid: int | None = None) -> list[Path]:
     """Where a set's commit record lies: one copy in every folder of the set's outputs, named
     after the first output in that folder, so that a writer of any one output finds it."""
-    first = {}
+    first: dict[Path, Path] = {}
     for p in finals:
         first.setdefault(p.parent, p)
     return [commit_record_path(p, pid) for p in first.values()]
@@ -202,6 +202,7 @@ def finish_commits(path: str | Path) -> list[Path]:
     done = []
     for e in dead_writers_leftovers(path, recorder):
         m = COMMIT_RECORD.match(e.name)
+        assert m is not None  # recorder() matched it
         rows = _read_record(Path(e.path))
         if rows is None:
             with contextlib.suppress(OSError):

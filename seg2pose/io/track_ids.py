@@ -68,7 +68,7 @@ def entries(masks_dir: str | Path, kinds: dict[str, str], with_cameras: list[str
         if kind not in KINDS:
             raise ValueError(f"unknown kind of ids {kind!r}")
         f = (built or {}).get(c) or Path(masks_dir) / f"{c}.txt"
-        e = {"ids": kind, "sha256": file_sha256(f), "made": made}
+        e: dict[str, str | list[str]] = {"ids": kind, "sha256": file_sha256(f), "made": made}
         if kind == "associated":
             e["with"] = list(with_cameras or kinds)
         out[c] = e
