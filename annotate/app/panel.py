@@ -197,6 +197,16 @@ def _review(p: dict) -> list[str]:
     out.append('<h4>to review (worst first) <kbd>g</kbd></h4>'
                + (_link_rows(looks, "review-queue") if looks else
                   '<div data-testid="review-queue">nothing unchecked</div>'))
+    queue = p.get("queue") or []  # annotate.suggest's road users to annotate next (u)
+    if queue:
+        body = "".join(f'<tr data-action="goto:{int(q["frames"][0])}" data-frame="{int(q["frames"][0])}">'
+                       f'<td>{int(q["track"])}</td><td>{_e(q["cls"])}</td><td>{int(q["frames"][0])}</td>'
+                       f'<td>{_e(q["why"])}</td></tr>' for q in queue if q.get("frames"))
+        out.append('<h4>to annotate next <kbd>u</kbd></h4><table data-testid="annotate-queue"><tr>'
+                   f'<th>run track</th><th>class</th><th>frame</th><th></th></tr>{body}</table>')
+    job = p.get("train_job")
+    if job:
+        out.append(f'<div data-testid="train-job">training: {_e(job)}</div>')
     for title, rows in (p.get("lists") or {}).items():
         out.append(f"<h4>{_e(title)}</h4>" + _link_rows(
             [{"track": r.get("track", 0), "frame": r.get("frame", 0), "text": r.get("text", "")}
