@@ -256,9 +256,10 @@ def first_steps(scene: Path, run: Path, loads: int) -> dict:
                 f0 = pg.get_attribute("[data-testid=frame-image]", "data-frame")
                 t0 = time.monotonic()
                 pg.keyboard.press("ArrowRight")
-                pg.wait_for_function(
-                    f"document.querySelector('[data-testid=frame-image]').dataset.frame !== '{f0}'",
-                    timeout=120_000)
+                pg.wait_for_function(  # the element may be redrawn meanwhile: null-safe
+                    "(f0) => { const e = document.querySelector('[data-testid=frame-image]');"
+                    " return !!(e && e.dataset.frame && e.dataset.frame !== f0); }",
+                    arg=f0, timeout=120_000)
                 out.append(time.monotonic() - t0)
             browser.close()
     finally:
