@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from seg2pose.core.errors import S2PError
 
@@ -102,7 +102,8 @@ class Track:
 
     @classmethod
     def from_dict(cls, d: dict) -> Track:
-        return cls(id=int(d["id"]), cls=str(d["cls"]), size=tuple(float(v) for v in d["size"]),
+        l, w, h = (float(v) for v in d["size"])
+        return cls(id=int(d["id"]), cls=str(d["cls"]), size=(l, w, h),
                    interp=d.get("interp"),
                    keyframes={int(r[0]): Keyframe(float(r[1]), float(r[2]), float(r[3]),
                                                   tuple(r[4]) if len(r) > 4 else ())
@@ -112,7 +113,7 @@ class Track:
                    meta=dict(d.get("meta") or {}))
 
     def copy(self) -> Track:
-        return Track(self.id, self.cls, tuple(self.size), self.interp, dict(self.keyframes),
+        return Track(self.id, self.cls, self.size, self.interp, dict(self.keyframes),
                      list(self.spans), list(self.reviewed), dict(self.meta))
 
 
@@ -219,12 +220,13 @@ def apply_op(tracks: dict[int, Track], op: dict) -> dict:
                                       tuple(r[4]) if len(r) > 4 else ())
         return {"op": "set_keyframes", "id": tid, "set": inv_set, "del": inv_del}
     if kind == "set_fields":
-        inv = {}
+        inv: dict[str, Any] = {}
         for name, value in op["fields"].items():
             if name == "cls":
                 inv[name], t.cls = t.cls, str(value)
             elif name == "size":
-                inv[name], t.size = list(t.size), tuple(float(v) for v in value)
+                l, w, h = (float(v) for v in value)
+                inv[name], t.size = list(t.size), (l, w, h)
             elif name == "interp":
                 inv[name], t.interp = t.interp, value
             elif name == "spans":

@@ -22,6 +22,7 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")  # never load the widget from the web
 
@@ -86,14 +87,17 @@ class Session:
         self.ctl.video_frames = video
         self.pictures = FrameImages(p.scene, cams, first, last)
         self.frame_view = FrameView()
-        self._shown = None
+        self._shown: tuple | None = None
         self._cols_version = 0
-        self._unsent, self._unsent_timeline = {}, False
+        self._unsent: dict[int, Any] = {}
+        self._unsent_timeline = False
+        self._pending: tuple[int, float] | None = None  # a time-cursor move not sent yet
+        self._player: Any = None                          # the playback thread
         self.cols = {tid: track_columns(p, tid) for tid in p.tracks}
         self._eye = L.default_eye(p.scene)
         self._send_layout(self.ctl.large_camera)
-        self._timeline_span = None
-        self._ref = None
+        self._timeline_span: tuple[int, int] | None = None
+        self._ref: Any = None  # the reference PoseTable
         self.logger = AnnotationLogger(target, p.scene, cams)
         self.last_send_ms = 0.0
         self.timeline = "frame"

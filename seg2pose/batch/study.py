@@ -35,6 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
@@ -157,7 +158,9 @@ def _failure(e: Exception) -> str:
 def attempt_part(step: Step, scene_dir: str | Path, part) -> dict:
     """Run one part of a step (a video segment); never raises for the scene's own errors."""
     t, cpu = time.perf_counter(), time.process_time()
-    res = {"scene": Path(scene_dir).name, "part": part, "status": "done", "info": {}, "error": None}
+    res: dict[str, Any] = {"scene": Path(scene_dir).name, "part": part, "status": "done", "info": {},
+                           "error": None}
+    assert step.run_part is not None  # only steps with parts are cut into parts
     try:
         res["info"] = step.run_part(Path(scene_dir), part) or {}
         res["status"] = res["info"].get("status", "done")
@@ -172,7 +175,8 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     errors: returns {scene, step, status: done|skipped|failed, info, error, seconds}."""
     scene_dir = Path(scene_dir)
     t, cpu = time.perf_counter(), time.process_time()
-    res = {"scene": scene_dir.name, "step": step.name, "status": "done", "info": {}, "error": None}
+    res: dict[str, Any] = {"scene": scene_dir.name, "step": step.name, "status": "done", "info": {},
+                           "error": None}
     try:
         if is_complete(step, scene_dir, opts):
             res["status"] = "skipped"
@@ -230,7 +234,8 @@ def _wave(ray, remote, fn, args: list[tuple], limit: int | None, on_done, log, w
         for a in args:
             on_done(fn(*a))
         return
-    pending, queue = [], list(args)
+    pending: list[Any] = []
+    queue = list(args)
     while queue or pending:
         while queue and len(pending) < (limit or len(args)):
             pending.append(remote.remote(*queue.pop(0)))
@@ -256,6 +261,7 @@ def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
     for s in scenes:
         try:
             if not is_complete(step, s, opts):
+                assert step.parts is not None  # only steps with parts are cut into parts
                 o = replace(opts, force=_may_replace(step, s, opts))
                 jobs += [(step, str(s), p) for p in step.parts(s, o)]
         except Exception as e:  # noqa: BLE001 - a bad scene is reported, the study goes on
@@ -352,7 +358,7 @@ def summary_rows(scenes: list[Path], results: dict[str, list[dict]]) -> list[dic
     each step's status."""
     rows = []
     for s in scenes:
-        row = {"scene": s.name, "frames": None, "road_users": None, "mean_error_m": None,
+        row: dict[str, Any] = {"scene": s.name, "frames": None, "road_users": None, "mean_error_m": None,
                "recall": None, "steps": {}, "failures": []}
         for step, rs in results.items():
             r = next((x for x in rs if x["scene"] == s.name), None)

@@ -27,6 +27,7 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,7 @@ SCENE_VERSION = 1
 MAX_CLASS_ID = 65535
 MAX_DEFAULT_HEIGHT = 20.0  # metres above the ground
 SCENE_FILE = "scene.json"
-DEFAULT_CLASSES = [
+DEFAULT_CLASSES: list[dict[str, Any]] = [
     {"id": 1, "name": "pedestrian", "default_height": 0.9},
     {"id": 2, "name": "bicyclist", "default_height": 0.9},
     {"id": 3, "name": "car", "default_height": 0.75},
@@ -151,8 +152,9 @@ class Scene:
             if not isinstance(v, list) or len(v) != 3:
                 raise InputError("expected [l, w, h] numbers (metres)", file=self.root / SCENE_FILE,
                                  field=f)
-            sizes[str(k)] = tuple(number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True,
-                                         hi=1000.0) for x in v)
+            l, w, h = (number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True, hi=1000.0)
+                       for x in v)
+            sizes[str(k)] = (l, w, h)
         return sizes
 
     def road_user_sizes(self, cls, own: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
@@ -290,7 +292,8 @@ def read_ground_points(path: str | Path) -> np.ndarray:
 
 def _parse_ground_points(reader, path: Path) -> tuple[np.ndarray, list[int]]:
     """Rows (n, 3) metres and their line numbers (n,)."""
-    rows, lines = [], []
+    rows: list[list[float]] = []
+    lines: list[int] = []
     for row in reader:
         i = reader.line_num
         if not row or all(not c.strip() for c in row):

@@ -36,13 +36,20 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.method.r90_features import FLOOR_M, POSE_FEATURES, VIEW_FEATURES, views_matrix
+
+if TYPE_CHECKING:
+    from seg2pose.io.poses import PoseTable
+    from seg2pose.io.run import ViewTable
+    from seg2pose.io.scene import Scene
 
 QUANTILE = 0.9
 FORMAT = "s2p-r90"
@@ -158,7 +165,8 @@ class StageModel:
             if name != "*" and len(idx) < MIN_ROWS:
                 continue
             if name != "*" and len(idx) == len(y):  # the only class: the pooled model is its own
-                for d in (m.coef, m.n_rows, m.lo, m.hi, m.y_max):
+                columns: tuple[dict[str, Any], ...] = (m.coef, m.n_rows, m.lo, m.hi, m.y_max)
+                for d in columns:
                     d[name] = d["*"]
                 continue
             b = fit_quantile(*_subsample(X[idx], y[idx]), q)
@@ -188,8 +196,7 @@ class StageModel:
                     isinstance((d.get("y_max") or {}).get(k), (int, float))):
                 raise InputError(f"class {k!r}: expected {len(features)} finite coefficients, "
                                  "feature ranges lo and hi, and y_max", field=where)
-        return cls(list(features), *({k: [float(v) for v in b] for k, b in d[key].items()}
-                                     for key in ("coef",)),
+        return cls(list(features), {k: [float(v) for v in b] for k, b in d["coef"].items()},
                    dict(d.get("n_rows", {})),
                    {k: [float(v) for v in d["lo"][k]] for k in d["coef"]},
                    {k: [float(v) for v in d["hi"][k]] for k in d["coef"]},
@@ -252,13 +259,13 @@ class FitRun:
     cues), its fused poses -- keys (P, 2) frame and track id, est (P, 2), cls (P,) -- a function
     ``pose_X(view_r90)`` -> (P, k) their POSE_FEATURES, and the truth's PoseTable."""
 
-    scene: object
-    views: object
+    scene: Scene
+    views: ViewTable
     pose_keys: np.ndarray
     pose_est: np.ndarray
     pose_cls: np.ndarray
-    pose_X: object
-    gt: object
+    pose_X: Callable[[np.ndarray], np.ndarray]
+    gt: PoseTable
 
 
 def pose_errors(keys: np.ndarray, est: np.ndarray, gt) -> np.ndarray:

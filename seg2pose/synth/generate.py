@@ -16,6 +16,7 @@ import multiprocessing as mp
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from seg2pose.synth.video import write_video
 from seg2pose.synth.world import build_world
 
 DT = 0.075  # s between frames (paper 4.1)
-PRESETS = {
+PRESETS: dict[str, dict[str, Any]] = {
     # frames per split, frames dropped between splits, population, mean pause (s)
     "small": dict(split=240, gap=20,
                   population={"pedestrian": 24, "bicyclist": 6, "car": 14},
@@ -182,7 +183,7 @@ class SynthOptions:
     preset: str = "small"
     frames: int | None = None
     seed: int = 0
-    rig: object = None
+    rig: str | Path | Rig | None = None
     video: bool = False
     force: bool = False
     noise: NoiseConfig | None = None
@@ -273,7 +274,7 @@ def generate_scene(out: Path, opts: SynthOptions = SynthOptions()) -> Path:
         (tmp / "gt").mkdir()
         classes = [ClassSpec(c["id"], c["name"], c["default_height"]) for c in DEFAULT_CLASSES]
         counts = {n: int(len(np.unique(world.track[world.cls == i]))) for i, n in enumerate(CLASS_NAMES)}
-        extra = {
+        extra: dict[str, Any] = {
             "generator": {
                 "name": "seg2pose.synth", "version": 1, "preset": preset, "seed": seed,
                 "frames_per_split": per_split, "gap": gap, "dt": DT, "rig": rig_obj.name,
