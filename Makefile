@@ -45,6 +45,7 @@ screenshot: $(STAMP) viewer-deps
 # lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and types, configured in pyproject.toml
 lint: $(STAMP)
 	$(BIN)/ruff check seg2pose s2p_review annotate tests benches
+	$(BIN)/mypy
 
 test: lint viewer-deps browser-deps
 	$(BIN)/python -m pytest -q -p no:cacheprovider
