@@ -18,7 +18,7 @@ import sys
 import typer
 
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import os_error_message
+from seg2pose.io.atomic import os_error_message, unfinished_outputs
 
 app = typer.Typer(
     name="s2p",
@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point. An S2PError becomes a one-line message and exit code 2 (no traceback);
     Ctrl-C one line and exit code 130 (finished files stay; partial ones were never renamed
     into place)."""
+    unfinished_outputs(forget=True)  # the outputs this command cuts short, for its last line
     try:
         rc = app(args=argv, standalone_mode=False)
     except S2PError as e:
@@ -64,7 +65,9 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         rc = INTERRUPTED
     except OSError as e:  # the disk, not the input: still one line (outputs are atomic)
-        typer.secho(f"error: {os_error_message(e)}", fg=typer.colors.RED, err=True)
+        cut = unfinished_outputs()
+        typer.secho(f"error: {os_error_message(e, cut[-1] if cut else None)}", fg=typer.colors.RED,
+                    err=True)
         sys.exit(2)
     except typer.Abort:  # end of input at a prompt
         typer.secho("aborted", fg=typer.colors.YELLOW, err=True)
@@ -79,8 +82,9 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(e.exit_code)
     # typer turns Ctrl-C into Exit(130), which standalone_mode=False returns as the code
     if rc == INTERRUPTED:
-        typer.secho("interrupted; finished files are kept, partial ones were not written",
-                    fg=typer.colors.YELLOW, err=True)
+        cut = ", ".join(map(str, unfinished_outputs()))
+        typer.secho(f"interrupted; {cut + ' not written (left as it was); ' if cut else ''}finished "
+                    "files are kept, partial ones were not written", fg=typer.colors.YELLOW, err=True)
         sys.exit(INTERRUPTED)
     sys.exit(rc if isinstance(rc, int) else 0)
 

@@ -48,7 +48,7 @@ __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_tex
            "check_writable", "clean_stale_partials", "final_name", "finish_commits", "fsync_dir",
            "is_temporary", "lock_path", "os_error_message", "os_errors", "output_lock",
            "OutputSet", "outputs", "replacing", "swap_in", "temp_sibling_dir", "rename", "link_or_copy",
-           "copy_tree"]
+           "unfinished_outputs", "copy_tree"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -228,12 +228,26 @@ def output_lock(path: str | Path) -> Iterator[Path]:
     _held[key] = 1
     try:
         yield lock
+    except BaseException:
+        _unfinished.append(path)  # for the command's one line: which output was cut short
+        raise
     finally:
         del _held[key]
         held.release()
 
 
 _held: dict[str, int] = {}  # the output locks this process holds -> how many times
+_unfinished: list[Path] = []
+
+
+def unfinished_outputs(forget: bool = False) -> list[Path]:
+    """The outputs whose writing an error or interruption ended in this process (their old
+    state is kept), most recent last: what a command's error line names. ``forget``: start
+    afresh (a command's start, in a process that runs several)."""
+    out = list(dict.fromkeys(_unfinished))
+    if forget:
+        _unfinished.clear()
+    return out
 
 
 @contextlib.contextmanager

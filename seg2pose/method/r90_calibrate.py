@@ -45,6 +45,9 @@ def fit_run(scene, run_dir: str | Path) -> tuple[FitRun, dict]:
     (``scene``: the scene given; a run of another scene is read against the scene its run.json
     names, ``scene_of_run``)."""
     run = read_run(run_dir)
+    if run.views is not None and len(run.views) == 0:  # not "an older s2p": nothing was seen
+        raise InputError("this run has no views (no camera saw a road user in its frames): "
+                         "nothing to calibrate the error bars on", file=Path(run_dir) / "views.csv")
     if run.views is None or run.views.cues is None:
         raise InputError("this run's views.csv has no cut,far,spread_m columns (made by an older "
                          "s2p): run it again", file=Path(run_dir) / "views.csv")

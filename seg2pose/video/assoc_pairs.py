@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import integer, number
 
 _FAR = 2.0  # gate-normalised distances are clipped here for the track-level mean
 _KEY = 1e6  # frame * _KEY + x (metres): one sort key for "same frame, near in x"
@@ -51,9 +52,10 @@ class AssociateConfig:
                 if not isinstance(v, bool):
                     raise InputError(f"expected true or false, got {v!r}", file=file,
                                      field=f"extra.associate.{k}")
-            elif isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
-                raise InputError(f"expected a number >= 0, got {v!r}", file=file,
-                                 field=f"extra.associate.{k}")
+            elif kind is int:  # the schema of scene.json's reader: a JSON integer, finite
+                v = integer(v, file=file, field=f"extra.associate.{k}", lo=0)
+            else:  # a finite number (--set gate_m=nan was taken, and gated nothing)
+                v = number(v, file=file, field=f"extra.associate.{k}", lo=0)
             setattr(out, k, kind(v))
         return out
 

@@ -5,6 +5,7 @@ knob does, its default and why, and the one-line errors for a bad value in ``sce
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -62,9 +63,9 @@ class BgConfig:
             default = getattr(out, k)
             ok = (isinstance(v, type(default)) or (isinstance(default, float) and isinstance(v, int))) \
                 and not (isinstance(v, bool) and not isinstance(default, bool))
-            if not ok:
-                raise InputError(f"expected {type(default).__name__}, got {v!r}", file=file,
-                                 field=f"extra.video_masks.{k}")
+            if not ok or (isinstance(v, float) and not math.isfinite(v)):  # nan: every test fails
+                raise InputError(f"expected {'a finite ' if ok else ''}{type(default).__name__}, got {v!r}",
+                                 file=file, field=f"extra.video_masks.{k}")
             setattr(out, k, type(default)(v))
         out.validate(file)
         return out

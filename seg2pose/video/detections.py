@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import number
 from seg2pose.io.coco import coco_categories, read_coco
 from seg2pose.io.mots import MaskTable
 from seg2pose.structures.masks import iou, merge_bicyclists, rle_stats
@@ -34,6 +35,12 @@ class DetectionConfig:
     nms_iou: float = 0.5          # a mask overlapping a higher-scored one of its group by more is dropped
     bicycle_overlap: float = 0.1  # least IoU of a person and a bicycle mask to merge them
     lone_bicycles: bool = False   # keep bicycles without a rider (as bicyclists)
+
+    def __post_init__(self) -> None:
+        # finite, in [0, 1]: --score nan was taken and dropped nothing (nan < nan is false)
+        self.score_min = number(self.score_min, field="--score", lo=0.0, hi=1.0)
+        self.nms_iou = number(self.nms_iou, field="--nms", lo=0.0, hi=1.0)
+        self.bicycle_overlap = number(self.bicycle_overlap, field="bicycle_overlap", lo=0.0, hi=1.0)
 
 
 def category_map(names: dict[int, str], scene_classes: dict[str, int]) -> dict[int, int]:

@@ -31,6 +31,7 @@ from pycocotools import mask as mask_util
 from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import number
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
@@ -70,9 +71,8 @@ class TrackConfig:
             if k not in known:
                 raise InputError(f"unknown setting {k!r}; known: {', '.join(sorted(known))}",
                                  file=file, field=f"extra.tracker.{k}")
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
-                raise InputError(f"expected a number >= 0, got {v!r}", file=file,
-                                 field=f"extra.tracker.{k}")
+            # finite and >= 0, as scene.json's reader takes numbers (nan was taken before)
+            number(v, file=file, field=f"extra.tracker.{k}", lo=0)
             setattr(out, k, type(getattr(out, k))(v))
         return out
 

@@ -210,7 +210,7 @@ def read_calibration(path: str | Path, sizes: dict[str, tuple[int, int]]) -> dic
         items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
         if not isinstance(items, list) or not items:
             raise InputError("expected {\"cameras\": [...]} or one camera object", file=path)
-        cams = {}
+        cams, unsized = {}, []
         for i, c in enumerate(items):
             if not isinstance(c, dict):
                 raise InputError("expected an object", file=path, field=f"cameras[{i}]")
@@ -218,10 +218,18 @@ def read_calibration(path: str | Path, sizes: dict[str, tuple[int, int]]) -> dic
             if "name" not in c and len(items) == 1 and len(sizes) == 1:
                 c["name"] = next(iter(sizes))
             name = str(c.get("name"))
-            if ("width" not in c or "height" not in c) and name in sizes:
+            if "width" not in c or "height" not in c:
+                if name not in sizes:  # no video of that name to take the size from
+                    unsized.append(name)
+                    continue
                 c["width"], c["height"] = sizes[name]
             cam = Camera.from_dict(c, file=path, where=f"cameras[{i}]")
             cams[cam.name] = cam
+        missing = [v for v in sizes if v not in cams]
+        if missing and unsized:  # "missing field 'width'" said nothing of the names
+            raise InputError(f"no camera named {missing[0]!r} (the video's name) in the calibration; "
+                             f"its cameras are {unsized + list(cams)}: name each video after its "
+                             "camera (--video NAME=FILE)", file=path)
         return cams
     nums = re.split(r"[\s,;]+", read_text(path, "calibration file").strip())
     try:

@@ -299,5 +299,7 @@ def test_ctrl_c_is_one_line_and_leaves_nothing(tmp_path):
     out, err = p.communicate(timeout=60)
     assert p.returncode != 0, "synth finished before the interrupt: it never saw it"
     assert p.returncode == 130, err
-    assert err.strip().splitlines() == ["interrupted; finished files are kept, partial ones were not written"]
+    # the output is named (issue 38: the README promised it, the line did not say it)
+    assert err.strip().splitlines() == [f"interrupted; {tmp_path / 'syn'} not written (left as it was); "
+                                        "finished files are kept, partial ones were not written"]
     assert os.listdir(tmp_path) == []

@@ -431,3 +431,91 @@ def test_run_locks_its_folder_from_the_start(tmp_path, monkeypatch):
     monkeypatch.setattr(P, "compute_views", computes)
     with pytest.raises(S2PError, match=r"run is being written by process"):
         P.run_scene(scene, tmp_path / "run", P.RunOptions(baseline=True, progress=False))
+
+
+# --- (6) one line that names the output --------------------------------------------------------------
+
+def test_a_full_disk_names_the_output(tmp_path, monkeypatch, capsys):
+    """``s2p export`` on a full disk said ``error: ?: the disk is full``: the line now names
+    the output being written, and the old output stays."""
+    import errno
+    import sys
+
+    from hostile_fixtures import write_scene
+
+    import s2p_review.mcap_export as ME
+    from seg2pose.cli import main
+    from seg2pose.method.pipeline import RunOptions, run_scene
+
+    scene = write_scene(tmp_path / "scene", frames=3, users=1)
+    run_scene(scene, tmp_path / "run", RunOptions(baseline=True, progress=False))
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ME._Writer, "write", full)
+    out = tmp_path / "x.mcap"
+    monkeypatch.setattr(sys, "argv", ["s2p", "export", str(scene.root), "--run", str(tmp_path / "run"),
+                                      "-o", str(out)])
+    with pytest.raises(SystemExit) as e:
+        main()
+    assert e.value.code == 2
+    assert capsys.readouterr().err.strip() == f"error: cannot write {out}: the disk is full"
+    assert not out.exists() and not out.with_suffix(".layout.json").exists()
+
+
+# --- (4) settings: the same checks as scene.json's numbers ---------------------------------------
+
+@pytest.mark.parametrize("where,setting", [("associate", {"gate_m": float("nan")}),
+                                           ("associate", {"min_votes": 2.5}),
+                                           ("tracker", {"max_gap": float("inf")}),
+                                           ("video_masks", {"learning_rate": float("nan")})])
+def test_settings_refuse_what_scene_json_would_refuse(where, setting):
+    """``--set gate_m=nan`` was taken and silently gated nothing."""
+    from seg2pose.core.errors import InputError
+    from seg2pose.video.assoc_pairs import AssociateConfig
+    from seg2pose.video.bg_config import BgConfig
+    from seg2pose.video.track import TrackConfig
+
+    cls = {"associate": AssociateConfig, "tracker": TrackConfig, "video_masks": BgConfig}[where]
+    with pytest.raises(InputError, match=rf"extra\.{where}\.{next(iter(setting))}.*expected a"):
+        cls.from_dict(setting)
+
+
+@pytest.mark.parametrize("score", [float("nan"), -0.1, 1.5])
+def test_import_detections_refuses_a_score_threshold_that_drops_nothing(score):
+    from seg2pose.core.errors import InputError
+    from seg2pose.video.detections import DetectionConfig
+
+    with pytest.raises(InputError, match=r"--score.*expected a (finite )?number in \[0, 1\]"):
+        DetectionConfig(score_min=score)
+
+
+def test_new_scene_names_the_camera_a_video_has_no_calibration_for(tmp_path):
+    """A video named unlike the calibration's camera read "missing field 'width'"."""
+    from seg2pose.core.errors import InputError
+    from seg2pose.video.video_scene import new_scene
+
+    calibration(tmp_path)  # one camera, c0, without an image size
+    write_folder(tmp_path / "f0", 3, BOXES)
+    with pytest.raises(InputError, match=r"no camera named 'cam1' \(the video's name\) in the "
+                                         r"calibration; its cameras are \['c0'\]"):
+        new_scene(tmp_path / "sc", {"cam1": tmp_path / "f0"}, tmp_path / "calib.json",
+                  tmp_path / "ground.csv", fps=10, **QUIET)
+    assert not (tmp_path / "sc").exists()
+
+
+def test_calibrate_says_an_empty_run_has_no_views(tmp_path):
+    """An empty views.csv was blamed on "an older s2p"."""
+    from hostile_fixtures import write_scene
+
+    from seg2pose.core.errors import InputError
+    from seg2pose.io.poses import PoseTable
+    from seg2pose.io.run import ViewTable, write_run_folder
+    from seg2pose.method.r90_calibrate import fit_run
+
+    scene = write_scene(tmp_path / "scene", frames=2, users=1)
+    write_run_folder(tmp_path / "run", PoseTable.empty(True), ViewTable.empty(), {"scene": "../scene"})
+    with pytest.raises(InputError, match="this run has no views") as e:
+        fit_run(scene, tmp_path / "run")
+    assert "older" not in str(e.value)
