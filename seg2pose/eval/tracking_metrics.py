@@ -104,7 +104,8 @@ def hota(seq: Sequence) -> dict:
         ok = denom > 0 + _EPS
         s_iou[ok] = s[ok] / denom[ok]
         potential[g[:, None], t[None, :]] += s_iou
-    align = potential / (gt_count + tr_count - potential)
+    with np.errstate(invalid="ignore", divide="ignore"):   # 0/0 only for ids that never appear
+        align = potential / (gt_count + tr_count - potential)
     # pass 2: per frame one matching; every alpha keeps the pairs at least that similar
     mg, mt, ms = [], [], []
     for g, t, s in zip(seq.gt_ids, seq.tracker_ids, seq.similarity):

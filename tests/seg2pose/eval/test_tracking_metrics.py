@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seg2pose.eval.tracking_inputs import sequence_from_masks, sequence_from_poses
 from seg2pose.eval.tracking_metrics import ALPHAS, Sequence, clear, hota, identity, summary
@@ -209,3 +211,24 @@ def test_s2p_eval_json_carries_world_and_mask_metrics(tmp_path, monkeypatch, cap
     assert m["IDSW"] == 1 and m["MOTSA"] == pytest.approx(1 - 1 / len(t.frame)) and m["FP"] == 0
     assert m["IDF1"] == pytest.approx((len(t.frame) - min(k, int((t.track_id == 1).sum()))) / len(t.frame))
     assert d["mean_error"] == pytest.approx(0.0, abs=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 25), st.integers(1, 8), st.integers(1, 8))
+def test_properties(seed, frames, n_gt, n_tr):
+    rng = np.random.default_rng(seed)
+    seq = random_sequence(rng, frames, n_gt, n_tr)
+    s = summary(seq)
+    for k in ("HOTA", "DetA", "AssA", "IDF1", "IDP", "IDR", "DetRe", "DetPr"):
+        assert 0.0 <= s[k] <= 1.0, k
+    assert s["MOTA"] <= 1.0 and s["TP"] + s["FN"] == seq.num_gt_dets and s["TP"] + s["FP"] == seq.num_tracker_dets
+    assert s["IDTP"] <= min(seq.num_gt_dets, seq.num_tracker_dets)
+    # the estimated ids' names do not matter
+    perm = rng.permutation(n_tr)
+    renamed = Sequence(seq.gt_ids, [perm[t] for t in seq.tracker_ids], seq.similarity, n_gt, n_tr, seq.frames)
+    assert summary(renamed) == pytest.approx(s, abs=1e-12)
+    # the truth against itself: every metric perfect
+    same = Sequence(seq.gt_ids, seq.gt_ids, [np.eye(len(g)) for g in seq.gt_ids], n_gt, n_gt, seq.frames)
+    p = summary(same)
+    if seq.num_gt_dets:
+        assert p["HOTA"] == p["IDF1"] == p["MOTA"] == p["LocA"] == 1.0 and p["IDSW"] == 0
