@@ -46,6 +46,7 @@ class ProjectState:
         notes: list[str]
         frame_range: tuple[int, int] | None
         _run: Any
+        _ids_match: bool | None
 
         @property
         def tracks(self) -> Mapping[int, Track]: ...

@@ -160,10 +160,11 @@ class PlacementMixin(ProjectState):
         """Whether the masks' track ids are the run's (some run track has masks): then a run
         track without masks is seen nowhere; else presence is unknown and the run's own
         frames stand for it."""
-        if getattr(self, "_ids_match", None) is None:
+        match = getattr(self, "_ids_match", None)
+        if match is None:
             known = self.masks.presence()
-            self._ids_match = any(int(r) in known for r in self.run.track_ids())
-        return self._ids_match
+            match = self._ids_match = any(int(r) in known for r in self.run.track_ids())
+        return match
 
     def import_poses(self, table, every: int = 1, flags=("imported",), keep_ids: bool = True,
                      name: str = "import_poses"):

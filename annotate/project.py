@@ -397,7 +397,7 @@ class Project(EditsMixin, PlacementMixin):
         suggestions."""
         from annotate.estimates import RunEstimates
         self._run = RunEstimates.load(run, self.scene)
-        self._ids_match = None  # place.py: whether the masks' ids are this run's
+        self._ids_match: bool | None = None  # place.py: whether the masks' ids are this run's
 
     @property
     def run(self):

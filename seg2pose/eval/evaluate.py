@@ -204,7 +204,7 @@ def seen_truth(scene: Scene, cameras: list[str], gt: PoseTable,
     configuration is scored against when it should not be charged for road users it never
     saw)."""
     gt = gt.in_frames(frame_range)
-    seen = set()
+    seen: set[tuple[int, int]] = set()
     for cam in cameras:
         for f, t in iter_mots(scene.masks_path(cam), frame_range=frame_range):
             seen.update((f, int(k)) for k in t.track_id)

@@ -86,7 +86,7 @@ PAPER_CONFIG_ORDER = ["mono-1", "mono-2", "mono-3", "stereo-30", "stereo-40", "s
                       "tri-I", "tri-L", "tri-T"]
 
 
-def paper_table(scene: Scene, models_dir: str | Path | None = None,
+def paper_table(scene: Scene, models_dir: str | Path | list[Path] | None = None,
                 split: str = "test", out_dir: str | Path | None = None,
                 configs: list[str] | None = None, baseline_only: bool = False,
                 force: bool = False, progress: bool = True, smooth: int = 0) -> tuple[Path, str]:

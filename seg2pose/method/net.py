@@ -196,7 +196,7 @@ def class_onehot(class_names, classes: list[str]) -> np.ndarray:
 
 
 def input_vector(cfg: NetConfig, norm: Normalisation, centers: np.ndarray, normal_xy: np.ndarray,
-                 class_names=None, classes: list[str] = (), geo: np.ndarray | None = None
+                 class_names=None, classes: list[str] | tuple[str, ...] = (), geo: np.ndarray | None = None
                  ) -> np.ndarray:
     """The network's vector input (N, n_vec + n_classes + n_geo) float32: the normalised crop
     centre and normal position, then (when the net has them) the class one-hot over ``classes``

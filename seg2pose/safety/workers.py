@@ -6,11 +6,14 @@ the same as with one process."""
 from __future__ import annotations
 
 import multiprocessing as mp
+from collections.abc import Callable
+from typing import Any
 
-_FN = None  # the chunk function, seen by the forked workers
+_FN: Callable[[Any], Any] | None = None  # the chunk function, seen by the forked workers
 
 
 def _call(item):
+    assert _FN is not None  # set before the pool forks
     return _FN(item)
 
 

@@ -13,6 +13,8 @@ curb edges, section 4.1).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 LANE = 3.5            # m, lane width
@@ -82,7 +84,7 @@ def ray_ground_points(origin: np.ndarray, dirs: np.ndarray, iterations: int = 6)
     return out
 
 
-def sample_ground_points(rng: np.random.Generator, visible: callable, n: int = 184,
+def sample_ground_points(rng: np.random.Generator, visible: Callable[[np.ndarray], np.ndarray], n: int = 184,
                          curb_share: float = 0.6, extent: float = 75.0) -> np.ndarray:
     """The paper's ground survey: ``n`` points (n, 3) metres on the true surface, around the
     area the cameras see, with ``curb_share`` of them in pairs straddling the curb edges

@@ -102,7 +102,7 @@ def build_world(visits: list[Visit], n_frames: int, seed: int, ids: str = "road_
         raise ValueError("no road users")
     cls_idx = {n: i for i, n in enumerate(CLASS_NAMES)}
     keys = [v.member if ids == "road_user" else k for k, v in enumerate(visits)]
-    first = {}
+    first: dict[int, tuple[int, int]] = {}
     for k, v in zip(keys, visits):
         first[k] = min(first.get(k, (1 << 62, 0)), (int(v.frames[0]), k))
     order_keys = sorted(first, key=lambda k: first[k])

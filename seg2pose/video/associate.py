@@ -108,7 +108,8 @@ def _cuts(runs: list[tuple[np.ndarray, ...]], spans: list[tuple[np.ndarray, np.n
     by_track: dict[int, list[tuple[int, int]]] = {}
     for track, f, k in props:
         by_track.setdefault(track, []).append((f, k))
-    out_t, out_f = [], []
+    out_t: list[int] = []
+    out_f: list[int] = []
     for track, f, _k in sorted(props):
         if out_t and out_t[-1] == track and abs(out_f[-1] - f) <= min_run:
             continue  # one cut per change, however many cameras saw it
@@ -189,8 +190,8 @@ def associate(views: dict[str, CameraViews], cfg: AssociateConfig | None = None)
                                           spans[b], cfg)
 
     # 2. cuts, from every camera's point of view
-    runs = {c: [] for c in names}
-    other_spans = {c: [] for c in names}
+    runs: dict[str, list] = {c: [] for c in names}
+    other_spans: dict[str, list] = {c: [] for c in names}
     for (a, b), (i, j) in pairs.items():
         for x, y, ix, iy in ((a, b, i, j), (b, a, j, i)):
             runs[x].append(_runs(t_idx[x][ix], views[x].frame[ix], t_idx[y][iy], cfg.min_run))
