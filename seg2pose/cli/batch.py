@@ -46,6 +46,7 @@ def _review(scene_dir: Path, opts: BatchOptions, force: bool) -> dict:
 
     res = record(load_scene(scene_dir), [run_dir(scene_dir, opts)],
                  Targets(rrd=rrd_path(scene_dir, opts), force=force), RecordOptions())
+    assert res.rrd is not None  # an .rrd was asked for
     return {"rrd": res.rrd.name}
 
 

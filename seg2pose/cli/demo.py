@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -30,7 +31,7 @@ DEMO_START = "2021-06-14T08:00:00Z"  # the demo scene's clock: frame 0 (the samp
 # video every 4th frame, masks every 4th in the MCAP and every 8th in the recording (which holds
 # them twice: by class and by the association's id); a viewer shows the latest; frame 600, the
 # README picture's, has both
-SAMPLE_IMAGES = {"image_scale": 0.4, "jpeg_quality": 55, "mask_every": 4, "rrd_mask_every": 8,
+SAMPLE_IMAGES: dict[str, Any] = {"image_scale": 0.4, "jpeg_quality": 55, "mask_every": 4, "rrd_mask_every": 8,
                  "video_every": 4}
 
 
@@ -111,7 +112,9 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
         rrd = logs_dir / "demo.rrd"
         mcap = logs_dir / "demo.mcap"
         tri = [r for r in runs if "tri-T" in r.name]
-        first = scene.split_range("test")[0]
+        test = scene.split_range("test")
+        assert test is not None  # the synthetic scene has a test split
+        first = test[0]
         frames = (first, first + SAMPLE_FRAMES - 1)  # keeps each sample file a few MB
         _step(f"writing the Rerun recording {rrd} (test frames {frames[0]}..{frames[1]})")
         img = SAMPLE_IMAGES

@@ -176,6 +176,7 @@ def iter_mots(path: str | Path, known_classes: Iterable[int] | None = None,
     def emit():
         """Check a block of whole frames at once (one vectorised RLE check instead of one per
         frame), then yield it frame by frame."""
+        assert size is not None  # set by the block's first row
         h, w = size
         rles = [r[5] for r in rows]
         if check_rles:  # False: the caller decodes the runs itself and checks them in bulk

@@ -57,7 +57,7 @@ def true_height(xy: np.ndarray) -> np.ndarray:
     return base_height(xy) + curb
 
 
-def to_world(arm: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def to_world(arm: str, a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
     """Arm coordinates -> world xy (N, 2): ``a`` metres outwards along the arm from the centre,
     ``b`` metres to the left when looking outwards."""
     th = ARM_ANGLES[arm]

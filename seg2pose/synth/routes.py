@@ -98,7 +98,8 @@ _X = J.ROAD_HALF + sum(J.CROSSWALK) / 2  # crosswalk centre along the arm
 
 
 def _ped_nodes() -> tuple[dict, dict]:
-    nodes, edges = {}, {}
+    nodes: dict = {}
+    edges: dict = {}
     for sx in (-1, 1):
         for sy in (-1, 1):
             q = (sx, sy)

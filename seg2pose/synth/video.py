@@ -159,7 +159,7 @@ def render_frame(camera: Camera, world: World, f: int, bg: np.ndarray, sun: floa
             if body is not None:
                 cv2.fillConvexPoly(body, face, int(owner[p]) + 1 if kinds[p] in TEXTURED else 0,
                                    cv2.LINE_8, SHIFT)
-    if body is not None:
+    if body is not None and textures is not None:  # one is None when the other is
         _paint_textures(img, body, camera, world, r, textures, gain)
     return img
 
@@ -203,7 +203,7 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
         track_cls[world.track - 1] = world.cls
         textures = draw_textures(track_cls, seed)
     with atomic_path(path) as tmp:  # .NAME.partial-PID-x.mp4, renamed when complete
-        wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
+        wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),  # type: ignore[attr-defined]  # in cv2, not in its stubs
                              (camera.width, camera.height))
         if not wr.isOpened():
             raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
