@@ -14,7 +14,8 @@ both meetings):
   looked for up to ``horizon_s`` seconds ahead (beyond it: none); two road users are compared
   at a frame when they could meet within the horizon at their speeds (centre distance <= the
   sum of their half diagonals plus both speeds times the horizon): no pair that can collide
-  within the horizon is left out by a fixed distance;
+  within the horizon is left out by a fixed distance (frames on no possible collision course
+  count for the encounter's span and least gap only within ``NEAR_GAP_M`` of touching);
 - Time-to-Accident, conflicting speed, the evasive road user and the TCT severity
   (``evasive``);
 - PET, who was first, the two frames;
@@ -56,6 +57,9 @@ from seg2pose.safety.ttc import ttc_rows
 from seg2pose.safety.workers import map_chunks
 
 TTC_BLOCK = 1 << 20  # pair-frames per block of the TTC computation
+# a pair frame on no possible collision course is kept (for the least gap and the span of the
+# encounter) only where the footprints' bounding circles are this close
+NEAR_GAP_M = 10.0
 __all__ = ["COLUMNS", "INTERVAL_COLUMNS", "ConflictOptions", "ConflictTable", "analyse", "format_conflicts"]
 
 
@@ -117,7 +121,8 @@ class RowData:
 def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
                 rows: np.ndarray | None = None, apart: np.ndarray | None = None,
                 data: RowData | None = None) -> PairFrames:
-    """TTC and gap at every frame two road users could meet within the horizon (``rows``:
+    """TTC and gap at every frame two road users could meet within the horizon, or are
+    within NEAR_GAP_M of touching (``rows``:
     only these rows of ``tracks``; default all; ``apart``: (N,) bool, rows not paired with
     each other, see ``apart_rows``; ``data``: ``RowData(tracks, mot)`` when made already)."""
     rows = np.arange(len(tracks)) if rows is None else rows
@@ -132,16 +137,19 @@ def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     d = np.hypot(fp.x[a] - fp.x[b], fp.y[a] - fp.y[b])
     keep = d <= data.span[a] + data.span[b]
     a, b, d = a[keep], b[keep], d[keep]
-    order = _pair_frame_order(tracks, data, a, b)
-    a, b, d = a[order], b[order], d[order]
     # exact shortcut: apart (farther than their reaches) and not closing in, or too far to
     # meet within the horizon: no collision course (the centre distance of two bodies at
-    # constant velocity is convex in time)
+    # constant velocity is convex in time). Such a frame is kept only where the two are
+    # within NEAR_GAP_M of touching (for the least gap and the encounter's span)
     rx, ry = fp.x[b] - fp.x[a], fp.y[b] - fp.y[a]
     wx, wy = vx[b] - vx[a], vy[b] - vy[a]
-    reach = fp.reach[a] + fp.reach[b]
-    gap = d - reach
+    gap = d - fp.reach[a] - fp.reach[b]
     maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap * gap > (wx * wx + wy * wy) * opts.horizon_s ** 2)))
+    keep = maybe | (gap <= NEAR_GAP_M)
+    a, b, d, maybe = a[keep], b[keep], d[keep], maybe[keep]
+    order = _pair_frame_order(tracks, data, a, b)
+    a, b, d, maybe = a[order], b[order], d[order], maybe[order]
+    reach = fp.reach[a] + fp.reach[b]
     x = np.full(len(a), np.nan)
     idx = np.flatnonzero(maybe)
     for i in range(0, len(idx), TTC_BLOCK):  # in blocks: the temporaries stay small

@@ -62,8 +62,23 @@ def ar1_noise(n: int, draws: int, rho: float, rng: np.random.Generator) -> np.nd
     return lfilter([np.sqrt(1.0 - rho * rho)], [1.0, -rho], z, axis=1)
 
 
+def _common_frames(tracks: Tracks, a: int, b: int, extra: int) -> tuple[int, int]:
+    """The first and last frame at which both tracks exist, widened by ``extra`` frames."""
+    fa = tracks.frame[_span(tracks, a)]
+    fb = tracks.frame[_span(tracks, b)]
+    return max(int(fa.min()), int(fb.min())) - extra, min(int(fa.max()), int(fb.max())) + extra
+
+
+def _span(tracks: Tracks, track: int) -> slice:
+    """The rows of ``track`` (rows are sorted by track id)."""
+    tid = tracks.track_id
+    return slice(int(np.searchsorted(tid, track, "left")), int(np.searchsorted(tid, track, "right")))
+
+
 def _rows_of(tracks: Tracks, track: int, f0: int, f1: int) -> np.ndarray:
-    return np.flatnonzero((tracks.track_id == track) & (tracks.frame >= f0) & (tracks.frame <= f1))
+    sp = _span(tracks, track)
+    f = tracks.frame[sp]
+    return sp.start + np.flatnonzero((f >= f0) & (f <= f1))
 
 
 def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = IntervalOptions(),
@@ -90,7 +105,11 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
     it = range(K) if progress is None else progress(range(K))
     for k in it:
         rng = np.random.default_rng([iopts.seed, int(c["track_a"][k]), int(c["track_b"][k])])
-        f0, f1 = int(c["first_frame"][k]) - margin, int(c["last_frame"][k]) + margin
+        # the two tracks while both exist (and PET's window either side): the draws search
+        # TTC, PET and TA over the whole time the two could meet, as the table did
+        f0, f1 = _common_frames(tracks, int(c["track_a"][k]), int(c["track_b"][k]),
+                                int(np.ceil(opts.pet_s * fps)))
+        f0, f1 = min(f0, int(c["first_frame"][k])) - margin, max(f1, int(c["last_frame"][k])) + margin
         rows = np.r_[_rows_of(tracks, c["track_a"][k], f0, f1), _rows_of(tracks, c["track_b"][k], f0, f1)]
         sub = tracks.take(rows)
         if not np.isfinite(r90[rows]).any():
