@@ -69,6 +69,7 @@ class Session:
         from rerun.notebook import Viewer
 
         self.ctl = Controller.open(scene, run=run, cameras=cameras)
+        self._runs = [Path(run).name] if run is not None else []  # their trails' time range
         self.rec = new_recording()
         # hidden until the page says whether it renders in software (Controller.set_renderer)
         self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT, recording=self.rec)
@@ -172,7 +173,7 @@ class Session:
 
     def _send_layout(self, large: str | None) -> None:
         bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps,
-                           large_in_page=True)
+                           large_in_page=True, runs=self._runs)
         for r in ([self.rec] if self.target is self.rec else self.target.recs):
             r.send_blueprint(bp, make_active=True, make_default=True)
 
