@@ -32,7 +32,7 @@ def motion_headings(xy: np.ndarray, heading: np.ndarray, auto: np.ndarray,
     h = np.asarray(heading, dtype=np.float64).copy()
     n = len(h)
     for k in np.flatnonzero(np.asarray(auto, bool)):
-        a, b = max(k - 1, 0), min(k + 1, n - 1)
+        a, b = max(int(k) - 1, 0), min(int(k) + 1, n - 1)
         d = xy[b] - xy[a]
         if math.hypot(d[0], d[1]) > min_step:
             h[k] = math.atan2(d[1], d[0])

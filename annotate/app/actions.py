@@ -138,6 +138,7 @@ class ControllerState:
         lock: threading.RLock
         _key: str
         _run: Any
+        _confirm: tuple[int, float] | None  # a first Shift+Delete: (track, when)
 
         @property
         def read_only(self) -> bool: ...

@@ -82,6 +82,7 @@ class Clicks(ControllerState):
             if linked is None:
                 self._edit(p.set_meta, t.id, run_track=int(mask_track))
         tid = self.selected
+        assert tid is not None  # selected (or made) above
         self._edit(p.place_from_mask, tid, self.frame, camera, mask_track)
         k = p.track(tid).keyframes[self.frame]
         return (f"track {tid}: keyframe {self.frame} from mask {mask_track} "

@@ -119,13 +119,18 @@ class PanelData(ControllerState):
         """Everything the panel shows, as plain data."""
         with self.lock:
             here = None
-            if self.selected in self.project.tracks:
-                t = self.project.track(self.selected)
+            sel = self.selected
+            if sel is not None and sel in self.project.tracks:
+                t = self.project.track(sel)
                 src = "keyframe" if self.frame in t.keyframes else None
                 if src is None:
                     tab = self.project.track_poses(t.id)
                     hit = np.flatnonzero(tab.frame == self.frame)
-                    src = str(tab.source[hit[0]]) if len(hit) else "not in the track"
+                    if len(hit):
+                        assert tab.source is not None  # a track's poses say where each row comes from
+                        src = str(tab.source[hit[0]])
+                    else:
+                        src = "not in the track"
                 here = src
             no_video = [c for c, fr in sorted(self.video_frames.items()) if self.frame not in fr]
             return {"scene": self.project.scene.name, "frame": self.frame, "no_video": no_video,

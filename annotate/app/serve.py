@@ -156,8 +156,7 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
     t0 = time.monotonic()
     while not _port_open(port):
         if proc.poll() is not None:
-            raise S2PError(f"the annotation server exited with code {proc.returncode}"
-                           + (f"; see {log}" if log else ""))
+            raise S2PError(f"the annotation server exited with code {proc.returncode}; see {log}")
         if time.monotonic() - t0 > wait:
             server.stop()
             raise S2PError(f"the annotation server did not start within {wait:.0f} s")
