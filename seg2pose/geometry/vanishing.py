@@ -147,11 +147,17 @@ def rotation_from_vps(v1: np.ndarray, v2: np.ndarray, K: np.ndarray) -> np.ndarr
     return np.column_stack([r1, r2, r3])
 
 
-def height_ratios(K: np.ndarray, R: np.ndarray, feet: np.ndarray, heads: np.ndarray) -> np.ndarray:
+def height_ratios(K: np.ndarray, R: np.ndarray, feet: np.ndarray, heads: np.ndarray,
+                  foot_offset: np.ndarray | float = 0.0) -> np.ndarray:
     """Each road user's height (N,) in units of the camera's height above the ground: feet and
     heads (N, 2) pixels, the head straight above the feet. With the camera at height 1 the
     foot ray meets z = 0 at X_f; the head lies at X_f + h e_z on its own ray: least squares
-    for (s, h) in C + s d = X_f + h e_z."""
+    for (s, h) in C + s d = X_f + h e_z.
+
+    foot_offset (N,) or scalar, in units of the camera's height: how far the head's vertical
+    lies beyond the lowest foot pixel's ground point, away from the camera (the lowest pixel of
+    a standing person is the near edge of their footprint; taking it as below the head puts
+    the head on a nearer vertical, higher up its ray: heights too large by (H - h) delta / D)."""
     Kinv = np.linalg.inv(K)
 
     def rays(uv):
@@ -161,12 +167,20 @@ def height_ratios(K: np.ndarray, R: np.ndarray, feet: np.ndarray, heads: np.ndar
     df, dh = rays(feet), rays(heads)
     C = np.array([0.0, 0.0, 1.0])
     out = np.full(len(df), np.nan)
-    for i in range(len(df)):
-        if df[i, 2] >= -1e-9:
-            continue
-        Xf = C + (-1.0 / df[i, 2]) * df[i]
-        A = np.column_stack([dh[i], -np.array([0.0, 0.0, 1.0])])
-        s, h = np.linalg.lstsq(A, Xf - C, rcond=None)[0]
-        if s > 0:
-            out[i] = h
+    down = df[:, 2] < -1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Xf = C + (-1.0 / df[:, 2:3]) * df
+        away = Xf[:, :2] / np.maximum(np.linalg.norm(Xf[:, :2], axis=1, keepdims=True), 1e-12)
+        Xf[:, :2] += np.broadcast_to(np.asarray(foot_offset, float), (len(df),))[:, None] * away
+        # least squares of [d_h, -e_z] (s, h) = X_f - C, by its 2x2 normal equations
+        b = Xf - C
+        a11 = np.einsum("nk,nk->n", dh, dh)
+        a12 = -dh[:, 2]
+        r1 = np.einsum("nk,nk->n", dh, b)
+        r2 = -b[:, 2]
+        det = a11 - a12 * a12  # a22 = 1
+        s = (r1 - a12 * r2) / det
+        h = (a11 * r2 - a12 * r1) / det
+    ok = down & (s > 0) & np.isfinite(h)
+    out[ok] = h[ok]
     return out

@@ -59,7 +59,8 @@ class TrafficCalibration:
 
 def track_points(scene: Scene, camera: str, opts: TrafficOptions):
     """(tracks: list of (n, 2) mask centroids in time order, feet (N, 2) and heads (N, 2) (the
-    boxes' bottom and top centres), their classes' typical heights (N,)). Centroids, not the
+    boxes' bottom and top centres), their classes' typical heights (N,) and footprint depths
+    (N,), metres). Centroids, not the
     boxes' bottom centres: a box's bottom centre slides over the road user's outline as the
     view turns, and its lines miss the vanishing point (on bench seed 100, camera c1: focal
     889 px from centroids, 818 px from bottom centres, truth 900)."""
@@ -67,7 +68,7 @@ def track_points(scene: Scene, camera: str, opts: TrafficOptions):
     names = scene.class_names_by_id()
     sizes = scene.class_sizes()
     by_track: dict[int, list] = {}
-    feet, heads, hts = [], [], []
+    feet, heads, hts, depths = [], [], [], []
     n = 0
     for frame, t in scene.iter_masks(camera):
         if frame % opts.every:
@@ -86,27 +87,35 @@ def track_points(scene: Scene, camera: str, opts: TrafficOptions):
                 feet.append((0.5 * (x0 + x1), y1))
                 heads.append((0.5 * (x0 + x1), y0))
                 hts.append(sizes[name][2])
+                # half the footprint's mean side: a standing person's near edge to its middle
+                depths.append(0.25 * (sizes[name][0] + sizes[name][1]))
     tracks = []
     for rows in by_track.values():
         a = np.array(rows)
         cut = np.flatnonzero(np.diff(a[:, 0]) > 3 * opts.every) + 1  # gaps split a track
         tracks += [p[:, 1:] for p in np.split(a, cut) if len(p) >= 4]
-    return tracks, np.array(feet).reshape(-1, 2), np.array(heads).reshape(-1, 2), np.array(hts)
+    return (tracks, np.array(feet).reshape(-1, 2), np.array(heads).reshape(-1, 2), np.array(hts),
+            np.array(depths))
 
 
-def solve_traffic(tracks, feet, heads, hts, width: int, height: int, rng
+def solve_traffic(tracks, feet, heads, hts, depths, width: int, height: int, rng
                   ) -> tuple[float, np.ndarray, float, int]:
-    """(f, R, camera height, segments) from one set of tracks and upright road users."""
+    """(f, R, camera height, segments) from one set of tracks and upright road users (depths
+    (N,) metres: from the lowest foot pixel to below the head, half the footprint)."""
     seg = V.track_segments(tracks)
     v1, v2, f = V.orthogonal_vps(seg, width, height, rng)
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
     R = V.rotation_from_vps(v1, v2, K)
-    ratio = V.height_ratios(K, R, feet, heads)
-    ok = np.isfinite(ratio) & (ratio > 0.01)
-    if ok.sum() < 5:
-        raise InputError(f"{int(ok.sum())} upright road users (pedestrians, bicyclists) measured: too "
-                         "few for the camera's height")
-    return f, R, float(np.median(hts[ok] / ratio[ok])), len(seg.lines)
+    H = np.nan
+    for _ in range(3):  # the footprint's depth in units of the camera's height needs the height
+        off = 0.0 if not np.isfinite(H) else depths / H
+        ratio = V.height_ratios(K, R, feet, heads, off)
+        ok = np.isfinite(ratio) & (ratio > 0.01)
+        if ok.sum() < 5:
+            raise InputError(f"{int(ok.sum())} upright road users (pedestrians, bicyclists) measured: "
+                             "too few for the camera's height")
+        H = float(np.median(hts[ok] / ratio[ok]))
+    return f, R, H, len(seg.lines)
 
 
 def traffic_calibration(scene: Scene, camera: str, opts: TrafficOptions = TrafficOptions()
@@ -114,18 +123,19 @@ def traffic_calibration(scene: Scene, camera: str, opts: TrafficOptions = Traffi
     """See the module doc."""
     cam0 = scene.cameras[camera]
     w, h = cam0.width, cam0.height
-    tracks, feet, heads, hts = track_points(scene, camera, opts)
+    tracks, feet, heads, hts, depths = track_points(scene, camera, opts)
     if len(tracks) < 4:
         raise InputError(f"camera {camera}: {len(tracks)} tracks in its masks; run masks-from-video "
                          "on a longer stretch of video first")
     rng = np.random.default_rng(opts.seed)
-    f, R, H, nseg = solve_traffic(tracks, feet, heads, hts, w, h, rng)
+    f, R, H, nseg = solve_traffic(tracks, feet, heads, hts, depths, w, h, rng)
     fs, Hs = [], []
     for _ in range(opts.bootstrap):
         ti = rng.integers(len(tracks), size=len(tracks))
         pi = rng.integers(len(feet), size=len(feet))
         try:
-            fb, _, Hb, _ = solve_traffic([tracks[i] for i in ti], feet[pi], heads[pi], hts[pi], w, h, rng)
+            fb, _, Hb, _ = solve_traffic([tracks[i] for i in ti], feet[pi], heads[pi], hts[pi], depths[pi],
+                                         w, h, rng)
         except InputError:
             continue
         fs.append(fb)

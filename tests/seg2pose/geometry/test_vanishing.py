@@ -71,3 +71,18 @@ def test_height_ratio_of_a_person():
     feet = c.project_points(np.column_stack([xy, np.zeros(3)]))[0]
     heads = c.project_points(np.column_stack([xy, np.full(3, 1.7)]))[0]
     np.testing.assert_allclose(V.height_ratios(c.K, c.R, feet, heads), 0.17, rtol=1e-9)
+
+
+def test_height_ratio_from_the_near_edge_of_the_footprint():
+    """The lowest pixel of a standing person is the near edge of the footprint, 0.2 m nearer the
+    camera than below the head: taken as below the head, the height comes out too large by
+    (H - h) delta / D; the foot offset (in camera heights) puts the vertical back."""
+    c = cam()
+    xy = np.array([[0.0, 0.0], [8.0, 3.0]])
+    foot_xy = xy - 0.2 * (xy - c.center[:2]) / np.linalg.norm(xy - c.center[:2], axis=1, keepdims=True)
+    feet = c.project_points(np.column_stack([foot_xy, np.zeros(2)]))[0]
+    heads = c.project_points(np.column_stack([xy, np.full(2, 1.7)]))[0]
+    D = np.linalg.norm(xy - c.center[:2], axis=1)
+    naive = V.height_ratios(c.K, c.R, feet, heads)
+    np.testing.assert_allclose(naive, (1.7 + (10 - 1.7) * 0.2 / D) / 10, rtol=1e-9)
+    np.testing.assert_allclose(V.height_ratios(c.K, c.R, feet, heads, 0.2 / 10), 0.17, rtol=1e-9)
