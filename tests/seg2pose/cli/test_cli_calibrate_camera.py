@@ -133,3 +133,10 @@ def test_calibrate_is_renamed(monkeypatch, capsys):
     assert "calibrate-camera" in out and "calibrate-errors" in out
     code, _, err = s2p(monkeypatch, capsys, "calibrate", "/nonexistent-scene", "--run", "/nonexistent-run")
     assert "`s2p calibrate` is now `s2p calibrate-errors`" in err
+
+
+def test_from_traffic_needs_a_scene(tmp_path, monkeypatch, capsys):
+    write_folder(tmp_path / "frames", 2, [])
+    code, _, err = s2p(monkeypatch, capsys, "calibrate-camera", tmp_path / "frames", "--from-traffic",
+                       "-o", tmp_path / "t.json")
+    assert code == 2 and "--from-traffic needs a scene folder with masks" in err
