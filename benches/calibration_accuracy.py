@@ -130,6 +130,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--world-sigma", action="append", type=float)
     ap.add_argument("--traffic", action="store_true", help="also from the traffic alone and with 4 clicks")
+    ap.add_argument("--table", action="store_true", help="only print the tables of ROOT's results")
     ap.add_argument("--draws", type=int, default=0,
                     help="also N more draws of the user's clicks per scene and noise: focal and ground "
                          "errors only (no runs), their spread")
@@ -142,6 +143,9 @@ def main() -> None:
     a.root.mkdir(parents=True, exist_ok=True)
     res_path = a.root / "calibration_accuracy.json"
     results = json.loads(res_path.read_text()) if res_path.exists() else {}
+    if a.table:
+        print(table(results))
+        return
     for preset in a.preset or ["bench", "wide"]:
         for seed in a.seed or [100, 101, 102]:
             sd = scene_for(a.root, preset, seed, a.frames)
@@ -250,6 +254,8 @@ def traffic_variants(sd, scene, seed, preset, truth_err, results, res_path):
 
 
 def table(results: dict) -> str:
+    """The markdown tables of docs/RESULTS.md: one row per preset, seed and input; the draws'
+    spread; the traffic's stated against its actual errors."""
     rows = ["| preset / seed / input | focal error, worst lens | median ground error, worst lens (m) | "
             "baseline mono-1 / truth | baseline tri-I / truth |", "|---|---|---|---|---|"]
     for k, r in sorted(results.items()):
@@ -258,6 +264,21 @@ def table(results: dict) -> str:
         br = r["baseline_ratio"]
         rows.append(f"| {k} | {100 * r['max_abs_focal_err']:.1f} % | {r['max_ground_median_m']:.3f} | "
                     f"{br['mono-1']:.3f}x | {br['tri-I']:.3f}x |")
+    rows += ["", "| preset / seed / noise / draws | focal error, worst lens: median (max) | "
+             "median ground error, worst lens: median (min-max) m |", "|---|---|---|"]
+    for k, r in sorted(results.items()):
+        if "focal_err_worst_lens" in r:
+            f, g = np.array(r["focal_err_worst_lens"]), np.array(r["ground_median_m_worst_lens"])
+            rows.append(f"| {k} | {100 * np.median(f):.1f} % ({100 * f.max():.1f} %) | "
+                        f"{np.median(g):.3f} ({g.min():.3f}-{g.max():.3f}) |")
+    rows += ["", "| preset / seed / lens | focal: stated sd | focal error | height: stated (sd) | true height |",
+             "|---|---|---|---|---|"]
+    for k, r in sorted(results.items()):
+        if "stated" in r:
+            for c, st in r["stated"].items():
+                fe = r["cameras"][c]["focal_err"]
+                rows.append(f"| {k} {c} | {st['focal_sd']:.1f} px | {100 * fe:+.1f} % | {st['height_m']:.2f} m "
+                            f"({st['height_sd']:.2f}) | {st['true_height_m']:.2f} m |")
     return "\n".join(rows)
 
 
