@@ -117,7 +117,8 @@ def rle_stats(rles: Sequence[bytes], height: int, width: int
     n = len(rles)
     if n > _STATS_CHUNK:  # bounded memory: the run arrays are ~10 int64 per RLE character
         parts = [rle_stats(rles[s:s + _STATS_CHUNK], height, width) for s in range(0, n, _STATS_CHUNK)]
-        return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
+        a, b, c = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        return a, b, c
     h = int(height)
     owner, a, ln, _ = foreground_runs(rles)
     b = a + ln
@@ -249,7 +250,7 @@ def merge_bicyclists(person: Sequence[bytes], bicycle: Sequence[bytes], height: 
         match[r[keep]] = c[keep]
     size = [int(height), int(width)]
     merged = []
-    for i in np.flatnonzero(match >= 0):
+    for i in map(int, np.flatnonzero(match >= 0)):
         m = mask_util.merge([{"size": size, "counts": person[i]},
                              {"size": size, "counts": bicycle[match[i]]}])
         merged.append(m["counts"])

@@ -153,8 +153,10 @@ def split_merged_blobs(scene: Scene, tables: dict[str, MaskTable], views: dict[s
                                  encode(p)))
         if new_rows:
             keep = np.setdiff1d(np.arange(len(t)), drop)
-            extra = MaskTable([r[0] for r in new_rows], [r[1] for r in new_rows],
-                              [r[2] for r in new_rows], t.height, t.width, [r[3] for r in new_rows])
+            extra = MaskTable(np.array([r[0] for r in new_rows], np.int64),
+                              np.array([r[1] for r in new_rows], np.int64),
+                              np.array([r[2] for r in new_rows], np.int64), t.height, t.width,
+                              [r[3] for r in new_rows])
             base = t.take(keep)
             base.score = None
             t = MaskTable.concat([base, extra])

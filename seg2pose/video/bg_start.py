@@ -32,7 +32,7 @@ def mode_image(images: list[np.ndarray], tol: int = MODE_TOL) -> np.ndarray:
 
     def close(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(H, W) uint8 1 where a and b agree within tol in every channel, else 0."""
-        return cv2.inRange(cv2.absdiff(a, b), lo, hi) & 1
+        return np.asarray(cv2.inRange(cv2.absdiff(a, b), lo, hi), np.uint8) & 1
 
     count = np.zeros((n,) + images[0].shape[:2], np.uint8)
     for i in range(n):

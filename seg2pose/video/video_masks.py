@@ -102,7 +102,7 @@ def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
     starts = (x0 + col) * h + y0 + row
     col, row = np.divmod(np.r_[cut, len(flat)] - 1, bh)
     ends = (x0 + col) * h + y0 + row + 1
-    out = []
+    out: list[bytes] = []
     if len(ids) == 0:
         return out
     order = np.argsort(vals, kind="stable")
@@ -133,7 +133,7 @@ class BackgroundMasks:
         if cfg.method == "mog2":
             self.sub = cv2.createBackgroundSubtractorMOG2(cfg.history, cfg.threshold, cfg.shadows)
         else:
-            self.sub = cv2.createBackgroundSubtractorKNN(cfg.history, cfg.threshold * 25.0,
+            self.sub = cv2.createBackgroundSubtractorKNN(cfg.history, cfg.threshold * 25.0,  # type: ignore[assignment]  # both BackgroundSubtractors
                                                          cfg.shadows)
         self.lr = -1.0
         self.primed = False        # a background to start from (else OpenCV's own learning)
@@ -346,7 +346,7 @@ def clean_background(reader: FrameReader, cfg: BgConfig, background: np.ndarray,
         if im.shape[:2] != (h, w):
             break  # the second pass reports it
         seg.scan(im)
-    if seg.ghost_seen is None:
+    if seg.ghost_seen is None or seg.ghost_image is None:  # both are set at the first ghost
         return background
     # the empty road as the frame showed it when the ghost was learnt, not the model's image at
     # the end of the pass: a flat grey car that later stands on a white marking passes MOG2's
