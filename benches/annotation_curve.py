@@ -189,6 +189,9 @@ def main() -> None:
     ap.add_argument("-k", "--keyframes", type=int, action="append")
     ap.add_argument("--epochs", type=int, default=FineTuneOptions.epochs)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--min-held-out", type=int, default=FineTuneOptions.min_held_out_users,
+                    help="hold out road users of a class only from this many annotated ones")
+    ap.add_argument("--tag", default="", help="suffix of the rows' names (variants)")
     a = ap.parse_args()
     truth_scene = load_scene(a.scene)
     seed = int(truth_scene.extra.get("generator", {}).get("seed", 0))
@@ -223,7 +226,7 @@ def main() -> None:
         queues = {c: candidates(c, views, center, test, seed) for c in a.chooser or ["app"]}
         for k in a.keyframes or [25, 10]:  # in the order given: the most wanted first
             for chooser, queue in queues.items():
-                name = f"{start}-{chooser}-{k}"
+                name = f"{start}-{chooser}-{k}{a.tag}"
                 if k == 0 or name in done:
                     continue
                 counts = annotate_k(work, truth, queue, views, k)
@@ -232,10 +235,12 @@ def main() -> None:
                     shutil.rmtree(models)
                 c0, t0 = time.process_time(), time.perf_counter()
                 res = fine_tune_scene(load_scene(work), sdir, models,
-                                      FineTuneOptions(epochs=a.epochs, threads=a.threads, progress=False),
+                                      FineTuneOptions(epochs=a.epochs, threads=a.threads, progress=False,
+                                                      min_held_out_users=a.min_held_out),
                                       cameras=[CAM])
                 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
                 emit({"row": name, "start": start, "chooser": chooser, "k": k, **counts,
+                      "min_held_out": a.min_held_out,
                       "fine_tune_cpu_s": round(cpu), "fine_tune_wall_s": round(wall),
                       "lines": res.lines, **score(truth_scene, run(work, out / "runs" / name, models))})
 

@@ -69,6 +69,10 @@ class FineTuneOptions:
     rough_every: int = 4          # every 4th example of a batch rough (0: none)
     rough_per_class: int = 200    # rough-model pool per class (split over the cameras)
     patience: int = 3             # epochs without a better held-out error before stopping
+    # hold out road users of a class only when it has this many annotated: with fewer, one
+    # held-out road user is a third of the annotation and too few to judge an epoch by
+    # (docs/RESULTS.md, "Fine-tuning on a few keyframes"); the fixed schedule then runs to its end
+    min_held_out_users: int = 2
     seed: int = 0
     threads: int = 2
     device: str | None = None
@@ -260,7 +264,7 @@ def fine_tune_scene(scene: Scene, start: str | Path, out: str | Path | None = No
     val_users = held_out_road_users(np.concatenate([a.road_user for a in all_ann]) if all_ann else
                                     np.zeros(0, np.int64),
                                     np.concatenate([a.cls for a in all_ann]) if all_ann else
-                                    np.zeros(0, object), opts.seed)
+                                    np.zeros(0, object), opts.seed, opts.min_held_out_users)
     out.mkdir(parents=True, exist_ok=True)
     lines = {}
     for sm in starts:

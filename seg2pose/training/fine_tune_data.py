@@ -175,14 +175,16 @@ def annotated_masks(scene: Scene, camera: str, gt: PoseTable) -> Annotated:
                      np.array(src, object), np.array(ru, np.int64))
 
 
-def held_out_road_users(road_user: np.ndarray, cls: np.ndarray, seed: int) -> np.ndarray:
+def held_out_road_users(road_user: np.ndarray, cls: np.ndarray, seed: int,
+                        min_users: int = 2) -> np.ndarray:
     """The road users (truth track ids) held out for validation: per class, ``VAL_SHARE`` of
-    its annotated road users (rounded, at least one when it has two or more, none with one)."""
+    its annotated road users (rounded, at least one when it has ``min_users`` or more, none
+    with fewer)."""
     rng = np.random.default_rng(seed)
     out = []
     for c in sorted(set(cls.tolist())):
         users = np.unique(road_user[cls == c])
-        k = 0 if len(users) < 2 else max(1, int(round(VAL_SHARE * len(users))))
+        k = 0 if len(users) < max(2, min_users) else max(1, int(round(VAL_SHARE * len(users))))
         out.append(rng.choice(users, k, replace=False) if k else np.zeros(0, np.int64))
     return np.concatenate(out) if out else np.zeros(0, np.int64)
 
