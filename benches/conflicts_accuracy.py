@@ -88,7 +88,7 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
             out[name]["width"] = np.array(width)
     # SSAM conflicts by the truth's type: found (a conflict in the run too), missed; the run's
     # false ones by their own type
-    types = {}
+    types: dict[str, dict[str, int]] = {}
     for k, i in ti.items():
         if tc["conflict"][i] == 1:
             d = types.setdefault(tc["type"][i], {"truth": 0, "found": 0, "false": 0})
@@ -151,7 +151,7 @@ def main() -> None:
     a = ap.parse_args()
     h90 = None if a.heading90 is None else {k: float(v) for k, v in (x.split("=") for x in a.heading90.split(","))}
     r90 = None if a.r90 is None else {k: float(v) for k, v in (x.split("=") for x in a.r90.split(","))}
-    pooled = {}
+    pooled: dict = {}
     for scene, run in a.pair:
         m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90)
         print(f"{m['scene']} {m['run']} ({m['method']})")

@@ -94,7 +94,7 @@ def main() -> None:
     for name, (make, ttc_exact, ta_exact) in CASES.items():
         base = make()
         for s in a.noise:
-            err = {"local": ([], [])} | {f"rts q={v:g}": ([], []) for v in a.q}
+            err: dict[str, tuple[list, list]] = {"local": ([], [])} | {f"rts q={v:g}": ([], []) for v in a.q}
             cover_ttc, cover_ta, found_ta = [], [], 0
             for _ in range(a.trials):
                 noisy = base.with_xy(base.xy + rng.normal(0, s, base.xy.shape))
@@ -104,8 +104,10 @@ def main() -> None:
                     err["local"][0].append(abs(c["min_ttc_s"][0] - ttc_exact))
                 err["local"][1].append(abs(c["ta_s"][0] - ta_exact))
                 found_ta += int(np.isfinite(c["ta_s"][0]))
-                iv = conflict_intervals(t.tracks, t, OPTS, IntervalOptions(draws=a.draws, corr_s=1.0 / base.fps),
-                                        r90=np.full(len(t.tracks), s * 2.146))
+                ft = t.tracks
+                assert ft is not None
+                iv = conflict_intervals(ft, t, OPTS, IntervalOptions(draws=a.draws, corr_s=1.0 / base.fps),
+                                        r90=np.full(len(ft), s * 2.146))
                 if ttc_exact is not None and np.isfinite(iv["min_ttc_lo_s"][0]):
                     cover_ttc.append(iv["min_ttc_lo_s"][0] <= ttc_exact <= iv["min_ttc_hi_s"][0])
                 if np.isfinite(iv["ta_lo_s"][0]):

@@ -241,10 +241,12 @@ def test_no_interval_without_r90():
     width; with one, the TA interval holds the TA."""
     tr = pedestrian_ahead()
     table = analyse(tr, OPTS)
-    n = len(table.tracks)
-    none = conflict_intervals(table.tracks, table, OPTS, IntervalOptions(draws=20), r90=np.full(n, np.nan))
+    ft = table.tracks
+    assert ft is not None
+    n = len(ft)
+    none = conflict_intervals(ft, table, OPTS, IntervalOptions(draws=20), r90=np.full(n, np.nan))
     assert all(np.isnan(v[0]) for v in none.values())
-    some = conflict_intervals(table.tracks, table, OPTS, IntervalOptions(draws=40), r90=np.full(n, 0.2))
+    some = conflict_intervals(ft, table, OPTS, IntervalOptions(draws=40), r90=np.full(n, 0.2))
     assert some["ta_lo_s"][0] <= table.columns["ta_s"][0] <= some["ta_hi_s"][0]
 
 
@@ -259,6 +261,7 @@ def test_noisy_tracks_keep_ttc_within_its_interval():
     assert mot.sigma.mean() == pytest.approx(0.2, rel=0.25)
     assert mot.n_vel.min() > 15
     table = analyse(noisy, OPTS)
+    assert table.tracks is not None
     iv = conflict_intervals(table.tracks, table, OPTS, IntervalOptions(draws=100), r90=np.full(len(noisy), 0.2 * 2.146))
     assert iv["min_ttc_lo_s"][0] <= 0.7746 <= iv["min_ttc_hi_s"][0]
 
