@@ -52,10 +52,13 @@ def test_conflicts_from_poses_csv_with_intervals(tmp_path, capsys):
     p = tmp_path / "poses.csv"
     write_with_r90(p, crossing_poses(), 0.3)
     out = tmp_path / "conflicts.csv"
-    code, so, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--draws", "40")
+    pet = tmp_path / "pet.csv"
+    code, so, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--draws", "40",
+                       "--pet-only", str(pet))
     assert code == 0, se
-    rows = read_rows(out)
-    assert len(rows) == 1 and rows[0]["type"] == "crossing"
+    assert read_rows(out) == []  # no collision course: no SSAM conflict, a PET-only encounter
+    rows = read_rows(pet)
+    assert len(rows) == 1 and rows[0]["type"] == "crossing" and rows[0]["pet_only"] == "1"
     r = rows[0]
     assert float(r["pet_s"]) == pytest.approx(1.42, abs=1e-3)
     assert float(r["pet_lo_s"]) < 1.42 < float(r["pet_hi_s"])  # 0.3 m of error: an interval around it
@@ -87,7 +90,7 @@ def test_conflicts_heading90(tmp_path, capsys):
         code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90", bad)
         assert code == 2 and "--heading90" in se and len(se.strip().splitlines()) == 1, se
     code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--heading90",
-                      "car=20", "--draws", "40")
+                      "car=20", "--draws", "40", "--all-pairs")
     assert code == 0, se
     r = read_rows(out)[0]
     assert float(r["pet_lo_s"]) <= float(r["pet_s"]) <= float(r["pet_hi_s"])
@@ -95,7 +98,7 @@ def test_conflicts_heading90(tmp_path, capsys):
 
 def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     """T-Analyst tracks: positions and times only; headings from motion, sizes by class
-    (cars 4.4 x 1.8 m), frames from the time stamps at --fps."""
+    (cars 4.5 x 1.8 m, seg2pose.io.scene's), frames from the time stamps at --fps."""
     table = crossing_poses()
     ms = frames_to_times(table.frame, 30, 3_600_000)
     ta = TAnalystTable(np.arange(1, len(table) + 1), np.array(["Car"] * len(table), object),
@@ -104,12 +107,12 @@ def test_conflicts_from_tanalyst_with_class_radius(tmp_path, capsys):
     write_tanalyst(p, ta)
     out = tmp_path / "c.csv"
     code, so, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--start",
-                       "01:00:00.000", "--r90", "car=0.5", "--draws", "20")
+                       "01:00:00.000", "--r90", "car=0.5", "--draws", "20", "--all-pairs")
     assert code == 0, se
     r = read_rows(out)[0]
-    # 4.4 m long cars: the first's rear leaves at 3 + (2.2 + 0.9) / 10 s, the second's front
-    # enters at 5 - (2.2 + 0.9) / 10 s
-    assert float(r["pet_s"]) == pytest.approx(2 - 0.62, abs=0.01)
+    # 4.5 m long cars: the first's rear leaves at 3 + (2.25 + 0.9) / 10 s, the second's front
+    # enters at 5 - (2.25 + 0.9) / 10 s
+    assert float(r["pet_s"]) == pytest.approx(2 - 0.63, abs=0.005)
     assert r["pet_lo_s"] != ""
 
 
