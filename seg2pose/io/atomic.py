@@ -74,6 +74,7 @@ def temp_sibling_dir(path: str | Path) -> Path:
     it into place (mkdtemp's 0700 widened to what mkdir would give). Stale ones of killed
     processes are removed first."""
     path = Path(path)
+    refuse_links(path)  # a linked folder: the file would land where the link points
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_partials(path)
@@ -83,8 +84,10 @@ def temp_sibling_dir(path: str | Path) -> Path:
 
 
 def check_writable(path: str | Path, force: bool) -> Path:
-    """Refuse to replace an existing file or non-empty folder unless ``force``."""
+    """Refuse to replace an existing file or non-empty folder unless ``force``, and an output
+    in a folder that is a link (``nofollow.refuse_links``)."""
     path = Path(path)
+    refuse_links(path)
     if force or not (path.exists() or path.is_symlink()):
         return path
     if path.is_dir() and not path.is_symlink():
@@ -142,6 +145,7 @@ def os_errors(path: str | Path) -> Iterator[None]:
 def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Open a temporary sibling of ``path`` for writing; rename it to ``path`` on success."""
     path = Path(path)
+    refuse_links(path)  # a linked folder: the file would land where the link points
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_partials(path)  # a killed writer's, left for good before
@@ -173,6 +177,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary sibling path for libraries that write files themselves; renamed on success."""
     path = Path(path)
+    refuse_links(path)  # a linked folder: the file would land where the link points
     with os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_partials(path)  # a killed writer's (.r.rrd.partial-PID-x.rrd), left for good before

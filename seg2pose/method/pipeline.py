@@ -393,8 +393,41 @@ def _run_scene(scene: Scene, run_dir: Path, opts: RunOptions) -> Path:
         raise InputError("r90 calibration not found (make one with s2p calibrate)", file=r90_path)
     views, nframes = compute_views(scene, cams, frame_range, models, opts.center_method,
                                    opts.chunk_frames, opts.progress, far=far)
+    check_frames(scene, cams, views.frame)
     return write_run(scene, run_dir, views, cams, models, nframes, opts, far, track_ids,
                      r90_path=r90_path if r90_path.is_file() else None)
+
+
+def scene_last_frame(scene: Scene, cams: list[str]) -> tuple[int, str]:
+    """The last frame the scene has (inclusive) and what says so: the last frame of its splits
+    or of its cameras' videos, whichever is later; else the last frame whose time MCAP and
+    Rerun can hold (signed 64-bit nanoseconds from 1970, after the scene's start_time)."""
+    from seg2pose.io.video import camera_reader
+
+    last = [(b, "its splits in scene.json") for _, b in scene.splits.values()]
+    for c in cams:
+        if scene.video_path(c) is not None:
+            r = camera_reader(scene, c)
+            n = r.header()[2]
+            if n:
+                last.append((r.first + r.step * (n - 1), f"camera {c}'s video"))
+    if last:
+        return max(last)
+    start = scene.start_time_ns or 0
+    return int((2**63 - 1 - start) / 1e9 * scene.fps) - 1, "the times a recording can hold"
+
+
+def check_frames(scene: Scene, cams: list[str], frames: np.ndarray) -> None:
+    """Refuse masks at frames the scene does not have (a mask at frame 10^15 of a 20-frame
+    scene made a run that export and review then failed on): one line naming the frame."""
+    if not len(frames):
+        return
+    last, why = scene_last_frame(scene, cams)
+    hi = int(frames.max())
+    if int(frames.min()) < 0 or hi > last:
+        bad = int(frames.min()) if int(frames.min()) < 0 else hi
+        raise InputError(f"a mask at frame {bad}: the scene's frames are 0..{last} ({why})",
+                         file=scene.root / "masks")
 
 
 R90_FILE = "r90.json"

@@ -519,3 +519,23 @@ def test_calibrate_says_an_empty_run_has_no_views(tmp_path):
     with pytest.raises(InputError, match="this run has no views") as e:
         fit_run(scene, tmp_path / "run")
     assert "older" not in str(e.value)
+
+
+@pytest.mark.parametrize("frame", [10**15, 20])
+def test_run_refuses_masks_at_frames_the_scene_does_not_have(tmp_path, frame):
+    """A mask at frame 10^15 of a 4-frame scene made a run that ``export`` (struct.error) and
+    ``review`` (7 PiB) then failed on; ``s2p run`` refuses it, naming the frame."""
+    from hostile_fixtures import write_scene
+
+    from seg2pose.core.errors import InputError
+    from seg2pose.io.mots import MaskTable, read_mots, write_mots
+    from seg2pose.method.pipeline import RunOptions, run_scene
+
+    scene = write_scene(tmp_path / "scene", frames=4, users=1)
+    t = read_mots(scene.masks_path("c0"))
+    far = MaskTable([frame], [9], [1], t.height, t.width, [t.rles[0]])
+    write_mots(scene.masks_path("c0"), MaskTable.concat([t, far]))
+    with pytest.raises(InputError, match=rf"a mask at frame {frame}: the scene's frames are 0\.\.3 "
+                                         r"\(its splits in scene\.json\)"):
+        run_scene(scene, tmp_path / "run", RunOptions(baseline=True, progress=False))
+    assert not (tmp_path / "run").exists()
