@@ -1,4 +1,4 @@
-"""Every relative link in README.md and docs/*.md points to a file that exists, and every
+"""Every relative link in README.md, docs/*.md and docs/guide/*.md points to a file that exists, and every
 ``#anchor`` to a heading of that file (GitHub's heading slugs), so the docs' topic indexes
 cannot rot silently when a section is renamed."""
 import re
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "docs" / "guide").glob("*.md"))]
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 FENCE = re.compile(r"^(```|~~~)")
 
