@@ -232,27 +232,31 @@ def small_rig_file(tmp_path) -> Path:
     return rig_file
 
 
-def test_road_users_keep_their_id_and_size(tmp_path):
+def test_every_visit_has_its_own_id_and_keeps_its_size(tmp_path):
+    """A road user that leaves and comes back is a new track (id) to a tracker: one id per
+    visit, each with one class, one size and no gap in its frames; a returning road user keeps
+    its size (its shape: the pixels do not depend on the ids)."""
     out = tmp_path / "s"
     pop = {"pedestrian": 3, "bicyclist": 1, "car": 4}
     generate_scene(out, SynthOptions(frames=600, seed=1, population=pop, progress=False, workers=1,
                    noise=NoiseConfig.off(), rig=small_rig_file(tmp_path)))
     gt = read_poses(out / "gt" / "poses.csv")
     ids = np.unique(gt.track_id)
-    assert len(ids) <= sum(pop.values())  # the population, not one id per pass
+    assert len(ids) > sum(pop.values())  # more visits than road users: some came back
     for t in ids:
         m = gt.track_id == t
         assert len(set(gt.cls[m])) == 1
         assert np.ptp(gt.size[m], axis=0).max() == 0.0
+        assert np.diff(gt.frame[m]).max(initial=1) == 1  # one visit: no gap
     # no frame lists a road user twice
     pairs = np.stack([gt.frame, gt.track_id], 1)
     assert len(np.unique(pairs, axis=0)) == len(pairs)
     s = json.loads((out / "scene.json").read_text())
     assert s["extra"]["generator"]["ids"] == "road_user"
-    assert sum(s["extra"]["road_users"].values()) == len(ids)
-    # someone came back: a gap in the frames of one id
-    gaps = [np.diff(gt.frame[gt.track_id == t]).max(initial=1) for t in ids]
-    assert max(gaps) > 1
+    assert sum(s["extra"]["road_users"].values()) == sum(pop.values())
+    # the returning road users: as many distinct sizes as road users, fewer than visits
+    sizes = {tuple(gt.size[gt.track_id == t][0]) for t in ids}
+    assert len(sizes) <= sum(pop.values()) < len(ids)
 
 
 def test_moving_road_users_head_where_they_go(clean_scene):
