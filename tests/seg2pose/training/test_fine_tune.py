@@ -73,7 +73,7 @@ def test_fine_tuning_holds_out_road_users_and_keeps_unannotated_classes(scene, t
     from seg2pose.training.fine_tune import fine_tune_scene
 
     start = _start(scene, tmp_path / "start")
-    res = fine_tune_scene(scene, start, tmp_path / "out", _opts(), cameras=["c1"])
+    res = fine_tune_scene(scene, start, tmp_path / "out", _opts(min_held_out_users=2), cameras=["c1"])
     assert set(res.lines) == {"all__pedestrian.safetensors", "all__bicyclist.safetensors",
                               "all__car.safetensors"}
     assert "kept its start model (no annotated bicyclist masks)" in res.lines["all__bicyclist.safetensors"]
@@ -92,12 +92,26 @@ def test_fine_tuning_holds_out_road_users_and_keeps_unannotated_classes(scene, t
     assert car["epoch"] > 0 and car["val_error_m"] < car["start_val_error_m"]
 
 
+def test_with_few_road_users_nothing_is_held_out(scene, tmp_path, fake_rough):
+    """By default a class holds out road users only from five annotated ones: the tiny scene's
+    two pedestrians and three cars all train, the fixed schedule runs to its end."""
+    from seg2pose.method.checkpoint import Checkpoint
+    from seg2pose.training.fine_tune import fine_tune_scene
+
+    start = _start(scene, tmp_path / "start")
+    res = fine_tune_scene(scene, start, tmp_path / "out", _opts(epochs=2), cameras=["c1"],
+                          classes=["car"])
+    assert res.lines["all__car.safetensors"] == "all__car: fine-tuned, epoch 2 of 2 run; nothing held out"
+    ft = Checkpoint.load(tmp_path / "out" / "all__car.safetensors").info["fine_tune"]
+    assert ft["road_users"] == {"train": [3, 6, 9], "val": []}
+
+
 def test_the_start_is_epoch_zero(scene, tmp_path, fake_rough):
     """With a learning rate of 0 no epoch beats the start: its weights are kept, bit for bit."""
     from seg2pose.training.fine_tune import fine_tune_scene
 
     start = _start(scene, tmp_path / "start")
-    res = fine_tune_scene(scene, start, tmp_path / "out", _opts(lr=0.0, epochs=2),
+    res = fine_tune_scene(scene, start, tmp_path / "out", _opts(lr=0.0, epochs=2, min_held_out_users=2),
                           cameras=["c1"], classes=["car"])
     assert "no epoch beat the start model" in res.lines["all__car.safetensors"]
     for k, w in _weights(start / "all__car.safetensors").items():
