@@ -32,6 +32,7 @@ import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,7 @@ def read_conflicts(path: str | Path) -> Conflicts:
     if missing:
         raise InputError(f"expected a conflicts.csv written by `s2p conflicts`; missing columns "
                          f"{', '.join(missing)}", file=path, line=1)
-    cols = {h: [] for h in header}
+    cols: dict[str, list] = {h: [] for h in header}
     for lineno, row in enumerate(rows[1:], start=2):
         if not row:
             continue
@@ -271,7 +272,7 @@ def mcap_items(conflicts: Conflicts, tb, first: int, last: int):
     out = []
     for k in range(len(conflicts)):
         if first <= frames[k] <= last:
-            msg = {"frame": int(frames[k]), "id": k}
+            msg: dict[str, Any] = {"frame": int(frames[k]), "id": k}
             for h, v in c.items():
                 x = v[k]
                 msg[h] = x if isinstance(x, str) else (float(x) if math.isfinite(x) else None)

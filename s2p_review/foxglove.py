@@ -6,6 +6,7 @@ right, y down, z forward).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -243,7 +244,7 @@ def outlines(inst: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> list[np.nd
 
 
 def image_annotations(camera, table: PoseTable, sizes: np.ndarray, scene: Scene, ns: int,
-                      loops: list[tuple[str, np.ndarray]] = (), centres: list = (),
+                      loops: Sequence[tuple[str, np.ndarray]] = (), centres: Sequence = (),
                       scale: float = 1.0):
     """Projected boxes (LINE_LIST, class colours), mask outlines ``loops`` ((class, (K, 2)
     pixels), LINE_LOOP) and the views' mask centres ``centres`` ((uv, class), POINTS) of one

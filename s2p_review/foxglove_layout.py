@@ -9,7 +9,9 @@ Load it in Foxglove with Layouts -> Import from file... (see README, "Foxglove")
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from seg2pose.io.atomic import atomic_write_text
 
@@ -22,7 +24,7 @@ def camera_topics(cam: str) -> dict[str, str]:
             "annotations": f"{base}/annotations"}
 
 
-def _split(direction: str, items: list, shares: list[float] | None = None):
+def _split(direction: str, items: list, shares: Sequence[float] | None = None):
     """A Foxglove mosaic of ``items`` (panel ids or mosaics) along ``direction``, with
     ``shares`` (relative sizes, default equal)."""
     shares = shares or [1.0] * len(items)
@@ -44,7 +46,7 @@ def layout(cameras: list[str], classes: list[str], image_topic: dict[str, str],
         topics["/gt/scene"] = {"visible": True}
     for cam in cameras:
         topics[camera_topics(cam)["calibration"]] = {"visible": True}
-    config = {three_d: {"followTf": "world", "topics": topics,
+    config: dict[str, Any] = {three_d: {"followTf": "world", "topics": topics,
                         "cameraState": {"distance": 60.0, "phi": 55.0, "thetaOffset": 45.0,
                                         "target": [0, 0, 0], "targetOffset": [0, 0, 0],
                                         "targetOrientation": [0, 0, 0, 1], "perspective": True,

@@ -233,7 +233,8 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
         classes.append(c)
         nums.append(v)
     a = np.array(nums, dtype=np.float64).reshape(-1, ncol - 3)
-    return PoseTable(frames, tids, np.array(classes, dtype=object), a[:, :3], a[:, 3],
+    return PoseTable(np.asarray(frames, np.int64), np.asarray(tids, np.int64), np.array(classes, dtype=object),
+                     a[:, :3], a[:, 3],
                      a[:, 4:7] if ncol == 10 else None,
                      np.array(sources, dtype=object) if with_source else None,
                      np.array(r90s, dtype=np.float64) if with_r90 else None)
