@@ -91,7 +91,7 @@ def clicked_pairs(scene, rng: np.random.Generator, n: int, world_sigma: float, p
     from seg2pose.synth.clicks import spread_clicks
 
     cams = scene.cameras
-    _, X = spread_clicks(cams["c1"], n, rng)
+    _, X = spread_clicks(cams["c1"], n, rng, margin=60)  # in every lens's view, not only c1's
     Xn = X.copy()
     Xn[:, :2] += rng.normal(0, world_sigma, (n, 2))
     Xn[:, 2] = scene.ground.height(Xn[:, :2])

@@ -34,12 +34,12 @@ def road_pixels(cam: Camera, max_dist: float = 50.0, margin: int = 12) -> tuple[
     return uv[ok], X[ok]
 
 
-def spread_clicks(cam: Camera, n: int, rng: np.random.Generator, max_dist: float = 50.0
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """n exact pairs spread over the road in view: pixels (n, 2), world points (n, 3). The
-    first is drawn at random, each next one is the candidate farthest (in the image) from
-    those chosen, jittered by up to half a step."""
-    uv, X = road_pixels(cam, max_dist)
+def spread_clicks(cam: Camera, n: int, rng: np.random.Generator, max_dist: float = 50.0,
+                  margin: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """n exact pairs spread over the road in view (``margin`` pixels inside the image): pixels
+    (n, 2), world points (n, 3). The first is drawn at random, each next one is the candidate
+    farthest (in the image) from those chosen, jittered by up to half a step."""
+    uv, X = road_pixels(cam, max_dist, margin)
     if len(uv) < n:
         raise ValueError(f"camera {cam.name} sees only {len(uv)} road pixels within {max_dist} m")
     chosen = [int(rng.integers(len(uv)))]
