@@ -85,13 +85,14 @@ def ground_error(truth, solved, ground) -> float:
     return float(np.median(np.linalg.norm(Xt[ok, :2] - Xs[ok, :2], axis=1)))
 
 
-def clicked_pairs(scene, rng: np.random.Generator, n: int, world_sigma: float, pixel_sigma: float = 1.5):
+def clicked_pairs(scene, rng: np.random.Generator, n: int, world_sigma: float, pixel_sigma: float = 1.5,
+                  margin: int = 12):
     """Camera -> pairs dict for calib_site: the same n world points (one aerial click each) in
     every lens's frame."""
     from seg2pose.synth.clicks import spread_clicks
 
     cams = scene.cameras
-    _, X = spread_clicks(cams["c1"], n, rng, margin=60)  # in every lens's view, not only c1's
+    _, X = spread_clicks(cams["c1"], n, rng, margin=margin)
     Xn = X.copy()
     Xn[:, :2] += rng.normal(0, world_sigma, (n, 2))
     Xn[:, 2] = scene.ground.height(Xn[:, :2])
@@ -243,7 +244,7 @@ def traffic_variants(sd, scene, seed, preset, truth_err, results, res_path):
     f = float(np.median([r.camera.K[0, 0] for r in tc.values()]))
     rel = max(float(np.max([r.focal_sd / r.camera.K[0, 0] for r in tc.values()])), 0.02)
     rng = np.random.default_rng([seed, 100, 4])
-    pairs = clicked_pairs(scene, rng, 4, 0.1)
+    pairs = clicked_pairs(scene, rng, 4, 0.1, margin=60)  # 4 points: each lens must see all
     sizes = {c: (cam.width, cam.height) for c, cam in scene.cameras.items()}
     opts = dataclasses.replace(SolveOptions(), focal_prior_px=f, focal_log_sigma=rel, min_pairs=4)
     res = calibrate_site(SiteInput(pairs, sizes, [list(scene.cameras)], None, opts), maps_step=64)
