@@ -126,6 +126,11 @@ def conflicts(
         None, "--map",
         help="also draw the conflict map (PNG): where the conflicts' minimum TTC and the PET-only encounters lie",
     ),
+    tct_chart: Path | None = typer.Option(
+        None, "--tct-chart",
+        help="also draw the TCT chart (PNG): each conflict's Time-to-Accident against its conflicting speed, with "
+             "its TA interval and the serious / slight boundary",
+    ),
     all_pairs: bool = typer.Option(
         False, "--all-pairs",
         help="write every encounter with its indicators (flagged conflict / pet_only), not only conflicts",
@@ -189,7 +194,7 @@ def conflicts(
     from seg2pose.safety.table import INTERVAL_COLUMNS, format_conflicts
     from seg2pose.safety.tracks import load_tracks
 
-    for extra in (pet_only, conflict_map):
+    for extra in (pet_only, conflict_map, tct_chart):
         if extra is not None:
             check_writable(extra, force)
     check_writable(out, force)
@@ -255,6 +260,10 @@ def conflicts(
         from seg2pose.safety.conflict_map import draw_map
 
         draw_map(conflict_map, table, force=force)
+    if tct_chart is not None:
+        from seg2pose.safety.conflict_map import draw_tct_chart
+
+        draw_tct_chart(tct_chart, table.take(c["conflict"] == 1), force=force)
     typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s on a collision course), "
                f"{n_pet} PET-only encounters (PET <= {pet_s:g} s)"
                + (f" among {len(table)} encounters" if all_pairs else "")

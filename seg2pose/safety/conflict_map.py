@@ -119,3 +119,15 @@ def draw_map(path: str | Path, table, force: bool = False) -> None:
     with output_lock(path):
         check_writable(path, force)
         atomic_write_bytes(path, map_png(table))
+
+
+def draw_tct_chart(path: str | Path, table, force: bool = False) -> None:
+    """Write the TCT chart of the rows of ``table`` (with their TA intervals, if sampled) to
+    ``path`` (PNG)."""
+    c = table.columns
+    lo, hi = c.get("ta_lo_s"), c.get("ta_hi_s")
+    data = tct_chart_png(np.asarray(c["ta_s"], float), np.asarray(c["conflicting_speed_mps"], float),
+                         None if lo is None else np.asarray(lo, float), None if hi is None else np.asarray(hi, float))
+    with output_lock(path):
+        check_writable(path, force)
+        atomic_write_bytes(path, data)

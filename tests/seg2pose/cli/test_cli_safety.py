@@ -128,3 +128,16 @@ def test_conflicts_frames_range(tmp_path, capsys):
     code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--frames", "9:3",
                       "--force")
     assert code == 2 and "--frames" in se
+
+
+def test_conflict_map_and_tct_chart_are_pictures(tmp_path, capsys):
+    """--map and --tct-chart write PNG pictures (the crossing: one PET-only spot on the map)."""
+    p = tmp_path / "poses.csv"
+    write_poses(p, crossing_poses())
+    m, t = tmp_path / "map.png", tmp_path / "tct.png"
+    code, so, se = s2p(capsys, "conflicts", str(p), "-o", str(tmp_path / "c.csv"), "--fps", "30",
+                       "--map", str(m), "--tct-chart", str(t))
+    assert code == 0, se
+    assert "0 conflicts" in so and "1 PET-only" in so
+    for f in (m, t):
+        assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
