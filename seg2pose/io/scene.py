@@ -27,7 +27,6 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -44,7 +43,7 @@ SCENE_VERSION = 1
 MAX_CLASS_ID = 65535
 MAX_DEFAULT_HEIGHT = 20.0  # metres above the ground
 SCENE_FILE = "scene.json"
-DEFAULT_CLASSES: list[dict[str, Any]] = [
+DEFAULT_CLASSES: list[dict] = [
     {"id": 1, "name": "pedestrian", "default_height": 0.9},
     {"id": 2, "name": "bicyclist", "default_height": 0.9},
     {"id": 3, "name": "car", "default_height": 0.75},
@@ -150,10 +149,8 @@ class Scene:
         for k, v in extra.items():
             f = f"extra.class_sizes.{k}"
             if not isinstance(v, list) or len(v) != 3:
-                raise InputError("expected [l, w, h] numbers (metres)", file=self.root / SCENE_FILE,
-                                 field=f)
-            l, w, h = (number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True, hi=1000.0)
-                       for x in v)
+                raise InputError("expected [l, w, h] numbers (metres)", file=self.root / SCENE_FILE, field=f)
+            l, w, h = (number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True, hi=1000.0) for x in v)
             sizes[str(k)] = (l, w, h)
         return sizes
 
