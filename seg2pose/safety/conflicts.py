@@ -137,14 +137,19 @@ def pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     d = np.hypot(fp.x[a] - fp.x[b], fp.y[a] - fp.y[b])
     keep = d <= data.span[a] + data.span[b]
     a, b, d = a[keep], b[keep], d[keep]
-    # exact shortcut: apart (farther than their reaches) and not closing in, or too far to
-    # meet within the horizon: no collision course (the centre distance of two bodies at
-    # constant velocity is convex in time). Such a frame is kept only where the two are
-    # within NEAR_GAP_M of touching (for the least gap and the encounter's span)
+    # exact shortcut: apart (farther than their reaches) and not closing in, too far to meet
+    # within the horizon, or passing each other with the centres farther apart than their
+    # reaches at the closest approach: no collision course (the bounding circles never meet).
+    # Such a frame is kept only where the two are within NEAR_GAP_M of touching (for the
+    # least gap and the encounter's span)
     rx, ry = fp.x[b] - fp.x[a], fp.y[b] - fp.y[a]
     wx, wy = vx[b] - vx[a], vy[b] - vy[a]
-    gap = d - fp.reach[a] - fp.reach[b]
-    maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap * gap > (wx * wx + wy * wy) * opts.horizon_s ** 2)))
+    reach = fp.reach[a] + fp.reach[b]
+    gap = d - reach
+    w2 = wx * wx + wy * wy
+    cross = rx * wy - ry * wx  # |cross| / |w|: how close the centres pass on this course
+    maybe = ~((gap > 0) & ((rx * wx + ry * wy >= 0) | (gap * gap > w2 * opts.horizon_s ** 2)
+                           | (cross * cross > reach * reach * w2)))
     keep = maybe | (gap <= NEAR_GAP_M)
     a, b, d, maybe = a[keep], b[keep], d[keep], maybe[keep]
     order = _pair_frame_order(tracks, data, a, b)
