@@ -118,6 +118,21 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     mfv = video_scene("mfv")
     scene_import_detections(mfv, "c0", dets, **quiet)
     shutil.copy2(mfv / "masks" / "c0.txt", old / "mfv-c0.txt")
+    # masks-from-video of two cameras (issue 38): both cameras' masks and masks/ids.json
+    # replace associated detector masks as one set (a kill after the first camera left its
+    # tracker ids beside a record calling them associated, and `s2p run` fused unrelated
+    # road users)
+    calib2 = root / "calib2.json"
+    one = json.loads(calib.read_text())["cameras"][0]
+    calib2.write_text(json.dumps({"cameras": [one, dict(one, name="c1")]}))
+    mfv2 = root / "mfv2"
+    new_scene(mfv2, {"c0": root / "frames", "c1": root / "frames"}, calib2, ground, fps=10, **quiet)
+    for c in ("c0", "c1"):
+        scene_import_detections(mfv2, c, dets, associate=False, **quiet)
+    from seg2pose.video.associate_scene import associate_scene
+    associate_scene(mfv2, **quiet)
+    for n in ("c0.txt", "c1.txt", "ids.json"):
+        shutil.copy2(mfv2 / "masks" / n, old / f"mfv2-{n}")
     # import-detections: replaces background-subtraction masks
     imd = video_scene("imd")
     scene_masks_from_video(imd, bg=bgd, **quiet)
@@ -187,6 +202,10 @@ def build_writer_cases(root: Path, frames: int = 16) -> list[Case]:
     return [
         Case("masks-from-video", ["masks-from-video", mfv, "--no-progress", "--force", *bg],
              [mfv / "masks" / "c0.txt"], [old / "mfv-c0.txt"]),
+        Case("masks-from-video-2cam", ["masks-from-video", mfv2, "--no-progress", "--force",
+                                       "--no-associate", *bg],
+             [mfv2 / "masks" / n for n in ("c0.txt", "c1.txt", "ids.json")],
+             [old / f"mfv2-{n}" for n in ("c0.txt", "c1.txt", "ids.json")]),
         Case("import-detections", ["import-detections", imd, dets, "--camera", "c0", "--force"],
              [imd / "masks" / "c0.txt"], [old / "imd-c0.txt"]),
         Case("track", ["track", trk, "--no-progress"], [trk / "masks" / "c0.txt"],

@@ -31,22 +31,23 @@ def snapshot(path: Path) -> dict | None:
     if not path.exists():
         return None
     if path.is_file():
-        return {"": path.read_bytes()}
-    out = {}
-    for p in sorted(path.rglob("*")):
-        if p.is_file():
-            data = p.read_bytes()
-            if p.name == "run.json":
-                d = json.loads(data)
-                d.pop("created", None)
-                data = json.dumps(d, sort_keys=True).encode()
-            elif p.name == "ids.json":  # masks/ids.json: when each camera's ids were made
-                d = json.loads(data)
-                for e in d.get("cameras", {}).values():
-                    e.pop("made", None)
-                data = json.dumps(d, sort_keys=True).encode()
-            out[str(p.relative_to(path))] = data
-    return out
+        return {"": _normalized(path)}
+    return {str(p.relative_to(path)): _normalized(p) for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def _normalized(p: Path) -> bytes:
+    """A file's bytes without the times two runs of a command write differently."""
+    data = p.read_bytes()
+    if p.name == "run.json":
+        d = json.loads(data)
+        d.pop("created", None)
+        data = json.dumps(d, sort_keys=True).encode()
+    elif p.name == "ids.json":  # masks/ids.json: when each camera's ids were made
+        d = json.loads(data)
+        for e in d.get("cameras", {}).values():
+            e.pop("made", None)
+        data = json.dumps(d, sort_keys=True).encode()
+    return data
 
 
 def classify(state: dict | None, old: dict | None, new: dict) -> str:

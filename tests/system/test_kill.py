@@ -18,7 +18,7 @@ KILLS_PER_COMMAND = 10
 KILLS_FIRST = 4  # issue 10's five: 200 each in benches/bench_faults.py, unchanged since
 KILLS_TRAIN = 5  # s2p train: ~10 s a run and a re-run after each kill
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
-WRITERS = ["masks-from-video", "import-detections", "track", "new-scene", "import-tacal",
+WRITERS = ["masks-from-video", "masks-from-video-2cam", "import-detections", "track", "new-scene", "import-tacal",
            "import-mcap", "annotate-export", "import-tanalyst", "associate", "batch-serial"]
 
 
