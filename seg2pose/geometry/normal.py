@@ -89,7 +89,7 @@ def fuse_views(estimates: np.ndarray) -> np.ndarray:
     estimates: (V, N, D) with NaN rows for views without a detection -> (N, D); NaN where no
     view saw it."""
     est = np.asarray(estimates, dtype=np.float64)
-    seen = np.isfinite(est).all(axis=2)
+    seen = np.asarray(np.isfinite(est).all(axis=2))
     n = seen.sum(axis=0)
     total = np.where(seen[..., None], est, 0.0).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -32,6 +32,7 @@ def _box_pairs(xy: np.ndarray, t: np.ndarray, r: float, dt: float,
         return m[:, 0].astype(np.int64), m[:, 1].astype(np.int64)
     if len(xy) == 0 or len(xy2) == 0:
         return e, e
+    assert t2 is not None  # given with xy2
     t1 = cKDTree(np.c_[xy, t * scale], balanced_tree=False, compact_nodes=False)
     t2_ = cKDTree(np.c_[xy2, t2 * scale], balanced_tree=False, compact_nodes=False)
     m = t1.sparse_distance_matrix(t2_, r, p=np.inf, output_type="ndarray")
@@ -81,6 +82,7 @@ def near_pairs(tracks: Tracks, rows: np.ndarray, r: float, dt: float = 0.0,
                 sel2 = np.flatnonzero((k2 == c) | ((k2 == c + 1) & (t2 - t0 - (c + 1) * chunk_s <= dt)))
                 i, j = _box_pairs(tracks.xy[rows[sel]], t[sel], r, dt, tracks.xy[other[sel2]], t2[sel2])
                 i, j = sel[i], sel2[j]
+                assert k2 is not None  # other is given
                 keep = (k[i] == c) | (k2[j] == c)
                 out_a.append(rows[i[keep]])
                 out_b.append(other[j[keep]])

@@ -306,6 +306,7 @@ def _vehicle_traj(rng, cls, t0, active, queue) -> tuple[Traj, float]:
     # 1.35 m apart for a bicyclist beside a car in the outer lane, must not count as conflicts)
     half = (0.95, 0.3) if bike else (2.6, 0.95)
     gap = 2 * half[0] + 2.0
+    assert route.stop_s is not None  # a vehicle's route has a stop line
     stop_s = route.stop_s - half[0]  # the centre's arc length when the front is at the line
     shift = extra = 0.0
     s_free, t_free = _profile(route, v_cruise, acc, dec, None)

@@ -58,6 +58,7 @@ class ExampleSet:
         return len(self.target)
 
     def take(self, idx) -> ExampleSet:
+        assert self.geo is not None  # filled in __post_init__
         return ExampleSet(self.crops[idx], self.factor, self.centers[idx], self.normal[idx],
                           self.target[idx], self.cls[idx], self.rough[idx], self.geo[idx])
 
