@@ -31,6 +31,9 @@ from seg2pose.core.errors import S2PError
 from seg2pose.io.nofollow import open_nofollow
 
 LOG_NAME = "server.log"
+# SCENE/annotations/server.json (owner-only): the last start's port and token. A restart on the
+# same port with the same token keeps an open tab working (its cookie and URL stay valid).
+SERVER_FILE = "server.json"
 STOP_SECONDS = 4.0  # SIGTERM, then SIGKILL after this long: stopped within 5 s
 
 
@@ -122,16 +125,50 @@ def open_log(scene: Path) -> tuple[int, Path]:
         return open_nofollow(path, flags | os.O_EXCL, 0o600), path
 
 
+def pick_port_token(scene: Path, port: int | None) -> tuple[int, str]:
+    """(port, token) of a start: the last start's (``SERVER_FILE``) when its port is free and
+    no other port is asked for, so that a restart keeps the open tab working; else the asked
+    (or a free) port and a new token."""
+    import json
+
+    last = Path(scene) / "annotations" / SERVER_FILE
+    try:
+        d = json.loads(last.read_text(encoding="utf-8")) if not last.is_symlink() else {}
+        old_port, old_token = int(d["port"]), str(d["token"])
+    except (OSError, ValueError, KeyError, TypeError):
+        old_port, old_token = None, None
+    if old_port is not None and old_token and len(old_token) >= 32 and port in (None, old_port) \
+            and not _port_open(old_port):
+        return old_port, old_token
+    return port or free_port(), new_token()
+
+
+def remember(scene: Path, port: int, token: str) -> None:
+    """Keep this start's port and token for the next (``SERVER_FILE``, owner-only); a scene
+    folder that cannot be written keeps nothing."""
+    import json
+
+    try:  # owner-only, never through a link; a torn file is no start to reuse (a new token)
+        fd = open_nofollow(Path(scene) / "annotations" / SERVER_FILE,
+                           os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    except (OSError, S2PError):
+        return
+    try:
+        os.fchmod(fd, 0o600)  # a file left by an older start with wider rights
+        os.write(fd, json.dumps({"port": port, "token": token}).encode())
+    finally:
+        os.close(fd)
+
+
 def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None,
           port: int | None = None, native: bool = False, log: Path | None = None,
           wait: float = 60.0) -> Server:
     """Start the page's server and wait until it listens. log: a file for the server's output
     (default: SCENE/annotations/server.log, see ``open_log``). Raises S2PError when it does not
     come up."""
-    port = port or free_port()
+    port, token = pick_port_token(Path(scene), port)
     if _port_open(port):
         raise S2PError(f"port {port} is in use; choose another with --port")
-    token = new_token()
     env = dict(os.environ)
     env["RERUN_NOTEBOOK_ASSET"] = "serve-local"
     env[ARGS_ENV] = json.dumps({
@@ -161,6 +198,7 @@ def start(scene: Path, run: Path | None = None, cameras: list[str] | None = None
             server.stop()
             raise S2PError(f"the annotation server did not start within {wait:.0f} s")
         time.sleep(0.2)
+    remember(Path(scene), port, token)
     return server
 
 

@@ -40,3 +40,24 @@ def test_s2p_annotate_exits_with_the_reason_when_its_server_dies(tmp_path, monke
     with pytest.raises(S2PError, match="stopped with exit code 3: 2026-01-01 boom: port gone"):
         serve.run_app(tmp_path, browser=False, echo=said.append)
     assert said and "annotation app for" in said[0]
+
+
+def test_a_restart_keeps_the_port_and_token_so_an_open_tab_goes_on(tmp_path):
+    import os
+    import socket
+
+    from annotate.app.serve import SERVER_FILE, pick_port_token, remember
+
+    (tmp_path / "annotations").mkdir()
+    port, token = pick_port_token(tmp_path, None)       # nothing remembered: new ones
+    remember(tmp_path, port, token)
+    assert os.stat(tmp_path / "annotations" / SERVER_FILE).st_mode & 0o077 == 0  # owner-only
+    assert pick_port_token(tmp_path, None) == (port, token)      # the restart: the same
+    assert pick_port_token(tmp_path, port) == (port, token)
+    other = pick_port_token(tmp_path, port + 1)                  # another port asked for
+    assert other[0] == port + 1 and other[1] != token
+    with socket.socket() as s:                                    # the old port taken meanwhile
+        s.bind(("127.0.0.1", port))
+        s.listen()
+        p2, t2 = pick_port_token(tmp_path, None)
+        assert p2 != port and t2 != token
