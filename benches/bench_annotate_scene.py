@@ -272,7 +272,8 @@ def first_steps(scene: Path, run: Path, loads: int) -> dict:
                 panel.append(time.monotonic() - t0)
                 presses = 0
                 while True:
-                    pg.keyboard.press("ArrowRight")
+                    # a step back, unless at the first frame (a step on from the last does nothing)
+                    pg.keyboard.press("ArrowLeft" if int(f0) > 0 else "ArrowRight")
                     presses += 1
                     if _frame_changes(pg, f0, 30.0):
                         break
