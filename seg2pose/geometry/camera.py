@@ -25,8 +25,8 @@ from seg2pose.core.validate import MAX_COORD, MAX_IMAGE_SIDE, MAX_PIXEL_COORD, i
 class Distortion(Protocol):
     """A lens distortion model on normalised image coordinates, shape (N, 2)."""
 
-    model: str
-
+    @property
+    def model(self) -> str: ...  # read-only: the models are frozen dataclasses
     def distort(self, xy: np.ndarray) -> np.ndarray: ...
     def undistort(self, xy_d: np.ndarray) -> np.ndarray: ...
     def to_dict(self) -> dict: ...
