@@ -178,6 +178,7 @@ def _road_user_stream(scene: Scene, sel: Selection, tb: Timebase, poses: PoseTab
             yield ns, 2, "/road_users/poses", F.poses_in_frame(t, ns)
             yield ns, 2, "/road_users/scene", F.scene_update(t, psz[pidx[f]], scene, ns, dt)
         if f in gidx:
+            assert gt is not None and gsz is not None  # gidx is empty without truth
             yield ns, 2, "/gt/scene", F.scene_update(gt.take(gidx[f]), gsz[gidx[f]], scene, ns, dt,
                                                      rgb=L.GT_COLOR, prefix="gt")
 

@@ -21,6 +21,7 @@ A ``.tacal`` has no image size; callers give it (or take 2 Cx x 2 Cy).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -212,7 +213,7 @@ def camera_to_tacal(cam: Camera) -> Tacal:
                  **{f"r{i + 1}": float(v) for i, v in enumerate(R.ravel())})
 
 
-def scene_from_tacals(files: list[str | Path], ground_points: str | Path, out: str | Path,
+def scene_from_tacals(files: Sequence[str | Path], ground_points: str | Path, out: str | Path,
                       fps: float, size: tuple[int, int] | None = None, force: bool = False):
     """A new scene folder ``out`` from ``.tacal`` files (camera names from the file names'
     stems), a ground points CSV and the video's frame rate. Configurations: one per camera
