@@ -15,7 +15,7 @@ without truth on this scene: a zero-annotation run); ``all`` every ``--held`` sc
 split. ``--own-val`` is ``--cal tune --cal own``.
 
 Per configuration, every step is the ``s2p`` command a user types (printed as it runs):
-``s2p run --split val``, ``s2p calibrate`` on those runs, then ``s2p run --split test --r90``
+``s2p run --split val``, ``s2p calibrate-errors`` on those runs, then ``s2p run --split test --r90``
 and ``s2p eval --json`` on each held-out scene. Without ``--models`` the runs are the
 baseline; ``--models`` repeated gives an ensemble (its spread is a cue); ``--scene-models
 NAME`` runs each scene with its own models, SCENE/NAME (runs of several scenes then calibrate
@@ -53,7 +53,7 @@ def run_once(scene: Path, out: Path, config: str, split: str, method: list[str],
 
 def calibrate(scene: Path, runs: list[Path], path: Path) -> Path:
     if not path.exists():
-        sh("calibrate", scene, *[x for r in runs for x in ("--run", r)], "-o", path)
+        sh("calibrate-errors", scene, *[x for r in runs for x in ("--run", r)], "-o", path)
     return path
 
 

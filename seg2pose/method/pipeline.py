@@ -263,7 +263,7 @@ def write_run(scene: Scene, run_dir: Path, views: ViewTable, cams: list[str], mo
         method = "baseline" if models is None else "seg2posenet"
         if cal.meta.get("method") not in (None, method):
             raise InputError(f"this r90 calibration was fitted on a {cal.meta['method']} run; "
-                             f"this is a {method} run (fit one with s2p calibrate)", file=r90_path)
+                             f"this is a {method} run (fit one with s2p calibrate-errors)", file=r90_path)
         if int(cal.meta.get("smooth_frames") or 0) != smooth:
             warn_once(set(), "r90smooth", f"the r90 calibration {r90_path} was fitted on a run "
                       f"with --smooth {cal.meta.get('smooth_frames') or 0}, this one has --smooth "
@@ -390,7 +390,7 @@ def _run_scene(scene: Scene, run_dir: Path, opts: RunOptions) -> Path:
     r90_path = Path(opts.r90) if opts.r90 is not None else default_r90_path(scene, opts.models_dir,
                                                                             opts.baseline)
     if opts.r90 is not None and not r90_path.is_file():
-        raise InputError("r90 calibration not found (make one with s2p calibrate)", file=r90_path)
+        raise InputError("r90 calibration not found (make one with s2p calibrate-errors)", file=r90_path)
     views, nframes = compute_views(scene, cams, frame_range, models, opts.center_method,
                                    opts.chunk_frames, opts.progress, far=far)
     check_frames(scene, cams, views.frame)

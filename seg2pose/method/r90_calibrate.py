@@ -1,4 +1,4 @@
-"""``s2p calibrate``: fit the error bars (``seg2pose.method.uncertainty``) on a run whose truth
+"""``s2p calibrate-errors``: fit the error bars (``seg2pose.method.uncertainty``) on a run whose truth
 is known and write the calibration JSON where runs look for it."""
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ position with 90 % probability. It is estimated from what the method knows about
 Both stages are linear *quantile regressions* of log(error) per class (the 90th percentile of
 the log error is the log of the 90th percentile of the error), shifted by a conformal step over
 whole road users: fitted on runs whose truth is known -- the validation split, of one scene or
-several (``fit_calibration``, ``s2p calibrate``) -- written as a JSON beside the models or the
+several (``fit_calibration``, ``s2p calibrate-errors``) -- written as a JSON beside the models or the
 run, and applied to any run of the same method (``s2p run --r90``). A class with too few
 validation rows falls back to the pooled model of all classes. A calibration does not
 extrapolate: each feature is clipped to the range it had in the fit, and the bar to twice the
@@ -220,12 +220,12 @@ class Calibration:
 
 
 def read_calibration(path: str | Path) -> Calibration:
-    """An r90 calibration JSON (``s2p calibrate``); errors name the file and field."""
+    """An r90 calibration JSON (``s2p calibrate-errors``); errors name the file and field."""
     path = Path(path)
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError("r90 calibration not found (make one with s2p calibrate)", file=path) from None
+        raise InputError("r90 calibration not found (make one with s2p calibrate-errors)", file=path) from None
     except json.JSONDecodeError as e:
         raise InputError(f"invalid JSON: {e.msg}", file=path, line=e.lineno) from None
     if not isinstance(d, dict) or d.get("format") != FORMAT:
