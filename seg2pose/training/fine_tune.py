@@ -141,6 +141,7 @@ def train_from(sm: StartModel, train: WeightedExamples, rough: ExampleSet | None
         for _ in range(opts.batches_per_epoch):
             parts = [tr.batch(rng.choice(len(p), n_real, p=p))]
             if n_rough:
+                assert ro is not None  # n_rough is 0 without rough examples
                 parts.append(ro.batch(rng.integers(0, len(ro.ex), n_rough)))
             x, v, y = (torch.from_numpy(np.concatenate(q)).to(device) for q in zip(*parts))
             with autocast(device):

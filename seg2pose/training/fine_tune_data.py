@@ -133,7 +133,7 @@ def usable_rows(gt: PoseTable, scene: Scene) -> PoseTable:
         why = "not used" if s in SKIPPED_SOURCES else "an unknown source; not used"
         say(f"{int((src == s).sum())} annotated rows of source {s!r}: {why}", "note")
     if "test" in scene.splits:
-        a, b = scene.split_range("test")
+        a, b = scene.splits["test"]
         keep &= (gt.frame < a) | (gt.frame > b)
     out = gt.take(np.flatnonzero(keep))
     if out.source is None:
@@ -157,6 +157,7 @@ def annotated_masks(scene: Scene, camera: str, gt: PoseTable) -> Annotated:
         g = gt.take(np.arange(lo, hi))
         match = match_masks_to_truth(cam, t, g, names, heights)
         for i in np.flatnonzero(match >= 0):
+            assert g.source is not None  # rows from usable_rows always carry their source
             rles.append(t.rles[i])
             cls.append(by_id[int(t.class_id[i])].name)
             xy.append(g.xyz[match[i], :2])
