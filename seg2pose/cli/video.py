@@ -14,10 +14,10 @@ from seg2pose.core.errors import InputError
 
 
 def _settings(what: str, section: str, keys: str):
-    """The ``--set KEY=VALUE`` option of a command whose settings ``what`` (with its article)
+    """The ``--set KEY=VALUE`` option (the Annotated metadata) of a command whose settings ``what`` (with its article)
     lie in scene.json ``extra.<section>``; ``keys``: the keys, in words."""
-    return Annotated[list[str], typer.Option(
-        "--set", help=f"{what} setting KEY=VALUE (repeatable), over scene.json extra.{section}: {keys}")]
+    return typer.Option(
+        "--set", help=f"{what} setting KEY=VALUE (repeatable), over scene.json extra.{section}: {keys}")
 
 
 # the options the video commands share
@@ -27,20 +27,20 @@ Associate = Annotated[bool, typer.Option(
     "--associate/--no-associate",
     help="with two or more cameras: one track id per road user in every camera (s2p associate)")]
 ReplaceMasks = Annotated[bool, typer.Option("--force", help="replace an existing masks/<camera>.txt")]
-BackgroundSettings = _settings(
+BackgroundSettings = Annotated[list[str], _settings(
     "a background-subtraction", "video_masks",
     "method (mog2|knn), history, threshold, shadows, shadow_texture, texture_near (true|false), "
     "init (mode|median|warmup|none), init_frames, init_samples, learning_rate, update "
     "(selective|all|none), update_every, ghost_after, ghost_ratio, clean_start (true|false), "
-    "open_px, close_px, min_area, unsettled")
-TrackerSettings = _settings(
+    "open_px, close_px, min_area, unsettled")]
+TrackerSettings = Annotated[list[str], _settings(
     "a tracker", "tracker",
     "iou_min, gate_m, gate_growth, max_gap, min_length, gap_penalty, split_min (default 0.5: "
-    "split a mask holding half of two tracks' predicted masks; 0: never)")
-AssociationSettings = _settings(
+    "split a mask holding half of two tracks' predicted masks; 0: never)")]
+AssociationSettings = Annotated[list[str], _settings(
     "an association", "associate",
     "gate_m, height_sd, gate_sigmas, track_weight, class_cost, min_run, min_votes, "
-    "split_blobs (true|false)")
+    "split_blobs (true|false)")]
 
 
 def _pairs(items: list[str], what: str) -> dict:

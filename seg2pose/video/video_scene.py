@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -245,7 +245,7 @@ def read_calibration(path: str | Path, sizes: dict[str, tuple[int, int]]) -> dic
     return {name: Camera.from_P(name, P.reshape(3, 4), w, h)}
 
 
-def new_scene(out: str | Path, videos: dict[str, str | Path], calibration: str | Path,
+def new_scene(out: str | Path, videos: Mapping[str, str | Path], calibration: str | Path,
               ground_points: str | Path, *, fps: float | None = None, name: str | None = None,
               force: bool = False, log: Callable[[str], None] = print) -> Scene:
     """A scene folder from videos (camera name -> video file or image folder), a calibration
