@@ -17,8 +17,7 @@ import numpy as np
 from pycocotools import mask as mask_util
 
 from seg2pose.structures.masks import decode_counts
-from seg2pose.structures.rle_runs import box_of_runs, shift_counts, shift_rles
-from seg2pose.video.video_masks import labels_to_rles
+from seg2pose.structures.rle_runs import box_of_runs, labels_to_rles, shift_counts, shift_rles
 
 SPLIT_MIN_AGE = 3     # masks a track needs before a blob is split for it (not a fragment)
 

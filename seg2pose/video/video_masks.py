@@ -43,11 +43,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pycocotools import mask as mask_util
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.mots import MaskTable, write_mots
 from seg2pose.io.video import FrameReader
+from seg2pose.structures.rle_runs import labels_to_rles
 from seg2pose.video.bg_checks import (
     exposure_ratio,
     flat_pixels,
@@ -78,48 +78,6 @@ class VideoMasksResult:
     stopped: str | None = None                     # why reading ended early, else None
     unsettled: list[tuple[int, int]] = field(default_factory=list)  # frame ranges (inclusive)
     n_rescaled: int = 0  # frames scaled to the model's brightness (``BgConfig.exposure_band``)
-
-
-def labels_to_rles(labels: np.ndarray, ids: np.ndarray, x0: int = 0,
-                   width: int | None = None, y0: int = 0, height: int | None = None) -> list[bytes]:
-    """Compressed COCO RLEs of the components ``ids`` (K,) of a label image (H, W) int.
-
-    One pass over the column-major pixels finds every run of equal labels; each component's
-    RLE is its runs with the gaps between them, so no per-component full-image mask is made.
-    ``labels`` may also be a box at column ``x0``, row ``y0`` of an image ``height`` x
-    ``width`` (the rest of the image is label 0)."""
-    bh, w_strip = labels.shape
-    w = w_strip if width is None else int(width)
-    h = bh if height is None else int(height)
-    n = h * w
-    flat = np.asarray(labels).T.ravel()           # column-major, as COCO RLE
-    change = flat[1:] != flat[:-1]
-    if bh < h:                                    # a box's columns are not contiguous
-        change[bh - 1::bh] = True
-    cut = np.flatnonzero(change) + 1
-    vals = flat[np.r_[0, cut]]
-    col, row = np.divmod(np.r_[0, cut], bh)
-    starts = (x0 + col) * h + y0 + row
-    col, row = np.divmod(np.r_[cut, len(flat)] - 1, bh)
-    ends = (x0 + col) * h + y0 + row + 1
-    out: list[bytes] = []
-    if len(ids) == 0:
-        return out
-    order = np.argsort(vals, kind="stable")
-    sv = vals[order]
-    lo = np.searchsorted(sv, ids, side="left")
-    hi = np.searchsorted(sv, ids, side="right")
-    for k in range(len(ids)):
-        sel = order[lo[k]:hi[k]]
-        s, e = starts[sel], ends[sel]
-        counts = np.empty(2 * len(s) + 1, np.int64)
-        counts[0:-1:2] = s - np.r_[0, e[:-1]]
-        counts[1::2] = e - s
-        counts[-1] = n - (e[-1] if len(e) else 0)
-        if counts[-1] == 0:  # pycocotools ends on the last non-empty run
-            counts = counts[:-1]
-        out.append(mask_util.frPyObjects({"size": [h, w], "counts": counts.tolist()}, h, w)["counts"])
-    return out
 
 
 class BackgroundMasks:

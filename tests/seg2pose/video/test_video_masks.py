@@ -12,7 +12,8 @@ from seg2pose.geometry.camera import Camera
 from seg2pose.io.mots import read_mots
 from seg2pose.io.video import FrameReader
 from seg2pose.structures.masks import decode
-from seg2pose.video.video_masks import BgConfig, labels_to_rles, masks_from_video
+from seg2pose.structures.rle_runs import labels_to_rles
+from seg2pose.video.video_masks import BgConfig, masks_from_video
 
 opencv_one_thread = pytest.fixture(autouse=True)(single_threaded_opencv)
 
