@@ -5,7 +5,6 @@ then drive the viewers (time cursor, follow). ``record`` is the public entry poi
 
 from __future__ import annotations
 
-import contextlib
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ from s2p_review.recording import LogStats, LogStyle, log_all
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_path, check_writable, clean_stale_partials, output_lock
+from seg2pose.io.atomic import atomic_path, check_writable, clean_stale_partials, holding
 from seg2pose.io.scene import Scene
 
 
@@ -91,10 +90,9 @@ def record(scene: Scene, runs: list[Path], to: Targets | Path,
     ``Targets(rrd=path)``). The .rrd file and the screenshot are locked from the start (a
     second writer of either is refused) and a killed writer's partial .rrd files removed."""
     to = Targets(rrd=Path(to)) if isinstance(to, (str, Path)) else to
-    with contextlib.ExitStack() as locks:
+    with holding(to.rrd, to.screenshot):
         for p in (to.rrd, to.screenshot):
             if p is not None:
-                locks.enter_context(output_lock(p))
                 clean_stale_partials(p)
         return _record(scene, runs, to, options)
 

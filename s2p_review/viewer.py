@@ -18,7 +18,7 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_write_bytes, check_writable, output_lock
+from seg2pose.io.atomic import atomic_write_bytes, check_writable, holding
 
 
 class ViewerError(S2PError):
@@ -261,7 +261,7 @@ def take_screenshot(source: Path | str, png_path: Path, *, frame: int | None = N
     source = Path(source)
     if not source.exists():
         raise S2PError(f"{source}: recording not found")
-    with output_lock(png_path):  # from the start: a second screenshot of the same PNG is refused
+    with holding(png_path):  # from the start: a second screenshot of the same PNG is refused
         check_writable(Path(png_path), force)
         return _take_screenshot(source, Path(png_path), frame, force, max_size)
 

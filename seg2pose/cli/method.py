@@ -266,10 +266,10 @@ def train_cmd(
     settings = TrainSettings(device=device, threads=threads or TrainSettings.threads, force=force)
     # self-training: the rough-only stage (train_scene), then the fine-tuning on pseudo poses
     fit = train_self_trained if cfg.self_train else train_scene
-    from seg2pose.io.atomic import output_lock
+    from seg2pose.io.atomic import holding
 
     # the model folder locked from the start: two trainings into one folder are refused
-    with output_lock(Path(out) if out is not None else Path(scene) / "models"):
+    with holding(Path(out) if out is not None else Path(scene) / "models"):
         out_dir = fit(load_scene(scene), out, cfg, cameras=camera or None, classes=cls or None,
                       progress=True, settings=settings,
                       map_groups=ray_map(address, parallel) if parallel or address else None)

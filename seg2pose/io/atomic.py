@@ -48,7 +48,7 @@ __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_tex
            "check_writable", "clean_stale_partials", "final_name", "finish_commits", "fsync_dir",
            "is_temporary", "lock_path", "os_error_message", "os_errors", "output_lock",
            "OutputSet", "outputs", "replacing", "swap_in", "temp_sibling_dir", "rename", "link_or_copy",
-           "unfinished_outputs", "copy_tree"]
+           "unfinished_outputs", "copy_tree", "holding"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -200,10 +200,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def output_lock(path: str | Path) -> Iterator[Path]:
+def output_lock(path: str | Path, _hold: bool = False) -> Iterator[Path]:
     """Hold ``.NAME.lock`` beside ``path`` while writing it (``seg2pose.core.locks``). A live
-    holder makes this raise S2PError naming it; the lock of a process on this machine that no
-    longer runs is taken over with a note."""
+    holder makes this raise S2PError naming it (this process too, unless it holds the lock
+    through ``holding``); the lock of a process on this machine that no longer runs is taken
+    over with a note."""
     path = Path(path)
     refuse_links(path)  # a linked folder: the lock and the output would land where it points
     with os_errors(path):
@@ -219,29 +220,38 @@ def output_lock(path: str | Path) -> Iterator[Path]:
             f"(it started writing {path} at {h.since if h else '?'})", kind="note")
 
     key = os.path.abspath(lock)
-    if key in _held:  # this process holds it already (a command locks its outputs from its
-        _held[key] += 1  # start; the writer it calls at the end locks them again)
-        try:
-            yield lock
-        finally:
-            _held[key] -= 1
+    if key in _held:  # held from the command's start (``holding``): the writer it calls at the
+        yield lock    # end locks it again
         return
     held = ExclusiveLock(lock, busy, taken_over)
     with os_errors(path):
         if not held.acquire():
             raise S2PError(f"could not take the lock {lock} of {path}")
-    _held[key] = 1
+    if _hold:
+        _held.add(key)
     try:
         yield lock
     except BaseException:
         _unfinished.append(path)  # for the command's one line: which output was cut short
         raise
     finally:
-        del _held[key]
+        _held.discard(key)
         held.release()
 
 
-_held: dict[str, int] = {}  # the output locks this process holds -> how many times
+@contextlib.contextmanager
+def holding(*paths: str | Path | None) -> Iterator[None]:
+    """Lock the outputs ``paths`` (None: skipped) from the start of a command's work, not only
+    for its final write: a second writer is refused before it computes anything. The writers
+    this process calls inside take the same locks again without waiting on themselves."""
+    with contextlib.ExitStack() as stack:
+        for p in paths:
+            if p is not None:
+                stack.enter_context(output_lock(p, _hold=True))
+        yield
+
+
+_held: set[str] = set()  # the output locks this process holds through ``holding``
 _unfinished: list[Path] = []
 
 

@@ -24,8 +24,9 @@ from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import InputError
 from seg2pose.core.say import warn_once
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD, normal_positions
+from seg2pose.io.atomic import holding
 from seg2pose.io.mots import MaskTable
-from seg2pose.io.run import ViewTable, check_run_writable, relative_path, run_lock, write_run_folder
+from seg2pose.io.run import ViewTable, check_run_writable, relative_path, write_run_folder
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import load_models, predict_with_spread
 from seg2pose.method.fusion import fuse
@@ -370,7 +371,7 @@ class RunOptions:
 def run_scene(scene: Scene, run_dir: str | Path, opts: RunOptions = RunOptions()) -> Path:
     """Run the pipeline on a scene and write the run folder ``run_dir`` (see module docstring)."""
     run_dir = Path(run_dir)
-    with run_lock(run_dir):  # from the start: two runs into one folder do not both compute
+    with holding(run_dir):  # from the start: two runs into one folder do not both compute
         return _run_scene(scene, run_dir, opts)
 
 
