@@ -9,7 +9,7 @@ import numpy as np
 
 from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import InputError
-from seg2pose.io.atomic import atomic_write_text, check_writable
+from seg2pose.io.atomic import atomic_write_text, check_writable, holding
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run, relative_path
 from seg2pose.io.scene import load_scene
@@ -101,6 +101,12 @@ def calibrate_run(scene, run_dir: str | Path | list, out: str | Path | None = No
         dirs = [run_dirs[0] / (p[0] if isinstance(p, list) else p) for p in paths if p]
         out = default_r90_path(scene, [d.parent for d in dirs][:1] or None, baseline)
     out = Path(out)
+    with holding(out):  # from the start of the fit: a second calibration into it is refused
+        return _fit_and_write(out, force, meta, run_dirs, metas, fits)
+
+
+def _fit_and_write(out: Path, force: bool, meta: dict, run_dirs: list[Path], metas, fits
+                   ) -> tuple[Path, Calibration]:
     check_writable(out, force)
     smooth = int(meta.get("smooth_frames") or 0)
     fitted_on = [{"run": relative_path(r, out.parent), "split": m.get("split"),

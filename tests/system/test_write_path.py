@@ -539,3 +539,23 @@ def test_run_refuses_masks_at_frames_the_scene_does_not_have(tmp_path, frame):
                                          r"\(its splits in scene\.json\)"):
         run_scene(scene, tmp_path / "run", RunOptions(baseline=True, progress=False))
     assert not (tmp_path / "run").exists()
+
+
+def test_calibrate_locks_its_output_before_fitting(tmp_path, monkeypatch):
+    """``s2p calibrate-errors`` took no lock: two fits into one file both computed."""
+    from scene_fixtures import make_tiny_scene
+
+    import seg2pose.method.r90_calibrate as RC
+    from seg2pose.method.pipeline import RunOptions, run_scene
+
+    scene = make_tiny_scene(tmp_path / "s", frames=20, n_users=4)
+    run_scene(scene, tmp_path / "val", RunOptions(baseline=True, split="val", progress=False))
+    (tmp_path / ".r90.json.lock").write_text(LockHolder(os.getppid(), socket.gethostname(),
+                                                        utc_now()).to_json())
+
+    def fits(*a, **k):
+        raise AssertionError("fitted although another process holds the output")
+
+    monkeypatch.setattr(RC, "fit_calibration", fits)
+    with pytest.raises(S2PError, match=r"r90\.json is being written by process"):
+        RC.calibrate_run(scene, tmp_path / "val", tmp_path / "r90.json")
