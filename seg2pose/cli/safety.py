@@ -69,7 +69,21 @@ def _say_least(c: dict) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("conflicts", rich_help_panel=SAFETY)(speaks_flags(conflicts))
+    app.command("conflicts", rich_help_panel=SAFETY)(speaks_flags(_locked(conflicts)))
+
+
+def _locked(command):
+    """``conflicts`` with its outputs locked from the start of the analysis (it locked only
+    for its final writes: two runs into one file both computed, the last one won)."""
+    import functools
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        from seg2pose.io.atomic import holding
+
+        with holding(*(kwargs.get(k) for k in ("out", "pet_only", "conflict_map", "review"))):
+            return command(*args, **kwargs)
+    return wrapper
 
 
 def conflicts(

@@ -559,3 +559,28 @@ def test_calibrate_locks_its_output_before_fitting(tmp_path, monkeypatch):
     monkeypatch.setattr(RC, "fit_calibration", fits)
     with pytest.raises(S2PError, match=r"r90\.json is being written by process"):
         RC.calibrate_run(scene, tmp_path / "val", tmp_path / "r90.json")
+
+
+def test_conflicts_locks_its_output_before_the_analysis(tmp_path, monkeypatch, capsys):
+    """``s2p conflicts`` locked only for its final write: two runs both computed."""
+    import sys
+
+    from hostile_fixtures import write_scene
+
+    import seg2pose.safety.conflicts as SC
+    from seg2pose.cli import main
+
+    scene = write_scene(tmp_path / "scene", frames=4, users=2)
+    (tmp_path / ".c.csv.lock").write_text(LockHolder(os.getppid(), socket.gethostname(),
+                                                     utc_now()).to_json())
+
+    def analyses(*a, **k):
+        raise AssertionError("analysed although another process holds the output")
+
+    monkeypatch.setattr(SC, "analyse", analyses)
+    monkeypatch.setattr(sys, "argv", ["s2p", "conflicts", str(scene.gt_path), "-o", str(tmp_path / "c.csv"),
+                                      "--fps", "10"])
+    with pytest.raises(SystemExit) as e:
+        main()
+    assert e.value.code == 2
+    assert "c.csv is being written by process" in capsys.readouterr().err
