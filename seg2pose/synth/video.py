@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from seg2pose.core.errors import S2PError
 from seg2pose.geometry.camera import Camera
 from seg2pose.io.atomic import atomic_path
 from seg2pose.synth import junction as J
@@ -206,7 +207,8 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
         wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),  # type: ignore[attr-defined]  # in cv2, not in its stubs
                              (camera.width, camera.height))
         if not wr.isOpened():
-            raise RuntimeError(f"OpenCV cannot write mp4v video to {tmp}")
+            raise S2PError(f"cannot write {path}: OpenCV cannot open an mp4v video there (the disk is "
+                           "full, or this OpenCV has no mp4v encoder)")
         try:
             for f in (frames if frames is not None else range(world.n_frames)):
                 img = render_frame(camera, world, f, bg, float(sun[f]), textures)
