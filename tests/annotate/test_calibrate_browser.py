@@ -57,9 +57,11 @@ def site(tmp_path_factory):
     aerial, A = render_aerial((-15.0, -15.0), (40.0, 40.0), 0.05)
     atomic_write_bytes(root / "aerial.png", cv2.imencode(".png", aerial)[1].tobytes())
     write_world_file(root / "aerial.pgw", A)
-    frame = camera_view(aerial, A, cam)
+    png = cv2.imencode(".png", camera_view(aerial, A, cam))[1].tobytes()
     (scene / "video" / CAM).mkdir(parents=True)
-    atomic_write_bytes(scene / "video" / CAM / "000000.png", cv2.imencode(".png", frame)[1].tobytes())
+    last = max(b for _, b in load_scene(scene).splits.values())
+    for f in range(last + 1):  # a still video as long as the masks (s2p run checks their frames)
+        atomic_write_bytes(scene / "video" / CAM / f"{f:06d}.png", png)
     return root, scene, A, cam
 
 
