@@ -55,5 +55,5 @@ def test_ray_map_starts_its_own_ray_unless_given_an_address(monkeypatch, address
 
 def test_ray_map_without_ray_says_how_to_install_it(monkeypatch):
     monkeypatch.setattr(R, "import_ray", lambda: None)
-    with pytest.raises(S2PError, match="s2p\\[scale\\]"):
+    with pytest.raises(S2PError, match="seg2pose\\[scale\\]"):
         R.ray_map(None, 2)
