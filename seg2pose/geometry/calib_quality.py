@@ -132,13 +132,20 @@ def hull_mask(points_uv: np.ndarray, u: np.ndarray, v: np.ndarray, margin_px: fl
     return out.reshape(U.shape)
 
 
+def _pixel_grid(width: int, height: int, step: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel centres every ``step`` pixels: u (nu,), v (nv,), the grid's U (nv, nu) and its
+    points uv (nv*nu, 2), row by row."""
+    u = np.arange(step / 2, width, step)
+    v = np.arange(step / 2, height, step)
+    U, V = np.meshgrid(u, v)
+    return u, v, U, np.column_stack([U.ravel(), V.ravel()])
+
+
 def cost_maps(sol: Solution, height: HeightFn = flat, step: int = 16) -> CostMaps:
     """The maps of ``CostMaps`` on a grid every ``step`` pixels."""
     cam = sol.camera
-    u = np.arange(step / 2, cam.width, step)
-    v = np.arange(step / 2, cam.height, step)
-    U, V = np.meshgrid(u, v)
-    uv = np.column_stack([U.ravel(), V.ravel()])
+    u, v, U, uv = _pixel_grid(cam.width, cam.height, step)
     p0 = params_of(sol)
     f, c, k1, R, t = _unpack(sol, p0)
     X = ground_hits(f, c, k1, R, t, uv, height, NORMAL_HEIGHT)
@@ -163,10 +170,7 @@ def suggest_next(sol: Solution, opts: SolveOptions, height: HeightFn = flat, ste
     """(pixel (2,), world point (3,), share of the road's mean position variance it removes)
     of the best next pair (module doc), or None when no road is in view."""
     cam = sol.camera
-    u = np.arange(step / 2, cam.width, step)
-    v = np.arange(step / 2, cam.height, step)
-    U, V = np.meshgrid(u, v)
-    uv = np.column_stack([U.ravel(), V.ravel()])
+    u, v, U, uv = _pixel_grid(cam.width, cam.height, step)
     p0 = params_of(sol)
     f, c, k1, R, t = _unpack(sol, p0)
     X = ground_hits(f, c, k1, R, t, uv, height)

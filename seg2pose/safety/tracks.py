@@ -320,20 +320,10 @@ def _scene_fps(scene_dir: Path) -> float | None:
 
 
 def find_fps(path: Path) -> float | None:
-    """The frame rate of the scene a pose file or run folder belongs to, when it can be found:
-    RUN/run.json's scene, or the scene folder around SCENE/gt/poses.csv."""
-    run_dir = path if path.is_dir() else path.parent
-    meta = run_dir / "run.json"
-    if meta.exists():
-        try:
-            scene = json.loads(meta.read_text(encoding="utf-8")).get("scene")
-        except (ValueError, AttributeError):
-            raise InputError("invalid JSON", file=meta) from None
-        if isinstance(scene, str):
-            return _scene_fps((run_dir / scene).resolve())
-    if path.is_file() and path.parent.name == "gt":
-        return _scene_fps(path.parent.parent)
-    return None
+    """The frame rate of the scene a pose file or run folder belongs to (``scene_of``), when
+    it can be found."""
+    scene = scene_of(Path(path))
+    return None if scene is None else _scene_fps(scene)
 
 
 def is_tanalyst(path: Path) -> bool:
