@@ -177,22 +177,32 @@ class Clicks(ControllerState):
                 self.message = str(e)
             return self.message
 
-    def box_handles(self, camera: str) -> dict | None:
-        """The selected track's base at the current frame in ``camera``'s image: {"base": four
-        corners [[u, v]...], "handle": [u, v] a point ahead of its front} (None: no pose
-        here, or not wholly in front of the camera)."""
+    def footprint_now(self, tid: int) -> tuple[float, float, float, float, np.ndarray] | None:
+        """Track ``tid`` at the current frame: x, y (m), heading (rad), the ground's z there (m)
+        and its footprint's four corners (4, 2) in metres; None where it has no pose."""
         from seg2pose.safety.footprints import corners as footprint
 
-        tid = self.selected
-        if tid is None or tid not in self.project.tracks:
-            return None
         try:
             x, y, h = self.project.pose_at(tid, self.frame)
         except S2PError:
             return None
-        t = self.project.track(tid)
+        size = self.project.track(tid).size
         z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
-        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([t.size]))[0]  # (4, 2)
+        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([size]))[0]
+        return x, y, h, z, foot
+
+    def box_handles(self, camera: str) -> dict | None:
+        """The selected track's base at the current frame in ``camera``'s image: {"base": four
+        corners [[u, v]...], "handle": [u, v] a point ahead of its front} (None: no pose
+        here, or not wholly in front of the camera)."""
+        tid = self.selected
+        if tid is None or tid not in self.project.tracks:
+            return None
+        now = self.footprint_now(tid)
+        if now is None:
+            return None
+        x, y, h, z, foot = now
+        t = self.project.track(tid)
         ahead = t.size[0] / 2 + max(0.6, 0.25 * t.size[0])
         pts = np.vstack([np.c_[foot, np.full(4, z)],
                          [[x + ahead * math.cos(h), y + ahead * math.sin(h), z]]])

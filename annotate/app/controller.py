@@ -279,15 +279,11 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
     def best_camera(self, tid: int) -> str | None:
         """The camera that sees track ``tid`` best at the current frame: its box projected
         largest, wholly in front of the camera; None when none sees it."""
-        from seg2pose.safety.footprints import corners as footprint
-
-        try:
-            x, y, h = self.project.pose_at(tid, self.frame)
-        except S2PError:
+        now = self.footprint_now(tid)
+        if now is None:
             return None
+        _, _, _, z, foot = now
         t = self.project.track(tid)
-        z = float(self.project.scene.ground.height(np.array([[x, y]]))[0])
-        foot = footprint(np.array([[x, y]]), np.array([h]), np.array([t.size]))[0]  # (4, 2)
         corners = np.vstack([np.c_[foot, np.full(4, z)], np.c_[foot, np.full(4, z + t.size[2])]])
         best, area = None, 0.0
         for cam in self.cameras:
