@@ -174,7 +174,7 @@ def build_app(state: PageState, scene, port: int, token: str):
               Route("/api/undo", guarded(undo), methods=["POST"]),
               Route("/api/solve", guarded(solve), methods=["POST"]),
               Route("/api/save", guarded(save), methods=["POST"])]
-    return Guard(Starlette(routes=routes), port, token)
+    return Guard(Starlette(routes=routes), port, token, command="s2p calibrate-camera")
 
 
 def run_page(args: PageArgs, browser: bool = True, echo=print) -> None:

@@ -5,8 +5,9 @@ request (page, static files, API, websocket) that
   whose name resolves to 127.0.0.1 still sends its own name as Host),
 - comes from a page of another origin (the Origin header a browser sets on websockets and
   cross-site requests),
-- or lacks the start's random token: ``?access_token=TOKEN`` in the URL (``s2p annotate``
-  prints it; the answer sets a cookie for the rest of the session), that cookie, or an
+- or lacks the start's random token: ``?access_token=TOKEN`` in the URL (the command serving
+  the page prints it: ``s2p annotate``, or ``s2p calibrate-camera`` for the calibration page;
+  the answer sets a cookie for the rest of the session), that cookie, or an
   ``Authorization: Bearer TOKEN`` header.
 
 A refused HTTP request gets 403 with one line saying why; a refused websocket is closed
@@ -40,13 +41,16 @@ def loopback_hosts(port: int) -> set[str]:
 
 
 class Guard:
-    """ASGI middleware: ``Guard(app, port, token)`` (see the module docstring)."""
+    """ASGI middleware: ``Guard(app, port, token, command)`` (see the module docstring);
+    ``command`` is the command that serves the page, named in the refusals so that a user is
+    sent to the URL that this command printed."""
 
-    def __init__(self, app, port: int, token: str):
+    def __init__(self, app, port: int, token: str, command: str = "s2p annotate"):
         if len(token) < 16:
             raise ValueError("the access token must be at least 16 characters")
         self.app = app
         self.token = token
+        self.command = command
         self.hosts = loopback_hosts(port)
         self.origins = {f"http://{h}" for h in self.hosts}
         self.cookie = f"s2p_annotate_{port}"
@@ -83,9 +87,10 @@ class Guard:
         if got is not None and hmac.compare_digest(got.value, self.cookie_value):
             return None, False
         if got is not None:  # a tab of an earlier start of the server on this port
-            return ("refused: this page is from an earlier start of the annotation server; open "
-                    f"the URL that `s2p annotate` printed at its new start (?{TOKEN_PARAM}=...)"), False
-        return ("refused: no valid access token; open the URL that `s2p annotate` printed "
+            return (f"refused: this page is from an earlier start of `{self.command}`; open "
+                    f"the URL that `{self.command}` printed at its new start "
+                    f"(?{TOKEN_PARAM}=...)"), False
+        return (f"refused: no valid access token; open the URL that `{self.command}` printed "
                 f"(it ends in ?{TOKEN_PARAM}=...)"), False
 
     async def __call__(self, scope, receive, send):

@@ -68,6 +68,25 @@ def test_guard_refuses_strangers_and_admits_the_token():
     jar = cookie.split(";")[0]
     assert _call("websocket", cookie=jar, origin=f"http://127.0.0.1:{PORT}")[::2] == (200, True)
     assert _call(cookie=jar.replace("=", "=0"))[::2] == (403, False)
+
+
+def test_guard_refusals_name_the_command_serving_the_page():
+    """The annotation server's refusal sends the user to `s2p annotate`'s URL; the calibration
+    page's (the same Guard) to `s2p calibrate-camera`'s."""
+    async def app(scope, receive, send):  # never reached
+        raise AssertionError
+
+    def refusal(guard, cookie=""):
+        scope = {"type": "http", "path": "/", "query_string": b"",
+                 "headers": [(b"host", f"127.0.0.1:{PORT}".encode()), (b"cookie", cookie.encode())]}
+        return guard.refusal(scope)[0]
+
+    annotate, calib = Guard(app, PORT, TOKEN), Guard(app, PORT, TOKEN, command="s2p calibrate-camera")
+    assert "open the URL that `s2p annotate` printed" in refusal(annotate)
+    assert "open the URL that `s2p calibrate-camera` printed" in refusal(calib)
+    assert "annotate" not in refusal(calib)
+    stale = f"{calib.cookie}={'x' * 64}"  # a cookie of an earlier start
+    assert "earlier start of `s2p calibrate-camera`" in refusal(calib, stale)
     assert _call(auth=f"Bearer {TOKEN}")[::2] == (200, True)
 
 

@@ -89,7 +89,8 @@ def test_the_gate(args):
     tok = "t" * 32
     try:
         app = build_app(state, scene, 8999, tok)
-        assert call(app, "GET", "/api/state")[0] == 403  # no token
+        code, body = call(app, "GET", "/api/state")  # no token: the refusal names this page's command
+        assert code == 403 and b"`s2p calibrate-camera` printed" in body and b"annotate" not in body
         code, body = call(app, "GET", "/api/state?access_token=" + tok)
         assert code == 200 and json.loads(body)["cameras"] == {"c0": [640, 480]}
         hdr = {"authorization": "Bearer " + tok}
