@@ -26,6 +26,7 @@ from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.workers import map_chunks
 
 SIZE_GROUPS = np.array([1.0, 2.0, 3.0, 4.5])  # metres of reach + travel: the search's groups
+EDGE_M = 1e-9  # refine's footprints are this much larger: a touching at the edge stays one
 
 
 @dataclass(frozen=True)
@@ -246,12 +247,21 @@ def closest_in_time(tracks: Tracks, rows: np.ndarray) -> np.ndarray:
 
 def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
     """Exit and entry times between frames for rows ``first`` (K,) and ``second`` (K,) whose
-    footprints overlap, ``first`` not later: (t_exit, t_enter), (K,) seconds."""
-    t, xy, hd, size = tracks.t, tracks.xy, mot.heading, tracks.size
+    footprints overlap, ``first`` not later: (t_exit, t_enter), (K,) seconds.
+
+    The first road user's exit point lies, by construction, on the edge of the second's
+    footprint, so whether the second still overlaps it a moment earlier is decided on that
+    edge: both footprints are taken ``EDGE_M`` larger here, so that rounding (times of frame
+    1e6, positions far from the origin) cannot turn a touching into a miss. Times between
+    frames are measured from the row's own frame (integer differences): the result depends
+    on the frames' differences only, not on where the frame count starts."""
+    xy, hd = tracks.xy, mot.heading
+    size = tracks.size + 2 * EDGE_M
+    frame, fps = tracks.frame, tracks.fps
     starts, ends = tracks.starts(), tracks.ends()
     has_next = first < ends[first]
     nxt = np.where(has_next, first + 1, first)
-    dt1 = t[nxt] - t[first]
+    dt1 = (frame[nxt] - frame[first]) / fps
     with np.errstate(divide="ignore", invalid="ignore"):
         v1 = np.where(has_next[:, None], (xy[nxt] - xy[first]) / np.where(dt1 > 0, dt1, 1)[:, None], 0)
     _, leave = overlap_interval(xy[second], hd[second], size[second], xy[first], hd[first],
@@ -260,14 +270,17 @@ def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
     at = xy[first] + v1 * alpha[:, None]
     has_prev = second > starts[second]
     prv = np.where(has_prev, second - 1, second)
-    dt2 = t[second] - t[prv]
+    dt2 = (frame[second] - frame[prv]) / fps
     with np.errstate(divide="ignore", invalid="ignore"):
         v2 = np.where(has_prev[:, None], (xy[prv] - xy[second]) / np.where(dt2 > 0, dt2, 1)[:, None], 0)
     _, leave = overlap_interval(at, hd[first], size[first], xy[second], hd[second], size[second], v2)
     beta = np.clip(np.nan_to_num(leave, posinf=np.inf, neginf=0.0), 0, dt2)
-    t_exit, t_enter = t[first] + alpha, t[second] - beta
-    same = tracks.frame[first] == tracks.frame[second]  # side by side at one moment: PET 0
-    return np.where(same, t[first], t_exit), np.where(same, t[first], np.maximum(t_enter, t_exit))
+    # PET from the frames' difference and the two offsets (exact for any frame numbers)
+    gap = (frame[second] - frame[first]) / fps - beta - alpha
+    t0 = frame[first] / fps
+    t_exit = t0 + alpha
+    same = frame[first] == frame[second]  # side by side at one moment: PET 0
+    return np.where(same, t0, t_exit), np.where(same, t0, t_exit + np.maximum(gap, 0.0))
 
 
 def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),

@@ -14,7 +14,7 @@ from seg2pose.safety.conflicts import ConflictOptions, RowData, analyse, pair_fr
 from seg2pose.safety.encounters import class_rows, frame_pairs, near_pairs
 from seg2pose.safety.footprints import Footprints, overlap_interval, overlaps
 from seg2pose.safety.kinematics import _fit_rows, derivative, motion, segments
-from seg2pose.safety.pet import PetOptions, overlapping_rows
+from seg2pose.safety.pet import PetOptions, overlapping_rows, pet
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc, ttc_rows
 from tests.seg2pose.safety.test_safety import FPS, road_user
@@ -247,3 +247,23 @@ def test_braking_to_a_standstill_stays_braking(origin):
     np.testing.assert_allclose(m.along[f >= 78], 0.0, atol=1e-4)
     braking = m.acc[:, 0] < -0.5
     np.testing.assert_allclose(m.along[braking], m.acc[braking, 0])
+
+
+@pytest.mark.parametrize("case", ["follower", "crossing", "turning"])
+def test_pet_does_not_depend_on_where_the_frame_count_starts(case):
+    """The same two tracks with their frames numbered from another start (77777: the
+    turning car's exit point then fell on the wrong side of the pedestrian's edge by rounding,
+    PET 0.792 s instead of 0.760 s) give the same PET to 1e-9 s; the turning case's is the
+    hand value 2 - (0.9 + 0.3) / 1.4 - (2 + 0.3) / 6 (test_safety's)."""
+    from tests.seg2pose.safety.test_safety import crossing, follower, turning_car_and_pedestrian
+
+    make = {"follower": follower, "crossing": crossing,
+            "turning": lambda: turning_car_and_pedestrian()[0]}[case]
+    got = []
+    for offset in (0, 1, 2, 77777, 10**6 + 1):
+        tr = make()
+        tr.frame = tr.frame + offset
+        got.append(float(pet(tr, motion(tr), PetOptions()).pet[0]))
+    assert max(got) - min(got) <= 1e-9
+    hand = {"follower": 0.4, "crossing": 1.42, "turning": 2.0 - 1.2 / 1.4 - 2.3 / 6.0}[case]
+    assert got[0] == pytest.approx(hand, abs=1e-6)
