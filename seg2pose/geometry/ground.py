@@ -9,6 +9,8 @@ nearest points instead of 0/0.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 from seg2pose.core.errors import InputError
@@ -68,7 +70,8 @@ class GroundSurface:
         self._alpha_sq = self.alpha * np.einsum("nk,nk->n", self._pxy, self._pxy)
         zc = pts[:, 2]
         self._moments = np.column_stack([zc, self._pxy, zc[:, None] * self._pxy])
-        self._tab = None  # height table for ray scans, built on first use
+        # height table for ray scans, built on first use: origin (2,), spacing, heights (ny, nx)
+        self._tab: tuple[np.ndarray, float, np.ndarray] | None = None
 
     def _weights(self, xy: np.ndarray) -> np.ndarray:
         """Normalised weights (M, n) of the ground points for queries xy (M, 2) metres.
@@ -91,6 +94,14 @@ class GroundSurface:
         """Ground height z (M,) metres at top-down positions xy (M, 2) metres."""
         return self.height_and_gradient(xy, gradient=False)[0]
 
+    @overload
+    def height_and_gradient(self, xy: np.ndarray, gradient: Literal[True] = ...
+                            ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def height_and_gradient(self, xy: np.ndarray, gradient: bool
+                            ) -> tuple[np.ndarray, np.ndarray | None]: ...
+
     def height_and_gradient(self, xy: np.ndarray, gradient: bool = True
                             ) -> tuple[np.ndarray, np.ndarray | None]:
         """z (M,) and dz/d(x, y) (M, 2) at xy (M, 2).
@@ -102,7 +113,7 @@ class GroundSurface:
         g = np.empty((len(xy), 2)) if gradient else None
         for s in range(0, len(xy), _CHUNK):
             w = self._weights(xy[s:s + _CHUNK])
-            if gradient:
+            if g is not None:  # gradient asked for
                 m = w @ self._moments  # (M, 5): z, x, y, z*x, z*y
                 zc = m[:, 0]
                 g[s:s + _CHUNK] = 2 * self.alpha * (m[:, 3:5] - zc[:, None] * m[:, 1:3])
@@ -111,7 +122,7 @@ class GroundSurface:
             z[s:s + _CHUNK] = zc
         return z, g
 
-    def _table(self):
+    def _table(self) -> tuple[np.ndarray, float, np.ndarray]:
         """A lazily built table of eq. (1) on a regular grid over the points' extent plus
         ``TABLE_MARGIN`` metres (at most ~1e6 cells): origin (2,), spacing, heights (ny, nx)."""
         if self._tab is None:

@@ -34,7 +34,7 @@ from seg2pose.method.ood import POLICIES, flag_far, flagged_poses, format_flagge
 from seg2pose.structures.masks import CROP_SIZE, mask_centers, rle_stats
 
 if TYPE_CHECKING:  # torch is imported only when a run uses models
-    from seg2pose.method.checkpoint import ModelSet
+    from seg2pose.method.checkpoint import Checkpoint, Ensemble, ModelSet
 
 
 def iter_frames(scene: Scene, cameras: list[str], frame_range: tuple[int, int] | None = None
@@ -106,7 +106,7 @@ def view_estimates(scene: Scene, cam: str, table: MaskTable, center_method: str,
         warn_once(said, "bigmask", f"camera {cam}: masks larger than the {CROP_SIZE}x{CROP_SIZE} crop are "
                         "cropped around their centre")
     usable = np.isfinite(normal[:, 0])
-    groups: dict[int, tuple[object, list[str]]] = {}  # one batch per distinct model
+    groups: dict[int, tuple[Checkpoint | Ensemble, list[str]]] = {}  # one batch per distinct model
     for (mcam, c), ck in models.models.items():
         if mcam == cam:
             groups.setdefault(id(ck), (ck, []))[1].append(c)
@@ -218,7 +218,7 @@ def run_meta(scene: Scene, run_dir: Path, cams: list[str], config: str | None,
 
     entries = {}
     for (c, k), p in ({} if models is None else models.paths).items():
-        if c not in cams:
+        if c not in cams or models is None:  # (no paths without models)
             continue
         files = [model_entry(Path(x)) for x in (p if isinstance(p, list) else [p])]
         entry = {key: [f[key] for f in files] if isinstance(p, list) else files[0][key]
@@ -323,7 +323,8 @@ def check_track_ids(scene: Scene, cams: list[str], fuse_unassociated: bool = Fal
     from seg2pose.io.track_ids import ids_status
 
     masks_dir = scene.masks_path(cams[0]).parent
-    source = scene.extra.get("source") if isinstance(scene.extra.get("source"), dict) else {}
+    source = scene.extra.get("source")
+    source = source if isinstance(source, dict) else {}
     kind, why = ids_status(masks_dir, cams, from_video=source.get("format") == "video")
     if kind == "unassociated" and len(cams) > 1:
         if not fuse_unassociated:

@@ -47,21 +47,18 @@ from seg2pose.method.net import Seg2PoseNet
 
 @dataclass(frozen=True)
 class Step:
-    """One step of the trunk: ('conv', conv module) = convolution + ReLU, or ('pool', None) =
-    2x2 max-pool (stride 2, floor)."""
+    """One step of the trunk: ('conv', conv module, its 'same' padding) = convolution + ReLU,
+    or ('pool', None, 0) = 2x2 max-pool (stride 2, floor). ``conv`` is set iff kind is 'conv'."""
 
     kind: str
     conv: nn.Conv2d | None = None
-
-    @property
-    def pad(self) -> int:
-        return self.conv.padding[0] if self.kind == "conv" else 0
+    pad: int = 0
 
 
 def trunk_steps(net: Seg2PoseNet) -> list[Step]:
     """The trunk of ``net`` as steps; refuses layers whose sparse form is not implemented."""
     steps: list[Step] = []
-    mods = [m for block in net.trunk for m in block]
+    mods = [m for block in net.trunk for m in block.children()]
     i = 0
     while i < len(mods):
         m = mods[i]
@@ -71,7 +68,7 @@ def trunk_steps(net: Seg2PoseNet) -> list[Step]:
                     or m.padding != (k[0] // 2, k[0] // 2) or k[0] % 2 == 0
                     or not isinstance(mods[i + 1], nn.ReLU)):
                 raise ValueError(f"sparse inference needs odd 'same' convolutions + ReLU, got {m}")
-            steps.append(Step("conv", m))
+            steps.append(Step("conv", m, k[0] // 2))
             i += 2
         elif isinstance(m, nn.MaxPool2d) and m.kernel_size in (2, (2, 2)) and m.stride in (2, (2, 2)) \
                 and m.padding in (0, (0, 0)):
@@ -96,7 +93,7 @@ def map_sizes(steps: list[Step], size: int) -> list[int]:
 
 
 def _dense_step(st: Step, x: torch.Tensor) -> torch.Tensor:
-    return F.relu(st.conv(x)) if st.kind == "conv" else F.max_pool2d(x, 2)
+    return F.relu(st.conv(x)) if st.conv is not None else F.max_pool2d(x, 2)
 
 
 class Background:
@@ -105,10 +102,10 @@ class Background:
 
     def __init__(self, net: Seg2PoseNet, steps: list[Step]):
         self.net, self.steps = net, steps
-        self._key = None
+        self._key: tuple | None = None  # (size, device, dtype, weights) of ``padded``
         self.padded: list[torch.Tensor] = []
 
-    def _weights_key(self):
+    def _weights_key(self) -> tuple[tuple[int, int], ...]:
         return tuple((p.data_ptr(), p._version) for p in self.net.parameters())
 
     def get(self, size: int, device, dtype, grad: bool) -> list[torch.Tensor]:
@@ -231,7 +228,7 @@ class SparseSeg2PoseNet(nn.Module):
                 n = cur.shape[-1]
                 h = w = n
                 continue
-            if st.kind == "conv":
+            if st.conv is not None:
                 p = st.pad
                 nh, nw = min(h + 2 * p, n), min(w + 2 * p, n)
                 if nh * nw >= self.dense_frac * n * n:
@@ -258,21 +255,21 @@ class SparseSeg2PoseNet(nn.Module):
         """Trunk output (B, C, f, f) of crops x (B, 1, S, S), windows grouped by size."""
         boxes = crop_boxes(x)
         hw = window_sizes(boxes, x.shape[-1], self.bucket)
-        out = [None] * len(x)
+        out: dict[int, torch.Tensor] = {}  # crop index -> its trunk output, every crop filled below
         keys = hw[:, 0] * 100000 + hw[:, 1]
         big = hw[:, 0] * hw[:, 1] >= self.dense_frac * x.shape[-1] ** 2
         bgs = self.backgrounds(x) if not big.all() else None
         if big.any():
             idx = np.flatnonzero(big)
             for j, y in zip(idx, self.net.trunk(x[idx])):
-                out[j] = y
+                out[int(j)] = y
             keys[big] = -1
         for k in np.unique(keys[~big]):
             idx = np.flatnonzero(keys == k)
             y = self.trunk_windows(x[idx], boxes[idx], (int(hw[idx[0], 0]), int(hw[idx[0], 1])), bgs)
             for j, b in enumerate(idx):
-                out[b] = y[j]
-        return torch.stack(out)
+                out[int(b)] = y[j]
+        return torch.stack([out[b] for b in range(len(x))])
 
     def forward(self, crops: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
         net = self.net

@@ -13,6 +13,7 @@ Pixels: x right, y down, origin at the top-left corner of the top-left pixel.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from seg2pose.core.errors import InputError
 from seg2pose.geometry.camera import Camera
@@ -86,7 +87,7 @@ def _visible_region(camera: Camera, ground: GroundSurface, max_distance: float
     return float(x.min()), float(x.max()), float(y.min()), float(y.max())
 
 
-def place(local: np.ndarray, heading: np.ndarray | float, xyz: np.ndarray) -> np.ndarray:
+def place(local: np.ndarray, heading: ArrayLike, xyz: ArrayLike) -> np.ndarray:
     """Model parts (..., P, 8, 3) in the local frame -> world metres: turned by ``heading``
     (...,) radians about z, then moved to the ground contact points ``xyz`` (..., 3)."""
     h = np.asarray(heading, float)[..., None, None]
@@ -171,7 +172,7 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
         world = place(base[None] * sc[idx, None, None, :], hd[idx], xyz[idx])  # (k, P, 8, 3)
         uv, ok = project_parts(camera, world.reshape(k * P, 8, 3))
         uv = uv.reshape(k, P, 8, 2)
-        ok = ok.reshape(k, P).all(axis=1)
+        ok = np.all(ok.reshape(k, P), axis=1)  # (k,) every part drawable
         for j in range(k):
             if len(rles) >= n:
                 break
@@ -186,7 +187,7 @@ def render_rough_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
                 continue
             crop = np.zeros((bx1 - bx0, by1 - by0), np.uint8)
             fill_parts(crop, uv[j] - np.array([bx0, by0]), np.ones(P, np.int64))
-            if occlusion > 0 and occ_rng.random() < occlusion:
+            if occ_rng is not None and occ_rng.random() < occlusion:  # set iff occlusion > 0
                 ouv, ook = project_parts(camera, occluder_parts(camera, ground, xyz[idx[j], :2], occ_rng))
                 if ook.all():
                     hidden = np.zeros_like(crop)
