@@ -205,7 +205,7 @@ def paint_masks(rles: Sequence[bytes], values: np.ndarray, slot: np.ndarray, hei
     # flat index of each foreground pixel = its run's start (in its slot) + position in the run
     shift = st + np.asarray(slot, np.int64)[own] * hw - (ln_cs - ln)
     it = np.int32 if n_slots * hw < 2**31 else np.int64  # int32 halves the memory traffic
-    idx = np.arange(int(ln_cs[-1]) if len(ln) else 0, dtype=it)
+    idx: np.ndarray = np.arange(int(ln_cs[-1]) if len(ln) else 0, dtype=it)
     idx += np.repeat(shift.astype(it), ln)
     out[idx] = np.repeat(np.asarray(values).astype(dtype)[own], ln)
     # back to row-major (slot, row, col); cv2's transpose is ~3x faster than numpy's here

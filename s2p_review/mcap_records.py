@@ -89,11 +89,15 @@ def pose_table(messages: list[dict], with_size: bool) -> PoseTable:
         return PoseTable.empty(with_size)
     size = (np.array([[unnum(r.get("l")), unnum(r.get("w")), unnum(r.get("h"))] for r in rows])
             if with_size else None)
-    return PoseTable([_int(r["frame"]) for r in rows], [_int(r["track_id"]) for r in rows],
+    return PoseTable(np.array([_int(r["frame"]) for r in rows], np.int64),
+                     np.array([_int(r["track_id"]) for r in rows], np.int64),
                      np.array([r["class"] for r in rows], dtype=object),
-                     [[r["x"], r["y"], r["z"]] for r in rows], [unnum(r["heading"]) for r in rows],
-                     size, [r["source"] for r in rows] if all("source" in r for r in rows) else None,
-                     [unnum(r["r90_m"]) for r in rows] if all("r90_m" in r for r in rows) else None)
+                     np.array([[r["x"], r["y"], r["z"]] for r in rows], np.float64),
+                     np.array([unnum(r["heading"]) for r in rows], np.float64), size,
+                     np.array([r["source"] for r in rows], dtype=object)
+                     if all("source" in r for r in rows) else None,
+                     np.array([unnum(r["r90_m"]) for r in rows], np.float64)
+                     if all("r90_m" in r for r in rows) else None)
 
 
 def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:
@@ -101,12 +105,14 @@ def view_messages(v: ViewTable) -> Iterator[tuple[int, dict]]:
     the import restores the file's order."""
     cues = v.cues is not None
     box = v.box is not None
+    # the optional columns in file order (cues, r90, box), (N, 0) without them
+    more = np.column_stack([v.uv[:, :0]] + [c.reshape(len(v), -1) for c in (v.cues, v.r90, v.box)
+                                            if c is not None])
     for idx in split_by_frame(v.frame):
         f = int(v.frame[idx[0]])
         rows = [[int(i), int(v.frame[i]), int(v.track_id[i]), str(v.camera[i]), str(v.cls[i]),
-                 *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i],
-                                    *((*v.cues[i], v.r90[i]) if cues else ()),
-                                    *(v.box[i] if box else ()))]] for i in idx]
+                 *[num(x) for x in (*v.uv[i], *v.normal[i], *v.residual[i], *more[i])]]
+                for i in idx]
         yield f, {"frame": f, "columns": ["row"] + VIEW_COLUMNS + (CUE_COLUMNS if cues else [])
                   + (BOX_COLUMNS if box else []), "rows": rows}
 
@@ -122,7 +128,9 @@ def views_table(messages: list[dict]) -> ViewTable:
     box = all(k == len(CUE_COLUMNS) + len(BOX_COLUMNS) for k in n_cols)
     nums = np.array([[unnum(x) for x in r[5:(20 if box else 16) if cues else 12]] for r in rows],
                     float)
-    return ViewTable([_int(r[1]) for r in rows], [_int(r[2]) for r in rows], [r[3] for r in rows],
-                     [r[4] for r in rows], nums[:, 0:2], nums[:, 2:5], nums[:, 5:7],
+    return ViewTable(np.array([_int(r[1]) for r in rows], np.int64),
+                     np.array([_int(r[2]) for r in rows], np.int64),
+                     np.array([r[3] for r in rows], dtype=object),
+                     np.array([r[4] for r in rows], dtype=object), nums[:, 0:2], nums[:, 2:5], nums[:, 5:7],
                      nums[:, 7:10] if cues else None, nums[:, 10] if cues else None,
                      nums[:, 11:15] if box else None)

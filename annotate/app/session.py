@@ -174,7 +174,7 @@ class Session:
     def _send_layout(self, large: str | None) -> None:
         bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps,
                            large_in_page=True, runs=self._runs)
-        for r in ([self.rec] if self.target is self.rec else self.target.recs):
+        for r in (self.target.recs if isinstance(self.target, Tee) else [self.rec]):
             r.send_blueprint(bp, make_active=True, make_default=True)
 
     def _send_timeline(self) -> None:
@@ -221,9 +221,9 @@ class Session:
                   if not self.ctl.only_selected or t == self.ctl.selected]
         pic = self.pictures.render(cam, self.ctl.frame, tracks, self.ctl.selected)
         extra = ""
-        info = self.ctl.selected_info()
-        if info is not None:
-            label = f"{self.ctl.project.track(self.ctl.selected).cls} {self.ctl.selected}"
+        info, tid = self.ctl.selected_info(), self.ctl.selected
+        if info is not None and tid is not None:  # (no info without a selection)
+            label = f"{self.ctl.project.track(tid).cls} {tid}"
             extra = (f"{label}: {info['distance']:.2f} m from the {info['reference']}"
                      if info["distance"] is not None else label)
         # the other cameras small, unless the viewer shows them (or a playback runs: the large
