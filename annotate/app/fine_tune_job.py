@@ -53,7 +53,7 @@ class TrainJob:
             for part in raw.replace("\r", "\n").splitlines():
                 if part.strip():
                     self.line = part.strip()[:200]
-                    if ": fine-tuned," in part or ": kept its start" in part or "no epoch beat" in part:
+                    if any(k in part for k in (": fine-tuned,", ": kept its start", "no epoch beat", " chosen (")):
                         self.models_done += 1
         rc = self.proc.wait()
         self.state = "done" if rc == 0 else "failed"

@@ -161,6 +161,16 @@ def model_filename(camera: str, cls: str) -> str:
     return f"{'all' if camera == '*' else camera}__{'all' if cls == '*' else cls}.safetensors"
 
 
+# a class whose fine-tuning chose the baseline (``seg2pose.training.fine_tune_choice``): this
+# file in place of its model makes ``s2p run`` use its normal positions
+BASELINE_SUFFIX = ".baseline.json"
+
+
+def baseline_marker_name(camera: str, cls: str) -> str:
+    """``<camera>__<class>.baseline.json`` (``all`` for a model of every camera or class)."""
+    return model_filename(camera, cls).removesuffix(".safetensors") + BASELINE_SUFFIX
+
+
 @dataclass(eq=False)
 class Ensemble:
     """Checkpoints from several model folders for one (camera, class): their residuals are
@@ -183,6 +193,8 @@ class ModelSet:
     paths: dict[tuple[str, str], Path | list[Path]] = field(default_factory=dict)
     # (camera, class) pairs without a model, run with the baseline (``missing="baseline"``)
     fallback: list[tuple[str, str]] = field(default_factory=list)
+    # those of them whose model folder chose the baseline (a ``BASELINE_SUFFIX`` marker)
+    chosen_baseline: list[tuple[str, str]] = field(default_factory=list)
 
     @classmethod
     def load(cls, models_dir: Path | list[Path], cameras: list[str], classes: list[str],
@@ -193,6 +205,9 @@ class ModelSet:
         A camera and class without a model is refused (``missing="refuse"``), or with
         ``missing="baseline"`` left to the baseline (normal positions) and listed in
         ``fallback`` (a partial annotation trains models for some classes only).
+        A marker ``<camera>__<class>.baseline.json`` met in the lookup before a model (a
+        fine-tuning that found the baseline better for that class) runs the baseline there,
+        whatever ``missing`` says, listed in ``fallback`` and ``chosen_baseline``, said once.
         A checkpoint whose training did not finish (metadata "complete": false) is refused
         unless ``allow_incomplete``. ``fingerprint`` / ``cameras_fingerprint``: the scene's
         (``Scene.fingerprint`` / ``Scene.cameras_fingerprint``); a checkpoint made for a scene
@@ -207,6 +222,7 @@ class ModelSet:
             ms, made = cls(), {}
             # a pair missing from any folder falls back (only with missing="baseline")
             ms.fallback = sorted({k for s in sets for k in s.fallback})
+            ms.chosen_baseline = sorted({k for s in sets for k in s.chosen_baseline})
             for key in sets[0].models:
                 if key in ms.fallback:
                     continue
@@ -219,11 +235,20 @@ class ModelSet:
         ms = cls()
         absent: list[tuple[str, str]] = []
         cache: dict[Path, Checkpoint] = {}
+        markers_said: set[Path] = set()
         for cam in cameras:
             for c in classes:
                 for name in (model_filename(cam, c), model_filename(cam, "*"),
                              model_filename("*", c), model_filename("*", "*")):
                     p = models_dir / name
+                    marker = p.with_name(name.removesuffix(".safetensors") + BASELINE_SUFFIX)
+                    if marker.exists():
+                        ms.chosen_baseline.append((cam, c))
+                        if marker not in markers_said:
+                            markers_said.add(marker)
+                            say(f"{marker}: {c} runs the baseline (normal positions): "
+                                f"{_marker_reason(marker)}", "note")
+                        break
                     if p.exists():
                         if p not in cache:
                             cache[p] = Checkpoint.load(p, arch=arch, camera=cam, device=device or "cpu")
@@ -258,8 +283,17 @@ class ModelSet:
             raise S2PError(f"no Seg2PoseNet model in {models_dir} for "
                            f"{', '.join(f'{a}/{b}' for a, b in absent)}; train models for them, "
                            "or run the baseline (normal positions only) for them")
-        ms.fallback = absent
+        ms.fallback = absent + ms.chosen_baseline
         return ms
+
+
+def _marker_reason(marker: Path) -> str:
+    """The marker's ``why`` (one line), or what it is when it has none or cannot be read."""
+    try:
+        why = json.loads(marker.read_text()).get("why")
+    except (OSError, ValueError, AttributeError):
+        why = None
+    return str(why) if why else "its fine-tuning found the baseline better for this class"
 
 
 def predict_residuals(scene: Scene, cam: str, ck, rles: list[bytes], height: int, width: int,

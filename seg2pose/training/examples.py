@@ -18,6 +18,7 @@ covered pixels per downsampling block, so a few thousand lite examples take tens
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,24 +124,13 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
     read_poses returns it). ``max_per_class`` keeps a random subset per class (CPU budgets);
     residuals longer than ``max_residual`` metres (beyond the network's 2.5 tanh range, e.g.
     a wrong match) are dropped."""
-    cam = scene.cameras[camera]
     by_id = scene.class_by_id()
-    names = scene.class_names_by_id()
-    heights = scene.default_heights()
     fr = scene.split_range(split)
-    gt = gt.in_frames(fr)
     keep_rles: list[bytes] = []
     keep_cls, keep_xy = [], []
-    size = (cam.height, cam.width)
-    chunk: list[MaskTable] = []
-
-    def flush() -> None:
-        if not chunk:
-            return
-        t = MaskTable.concat(chunk)
-        lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
-        g = gt.take(np.arange(lo, hi))
-        match = match_masks_to_truth(cam, t, g, names, heights)
+    size = (scene.cameras[camera].height, scene.cameras[camera].width)
+    for t, g, match in masks_matched_to_truth(scene, camera, gt.in_frames(fr), fr):
+        size = (t.height, t.width)
         use = match >= 0
         if sources is not None and g.source is not None:
             use &= np.isin(g.source[np.maximum(match, 0)], list(sources))
@@ -148,16 +138,6 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
             keep_rles.append(t.rles[i])
             keep_cls.append(by_id[int(t.class_id[i])].name)
             keep_xy.append(g.xyz[match[i], :2])
-        chunk.clear()
-
-    nfr = 0
-    for _, t in scene.iter_masks(camera, fr):
-        size = (t.height, t.width)
-        chunk.append(t)
-        nfr += 1
-        if nfr % 256 == 0:
-            flush()
-    flush()
     if not keep_rles:
         return ExampleSet.empty(crop // factor, factor)
     cls = np.array(keep_cls, object)
@@ -191,6 +171,32 @@ def annotated_examples(scene: Scene, camera: str, gt: PoseTable, split: str | No
         truth = np.concatenate([truth, *extra_truth])
     return labelled_examples(scene, camera, rles, h, w, cls, truth, False, crop, factor,
                              center_method, max_residual, where=f"camera {camera}, split {split}")
+
+
+def masks_matched_to_truth(scene: Scene, camera: str, gt: PoseTable,
+                           frames: tuple[int, int] | None, chunk_frames: int = 256
+                           ) -> Iterator[tuple[MaskTable, PoseTable, np.ndarray]]:
+    """``camera``'s masks in ``frames`` (inclusive; None: all) matched to the truth rows ``gt``
+    (sorted by frame, as read_poses returns it) as paper 4.1 does (``match_masks_to_truth``),
+    streamed ``chunk_frames`` frames at a time (bounded memory): per chunk (masks, the truth
+    rows of its frames, match (N,): the row of each mask in those rows, -1 for none)."""
+    cam = scene.cameras[camera]
+    names, heights = scene.class_names_by_id(), scene.default_heights()
+    chunk: list[MaskTable] = []
+
+    def flush() -> tuple[MaskTable, PoseTable, np.ndarray]:
+        t = MaskTable.concat(chunk)
+        chunk.clear()
+        lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
+        g = gt.take(np.arange(lo, hi))
+        return t, g, match_masks_to_truth(cam, t, g, names, heights)
+
+    for _, t in scene.iter_masks(camera, frames):
+        chunk.append(t)
+        if len(chunk) >= chunk_frames:
+            yield flush()
+    if chunk:
+        yield flush()
 
 
 def labelled_examples(scene: Scene, camera: str, rles: list[bytes], height: int, width: int,

@@ -25,6 +25,7 @@ examples per source and the held-out errors before and after (``info["fine_tune"
 from __future__ import annotations
 
 import copy
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -38,12 +39,15 @@ from seg2pose.core.digest import file_sha256
 from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
+from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.atomic_set import remove_path
 from seg2pose.io.poses import read_poses
 from seg2pose.io.scene import Scene
-from seg2pose.method.checkpoint import Checkpoint
+from seg2pose.method.checkpoint import Checkpoint, baseline_marker_name
 from seg2pose.method.net import autocast, input_vector, pick_device
 from seg2pose.method.ood import residual_limits
 from seg2pose.training.examples import ExampleSet, rough_examples
+from seg2pose.training.fine_tune_choice import choose, cross_validate
 from seg2pose.training.fine_tune_data import (
     Annotated,
     StartModel,
@@ -75,13 +79,18 @@ class FineTuneOptions:
     # better in every class: docs/RESULTS.md, "Fine-tuning on a few keyframes"); the fixed
     # schedule then runs to its end and its last epoch is kept
     min_held_out_users: int = 5
+    # per class keep the best of the baseline, the start and the fine-tuned model on held-out
+    # road users (``fine_tune_choice``: k-fold by road user, then one fine-tuning on all); off:
+    # the early stopping above
+    choose: bool = True
+    folds: int = 3
     seed: int = 0
     threads: int = 2
     device: str | None = None
     progress: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "batches_per_epoch", "batch_size", "patience", "threads"):
+        for name in ("epochs", "batches_per_epoch", "batch_size", "patience", "threads", "folds"):
             if int(getattr(self, name)) < 1:
                 raise S2PError(f"fine-tuning: {name} must be at least 1, got {getattr(self, name)}")
 
@@ -92,15 +101,6 @@ class FineTuneResult:
 
     lines: dict[str, str]
     wall_s: float
-
-
-def _concat(parts: list[WeightedExamples], crop: int, factor: int) -> WeightedExamples:
-    parts = [p for p in parts if len(p.ex)]
-    if not parts:
-        return WeightedExamples(ExampleSet.empty(crop // factor, factor), np.zeros(0), np.zeros(0, np.int64))
-    return WeightedExamples(ExampleSet.concat([p.ex for p in parts]),
-                            np.concatenate([p.weight for p in parts]),
-                            np.concatenate([p.road_user for p in parts]))
 
 
 def _data(sm: StartModel, ex: ExampleSet) -> TrainData:
@@ -192,31 +192,10 @@ def _rough_pool(scene: Scene, sm: StartModel, opts: FineTuneOptions, center: str
                               for cam in sm.cameras for c in sm.classes])
 
 
-def fine_tune_model(scene: Scene, sm: StartModel, ann: dict[str, Annotated], val_users: np.ndarray,
-                    out: Path, opts: FineTuneOptions) -> str:
-    """One start model fine-tuned on its classes' annotated masks into ``out`` (or kept when
-    none of its classes is annotated); returns the line that says which."""
-    crop, factor = sm.ck.net.cfg.crop, sm.ck.net.cfg.downsample
-    center = (sm.ck.info.get("train_config") or {}).get("center_method", DEFAULT_CENTER_METHOD)
-    offset = sm.ck.info.get("radial_offset") or None
-    w = _concat([weighted_examples(scene, a.take(np.flatnonzero(np.isin(a.cls, sm.classes))),
-                                   crop, factor, center, offset)
-                 for cam, a in ann.items() if cam in sm.cameras], crop, factor)
-    if not len(w.ex):
-        return _keep_start(sm, out, f"no annotated {'/'.join(sm.classes)} masks")
-    tr, va = split_by_road_user(w, val_users)
-    if not len(tr.ex):
-        tr, va = w, split_by_road_user(w, np.zeros(0, np.int64))[1]
-    n_users = len(np.unique(w.road_user))
-    if not len(va.ex):
-        say(f"{sm.path.stem}: {n_users} annotated road user(s), none to hold out; trains all "
-            f"{opts.epochs} epochs without early stopping", "note")
-    rough = _rough_pool(scene, sm, opts, center)
-    say(f"{sm.path.stem}: fine-tuning on {len(tr.ex)} annotated examples of "
-        f"{len(np.unique(tr.road_user))} road users (+ {0 if rough is None else len(rough)} rough), "
-        f"validating on {len(va.ex)} of {len(np.unique(va.road_user))} held-out road users")
-    t0 = time.perf_counter()
-    facts = train_from(sm, tr, rough, va.ex if len(va.ex) else None, opts)
+def _save_tuned(scene: Scene, sm: StartModel, tr: WeightedExamples, va: WeightedExamples,
+                rough: ExampleSet | None, facts: dict, out: Path, opts: FineTuneOptions,
+                t0: float) -> None:
+    """Write the fine-tuned ``sm`` into ``out`` with what it was made of (``info["fine_tune"]``)."""
     ck = sm.ck
     seen = ExampleSet.concat([e for e in (tr.ex, rough) if e is not None and len(e)])
     ck.info.pop("cameras_fingerprint", None)  # now made for this scene
@@ -227,19 +206,91 @@ def fine_tune_model(scene: Scene, sm: StartModel, ann: dict[str, Annotated], val
         "fine_tune": {"start": {"file": str(sm.path), "sha256": file_sha256(sm.path)},
                       "options": {k: getattr(opts, k) for k in ("epochs", "batches_per_epoch",
                                   "batch_size", "lr", "rough_every", "rough_per_class", "patience",
-                                  "seed")},
+                                  "choose", "folds", "seed")},
                       "examples_by_weight": {str(k): int((tr.weight == k).sum())
                                              for k in np.unique(tr.weight)},
                       "road_users": {"train": np.unique(tr.road_user).tolist(),
                                      "val": np.unique(va.road_user).tolist()},
                       "wall_s": round(time.perf_counter() - t0, 1), **facts}})
     ck.save(out / sm.path.name)
+
+
+def fine_tune_model(scene: Scene, sm: StartModel, ann: dict[str, Annotated], val_users: np.ndarray,
+                    out: Path, opts: FineTuneOptions) -> str:
+    """One start model fine-tuned on its classes' annotated masks into ``out`` (or kept when
+    none of its classes is annotated); returns the line that says which."""
+    crop, factor = sm.ck.net.cfg.crop, sm.ck.net.cfg.downsample
+    center = (sm.ck.info.get("train_config") or {}).get("center_method", DEFAULT_CENTER_METHOD)
+    offset = sm.ck.info.get("radial_offset") or None
+    for c in sm.classes:  # an earlier fine-tuning's choice of the baseline (made again below)
+        remove_path(out / baseline_marker_name(sm.camera, c))
+    w = WeightedExamples.concat([weighted_examples(scene, a.take(np.flatnonzero(np.isin(a.cls, sm.classes))),
+                                                   crop, factor, center, offset)
+                                 for cam, a in ann.items() if cam in sm.cameras], crop, factor)
+    if not len(w.ex):
+        return _keep_start(sm, out, f"no annotated {'/'.join(sm.classes)} masks")
+    rough = _rough_pool(scene, sm, opts, center)
+    if opts.choose:
+        return _choose_and_train(scene, sm, w, rough, out, opts)
+    tr, va = split_by_road_user(w, val_users)
+    if not len(tr.ex):
+        tr, va = w, split_by_road_user(w, np.zeros(0, np.int64))[1]
+    n_users = len(np.unique(w.road_user))
+    if not len(va.ex):
+        say(f"{sm.path.stem}: {n_users} annotated road user(s), none to hold out; trains all "
+            f"{opts.epochs} epochs without early stopping", "note")
+    say(f"{sm.path.stem}: fine-tuning on {len(tr.ex)} annotated examples of "
+        f"{len(np.unique(tr.road_user))} road users (+ {0 if rough is None else len(rough)} rough), "
+        f"validating on {len(va.ex)} of {len(np.unique(va.road_user))} held-out road users")
+    t0 = time.perf_counter()
+    facts = train_from(sm, tr, rough, va.ex if len(va.ex) else None, opts)
+    _save_tuned(scene, sm, tr, va, rough, facts, out, opts, t0)
     if facts["epoch"] == 0:
         return (f"{sm.path.stem}: no epoch beat the start model on the held-out road users "
                 f"({facts['start_val_error_m']:.3f} m); kept the start's weights")
     held = (f"held-out error {facts['start_val_error_m']:.3f} -> {facts['val_error_m']:.3f} m"
             if np.isfinite(facts["val_error_m"]) else "nothing held out")
     return f"{sm.path.stem}: fine-tuned, epoch {facts['epoch']} of {facts['epochs_run']} run; {held}"
+
+
+def _choose_and_train(scene: Scene, sm: StartModel, w: WeightedExamples, rough: ExampleSet | None,
+                      out: Path, opts: FineTuneOptions) -> str:
+    """Per class the best of baseline, start and fine-tuned on held-out road users
+    (``fine_tune_choice``), then the network the classes keep (fine-tuned on every annotated
+    road user, or the start) and a baseline marker per class that chose the baseline."""
+    t0 = time.perf_counter()
+    n_users = len(np.unique(w.road_user))
+    say(f"{sm.path.stem}: choosing between the baseline, the start and a fine-tuning on "
+        f"{len(w.ex)} annotated examples of {n_users} road user(s) "
+        f"({min(opts.folds, n_users) if n_users > 1 else 0} folds by road user)")
+    device = pick_device(opts.device)
+
+    def train(s: StartModel, tr: WeightedExamples) -> None:
+        train_from(s, tr, rough, None, opts)
+
+    errors = cross_validate(sm, w, device, train, opts.folds, opts.seed)
+    ch = choose(errors, w, sm.classes)
+    for c in sm.classes:
+        marker = out / baseline_marker_name(sm.camera, c)
+        if c in ch.baseline:
+            atomic_write_text(marker, json.dumps({
+                "why": f"on {ch.users[c]} annotated road user(s) held out, " + ch.describe(c),
+                "scores_m": ch.scores[c], "start": str(sm.path)}, indent=1) + "\n")
+    summary = "; ".join(ch.describe(c) for c in ch.scores)
+    served = [c for c in sm.classes if c not in ch.baseline]
+    if not served:  # every class of this model runs the baseline: no model file
+        for p in (out / sm.path.name, (out / sm.path.name).with_suffix(".json")):
+            remove_path(p)
+        return f"{sm.path.stem}: baseline chosen ({summary})"
+    if ch.net == "start":
+        _keep_start(sm, out, f"the start beat fine-tuning on held-out road users ({summary})")
+        return f"{sm.path.stem}: start chosen ({summary})"
+    facts = train_from(sm, w, rough, None, opts)
+    facts["choice"] = {c: {"chosen": ch.chosen(c), "users": ch.users[c], **ch.scores[c]} for c in ch.scores}
+    _save_tuned(scene, sm, w, WeightedExamples.empty(crop=sm.ck.net.cfg.crop,
+                                                      factor=sm.ck.net.cfg.downsample),
+                rough, facts, out, opts, t0)
+    return f"{sm.path.stem}: fine-tuned chosen ({summary})"
 
 
 def fine_tune_scene(scene: Scene, start: str | Path, out: str | Path | None = None,

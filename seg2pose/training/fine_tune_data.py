@@ -23,12 +23,10 @@ import numpy as np
 from seg2pose.core.errors import S2PError
 from seg2pose.core.say import say
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
-from seg2pose.io.mots import MaskTable
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint, model_filename, radial_correction
-from seg2pose.method.matching import match_masks_to_truth
-from seg2pose.training.examples import ExampleSet, labelled_examples
+from seg2pose.training.examples import ExampleSet, labelled_examples, masks_matched_to_truth
 
 # a row a person placed or accepted one by one (CHECKED_KEYFRAME_SOURCES) counts four times a
 # row interpolated between them, an interpolated row the annotator played back and passed twice
@@ -144,34 +142,18 @@ def usable_rows(gt: PoseTable, scene: Scene) -> PoseTable:
 def annotated_masks(scene: Scene, camera: str, gt: PoseTable) -> Annotated:
     """``camera``'s masks matched to the annotated rows ``gt`` (sorted by frame; paper 4.1's
     matching, ``match_masks_to_truth``), streamed a few hundred frames at a time."""
-    cam = scene.cameras[camera]
-    names, by_id, heights = scene.class_names_by_id(), scene.class_by_id(), scene.default_heights()
+    by_id = scene.class_by_id()
     rles, cls, xy, src, ru = [], [], [], [], []
-    chunk: list[MaskTable] = []
-
-    def flush() -> None:
-        if not chunk:
-            return
-        t = MaskTable.concat(chunk)
-        lo, hi = np.searchsorted(gt.frame, [t.frame.min(), t.frame.max() + 1])
-        g = gt.take(np.arange(lo, hi))
-        match = match_masks_to_truth(cam, t, g, names, heights)
+    frames = np.unique(gt.frame)
+    span = (int(frames[0]), int(frames[-1])) if len(frames) else None
+    for t, g, match in (masks_matched_to_truth(scene, camera, gt, span) if span else ()):
+        assert g.source is not None  # rows from usable_rows always carry their source
         for i in np.flatnonzero(match >= 0):
-            assert g.source is not None  # rows from usable_rows always carry their source
             rles.append(t.rles[i])
             cls.append(by_id[int(t.class_id[i])].name)
             xy.append(g.xyz[match[i], :2])
             src.append(str(g.source[match[i]]))
             ru.append(int(g.track_id[match[i]]))
-        chunk.clear()
-
-    frames = np.unique(gt.frame)
-    if len(frames):
-        for _, t in scene.iter_masks(camera, (int(frames[0]), int(frames[-1]))):
-            chunk.append(t)
-            if len(chunk) >= 256:
-                flush()
-        flush()
     return Annotated(camera, rles, np.array(cls, object), np.array(xy, float).reshape(-1, 2),
                      np.array(src, object), np.array(ru, np.int64))
 
@@ -192,11 +174,31 @@ def held_out_road_users(road_user: np.ndarray, cls: np.ndarray, seed: int,
 
 @dataclass
 class WeightedExamples:
-    """Examples with a sampling weight each (N,) and the road users they show (N,)."""
+    """Examples with a sampling weight each (N,), the road users they show (N,) and the
+    baseline's error on each (N,) metres: the distance from the normal position to the truth."""
 
     ex: ExampleSet
     weight: np.ndarray
     road_user: np.ndarray
+    baseline_error: np.ndarray
+
+    @classmethod
+    def empty(cls, crop: int, factor: int) -> WeightedExamples:
+        return cls(ExampleSet.empty(crop // factor, factor), np.zeros(0), np.zeros(0, np.int64),
+                   np.zeros(0))
+
+    def take(self, idx: np.ndarray) -> WeightedExamples:
+        return WeightedExamples(self.ex.take(idx), self.weight[idx], self.road_user[idx],
+                                self.baseline_error[idx])
+
+    @classmethod
+    def concat(cls, parts: list[WeightedExamples], crop: int, factor: int) -> WeightedExamples:
+        parts = [p for p in parts if len(p.ex)]
+        if not parts:
+            return cls.empty(crop, factor)
+        return cls(ExampleSet.concat([p.ex for p in parts]), np.concatenate([p.weight for p in parts]),
+                   np.concatenate([p.road_user for p in parts]),
+                   np.concatenate([p.baseline_error for p in parts]))
 
 
 def weighted_examples(scene: Scene, ann: Annotated, crop: int, factor: int,
@@ -206,7 +208,7 @@ def weighted_examples(scene: Scene, ann: Annotated, crop: int, factor: int,
     heights, targets = truth - normal), one call per (source, road user) so every example keeps
     its weight and road user. ``radial_offset``: the start model's (subtracted at prediction);
     it is added to the targets so that the fine-tuned model, which keeps it, predicts the truth."""
-    parts, weights, users = [], [], []
+    parts: list[WeightedExamples] = []
     cam = scene.cameras[ann.camera]
     for s in sorted(set(ann.source.tolist())):
         for u in np.unique(ann.road_user[ann.source == s]):
@@ -216,26 +218,20 @@ def weighted_examples(scene: Scene, ann: Annotated, crop: int, factor: int,
                                    sub.xy, False, crop, factor, center_method)
             if not len(ex):
                 continue
+            base = np.linalg.norm(ex.target, axis=1)  # before the start's offset: the baseline's
             if radial_offset:
                 ex.target = ex.target + radial_correction(radial_offset, ex.cls, ex.normal,
                                                           cam.center[:2])
-            parts.append(ex)
-            weights.append(np.full(len(ex), SOURCE_WEIGHTS[s]))
-            users.append(np.full(len(ex), u, np.int64))
-    if not parts:
-        return WeightedExamples(ExampleSet.empty(crop // factor, factor), np.zeros(0), np.zeros(0, np.int64))
-    return WeightedExamples(ExampleSet.concat(parts), np.concatenate(weights), np.concatenate(users))
+            parts.append(WeightedExamples(ex, np.full(len(ex), SOURCE_WEIGHTS[s]),
+                                          np.full(len(ex), u, np.int64), base))
+    return WeightedExamples.concat(parts, crop, factor)
 
 
 def split_by_road_user(w: WeightedExamples, val_users: np.ndarray
                        ) -> tuple[WeightedExamples, WeightedExamples]:
     """(training, validation): the examples of the road users ``val_users`` validate."""
     is_val = np.isin(w.road_user, val_users)
-    out = []
-    for sel in (~is_val, is_val):
-        idx = np.flatnonzero(sel)
-        out.append(WeightedExamples(w.ex.take(idx), w.weight[idx], w.road_user[idx]))
-    return out[0], out[1]
+    return w.take(np.flatnonzero(~is_val)), w.take(np.flatnonzero(is_val))
 
 
 def scratch_start(scene: Scene, folder: Path, arch: str = "lite-hr", geometry: bool = True,

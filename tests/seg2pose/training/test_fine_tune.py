@@ -37,8 +37,9 @@ def scene(tmp_path_factory):
 def _opts(**kw):
     from seg2pose.training.fine_tune import FineTuneOptions
 
+    # choose=False: the early-stopping path (the per-class choice: test_fine_tune_choice.py)
     base = dict(epochs=3, batches_per_epoch=4, batch_size=16, rough_per_class=16, lr=2e-3,
-                threads=1, progress=False)
+                threads=1, progress=False, choose=False)
     return FineTuneOptions(**{**base, **kw})
 
 
