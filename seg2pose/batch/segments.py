@@ -258,11 +258,12 @@ def stitch_camera(scene: Scene, segs: list[Segment], out: Path, tcfg: TrackConfi
     borders (module docstring). Returns frames, masks, tracks and the seams."""
     max_gap = tcfg.max_gap
     files = [segment_path(scene.root, s) for s in segs]
-    infos = [segment_done(scene.root, s) for s in segs]
-    missing = [s.name for s, i in zip(segs, infos) if i is None]
+    done = [segment_done(scene.root, s) for s in segs]
+    missing = [s.name for s, i in zip(segs, done) if i is None]
     if missing:
         raise InputError(f"segments {missing} of camera {segs[0].camera} are not finished",
                          file=files[0].parent)
+    infos = [i for i in done if i is not None]  # every segment's (none missing)
     # a video that ended early ends the camera's frames there, as in the single run
     end = len(segs)
     for k, i in enumerate(infos):
@@ -275,7 +276,7 @@ def stitch_camera(scene: Scene, segs: list[Segment], out: Path, tcfg: TrackConfi
     maps: list[dict[int, int]] = []
     count: dict[int, int] = {}
     order: list[int] = []
-    seams = []
+    seams: list[dict] = []
     last_seen: dict[int, int] = {}  # global id -> last frame with a mask
     next_gid = 1
     tail: list[tuple[int, MaskTable]] = []

@@ -73,12 +73,7 @@ def main(argv: list[str] | None = None) -> None:
         typer.secho("aborted", fg=typer.colors.YELLOW, err=True)
         sys.exit(1)
     except typer.TyperException as e:  # usage errors: shown as typer shows them
-        try:
-            from typer import rich_utils
-
-            rich_utils.rich_format_error(e)
-        except ImportError:
-            e.show()
+        _show_typer_error(e)
         sys.exit(e.exit_code)
     # typer turns Ctrl-C into Exit(130), which standalone_mode=False returns as the code
     if rc == INTERRUPTED:
@@ -87,6 +82,23 @@ def main(argv: list[str] | None = None) -> None:
                     "files are kept, partial ones were not written", fg=typer.colors.YELLOW, err=True)
         sys.exit(INTERRUPTED)
     sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def _show_typer_error(e: typer.TyperException) -> None:
+    """As typer's standalone mode shows it: a usage error (a ClickException of the click that
+    typer >= 0.26 vendors) with rich where installed, else its own ``show``; another typer
+    error (which has neither ``show`` nor what rich formats) as one line."""
+    from typer._click.exceptions import ClickException  # what typer raises for usage errors
+
+    if not isinstance(e, ClickException):
+        typer.secho(f"error: {e.format_message()}", fg=typer.colors.RED, err=True)
+        return
+    try:
+        from typer import rich_utils
+    except ImportError:  # typer without rich
+        e.show()
+        return
+    rich_utils.rich_format_error(e)
 
 
 if __name__ == "__main__":

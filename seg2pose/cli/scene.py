@@ -144,11 +144,12 @@ def synth(
     dist = None
     if distortion:
         try:
-            dist = tuple(float(v) for v in distortion.split(","))
+            ks = [float(v) for v in distortion.split(",")]
         except ValueError:
-            raise InputError(f"expected K1,K2 numbers, got {distortion!r}", field="--distortion") from None
-        if len(dist) == 1:
-            dist = (dist[0], 0.0)
+            ks = []
+        if len(ks) not in (1, 2):  # exactly K1[,K2]: the wide preset's device would drop a third
+            raise InputError(f"expected K1,K2 numbers, got {distortion!r}", field="--distortion")
+        dist = (ks[0], ks[1] if len(ks) == 2 else 0.0)
     t = time.perf_counter()
     path = generate_scene(out, SynthOptions(preset=preset, frames=frames, seed=seed, rig=rig, video=video,
                           force=force, noise=cfg, progress=progress, workers=workers,

@@ -325,6 +325,10 @@ def test_cli_noise_knobs_and_distortion(tmp_path):
     assert bad.exit_code != 0 and "--noise" in str(bad.exception)
     bad = CliRunner().invoke(app, ["synth", "-o", str(tmp_path / "t"), "--distortion", "5,0"])
     assert bad.exit_code != 0 and "--distortion" in str(bad.exception)
+    # a third number is refused, not dropped (the wide preset's device would keep two)
+    for three in (["--distortion", "0.1,0,0.3"], ["--preset", "wide", "--distortion", "0.1,0,0.3"]):
+        bad = CliRunner().invoke(app, ["synth", "-o", str(tmp_path / "t"), *three])
+        assert bad.exit_code != 0 and "expected K1,K2 numbers" in str(bad.exception)
     assert not (tmp_path / "t").exists()
 
 
