@@ -219,17 +219,24 @@ class ModelSet:
                                 allow_incomplete, cameras_fingerprint, missing)
             sets = [cls.load(d, cameras, classes, arch, fingerprint, device, allow_incomplete,
                              cameras_fingerprint, missing) for d in models_dir]
-            ms, made = cls(), {}
+            ms = cls()
+            made: dict[tuple[int, ...], Ensemble] = {}
             # a pair missing from any folder falls back (only with missing="baseline")
             ms.fallback = sorted({k for s in sets for k in s.fallback})
             ms.chosen_baseline = sorted({k for s in sets for k in s.chosen_baseline})
             for key in sets[0].models:
                 if key in ms.fallback:
                     continue
-                members = tuple(s.models[key] for s in sets)
+                members: list[Checkpoint] = []
+                paths: list[Path] = []
+                for s in sets:  # each set is one folder's: a Checkpoint and its Path per pair
+                    ck, path = s.models[key], s.paths[key]
+                    assert isinstance(ck, Checkpoint) and isinstance(path, Path)
+                    members.append(ck)
+                    paths.append(path)
                 ids = tuple(map(id, members))  # one Ensemble per distinct member set (shared models)
-                ms.models[key] = made.setdefault(ids, Ensemble(members))
-                ms.paths[key] = [s.paths[key] for s in sets]
+                ms.models[key] = made.setdefault(ids, Ensemble(tuple(members)))
+                ms.paths[key] = paths
             return ms
         models_dir = Path(models_dir)
         ms = cls()
