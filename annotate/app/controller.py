@@ -87,6 +87,7 @@ class Controller(Actions, ReviewActions, Clicks, PanelData):
     software_rendering: bool = False  # the browser renders WebGL in software (its hello says)
     renderer_known: bool = False      # the page has said how it renders (until then: no viewer)
     on_viewer: list[Callable[[bool], None]] = field(default_factory=list)
+    on_run: list[Callable[[Path], None]] = field(default_factory=list)  # a new run loaded (train now)
     play_to: int | None = None        # playing the selected track up to this frame (review mode)
     play_reason: str = ""             # why the playback stops there
     review_from: int | None = None    # where the review of the selected track started

@@ -109,6 +109,7 @@ class Session:
         self.ctl.on_frame.append(self._move_cursor)
         self.ctl.on_layout.append(self._send_layout)
         self.ctl.on_viewer.append(self._show_viewer)
+        self.ctl.on_run.append(self._show_run)
         if native:
             self._log_scene()
         self.viewer.on_event(self._on_viewer_event)
@@ -170,6 +171,16 @@ class Session:
             self._log_scene()
             self._send_tracks()
             self._move_cursor(self.ctl.frame)
+
+    def _show_run(self, run: Path) -> None:
+        """A new run loaded (train now's, annotate/app/fine_tune_job.py): the viewer logs the
+        scene again with it (now when shown, else when it is first shown), its trails named."""
+        self._run_dir, self._logged = run, False
+        if Path(run).name not in self._runs:
+            self._runs.append(Path(run).name)
+        self._send_layout(self.ctl.large_camera)
+        if self.ctl.viewer_visible:
+            self._log_scene()
 
     def _send_layout(self, large: str | None) -> None:
         bp = app_blueprint(self.ctl.cameras, large, eye=self._eye, fps=self.ctl.project.scene.fps,

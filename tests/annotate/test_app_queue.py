@@ -11,7 +11,7 @@ import time
 import pytest
 
 from annotate.app.controller import Controller
-from annotate.app.fine_tune_job import TrainJob
+from annotate.app.fine_tune_job import Step, TrainJob
 
 
 @pytest.fixture(scope="module")
@@ -59,11 +59,67 @@ def _wait(job: TrainJob) -> dict:
 
 def test_train_job_progress_from_the_childs_lines(tmp_path):
     said = ("import sys; print('all__car: fine-tuning on 10 annotated examples', file=sys.stderr); "
-            "print('all__car: fine-tuned, epoch 2 of 4 run; held-out error 0.5 -> 0.4 m'); "
+            "print('all__car: fine-tuned chosen (car: fine-tuned (2 road user(s): ...))'); "
             "print('all__bicyclist: kept its start model (no annotated bicyclist masks)'); print('models in X')")
-    st = _wait(TrainJob([sys.executable, "-c", said], tmp_path / "m").start())
+    st = _wait(TrainJob([Step("train", [sys.executable, "-c", said])], tmp_path / "m").start())
     assert st["state"] == "done" and st["models_done"] == 2 and st["line"] == "models in X"
-    assert "s2p run SCENE --models" in st["next"]
-    st = _wait(TrainJob([sys.executable, "-c", "import sys; print('error: no'); sys.exit(2)"],
+    assert "s2p run SCENE --models" in st["next"] and st["stage"] == "train"
+    st = _wait(TrainJob([Step("train", [sys.executable, "-c", "import sys; print('error: no'); sys.exit(2)"])],
                         tmp_path / "m").start())
     assert st["state"] == "failed" and st["line"] == "error: no" and "next" not in st
+
+
+def test_train_job_steps_run_in_order_an_optional_one_may_fail(tmp_path):
+    """Steps one after another; an optional step's failure is noted and the job goes on, a
+    required one's ends it there (the later steps never start)."""
+    log = tmp_path / "log.txt"
+
+    def step(name, code, optional=False):
+        py = (f"import sys; open({str(log)!r}, 'a').write({name!r} + ' '); print({name!r} + ' said'); "
+              f"sys.exit({code})")
+        return Step(name, [sys.executable, "-c", py], optional)
+
+    st = _wait(TrainJob([step("train", 0), step("run", 0), step("error bars", 1, True),
+                         step("run with error bars", 0)], tmp_path / "m", tmp_path / "r").start())
+    assert st["state"] == "done" and st["stage"] == "run with error bars"
+    assert st["skipped"] == ["error bars: error bars said"]
+    assert log.read_text() == "train run error bars run with error bars "
+    log.unlink()
+    st = _wait(TrainJob([step("train", 3), step("run", 0)], tmp_path / "m", tmp_path / "r").start())
+    assert st["state"] == "failed" and st["stage"] == "train" and log.read_text() == "train "
+
+
+def test_a_finished_job_s_run_is_loaded_into_the_app_once(scene_run, tmp_path):
+    """The panel after a job that made a run: the project's estimates come from that run, the
+    viewer's ``on_run`` hears of it once; a second train now from a run of the fine-tuned
+    models starts from the start those models record."""
+    import json
+    import shutil
+
+    from annotate.app.fine_tune_job import OUT_NAME, _start_models
+
+    root, run = scene_run
+    other = tmp_path / "run2"
+    shutil.copytree(run, other)
+    ctl = Controller.open(root, run=run, cameras=["c1"])
+    heard = []
+    ctl.on_run.append(heard.append)
+    try:
+        ctl._fine_tune_job = TrainJob([], root / OUT_NAME, other, state="done", ended=time.time())
+        st = ctl.panel()["train_job"]
+        assert st["run"] == str(other) and heard == [other]
+        assert ctl.project._run.path.resolve() == other.resolve()
+        ctl.panel()
+        assert heard == [other]  # once
+        # a run of train now's own folder: the start comes from the models' record
+        out = root / OUT_NAME
+        out.mkdir()
+        start = tmp_path / "start"
+        record = {"fine_tune": {"start": {"file": str(start / "all__car.safetensors")}}}
+        (out / "all__car.json").write_text(json.dumps(record))
+        meta = json.loads((other / "run.json").read_text())
+        meta["models"] = {"c1/car": {"path": str(out / "all__car.safetensors")}}
+        (other / "run.json").write_text(json.dumps(meta))
+        assert _start_models(ctl) == start.resolve()
+    finally:
+        ctl.close()
