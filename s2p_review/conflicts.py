@@ -224,7 +224,9 @@ def _log_map_and_chart(rec, conflicts: Conflicts, frames: np.ndarray, first: int
                 static=True)
         if m.any():
             ta, kmh = c["ta_s"][m], c["conflicting_speed_mps"][m] * 3.6
-            serious = ta <= tct_boundary_s(c["conflicting_speed_mps"][m])
+            # the severity the table was made with (its boundary may be a study's own curve)
+            serious = (c["tct_severity"][m] == "serious" if "tct_severity" in c
+                       else ta <= tct_boundary_s(c["conflicting_speed_mps"][m]))
             cols = np.where(serious[:, None], np.array(RED), np.array((40, 90, 255)))
             labels = [f"c{k}: TA {c['ta_s'][k]:.2f} s at {c['conflicting_speed_mps'][k] * 3.6:.0f} km/h"
                       for k in np.flatnonzero(m)]

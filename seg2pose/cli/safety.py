@@ -30,6 +30,26 @@ def parse_r90(text: str | None, field: str = "--r90", unit: str = "METRES",
     return out
 
 
+def parse_tct_curve(text: str | None) -> tuple[tuple[float, float], ...]:
+    """``10:0.5,50:1.5`` -> ((10.0, 0.5), (50.0, 1.5)) (km/h, seconds; at least two points,
+    speeds distinct and not negative); None -> () (the stand-in boundary)."""
+    if text is None:
+        return ()
+    pts = []
+    for item in text.split(","):
+        kmh, sep, ta = item.partition(":")
+        try:
+            p = (float(kmh), float(ta))
+            if not sep or p[0] < 0 or p[1] < 0:
+                raise ValueError
+        except ValueError:
+            raise InputError(f"expected KMH:SECONDS[,KMH:SECONDS...], got {text!r}", field="--tct-curve") from None
+        pts.append(p)
+    if len(pts) < 2 or len({p[0] for p in pts}) < len(pts):
+        raise InputError(f"expected at least two points of distinct speeds, got {text!r}", field="--tct-curve")
+    return tuple(pts)
+
+
 def parse_clock(text: str | None) -> int:
     if text is None:
         return 0
@@ -132,6 +152,16 @@ def conflicts(
     yaw: float | None = typer.Option(
         None, "--yaw", min=0.0,
         help="evasive action: also a turning rate of at least this, degrees/s (default: lateral acceleration only)",
+    ),
+    tct_decel: float = typer.Option(
+        4.0, "--tct-decel", min=0.1,
+        help="TCT severity: serious when TA <= the time to stop at this deceleration from the conflicting speed, "
+             "m/s^2 (a stand-in for the TCT's published curve, which this tool does not have; see --tct-curve)",
+    ),
+    tct_curve: str | None = typer.Option(
+        None, "--tct-curve",
+        help="TCT severity boundary as points KMH:SECONDS,... (the digitised curve of the TCT chart, joined by "
+             "straight lines; serious at or below it); replaces --tct-decel",
     ),
     pet_only: Path | None = typer.Option(
         None, "--pet-only", help="also write the PET-only encounters (PET <= --pet, no collision course) to this CSV",
@@ -244,7 +274,8 @@ def conflicts(
     if len(bad):
         say(jump_note(tr, bad), "warning")
     opts = ConflictOptions(ttc_s=ttc_s, pet_s=pet_s, horizon_s=horizon_s, max_gap_s=max_gap,
-                           evasive=EvasiveOptions(brake_mps2=brake, swerve_mps2=swerve, yaw_dps=yaw),
+                           evasive=EvasiveOptions(brake_mps2=brake, swerve_mps2=swerve, yaw_dps=yaw,
+                                                  tct_decel_mps2=tct_decel, tct_curve=parse_tct_curve(tct_curve)),
                            all_pairs=all_pairs, pedestrian_pairs=pedestrian_pairs, chunk_s=chunk_s,
                            workers=workers, motion=MotionOptions(window_s=window_s))
     table = analyse(tr, opts, progress=lambda step: say(f"{step} ..."))
@@ -277,7 +308,7 @@ def conflicts(
     if tct_chart is not None:
         from seg2pose.safety.conflict_map import draw_tct_chart
 
-        draw_tct_chart(tct_chart, table.take(c["conflict"] == 1), force=force)
+        draw_tct_chart(tct_chart, table.take(c["conflict"] == 1), force=force, evasive=opts.evasive)
     typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s on a collision course), "
                f"{n_pet} PET-only encounters (PET <= {pet_s:g} s)"
                + (f" among {len(table)} encounters" if all_pairs else "")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.io.atomic import atomic_write_bytes, check_writable, output_lock
-from seg2pose.safety.evasive import tct_boundary_s
+from seg2pose.safety.evasive import EvasiveOptions, tct_boundary_s
 
 TYPE_COLOURS = {"rear-end": "tab:blue", "lane-change": "tab:cyan", "crossing": "tab:orange",
                 "head-on": "tab:red", "pedestrian": "tab:purple", "bicyclist": "tab:green",
@@ -85,9 +85,10 @@ def map_png(table, title: str = "conflict map") -> bytes:
 
 
 def tct_chart_png(ta_s: np.ndarray, speed_mps: np.ndarray, lo: np.ndarray | None = None,
-                  hi: np.ndarray | None = None) -> bytes:
-    """The TCT chart: conflicting speed (km/h) against TA (s), the serious / slight boundary,
-    and each conflict's point with its TA interval (``lo``, ``hi``; none drawn where NaN)."""
+                  hi: np.ndarray | None = None, evasive: EvasiveOptions = EvasiveOptions()) -> bytes:
+    """The TCT chart: conflicting speed (km/h) against TA (s), the serious / slight boundary
+    (``evasive``'s: ``evasive.tct_boundary_s``), and each conflict's point with its TA
+    interval (``lo``, ``hi``; none drawn where NaN)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,13 +96,15 @@ def tct_chart_png(ta_s: np.ndarray, speed_mps: np.ndarray, lo: np.ndarray | None
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
     v = np.linspace(0, 30, 100)
-    ax.plot(tct_boundary_s(v), v * 3.6, c="k", lw=1, label="serious / slight boundary")
+    label = "serious / slight boundary" + ("" if evasive.tct_curve else
+                                           f" (stand-in: stopping at {evasive.tct_decel_mps2:g} m/s²)")
+    ax.plot(tct_boundary_s(v, evasive), v * 3.6, c="k", lw=1, label=label)
     ok = np.isfinite(ta_s) & np.isfinite(speed_mps)
     if lo is not None and hi is not None:
         iv = ok & np.isfinite(lo) & np.isfinite(hi)
         ax.errorbar(ta_s[iv], speed_mps[iv] * 3.6, xerr=[ta_s[iv] - lo[iv], hi[iv] - ta_s[iv]],
                     fmt="none", ecolor="0.5", lw=0.8)
-    serious = ok & (ta_s <= tct_boundary_s(speed_mps))
+    serious = ok & (ta_s <= tct_boundary_s(speed_mps, evasive))
     ax.scatter(ta_s[serious], speed_mps[serious] * 3.6, c="tab:red", s=18, label="serious")
     ax.scatter(ta_s[ok & ~serious], speed_mps[ok & ~serious] * 3.6, c="tab:blue", s=18, label="slight")
     ax.set_xlim(0, max(4.5, float(np.nanmax(ta_s[ok], initial=0)) + 0.5))
@@ -121,13 +124,15 @@ def draw_map(path: str | Path, table, force: bool = False) -> None:
         atomic_write_bytes(path, map_png(table))
 
 
-def draw_tct_chart(path: str | Path, table, force: bool = False) -> None:
+def draw_tct_chart(path: str | Path, table, force: bool = False,
+                   evasive: EvasiveOptions = EvasiveOptions()) -> None:
     """Write the TCT chart of the rows of ``table`` (with their TA intervals, if sampled) to
-    ``path`` (PNG)."""
+    ``path`` (PNG), with ``evasive``'s severity boundary."""
     c = table.columns
     lo, hi = c.get("ta_lo_s"), c.get("ta_hi_s")
     data = tct_chart_png(np.asarray(c["ta_s"], float), np.asarray(c["conflicting_speed_mps"], float),
-                         None if lo is None else np.asarray(lo, float), None if hi is None else np.asarray(hi, float))
+                         None if lo is None else np.asarray(lo, float), None if hi is None else np.asarray(hi, float),
+                         evasive)
     with output_lock(path):
         check_writable(path, force)
         atomic_write_bytes(path, data)

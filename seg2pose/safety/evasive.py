@@ -18,11 +18,17 @@ velocity window ends before the onset. Of the actions during an encounter on a c
 course, the strongest is the evasive action (noise makes weak ones).
 
 **Severity** (TCT): serious when TA is at or below the boundary for the conflicting speed,
-slight above it. The TCT draws that boundary as a curve in the TA-speed chart; it is taken
-here as the time a road user at that speed needs to stop at ``TCT_DECEL_MPS2`` (4 m/s^2: the
-curve passes about 3.5 s at 100 km/h and 1.7 s at 50 km/h), TA_serious(v) = v / (2 a). This is
-a stand-in of the chart's shape, not a digitisation of it (the published chart was not at
-hand): say so when reporting severities.
+slight above it. The TCT draws that boundary as a curve in the TA-speed chart (Hyden 1987;
+Laureshyn and Varhelyi 2018, "The Swedish Traffic Conflict Technique: observer's manual",
+Lund University, section 4, the chart of severity levels, serious from level 26). The
+curve's points were not available to this project (no copy of the chart could be read
+offline), so the default boundary is a **stand-in** for it, not the TCT's: the time a road
+user at that speed needs to stop at ``TCT_DECEL_MPS2`` = 4 m/s^2, TA_serious(v) = v / (2 a)
+(1.74 s at 50 km/h, 3.47 s at 100 km/h: the published curve rises with speed in the same
+way, and 4 m/s^2 is a firm but ordinary braking). Both are options (``EvasiveOptions``;
+``s2p conflicts --tct-decel`` / ``--tct-curve``): a study with the digitised chart enters its
+points (km/h, s), joined by straight lines. Severities from the default are the stand-in's
+and must be reported as such.
 """
 
 from __future__ import annotations
@@ -43,12 +49,16 @@ class EvasiveOptions:
     """brake_mps2, swerve_mps2: evasive action thresholds; yaw_dps: a turning rate that also
     counts as swerving (None: lateral acceleration only; at low speed a swerve is a turn
     more than a lateral acceleration); min_speed_mps: slower road users take no evasive
-    action (a pedestrian stepping aside is no braking)."""
+    action (a pedestrian stepping aside is no braking); tct_decel_mps2, tct_curve: the TCT
+    severity boundary (``tct_boundary_s``): the stand-in's deceleration, or the curve's
+    points ((km/h, TA s), ...; when given, it is used)."""
 
     brake_mps2: float = 3.0
     swerve_mps2: float = 3.0
     yaw_dps: float | None = None
     min_speed_mps: float = 1.0
+    tct_decel_mps2: float = TCT_DECEL_MPS2
+    tct_curve: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass
@@ -188,15 +198,29 @@ def time_to_accident(tracks: Tracks, mot: Motion, ons: Onsets, track_a: np.ndarr
     return out
 
 
-def tct_boundary_s(speed_mps) -> np.ndarray:
-    """(K,) the TA (s) at or below which a conflict at this conflicting speed is serious (the
-    module's stand-in for the TCT's curve: v / (2 TCT_DECEL_MPS2))."""
-    return np.asarray(speed_mps, np.float64) / (2.0 * TCT_DECEL_MPS2)
+def tct_boundary_s(speed_mps, opts: EvasiveOptions = EvasiveOptions()) -> np.ndarray:
+    """(K,) the TA (s) at or below which a conflict at this conflicting speed (K,) m/s is
+    serious: ``opts.tct_curve``'s points (km/h, s) joined by straight lines (beyond the
+    last point: the line through the last two, at least the last TA); without points the
+    module's stand-in v / (2 ``opts.tct_decel_mps2``)."""
+    v = np.asarray(speed_mps, np.float64)
+    pts = np.asarray(opts.tct_curve, np.float64).reshape(-1, 2)
+    if len(pts) == 0:
+        return v / (2.0 * opts.tct_decel_mps2)
+    order = np.argsort(pts[:, 0])
+    kmh, ta = pts[order, 0], pts[order, 1]
+    x = v * 3.6
+    out = np.interp(x, kmh, ta)
+    if len(kmh) >= 2:
+        slope = (ta[-1] - ta[-2]) / max(kmh[-1] - kmh[-2], 1e-9)
+        out = np.where(x > kmh[-1], np.maximum(ta[-1] + slope * (x - kmh[-1]), ta[-1]), out)
+    return out
 
 
-def tct_severity(ta_s, speed_mps) -> np.ndarray:
-    """(K,) "serious" / "slight" by the TCT boundary, "" where there is no TA."""
+def tct_severity(ta_s, speed_mps, opts: EvasiveOptions = EvasiveOptions()) -> np.ndarray:
+    """(K,) "serious" / "slight" by the TCT boundary (``tct_boundary_s``), "" where there is
+    no TA."""
     ta, v = np.asarray(ta_s, np.float64), np.asarray(speed_mps, np.float64)
-    out = np.where(ta <= tct_boundary_s(v), "serious", "slight").astype(object)
+    out = np.where(ta <= tct_boundary_s(v, opts), "serious", "slight").astype(object)
     out[~(np.isfinite(ta) & np.isfinite(v))] = ""
     return out

@@ -130,7 +130,7 @@ def build_table(tracks, mot, pf, pr, opts) -> dict:
     ta = time_to_accident(tracks, mot, onsets(tracks, mot, opts.evasive), col["track_a"], col["track_b"],
                           last.astype(np.int64), col["first_frame"].astype(np.int64), opts.horizon_s)
     col.update(ta)
-    col["tct_severity"] = tct_severity(col["ta_s"], col["conflicting_speed_mps"])
+    col["tct_severity"] = tct_severity(col["ta_s"], col["conflicting_speed_mps"], opts.evasive)
     return col
 
 

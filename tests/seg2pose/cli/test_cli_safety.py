@@ -141,3 +141,15 @@ def test_conflict_map_and_tct_chart_are_pictures(tmp_path, capsys):
     assert "0 conflicts" in so and "1 PET-only" in so
     for f in (m, t):
         assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("curve", ["10:0.5", "10:0.5,10:1.0", "10-0.5,50:1.5", "10:-1,50:1.5"])
+def test_tct_curve_is_checked(tmp_path, capsys, curve):
+    """--tct-curve takes at least two KMH:SECONDS points of distinct, non-negative speeds: one
+    line naming the option otherwise (a lone point, a repeated speed, a wrong separator, a
+    negative TA)."""
+    p = tmp_path / "poses.csv"
+    write_poses(p, crossing_poses())
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(tmp_path / "c.csv"), "--fps", "30",
+                      "--tct-curve", curve)
+    assert code == 2 and "--tct-curve" in se and "Traceback" not in se
