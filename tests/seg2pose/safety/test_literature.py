@@ -117,6 +117,25 @@ def test_time_to_accident_braking_for_a_pedestrian():
     assert r["type"] == "pedestrian" and r["ssam_type"] == "crossing"
 
 
+def test_tct_boundary_stand_in_and_curve():
+    """The severity boundary: the stand-in stops from v at 4 m/s^2 (12 m/s: 12 / 8 = 1.5 s;
+    at 3 m/s^2: 2.0 s); a study's curve (km/h, s) is joined by straight lines (30 km/h
+    between (10, 0.5) and (50, 1.5): 1.0 s), flat below its first point, and continued
+    along its last segment (110 km/h: 3.0 + 10 * 1.5 / 50 = 3.3 s). The pedestrian case (TA
+    1.29 s at 43.2 km/h) is serious by the stand-in and slight below a curve through
+    (0, 0) and (100, 2) (0.864 s there)."""
+    from seg2pose.safety.evasive import EvasiveOptions, tct_boundary_s
+
+    assert tct_boundary_s([12.0])[0] == pytest.approx(1.5)
+    assert tct_boundary_s([12.0], EvasiveOptions(tct_decel_mps2=3.0))[0] == pytest.approx(2.0)
+    curve = EvasiveOptions(tct_curve=((10.0, 0.5), (50.0, 1.5), (100.0, 3.0)))
+    got = tct_boundary_s(np.array([30.0, 5.0, 110.0]) / 3.6, curve)
+    np.testing.assert_allclose(got, [1.0, 0.5, 3.3])
+    low = ConflictOptions(workers=1, evasive=EvasiveOptions(tct_curve=((0.0, 0.0), (100.0, 2.0))))
+    assert one(analyse(pedestrian_ahead(), low))["tct_severity"] == "slight"
+    assert one(analyse(pedestrian_ahead(), OPTS))["tct_severity"] == "serious"
+
+
 def test_time_to_accident_of_a_swerve():
     """A car at 10 m/s swerves left, its centre on an arc of radius 20 m (lateral acceleration
     5 m/s^2) from t = 2 s, its front 12 m behind a standing car's rear then: TA = 12 / 10 =
