@@ -13,6 +13,11 @@ benches/annotation_curve.py, docs/RESULTS.md):
   the views from their normal positions (the start model disagrees with the baseline: where it
   is wrong, it is wrong by about that much, docs/RESULTS.md "Error budget"), and how far the
   lenses' estimates of one frame lie apart; plus ``FLOOR`` so that a calm road user still counts;
+- **mask quality** (0-1): the share of its views whose mask looks like one whole road user --
+  box area within ``AREA_RATIO`` of the track's median and not cut by the image border. A
+  merged pair of cars or a bus cut in two moves the start model far from the baseline (a high
+  uncertainty above), yet its frames teach little: matched to one annotated road user, such a
+  mask's example is wrong or dropped (residuals beyond 2.5 m). 1 where the run has no boxes;
 - **examples**: the square root of the frames it is seen in (capped at ``MAX_FRAMES``): a long
   track gives many interpolated examples and many positions from the same keyframes;
 - **coverage**: divided by (1 + road users of its class annotated or queued before it) and by
@@ -41,6 +46,7 @@ DISTANCE_BIN = 10.0    # metres: the coverage of distances from the cameras
 GATE = 3.0             # metres: an annotated pose this close to an estimate is the same road user
 COVERED_SHARE = 0.3    # of a road user's frames with such a pose: annotated already
 MIN_FRAMES = 3         # road users seen in fewer frames are not suggested
+AREA_RATIO = 1.5       # a view's box area beyond this factor of its track's median: a bad mask
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,7 @@ class _Track:
     lenses: float
     distance: float
     xy: np.ndarray     # (n, 2) the track's estimate per frame of ``frames`` (mean over lenses)
+    quality: float = 1.0  # share of its views with a whole-looking mask (module docstring)
 
 
 def _tracks(views: ViewTable, center_xy: np.ndarray, frames: tuple[int, int] | None) -> list[_Track]:
@@ -96,8 +103,28 @@ def _tracks(views: ViewTable, center_xy: np.ndarray, frames: tuple[int, int] | N
         fin = r90[sel][np.isfinite(r90[sel])]
         out.append(_Track(int(t), str(cls_vals[np.argmax(cls_n)]), uf,
                           float(fin.mean()) if len(fin) else 0.0, float(moved[sel].mean()), lenses,
-                          float(np.median(np.linalg.norm(xy - center_xy[:2], axis=1))), xy))
+                          float(np.median(np.linalg.norm(xy - center_xy[:2], axis=1))), xy,
+                          mask_quality(views, idx[sel])))
     return out
+
+
+def mask_quality(views: ViewTable, rows: np.ndarray) -> float:
+    """The share of the views ``rows`` (one road user's) whose box area lies within
+    ``AREA_RATIO`` of their median and whose mask is not cut by the image border (cues[:, 0]);
+    1.0 when the views have no boxes."""
+    if views.box is None or not len(rows):
+        return 1.0
+    b = views.box[rows]
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    ok = np.isfinite(area) & (area > 0)
+    if not ok.any():
+        return 0.0
+    med = float(np.median(area[ok]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        whole = ok & (area <= AREA_RATIO * med) & (area >= med / AREA_RATIO)
+    if views.cues is not None:
+        whole &= views.cues[rows, 0] == 0
+    return float(whole.mean())
 
 
 def _covered(t: _Track, annotated: PoseTable) -> bool:
@@ -139,8 +166,8 @@ def annotation_queue(views: ViewTable, annotated: PoseTable, center_xy, frames: 
         d = float(np.median(np.linalg.norm(annotated.xyz[rows, :2] - center_xy[:2], axis=1)))
         n_cls[c] = n_cls.get(c, 0) + 1
         n_bin[(c, int(d // DISTANCE_BIN))] = n_bin.get((c, int(d // DISTANCE_BIN)), 0) + 1
-    base = {t.track: (t.r90 + t.moved + t.lenses + FLOOR) * np.sqrt(min(len(t.frames), MAX_FRAMES))
-            for t in tracks}
+    base = {t.track: (t.r90 + t.moved + t.lenses + FLOOR) * t.quality
+            * np.sqrt(min(len(t.frames), MAX_FRAMES)) for t in tracks}
     queue: list[Candidate] = []
     left = list(tracks)
     while left and len(queue) < limit:
@@ -157,7 +184,9 @@ def annotation_queue(views: ViewTable, annotated: PoseTable, center_xy, frames: 
         why = (f"{best.cls} at {best.distance:.0f} m, seen in {len(best.frames)} frames; the model moves "
                f"it {best.moved:.2f} m from the baseline"
                + (f", error bar {best.r90:.2f} m" if best.r90 else "")
-               + (f", lenses {best.lenses:.2f} m apart" if best.lenses else "") + f"; {news}")
+               + (f", lenses {best.lenses:.2f} m apart" if best.lenses else "")
+               + (f", masks whole in {100 * best.quality:.0f} %" if best.quality < 1 else "")
+               + f"; {news}")
         queue.append(Candidate(best.track, best.cls, spread_frames(best.frames, per_track),
                                float(gain(best)), best.distance, why))
         n_cls[best.cls] = n_cls.get(best.cls, 0) + 1

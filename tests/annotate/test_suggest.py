@@ -78,3 +78,26 @@ def test_frames_outside_the_range_and_short_tracks_are_not_suggested():
     q = annotation_queue(v, _no_poses(), np.zeros(2), frames=(10, 19))
     assert [c.track for c in q] == [2] and q[0].frames == (10, 12, 14, 17, 19)
     assert spread_frames(np.array([3, 8]), 5) == (3, 8)
+
+
+def test_a_road_user_with_merged_or_cut_masks_counts_for_less():
+    """Two cars alike but for their masks: car 2's box doubles in area in 20 of its 50 frames
+    (merged with a neighbour) and is cut by the border in 5 more: its mask quality is
+    (50 - 25) / 50 = 0.5 and so is its gain against car 1's (whole masks, quality 1)."""
+    from annotate.suggest import mask_quality
+
+    v = _views([(1, "car", "c0", F, 19.0, 0.0, 1.0), (2, "car", "c0", F, 19.0, 0.5, 1.0)])
+    n = len(v.frame)
+    box = np.tile([100.0, 100.0, 140.0, 130.0], (n, 1))  # 40 x 30 px
+    cues = np.zeros((n, 3))
+    car2 = np.flatnonzero(v.track_id == 2)
+    box[car2[:20], 2] = 180.0          # 80 x 30: twice the median area
+    cues[car2[20:25], 0] = 1           # cut by the image border
+    v = ViewTable(v.frame, v.track_id, v.camera, v.cls, v.uv, v.normal, v.residual, cues=cues, box=box)
+    assert mask_quality(v, np.flatnonzero(v.track_id == 1)) == 1.0
+    assert mask_quality(v, car2) == 0.5
+    q = annotation_queue(v, _no_poses(), np.zeros(2))
+    gains = {c.track: c.gain for c in q}
+    assert q[0].track == 1 and "masks whole" not in q[0].why and "masks whole in 50 %" in q[1].why
+    # car 2 is the second car in the same 10 m bin: its gain is also divided by (1+1)(1+1)
+    np.testing.assert_allclose(gains[2], gains[1] * 0.5 / 4)
