@@ -191,6 +191,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--min-held-out", type=int, default=FineTuneOptions.min_held_out_users,
                     help="hold out road users of a class only from this many annotated ones")
+    ap.add_argument("--no-choose", action="store_true",
+                    help="no per-class choice of baseline / start / fine-tuned (early stopping instead)")
+    ap.add_argument("--min-mask-iou", type=float, default=FineTuneOptions.min_mask_iou,
+                    help="annotated masks whose box IoU with the truth's projected box is lower are not trained on")
+    ap.add_argument("--folds", type=int, default=FineTuneOptions.folds)
     ap.add_argument("--tag", default="", help="suffix of the rows' names (variants)")
     a = ap.parse_args()
     truth_scene = load_scene(a.scene)
@@ -236,11 +241,14 @@ def main() -> None:
                 c0, t0 = time.process_time(), time.perf_counter()
                 res = fine_tune_scene(load_scene(work), sdir, models,
                                       FineTuneOptions(epochs=a.epochs, threads=a.threads, progress=False,
-                                                      min_held_out_users=a.min_held_out),
+                                                      min_held_out_users=a.min_held_out,
+                                                      choose=not a.no_choose, folds=a.folds,
+                                                      min_mask_iou=a.min_mask_iou),
                                       cameras=[CAM])
                 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
                 emit({"row": name, "start": start, "chooser": chooser, "k": k, **counts,
-                      "min_held_out": a.min_held_out,
+                      "min_held_out": a.min_held_out, "choose": not a.no_choose, "folds": a.folds,
+                      "min_mask_iou": a.min_mask_iou,
                       "fine_tune_cpu_s": round(cpu), "fine_tune_wall_s": round(wall),
                       "lines": res.lines, **score(truth_scene, run(work, out / "runs" / name, models))})
 

@@ -84,6 +84,9 @@ class FineTuneOptions:
     # the early stopping above
     choose: bool = True
     folds: int = 3
+    # annotated masks whose box IoU with their road user's projected 3D box is below this
+    # (merged, cut: fine_tune_data.truth_box_iou) are not trained on; 0: all are
+    min_mask_iou: float = 0.0
     seed: int = 0
     threads: int = 2
     device: str | None = None
@@ -206,7 +209,7 @@ def _save_tuned(scene: Scene, sm: StartModel, tr: WeightedExamples, va: Weighted
         "fine_tune": {"start": {"file": str(sm.path), "sha256": file_sha256(sm.path)},
                       "options": {k: getattr(opts, k) for k in ("epochs", "batches_per_epoch",
                                   "batch_size", "lr", "rough_every", "rough_per_class", "patience",
-                                  "choose", "folds", "seed")},
+                                  "choose", "folds", "min_mask_iou", "seed")},
                       "examples_by_weight": {str(k): int((tr.weight == k).sum())
                                              for k in np.unique(tr.weight)},
                       "road_users": {"train": np.unique(tr.road_user).tolist(),
@@ -225,7 +228,7 @@ def fine_tune_model(scene: Scene, sm: StartModel, ann: dict[str, Annotated], val
     for c in sm.classes:  # an earlier fine-tuning's choice of the baseline (made again below)
         remove_path(out / baseline_marker_name(sm.camera, c))
     w = WeightedExamples.concat([weighted_examples(scene, a.take(np.flatnonzero(np.isin(a.cls, sm.classes))),
-                                                   crop, factor, center, offset)
+                                                   crop, factor, center, offset, opts.min_mask_iou)
                                  for cam, a in ann.items() if cam in sm.cameras], crop, factor)
     if not len(w.ex):
         return _keep_start(sm, out, f"no annotated {'/'.join(sm.classes)} masks")
@@ -233,8 +236,10 @@ def fine_tune_model(scene: Scene, sm: StartModel, ann: dict[str, Annotated], val
     if opts.choose:
         return _choose_and_train(scene, sm, w, rough, out, opts)
     tr, va = split_by_road_user(w, val_users)
-    if not len(tr.ex):
+    if not tr.weight.sum() > 0:
         tr, va = w, split_by_road_user(w, np.zeros(0, np.int64))[1]
+    if not tr.weight.sum() > 0:
+        return _keep_start(sm, out, f"every annotated mask's box IoU is below {opts.min_mask_iou}")
     n_users = len(np.unique(w.road_user))
     if not len(va.ex):
         say(f"{sm.path.stem}: {n_users} annotated road user(s), none to hold out; trains all "
@@ -266,7 +271,8 @@ def _choose_and_train(scene: Scene, sm: StartModel, w: WeightedExamples, rough: 
     device = pick_device(opts.device)
 
     def train(s: StartModel, tr: WeightedExamples) -> None:
-        train_from(s, tr, rough, None, opts)
+        if tr.weight.sum() > 0:  # else every mask of the fold is suspicious: the start stays
+            train_from(s, tr, rough, None, opts)
 
     errors = cross_validate(sm, w, device, train, opts.folds, opts.seed)
     ch = choose(errors, w, sm.classes)
@@ -282,7 +288,7 @@ def _choose_and_train(scene: Scene, sm: StartModel, w: WeightedExamples, rough: 
         for p in (out / sm.path.name, (out / sm.path.name).with_suffix(".json")):
             remove_path(p)
         return f"{sm.path.stem}: baseline chosen ({summary})"
-    if ch.net == "start":
+    if ch.net == "start" or not w.weight.sum() > 0:
         _keep_start(sm, out, f"the start beat fine-tuning on held-out road users ({summary})")
         return f"{sm.path.stem}: start chosen ({summary})"
     facts = train_from(sm, w, rough, None, opts)

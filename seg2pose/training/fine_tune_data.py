@@ -26,6 +26,7 @@ from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
 from seg2pose.method.checkpoint import Checkpoint, model_filename, radial_correction
+from seg2pose.structures.masks import rle_stats
 from seg2pose.training.examples import ExampleSet, labelled_examples, masks_matched_to_truth
 
 # a row a person placed or accepted one by one (CHECKED_KEYFRAME_SOURCES) counts four times a
@@ -108,7 +109,8 @@ def _missing(folder: Path, files: list[Path], cam: str, cls: str, scene: Scene) 
 @dataclass
 class Annotated:
     """Annotated masks of one camera: rles (N,), class names, true x, y (N, 2) metres, source
-    (N,) str, road user (truth track id) (N,)."""
+    (N,) str, road user (truth track id) (N,), box IoU (N,) of each mask with its annotated road
+    user's projected 3D box (``truth_box_iou``; low: a merged or cut mask)."""
 
     camera: str
     rles: list[bytes]
@@ -116,10 +118,11 @@ class Annotated:
     xy: np.ndarray
     source: np.ndarray
     road_user: np.ndarray
+    iou: np.ndarray
 
     def take(self, idx: np.ndarray) -> Annotated:
         return Annotated(self.camera, [self.rles[i] for i in idx], self.cls[idx], self.xy[idx],
-                         self.source[idx], self.road_user[idx])
+                         self.source[idx], self.road_user[idx], self.iou[idx])
 
 
 def usable_rows(gt: PoseTable, scene: Scene) -> PoseTable:
@@ -142,20 +145,58 @@ def usable_rows(gt: PoseTable, scene: Scene) -> PoseTable:
 def annotated_masks(scene: Scene, camera: str, gt: PoseTable) -> Annotated:
     """``camera``'s masks matched to the annotated rows ``gt`` (sorted by frame; paper 4.1's
     matching, ``match_masks_to_truth``), streamed a few hundred frames at a time."""
-    by_id = scene.class_by_id()
-    rles, cls, xy, src, ru = [], [], [], [], []
+    by_id, sizes, cam = scene.class_by_id(), scene.class_sizes(), scene.cameras[camera]
+    rles, cls, xy, src, ru, iou = [], [], [], [], [], []
     frames = np.unique(gt.frame)
     span = (int(frames[0]), int(frames[-1])) if len(frames) else None
     for t, g, match in (masks_matched_to_truth(scene, camera, gt, span) if span else ()):
         assert g.source is not None  # rows from usable_rows always carry their source
-        for i in np.flatnonzero(match >= 0):
+        hit = np.flatnonzero(match >= 0)
+        if len(hit):
+            rows = match[hit]
+            size = (g.size[rows] if g.size is not None else
+                    np.array([sizes.get(str(c), (1.0, 1.0, 1.6)) for c in g.cls[rows]], float))
+            iou.append(truth_box_iou(cam, g.xyz[rows], g.heading[rows], size,
+                                     rle_stats([t.rles[i] for i in hit], t.height, t.width)[2]))
+        for i in hit:
             rles.append(t.rles[i])
             cls.append(by_id[int(t.class_id[i])].name)
             xy.append(g.xyz[match[i], :2])
             src.append(str(g.source[match[i]]))
             ru.append(int(g.track_id[match[i]]))
     return Annotated(camera, rles, np.array(cls, object), np.array(xy, float).reshape(-1, 2),
-                     np.array(src, object), np.array(ru, np.int64))
+                     np.array(src, object), np.array(ru, np.int64),
+                     np.concatenate(iou) if iou else np.zeros(0))
+
+
+def truth_box_iou(cam, xyz: np.ndarray, heading: np.ndarray, size: np.ndarray,
+                  boxes: np.ndarray) -> np.ndarray:
+    """IoU (N,) of mask bounding boxes (N, 4) x0, y0, x1, y1 pixels with the bounding boxes of
+    the projected 3D boxes of road users at ``xyz`` (N, 3) metres (bottom centre), ``heading``
+    (N,) radians (NaN: the footprint as a square of the larger side), ``size`` (N, 3) l, w, h
+    metres. 0 where a corner is behind the camera or a box is empty."""
+    h = np.nan_to_num(np.asarray(heading, float))
+    sq = ~np.isfinite(np.asarray(heading, float))
+    ln = np.where(sq, np.maximum(size[:, 0], size[:, 1]), size[:, 0]) / 2
+    wd = np.where(sq, np.maximum(size[:, 0], size[:, 1]), size[:, 1]) / 2
+    sx = np.array([1, 1, -1, -1] * 2, float)
+    sy = np.array([1, -1, -1, 1] * 2, float)
+    sz = np.array([0] * 4 + [1] * 4, float)
+    c, s_ = np.cos(h)[:, None], np.sin(h)[:, None]
+    dx, dy = ln[:, None] * sx, wd[:, None] * sy
+    pts = np.stack([xyz[:, None, 0] + c * dx - s_ * dy, xyz[:, None, 1] + s_ * dx + c * dy,
+                    xyz[:, None, 2] + size[:, None, 2] * sz], axis=2)  # (N, 8, 3)
+    uv, _, front = cam.project_points(pts.reshape(-1, 3))
+    uv, front = uv.reshape(-1, 8, 2), front.reshape(-1, 8).all(axis=1)
+    tb = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+    ix = np.clip(np.minimum(tb[:, 2], boxes[:, 2]) - np.maximum(tb[:, 0], boxes[:, 0]), 0, None)
+    iy = np.clip(np.minimum(tb[:, 3], boxes[:, 3]) - np.maximum(tb[:, 1], boxes[:, 1]), 0, None)
+    inter = ix * iy
+    union = ((tb[:, 2] - tb[:, 0]) * (tb[:, 3] - tb[:, 1])
+             + (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]) - inter)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(union > 0, inter / union, 0.0)
+    return np.where(front & np.isfinite(out), out, 0.0)
 
 
 def held_out_road_users(road_user: np.ndarray, cls: np.ndarray, seed: int,
@@ -203,27 +244,32 @@ class WeightedExamples:
 
 def weighted_examples(scene: Scene, ann: Annotated, crop: int, factor: int,
                       center_method: str = DEFAULT_CENTER_METHOD,
-                      radial_offset: dict[str, float] | None = None) -> WeightedExamples:
+                      radial_offset: dict[str, float] | None = None,
+                      min_iou: float = 0.0) -> WeightedExamples:
     """Examples of ``ann``'s masks (``labelled_examples``: normal positions at the class
-    heights, targets = truth - normal), one call per (source, road user) so every example keeps
-    its weight and road user. ``radial_offset``: the start model's (subtracted at prediction);
-    it is added to the targets so that the fine-tuned model, which keeps it, predicts the truth."""
+    heights, targets = truth - normal), one call per (source, road user, whole mask or not) so
+    every example keeps its weight and road user. ``radial_offset``: the start model's
+    (subtracted at prediction); it is added to the targets so that the fine-tuned model, which
+    keeps it, predicts the truth. ``min_iou``: masks whose box IoU with their road user's
+    projected 3D box is below it (merged, cut) get weight 0: never drawn for training, still
+    scored when the candidates are compared (``fine_tune_choice``)."""
     parts: list[WeightedExamples] = []
     cam = scene.cameras[ann.camera]
-    for s in sorted(set(ann.source.tolist())):
-        for u in np.unique(ann.road_user[ann.source == s]):
-            idx = np.flatnonzero((ann.source == s) & (ann.road_user == u))
-            sub = ann.take(idx)
-            ex = labelled_examples(scene, ann.camera, sub.rles, cam.height, cam.width, sub.cls,
-                                   sub.xy, False, crop, factor, center_method)
-            if not len(ex):
-                continue
-            base = np.linalg.norm(ex.target, axis=1)  # before the start's offset: the baseline's
-            if radial_offset:
-                ex.target = ex.target + radial_correction(radial_offset, ex.cls, ex.normal,
-                                                          cam.center[:2])
-            parts.append(WeightedExamples(ex, np.full(len(ex), SOURCE_WEIGHTS[s]),
-                                          np.full(len(ex), u, np.int64), base))
+    whole = ann.iou >= min_iou
+    groups = sorted({(str(a), int(b), bool(c)) for a, b, c in zip(ann.source, ann.road_user, whole)})
+    for s, u, ok in groups:
+        idx = np.flatnonzero((ann.source == s) & (ann.road_user == u) & (whole == ok))
+        sub = ann.take(idx)
+        ex = labelled_examples(scene, ann.camera, sub.rles, cam.height, cam.width, sub.cls,
+                               sub.xy, False, crop, factor, center_method)
+        if not len(ex):
+            continue
+        base = np.linalg.norm(ex.target, axis=1)  # before the start's offset: the baseline's
+        if radial_offset:
+            ex.target = ex.target + radial_correction(radial_offset, ex.cls, ex.normal,
+                                                      cam.center[:2])
+        parts.append(WeightedExamples(ex, np.full(len(ex), SOURCE_WEIGHTS[s] if ok else 0.0),
+                                      np.full(len(ex), u, np.int64), base))
     return WeightedExamples.concat(parts, crop, factor)
 
 

@@ -146,3 +146,41 @@ def test_a_start_far_off_for_cars_gives_cars_the_baseline_in_run(scene, tmp_path
     assert res.lines["all__car.safetensors"].startswith("all__car: fine-tuned, epoch 1 of 1")
     assert not (out / "all__car.baseline.json").exists() and (out / "all__car.safetensors").exists()
     assert ("c1", "car") not in load_models(scene, ["c1"], out).chosen_baseline
+
+
+def test_truth_box_iou_by_hand():
+    """The projected box's own bounding box has IoU 1; shifted right by half its width the
+    overlap is half of each, IoU = 0.5 / 1.5 = 1/3; a road user behind the camera scores 0."""
+    from seg2pose.geometry.camera import Camera
+    from seg2pose.training.fine_tune_data import truth_box_iou
+
+    cam = Camera.look_at("c", np.array([0.0, 0.0, 6.0]), np.array([15.0, 0.0, 0.0]), 800.0, 1280, 720)
+    xyz = np.array([[15.0, 1.0, 0.0], [-10.0, 0.0, 0.0]])
+    size = np.array([[4.5, 1.8, 1.5], [4.5, 1.8, 1.5]])
+    heading = np.array([0.3, np.nan])
+    # the first box's projection, its corners written out: its bounding box
+    c, s = np.cos(0.3), np.sin(0.3)
+    pts = [[15 + c * dx - s * dy, 1 + s * dx + c * dy, z] for dx in (-2.25, 2.25) for dy in (-0.9, 0.9)
+           for z in (0.0, 1.5)]
+    uv = cam.project_points(np.array(pts))[0]
+    box = np.array([*uv.min(axis=0), *uv.max(axis=0)])
+    w = box[2] - box[0]
+    shifted = box + np.array([w / 2, 0, w / 2, 0])
+    got = truth_box_iou(cam, xyz, heading, size, np.stack([box, box]))
+    assert got[0] == pytest.approx(1.0) and got[1] == 0.0
+    assert truth_box_iou(cam, xyz[:1], heading[:1], size[:1], shifted[None])[0] == pytest.approx(1 / 3)
+
+
+def test_masks_below_the_iou_floor_are_never_drawn(scene):
+    from seg2pose.training.fine_tune_data import annotated_masks, usable_rows, weighted_examples
+
+    gt = usable_rows(read_poses(scene.gt_path), scene)
+    ann = annotated_masks(scene, "c1", gt.take(np.argsort(gt.frame, kind="stable")))
+    assert len(ann.iou) == len(ann.rles) and ((ann.iou > 0.3) & (ann.iou <= 1)).mean() > 0.9
+    floor = float(np.median(ann.iou))
+    every = weighted_examples(scene, ann, 420, 3)
+    some = weighted_examples(scene, ann, 420, 3, min_iou=floor)
+    assert (every.weight > 0).all() and len(some.ex) == len(every.ex)
+    # the masks below the median IoU: about half, weight 0 (kept for the comparison)
+    assert (some.weight == 0).sum() == (ann.iou < floor).sum()
+    assert sorted(some.baseline_error.round(9)) == sorted(every.baseline_error.round(9))
