@@ -127,11 +127,12 @@ def run_cmd(
 
 FROM_HELP = ("fine-tune these models on the scene's annotations (gt/poses.csv: keyframes placed or "
              "accepted weigh four times an interpolated row, reviewed rows twice, unchecked "
-             "estimates are not used; the test split never): rough examples in every batch, early stopping on "
-             "held-out annotated road users, per class; a class without annotations keeps its "
-             "start model. --epochs, --batches, --lr, --seed, --threads, --device, --camera and "
-             "--class apply; the protocol's options do not. Minutes on a CPU for tens of "
-             "keyframes (docs/guide/fine-tuning.md)")
+             "estimates are not used; the test split never): rough examples in every batch; per class "
+             "the best of the baseline, the start and the fine-tuned model on annotated road users held "
+             "out (k-fold by road user), a class that chose the baseline marked so that s2p run uses its "
+             "normal positions; a class without annotations keeps its start model. --epochs, --batches, "
+             "--lr, --seed, --threads, --device, --camera and --class apply; the protocol's options do "
+             "not. Minutes on a CPU for tens of keyframes (docs/guide/fine-tuning.md)")
 
 
 def train_cmd(
