@@ -53,6 +53,7 @@ from seg2pose.training.fine_tune_data import (
     StartModel,
     WeightedExamples,
     annotated_masks,
+    baseline_markers,
     held_out_road_users,
     split_by_road_user,
     start_models,
@@ -316,6 +317,7 @@ def fine_tune_scene(scene: Scene, start: str | Path, out: str | Path | None = No
     cams = cameras or list(scene.cameras)
     cls_list = classes or scene.class_names
     starts = start_models(scene, start, cams, cls_list)
+    kept = baseline_markers(start, cams, cls_list)
     gt = usable_rows(read_poses(scene.gt_path, scene.class_names), scene)
     gt = gt.take(np.argsort(gt.frame, kind="stable"))
     used = sorted({c for sm in starts for c in sm.cameras})
@@ -330,4 +332,8 @@ def fine_tune_scene(scene: Scene, start: str | Path, out: str | Path | None = No
     for sm in starts:
         lines[sm.path.name] = fine_tune_model(scene, sm, ann, val_users, out, opts)
         say(lines[sm.path.name])
+    for marker in sorted(set(kept.values())):  # the start's choice of the baseline stands
+        atomic_write_text(out / marker.name, marker.read_text())
+        lines[marker.name] = f"{marker.name}: the start runs the baseline here; its marker is kept"
+        say(lines[marker.name])
     return FineTuneResult(lines, time.perf_counter() - t0)

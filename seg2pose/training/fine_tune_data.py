@@ -25,7 +25,7 @@ from seg2pose.core.say import say
 from seg2pose.geometry.normal import DEFAULT_CENTER_METHOD
 from seg2pose.io.poses import PoseTable
 from seg2pose.io.scene import Scene
-from seg2pose.method.checkpoint import Checkpoint, model_filename, radial_correction
+from seg2pose.method.checkpoint import Checkpoint, baseline_marker_name, model_filename, radial_correction
 from seg2pose.structures.masks import rle_stats
 from seg2pose.training.examples import ExampleSet, labelled_examples, masks_matched_to_truth
 
@@ -69,8 +69,11 @@ def start_models(scene: Scene, folder: Path, cams: list[str], classes: list[str]
         raise S2PError(f"{folder}: no Seg2PoseNet models (*__*.safetensors) to start from")
     have = {p.name: p for p in files}
     found: dict[Path, StartModel] = {}
+    chosen = baseline_markers(folder, cams, classes)
     for cam in cams:
         for cls in classes:
+            if (cam, cls) in chosen:
+                continue  # the start runs the baseline there (fine_tune_scene keeps its marker)
             names = [model_filename(cam, cls), model_filename(cam, "*"), model_filename("*", cls),
                      model_filename("*", "*")]
             path = next((have[n] for n in names if n in have), None)
@@ -93,6 +96,22 @@ def start_models(scene: Scene, folder: Path, cams: list[str], classes: list[str]
             raise S2PError(f"{sm.path} is for classes {', '.join(sm.ck.classes)}; {scene.root} has "
                            f"{', '.join(scene.class_names)}")
     return list(found.values())
+
+
+def baseline_markers(folder: Path, cams: list[str], classes: list[str]) -> dict[tuple[str, str], Path]:
+    """(camera, class) -> the marker of a folder that runs the baseline there (an earlier
+    fine-tuning's choice, ``fine_tune_choice``), met before a model in ``s2p run``'s lookup."""
+    out = {}
+    for cam in cams:
+        for cls in classes:
+            for c, k in ((cam, cls), (cam, "*"), ("*", cls), ("*", "*")):
+                if (Path(folder) / model_filename(c, k)).exists():
+                    break
+                marker = Path(folder) / baseline_marker_name(c, k)
+                if marker.exists():
+                    out[(cam, cls)] = marker
+                    break
+    return out
 
 
 def _missing(folder: Path, files: list[Path], cam: str, cls: str, scene: Scene) -> str:

@@ -141,6 +141,11 @@ def test_a_start_far_off_for_cars_gives_cars_the_baseline_in_run(scene, tmp_path
     assert is_car.any() and is_served.any()
     assert np.all(v.residual[is_car] == 0) and np.any(v.residual[is_served] != 0)
     assert "c1/car" in json.loads((run / "run.json").read_text())["baseline_fallback"]
+    # the fine-tuned folder as the start of another fine-tuning: the baseline's marker stands
+    res = fine_tune_scene(scene, out, tmp_path / "again", _opts(choose=False, lr=0.0), cameras=["c1"])
+    assert res.lines["all__car.baseline.json"] == ("all__car.baseline.json: the start runs the baseline "
+                                                   "here; its marker is kept")
+    assert ("c1", "car") in load_models(scene, ["c1"], tmp_path / "again").chosen_baseline
     # fine-tuned again without the choice: the stale marker goes, the model comes back
     res = fine_tune_scene(scene, start, out, _opts(choose=False), cameras=["c1"], classes=["car"])
     assert res.lines["all__car.safetensors"].startswith("all__car: fine-tuned, epoch 1 of 1")
