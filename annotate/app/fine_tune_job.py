@@ -66,6 +66,7 @@ class TrainJob:
     started: float = field(default_factory=time.time)
     ended: float | None = None
     models_done: int = 0
+    done_names: set = field(default_factory=set)  # the models said finished (each once)
     skipped: list[str] = field(default_factory=list)
     applied: bool = False  # the new run loaded into the app
     proc: subprocess.Popen | None = None
@@ -97,7 +98,9 @@ class TrainJob:
                 if part.strip():
                     self.line = part.strip()[:200]
                     if step.name == "train" and any(k in part for k in MODEL_DONE):
-                        self.models_done += 1
+                        # the command repeats its lines at the end: each model counts once
+                        self.done_names.add(part.strip().split(":")[0])
+                        self.models_done = len(self.done_names)
         return self.proc.wait()
 
     def status(self) -> dict:

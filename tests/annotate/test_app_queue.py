@@ -60,7 +60,8 @@ def _wait(job: TrainJob) -> dict:
 def test_train_job_progress_from_the_childs_lines(tmp_path):
     said = ("import sys; print('all__car: fine-tuning on 10 annotated examples', file=sys.stderr); "
             "print('all__car: fine-tuned chosen (car: fine-tuned (2 road user(s): ...))'); "
-            "print('all__bicyclist: kept its start model (no annotated bicyclist masks)'); print('models in X')")
+            "print('all__bicyclist: kept its start model (no annotated bicyclist masks)'); "
+            "print('  all__car: fine-tuned chosen (car: fine-tuned (2 road user(s): ...))'); print('models in X')")
     st = _wait(TrainJob([Step("train", [sys.executable, "-c", said])], tmp_path / "m").start())
     assert st["state"] == "done" and st["models_done"] == 2 and st["line"] == "models in X"
     assert "s2p run SCENE --models" in st["next"] and st["stage"] == "train"
