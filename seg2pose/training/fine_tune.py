@@ -6,16 +6,19 @@ Per start model (``fine_tune_data.start_models``; one per class, or one for all 
 
 1. examples of the annotated masks of its classes (``fine_tune_data``: weighted by where the
    row came from, keyframes above interpolated frames; the test split never used), split by
-   road user: the held-out road users validate;
+   road user (masks scored by their box IoU with the annotated road user, ``min_mask_iou``);
 2. a pool of rough-model examples (3.5) of its cameras and classes: ``rough_every``-th of every
    batch, so the network keeps what it knew about road users nobody annotated (against
    forgetting);
-3. Adam from the start's weights, batches drawn by weight, a cosine schedule; after each epoch
-   the mean error on the held-out road users; the best epoch is kept, **the start itself
-   counting as epoch 0** (fine-tuning never makes the held-out error worse than the start's),
-   and training stops after ``patience`` epochs without a better one (early stopping). With a
-   single annotated road user of a class nothing can be held out: it trains all epochs and
-   keeps the last (said in one line).
+3. Adam from the start's weights, batches drawn by weight, a cosine schedule;
+4. by default (``choose``) per class the best of the baseline (normal positions), the start
+   and the fine-tuned model on annotated road users it was not trained on
+   (``fine_tune_choice``: k-fold by road user), then one fine-tuning on every annotated road
+   user when the fine-tuned model won; a class that chose the baseline gets a marker that
+   ``s2p run`` reads (normal positions there, one line). Without ``choose``: early stopping on
+   held-out road users (from ``min_held_out_users`` of a class), the start itself counting as
+   epoch 0, training stopped after ``patience`` epochs without a better one; with fewer it
+   trains all epochs and keeps the last (said in one line).
 
 A class without annotations keeps its start model (copied, marked so); nothing here is an error
 at the end of a long run. The fine-tuned checkpoint records its start (file, sha256), the
