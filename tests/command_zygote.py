@@ -42,7 +42,7 @@ for line in sys.stdin:
     if pid == 0:
         code = 1
         try:
-            os.environ.update(env)  # S2P_KILL_AT: a kill at a commit step (seg2pose.io.atomic_set)
+            os.environ.update(env)  # S2P_KILL_AT: a kill at a commit step (seg2pose.io.kill_points)
             os.setpgid(0, 0)
             null = os.open(os.devnull, os.O_RDWR)
             os.dup2(null, 0)
@@ -60,6 +60,9 @@ for line in sys.stdin:
             try:
                 sys.stdout.flush()
                 sys.stderr.flush()
+                from seg2pose.io import kill_points
+                if kill_points._armed:  # S2P_KILL_AT: a kill timed after a step is due: not before the end
+                    os.kill(os.getpid(), 9)
             finally:
                 os._exit(code)
     out.write(f"{pid}\n")

@@ -253,6 +253,8 @@ def _models_state(models: Path, stems: list[str]) -> Callable:
     metadata, or any file but a model's checkpoint, metadata and resume state)."""
     import hashlib
 
+    from seg2pose.io.atomic_names import is_temporary
+
     def state(case):
         out, odd = [], []
         for stem in stems:
@@ -265,8 +267,8 @@ def _models_state(models: Path, stems: list[str]) -> Callable:
             out.append(hashlib.sha256(meta.read_bytes() + ck.read_bytes()).hexdigest()
                        if complete and ck.exists() else None)
         known = {f"{s}{x}" for s in stems for x in (".json", ".safetensors", ".safetensors.state.pt")}
-        if models.is_dir():
-            odd += sorted(p.name for p in models.iterdir() if p.name not in known)
+        if models.is_dir():  # a writer's hidden temporaries are no part of it (cf. snapshot)
+            odd += sorted(p.name for p in models.iterdir() if p.name not in known and not is_temporary(p.name))
         return out + [odd or None]
     return state
 

@@ -13,8 +13,12 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import select
 import shutil
 import signal
+import socket
+import tempfile
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -147,11 +151,12 @@ class Case:
             return "between"  # some outputs done, each one whole: the re-run goes on from there
         return "mixed"
 
-    def kill_at(self, step: str, n: int = 1) -> str:
+    def kill_at(self, step: str, n: int = 1, delay: float = 0.0) -> str:
         """Like ``kill_once``, but the command kills itself (SIGKILL) the ``n``-th time it
-        reaches the commit step ``step`` (``seg2pose.io.atomic_set.commit_step``); a command
-        that never reaches it runs to its end. Returns the kind, or "not reached"."""
-        return self.kill_once(None, env={"S2P_KILL_AT": f"{step}:{n}"})
+        reaches the commit step ``step`` (``seg2pose.io.kill_points.commit_step``), or
+        ``delay`` seconds after it; a command that never reaches it runs to its end. Returns
+        the kind, or "not reached"."""
+        return self.kill_once(None, env={"S2P_KILL_AT": f"{step}:{n}:{delay}"})
 
     def kill_once(self, rng: np.random.Generator | None, share: tuple[float, float] = (0.15, 1.05),
                   env: dict | None = None) -> str:
@@ -180,6 +185,71 @@ class Case:
             if tree:
                 tree += [p for p in ray_workers_of(tree) if p not in tree]
             self.stray += len(wait_gone(tree))
+        return self._judge(timed=bool(env))
+
+    def kill_forks(self, per_step: int = 10) -> dict[str, list[str]]:
+        """Kills timed at every commit step, ``per_step`` per step of each commit the command
+        makes (``seg2pose.io.kill_points``: S2P_KILL_FORKS): the command runs once; at each
+        commit it forks children that go on with the commit and die at the step (exactly, at
+        each time the commit reaches it, then after sub-delays of 0.1-26 ms); each death is
+        judged here as the next writer finds the outputs (``_judge``; no re-run of a resuming
+        command: its outputs must each be whole), the commit's folders are put back, and the
+        command finally commits for real and must end with the new outputs. Returns the kinds
+        per step."""
+        self.old_state()
+        self.put_old()
+        kinds: dict[str, list[str]] = {}
+        problems: list[str] = []
+        folder = tempfile.mkdtemp(prefix="s2pk-")  # short: a Unix socket's path is <= 107 bytes
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        listener.bind(f"{folder}/k")
+        listener.listen()
+
+        def serve() -> None:  # judge each kill of any process of the command (Ray's workers too)
+            conns: list[socket.socket] = []
+            files = {}
+            while True:
+                r, _, _ = select.select([listener, *conns], [], [])
+                for c in r:
+                    if c is listener:
+                        try:
+                            conn, _ = listener.accept()
+                        except OSError:  # closed: the command has ended
+                            return
+                        conns.append(conn)
+                        files[conn] = conn.makefile("rb")
+                        continue
+                    line = files[c].readline().decode()
+                    if not line:
+                        conns.remove(c)
+                        continue
+                    _, step, _n, _delay, status = line.split()
+                    if int(status) == 3:  # the child's commit ended without reaching the step
+                        problems.append(f"{line.strip()}: the step was not reached")
+                    kinds.setdefault(step, []).append(self._judge(timed=True, rerun=False))
+                    c.sendall(b"go\n")
+
+        server = threading.Thread(target=serve, daemon=True)
+        server.start()
+        z = zygote()
+        try:
+            z.start(self.argv, {"S2P_KILL_FORKS": f"{per_step},{folder}/k"})
+            code = z.wait(1200)
+        finally:
+            listener.shutdown(socket.SHUT_RDWR)
+            listener.close()
+            server.join(30)
+            shutil.rmtree(folder, ignore_errors=True)
+        if code != 0 or problems:
+            raise RuntimeError(f"{self.name}: after its forked kills: exit {code}, {problems}: {z.error_text()}")
+        if self.snap() != self.new:
+            self.counts["mixed"] += 1
+            self.mixed.append((["the command's own commit after its forked kills: not the new outputs"],
+                               self.leftovers()))
+        return kinds
+
+    def _judge(self, timed: bool, rerun: bool = True) -> str:
+        """Classify what a kill left, do what the next writer does first, and count."""
         kind = self.classify()
         if kind == "mixed":  # which outputs were what, and what lay beside them
             st = self.snap()
@@ -194,10 +264,11 @@ class Case:
             finish_commits(o)
         if kind == "mixed" and self.classify() == "new":
             self.counts["finished"] += 1
-            if env:  # a kill timed among a set's swaps: judged after the next writer's first step
+            if timed:  # a kill timed among a set's swaps: judged after the next writer's first step
                 kind = "new"
                 self.mixed.pop()
-        if self.resume and kind != "mixed":
+        if self.resume and kind != "mixed" and rerun:
+            z = zygote()
             z.start(self.rerun or [a for a in self.argv if a != "--force"])
             code = z.wait(600)
             if code != 0 or self.snap() != self.new:

@@ -42,6 +42,7 @@ from seg2pose.core.locks import ExclusiveLock, LockHolder
 from seg2pose.core.say import say
 from seg2pose.io.atomic_names import clean_stale_partials, final_name, is_temporary, lock_path, partial_prefix
 from seg2pose.io.atomic_set import commit_set, finish_commits, fsync_dir, remove_partial_folder, remove_path, swap_in
+from seg2pose.io.kill_points import commit_entry, commit_step
 from seg2pose.io.nofollow import refuse_links
 
 __all__ = ["atomic_open", "atomic_path", "atomic_write_bytes", "atomic_write_text",
@@ -156,11 +157,21 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
             f.flush()
             os.fsync(f.fileno())
         with os_errors(path):
-            os.replace(tmp, path)
+            _replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _replace(tmp: str, path: Path) -> None:
+    """Put the finished file ``tmp`` at ``path`` in one step (the kill tests' commit steps
+    around it: io/kill_points.py)."""
+    commit_entry([("built", 1), ("swapped", 1)], [Path(tmp)], [path])
+    commit_step("built")
+    os.replace(tmp, path)
+    commit_step("swapped")
+    commit_step("done")
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -188,7 +199,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             yield Path(tmp)
             # the library may have replaced our file with a private one of its own
             os.chmod(tmp, 0o666 & ~_umask())
-            os.replace(tmp, path)
+            _replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

@@ -16,32 +16,13 @@ import errno
 import json
 import os
 import shutil
-import signal
 from pathlib import Path
 
 from seg2pose.io.atomic_names import COMMIT_RECORD, commit_record_path, dead_writers_leftovers, owner
+from seg2pose.io.kill_points import commit_entry, commit_step
 from seg2pose.io.nofollow import fdopen_nofollow
 
-# Fault injection for the kill tests (tests/system/test_kill_steps.py, benches/bench_faults.py):
-# S2P_KILL_AT="STEP:N" makes this process SIGKILL itself the N-th time (from 1) it reaches the
-# commit step STEP, exactly where a kill is hardest to survive. Steps: "built" (a single output
-# durable, before its swap), "swapped" (after a single output's swap, before the old one is
-# removed), "recorded" (a set's commit records durable, before its first swap), "set-swap"
-# (after each swap of a set: N picks which), "unrecorded" (a set's records removed, before its
-# old outputs are); "appended" (an annotation journal's record durable: annotate.journal).
-_reached: dict[str, int] = {}
-
-
-def commit_step(step: str) -> None:
-    """Mark the commit step ``step`` (see above); a no-op unless S2P_KILL_AT names it."""
-    kill_at = os.environ.get("S2P_KILL_AT")
-    if not kill_at:
-        return
-    _reached[step] = _reached.get(step, 0) + 1
-    name, _, n = kill_at.partition(":")
-    if name == step and _reached[step] == int(n or 1):
-        os.kill(os.getpid(), signal.SIGKILL)
-
+__all__ = ["commit_step"]  # also annotate.journal's (fault injection: io/kill_points.py)
 
 def fsync_dir(path: str | Path) -> None:
     """Make the creation, rename or removal of a file in folder ``path`` durable (best effort:
@@ -85,6 +66,7 @@ def swap_in(tmp: Path, path: Path) -> None:
     """Put the finished ``tmp`` (file or folder) at ``path`` as a unit; an existing ``path``
     is exchanged with it in one step where possible, and removed only afterwards."""
     fsync_dir(tmp if tmp.is_dir() else tmp.parent)
+    commit_entry([("built", 1), ("swapped", 1)], [tmp], [path])
     commit_step("built")
     if path.exists() or path.is_symlink():
         if exchange(tmp, path):
@@ -101,6 +83,7 @@ def swap_in(tmp: Path, path: Path) -> None:
         os.replace(tmp, path)
         commit_step("swapped")
     fsync_dir(path.parent)
+    commit_step("done")
 
 
 def remove_partial_folder(tmp: Path) -> None:
@@ -144,6 +127,7 @@ def commit_set(builds: list[Path], finals: list[Path]) -> None:
     are removed."""
     # the record, beside every output's folder (written in place: a torn one was cut
     # before any swap, so means none), made durable before the first swap
+    commit_entry([("recorded", 1), ("set-swap", len(builds)), ("unrecorded", 1)], builds, finals)
     rows = json.dumps([[str(t), str(p), os.lstat(t).st_ino] for t, p in zip(builds, finals)])
     records = _record_paths(finals)
     for record in records:  # never through a link planted under the record's name
@@ -173,6 +157,7 @@ def commit_set(builds: list[Path], finals: list[Path]) -> None:
             remove_path(old)
     for tmp in builds:  # after all swaps: a build may lie in another one's folder
         remove_partial_folder(tmp)
+    commit_step("done")
 
 
 def _read_record(path: Path) -> list[tuple[Path, Path, int | None]] | None:
