@@ -110,10 +110,14 @@ def _env() -> dict:
 
 
 def _get(url: str) -> tuple[int, str]:
-    """(status, body); the server may print its URL a moment before it listens."""
+    """(status, body), as a browser gets it (cookies kept across the token's redirect); the
+    server may print its URL a moment before it listens."""
+    import http.cookiejar
+
+    opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
     for _ in range(120):
         try:
-            with urllib.request.urlopen(url, timeout=60) as r:
+            with opener.open(url, timeout=60) as r:
                 return r.status, r.read().decode(errors="replace")
         except urllib.error.HTTPError as e:
             return e.code, e.read().decode(errors="replace")
