@@ -48,8 +48,16 @@ def table_of(tracks, opts):
     return t, {(int(a), int(b)): i for i, (a, b) in enumerate(zip(c["track_a"], c["track_b"]))}
 
 
+def needed(exact: float, centre: float, below: float, above: float) -> float:
+    """The least spread factor (``IntervalOptions.spread``) whose interval holds ``exact``."""
+    if exact <= centre:
+        return (centre - exact) / below if below > 0 else (0.0 if exact == centre else np.inf)
+    return (exact - centre) / above if above > 0 else np.inf
+
+
 def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
-            window_s: float | None = None, corr_s: float = 3.0, heading90: dict | None = None) -> dict:
+            window_s: float | None = None, corr_s: float = 3.0, heading90: dict | None = None,
+            spread: tuple[float, float, float] | None = None) -> dict:
     est, _ = load_tracks(run)
     fps = est.fps
     gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
@@ -60,10 +68,16 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
     if r90 is not None:
         ft = et.tracks  # the analysed tracks (short gaps filled)
         ft.r90 = np.array([r90[str(c)] for c in ft.cls], float)
-        conf = et.take(et.columns["conflict"].astype(bool))
+        # the run's conflicts, and its rows of the truth's TTC conflicts and PET pairs (their
+        # intervals are the ones coverage is measured on)
+        tcol = tt.columns
+        truth_keys = {k for k, i in ti.items() if tcol["min_ttc_s"][i] <= TTC or tcol["pet_s"][i] <= PET}
+        want = et.columns["conflict"].astype(bool) | np.array([k in truth_keys for k in ei], bool)
+        conf = et.take(want)
         h90 = None if heading90 is None else np.radians([heading90[str(c)] for c in ft.cls])
-        iv = conflict_intervals(ft, conf, opts, IntervalOptions(draws=draws, seed=seed, corr_s=corr_s),
-                                heading90=h90)
+        io_ = IntervalOptions(draws=draws, seed=seed, corr_s=corr_s, details=True,
+                              **({} if spread is None else {"spread": spread}))
+        iv = conflict_intervals(ft, conf, opts, io_, heading90=h90)
         pos = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(conf.columns["track_a"],
                                                                   conf.columns["track_b"]))}
     out = {"scene": scene.name, "run": run.name, "method": json.loads((run / "run.json").read_text()).get("method")}
@@ -79,13 +93,17 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
         out[name] = {"truth": len(true_conf), "found": len(found), "est": len(est_conf),
                      "false": len(false), "err": err}
         if r90 is not None:
-            inside, width = [], []
+            inside, width, need = [], [], []
+            base = lo[:-5]  # "min_ttc" / "pet"
             for k in both:
                 if k in pos and np.isfinite(iv[lo][pos[k]]):
                     inside.append(iv[lo][pos[k]] - 1e-9 <= tc[col][ti[k]] <= iv[hi][pos[k]] + 1e-9)
                     width.append(iv[hi][pos[k]] - iv[lo][pos[k]])
+                    need.append(needed(tc[col][ti[k]], *(iv[f"{base}_{p}"][pos[k]]
+                                                         for p in ("centre", "below", "above"))))
             out[name]["inside"] = np.array(inside, bool)
             out[name]["width"] = np.array(width)
+            out[name]["need"] = np.array(need)
     # SSAM conflicts by the truth's type: found (a conflict in the run too), missed; the run's
     # false ones by their own type
     types: dict[str, dict[str, int]] = {}
@@ -106,10 +124,21 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                  "speed_err": np.array([abs(ec["conflicting_speed_mps"][ei[k]]
                                             - tc["conflicting_speed_mps"][ti[k]]) for k in both])}
     if r90 is not None:
-        ins = [iv["ta_lo_s"][pos[k]] - 1e-9 <= tc["ta_s"][ti[k]] <= iv["ta_hi_s"][pos[k]] + 1e-9
-               for k in both if k in pos and np.isfinite(iv["ta_lo_s"][pos[k]])]
-        out["ta"]["inside"] = np.array(ins, bool)
+        ks = [k for k in both if k in pos and np.isfinite(iv["ta_lo_s"][pos[k]])]
+        out["ta"]["inside"] = np.array([iv["ta_lo_s"][pos[k]] - 1e-9 <= tc["ta_s"][ti[k]]
+                                        <= iv["ta_hi_s"][pos[k]] + 1e-9 for k in ks], bool)
+        out["ta"]["need"] = np.array([needed(tc["ta_s"][ti[k]], *(iv[f"ta_{p}"][pos[k]] for p in
+                                                                  ("centre", "below", "above"))) for k in ks])
     return out
+
+
+def p90(x) -> str:
+    """The 90th percentile of ``x`` (inf: no spread holds it), formatted."""
+    x = np.asarray(x, float)
+    if not len(x):
+        return "nan"
+    v = float(np.percentile(np.minimum(x, 1e9), 90))
+    return "inf" if v >= 1e8 else f"{v:.2f}"
 
 
 def ta_line(m: dict) -> str:
@@ -120,8 +149,8 @@ def ta_line(m: dict) -> str:
             f"{m['found']} (same evasive road user {m['same']}); |TA error| median "
             f"{q(m['err'], 50):.2f} s, p90 {q(m['err'], 90):.2f} s; |conflicting speed error| "
             f"median {q(m['speed_err'], 50):.2f} m/s, p90 {q(m['speed_err'], 90):.2f} m/s"
-            + (f"; TA coverage {100 * m['inside'].mean():.0f} % (n={len(m['inside'])})"
-               if len(m.get("inside", [])) else ""))
+            + (f"; TA coverage {100 * m['inside'].mean():.0f} % (n={len(m['inside'])}), spread needed p90 "
+               f"{p90(m['need'])}" if len(m.get("inside", [])) else ""))
 
 
 def line(name: str, m: dict) -> str:
@@ -133,7 +162,8 @@ def line(name: str, m: dict) -> str:
     if "inside" in m:
         s += (f"; coverage {100 * m['inside'].mean() if len(m['inside']) else float('nan'):.0f} % "
               f"(n={len(m['inside'])}), width median "
-              f"{np.median(m['width']) if len(m['width']) else float('nan'):.2f} s")
+              f"{np.median(m['width']) if len(m['width']) else float('nan'):.2f} s, spread needed p90 "
+              f"{p90(m['need'])}")
     return s
 
 
@@ -146,6 +176,8 @@ def main() -> None:
     ap.add_argument("--window", type=float, default=None, help="a fixed smoothing window, s (--window of s2p "
                     "conflicts; default: each track's from its noise)")
     ap.add_argument("--corr", type=float, default=3.0, help="error correlation time, s (--error-corr)")
+    ap.add_argument("--spread", type=float, nargs=3, default=None, metavar=("TTC", "TA", "PET"),
+                    help="the intervals' spread factors (default: IntervalOptions')")
     ap.add_argument("--heading90", default=None, help="class=degrees,... (90 %% heading error per class; "
                     "intervals then also perturb headings)")
     a = ap.parse_args()
@@ -153,7 +185,8 @@ def main() -> None:
     r90 = None if a.r90 is None else {k: float(v) for k, v in (x.split("=") for x in a.r90.split(","))}
     pooled: dict = {}
     for scene, run in a.pair:
-        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90)
+        m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90,
+                    None if a.spread is None else tuple(a.spread))
         print(f"{m['scene']} {m['run']} ({m['method']})")
         print("  " + ta_line(m["ta"]))
         print("  SSAM conflicts by type (truth / found / missed / false): " + "; ".join(

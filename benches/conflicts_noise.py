@@ -2,13 +2,18 @@
 kinematics`` (centred, width from each track's measured noise) against an RTS smoother with a
 constant-acceleration model (Rauch, Tung and Striebel 1965; the same per-track noise, white
 jerk of spectral density ``q``), on the hand-made cases of tests/seg2pose/safety/
-test_literature.py with white position noise of 0.1-0.3 m added; and whether the 90 %
-intervals (``--r90`` = 2.146 sigma, draws of white noise) hold the exact values.
+test_literature.py with position noise of 0.1-0.3 m added, white or correlated over time
+(``--corr``: AR(1) per axis with that correlation time, seconds; 0: white); and whether the
+90 % intervals (``seg2pose.safety.intervals``: r90 = 2.146 sigma, the bootstrap's slow part
+with correlation time ``--model-corr``, default the noise's own) hold the exact values.
+``--seed`` seeds the noise: settings were chosen on seed 0 and are reported on seed 1.
 
     PYTHONPATH=. .venv/bin/python benches/conflicts_noise.py [--trials 20] [--draws 60] [--q 30 300]
+        [--corr 0 1 3] [--seed 1] [--model-corr S]
 
-Prints per case and noise level the median and 90th percentile of |min TTC - exact| and
-|TA - exact| for each smoother, and the intervals' coverage (local fits).
+Prints per case, noise level and correlation the median and 90th percentile of |min TTC -
+exact| and |TA - exact| for each smoother (``--q``: the RTS smoothers too), and the
+intervals' coverage of min TTC, TA and PET (local fits).
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import numpy as np
 
 from seg2pose.safety.conflicts import ConflictOptions, analyse
 from seg2pose.safety.gaps import fill_gaps
-from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+from seg2pose.safety.intervals import IntervalOptions, ar1_noise, conflict_intervals
 from seg2pose.safety.kinematics import Motion, fill_heading, noise_sigma, segments
 from tests.seg2pose.safety import test_literature as L
 
@@ -29,6 +34,24 @@ CASES = {  # name: (tracks, exact min TTC, exact TA)
     "braking follower": (L.braking_follower, (4 - 5 * U + 2.5 * U * U) / (5 - 5 * U), 0.8),
     "pedestrian ahead": (L.pedestrian_ahead, None, 1.29),
 }
+
+
+def exact_pet(tracks) -> float:
+    """The noise-free tracks' PET (the table's: exact on exact tracks, tests/seg2pose/safety)."""
+    return float(analyse(tracks, OPTS).columns["pet_s"][0])
+
+
+def noise(tracks, s: float, corr_s: float, rng) -> np.ndarray:
+    """(N, 2) position errors of standard deviation ``s`` per axis: white (corr_s 0) or AR(1)
+    with correlation time ``corr_s`` per track."""
+    if corr_s <= 0:
+        return rng.normal(0, s, tracks.xy.shape)
+    rho = float(np.exp(-1.0 / (tracks.fps * corr_s)))
+    out = np.zeros((len(tracks), 2))
+    for tr in np.unique(tracks.track_id):
+        m = tracks.track_id == tr
+        out[m] = ar1_noise(int(m.sum()), 1, rho, rng)[0] * s
+    return out
 
 
 def rts(tracks, q: float) -> Motion:
@@ -77,56 +100,87 @@ def rts(tracks, q: float) -> Motion:
     return Motion(vel, speed, acc, along, lateral, heading, sigma, n0 + 5, n0 + 5)
 
 
+def needed(exact: float, centre: float, below: float, above: float) -> float:
+    """The least spread factor whose interval (``intervals._basic``) holds ``exact``."""
+    if exact <= centre:
+        return (centre - exact) / below if below > 0 else (0.0 if exact == centre else np.inf)
+    return (exact - centre) / above if above > 0 else np.inf
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=20)
     ap.add_argument("--draws", type=int, default=60)
-    ap.add_argument("--q", type=float, nargs="+", default=[30.0, 300.0])
+    ap.add_argument("--q", type=float, nargs="*", default=[])
     ap.add_argument("--noise", type=float, nargs="+", default=[0.1, 0.2, 0.3])
+    ap.add_argument("--corr", type=float, nargs="+", default=[0.0, 1.0, 3.0])
+    ap.add_argument("--model-corr", type=float, default=None, help="the intervals' correlation time, s "
+                    "(default: the noise's own; white noise: 3)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--spread", type=float, nargs=3, default=None, metavar=("TTC", "TA", "PET"),
+                    help="the intervals' spread factors (default: IntervalOptions')")
     a = ap.parse_args()
-    rng = np.random.default_rng(0)
+    spread = tuple(a.spread) if a.spread is not None else IntervalOptions().spread
+    need_all: dict[str, list] = {"ttc": [], "ta": [], "pet": []}
+    rng = np.random.default_rng(a.seed)
 
     def q(x, p):
         x = np.asarray(x, float)
         x = x[np.isfinite(x)]
         return float(np.percentile(x, p)) if len(x) else float("nan")
 
+    def cov(x):
+        return f"{np.mean(x):.2f} (n={len(x)})" if len(x) else "nan (n=0)"
+
     for name, (make, ttc_exact, ta_exact) in CASES.items():
         base = make()
-        for s in a.noise:
-            err: dict[str, tuple[list, list]] = {"local": ([], [])} | {f"rts q={v:g}": ([], []) for v in a.q}
-            cover_ttc, cover_ta, found_ta = [], [], 0
-            for _ in range(a.trials):
-                noisy = base.with_xy(base.xy + rng.normal(0, s, base.xy.shape))
-                t = analyse(noisy, OPTS)
-                c = t.columns
-                if ttc_exact is not None:
-                    err["local"][0].append(abs(c["min_ttc_s"][0] - ttc_exact))
-                err["local"][1].append(abs(c["ta_s"][0] - ta_exact))
-                found_ta += int(np.isfinite(c["ta_s"][0]))
-                ft = t.tracks
-                assert ft is not None
-                iv = conflict_intervals(ft, t, OPTS, IntervalOptions(draws=a.draws, corr_s=1.0 / base.fps),
-                                        r90=np.full(len(ft), s * 2.146))
-                if ttc_exact is not None and np.isfinite(iv["min_ttc_lo_s"][0]):
-                    cover_ttc.append(iv["min_ttc_lo_s"][0] <= ttc_exact <= iv["min_ttc_hi_s"][0])
-                if np.isfinite(iv["ta_lo_s"][0]):
-                    cover_ta.append(iv["ta_lo_s"][0] <= ta_exact <= iv["ta_hi_s"][0])
-                filled, _, _ = fill_gaps(noisy, OPTS.max_gap_s)
-                for v in a.q:
-                    tr = analyse(filled, OPTS, mot=rts(filled, v)).columns
+        pet_exact = exact_pet(base)
+        for corr in a.corr:
+            for s in a.noise:
+                err: dict[str, tuple[list, list]] = {"local": ([], [])} | {f"rts q={v:g}": ([], []) for v in a.q}
+                cover: dict[str, list] = {"ttc": [], "ta": [], "pet": []}
+                need: dict[str, list] = {"ttc": [], "ta": [], "pet": []}
+                found_ta = 0
+                model_corr = a.model_corr if a.model_corr is not None else (corr if corr > 0 else 3.0)
+                for _ in range(a.trials):
+                    noisy = base.with_xy(base.xy + noise(base, s, corr, rng))
+                    t = analyse(noisy, OPTS)
+                    c = t.columns
                     if ttc_exact is not None:
-                        err[f"rts q={v:g}"][0].append(abs(tr["min_ttc_s"][0] - ttc_exact))
-                    err[f"rts q={v:g}"][1].append(abs(tr["ta_s"][0] - ta_exact))
-            print(f"{name}, noise {s:g} m ({a.trials} trials):")
-            for k, (e_ttc, e_ta) in err.items():
-                print(f"  {k:12s} |min TTC err| median {q(e_ttc, 50):.3f} p90 {q(e_ttc, 90):.3f} s;"
-                      f" |TA err| median {q(e_ta, 50):.3f} p90 {q(e_ta, 90):.3f} s"
-                      f" (TA found {np.isfinite(e_ta).sum()})")
-            ttc_cov = np.mean(cover_ttc) if cover_ttc else float("nan")
-            print(f"  local fits' 90 % intervals: min TTC coverage {ttc_cov:.2f}"
-                  f" (n={len(cover_ttc)}), TA coverage {np.mean(cover_ta) if cover_ta else float('nan'):.2f}"
-                  f" (n={len(cover_ta)}); TA found {found_ta}/{a.trials}")
+                        err["local"][0].append(abs(c["min_ttc_s"][0] - ttc_exact))
+                    err["local"][1].append(abs(c["ta_s"][0] - ta_exact))
+                    found_ta += int(np.isfinite(c["ta_s"][0]))
+                    ft = t.tracks
+                    assert ft is not None
+                    io_ = IntervalOptions(draws=a.draws, corr_s=model_corr, seed=int(rng.integers(1 << 30)),
+                                          spread=spread, details=True)
+                    iv = conflict_intervals(ft, t, OPTS, io_, r90=np.full(len(ft), s * 2.146))
+                    for key, exact, col in (("ttc", ttc_exact, "min_ttc"), ("ta", ta_exact, "ta"),
+                                            ("pet", pet_exact, "pet")):
+                        if exact is not None and np.isfinite(iv[f"{col}_lo_s"][0]):
+                            cover[key].append(iv[f"{col}_lo_s"][0] <= exact <= iv[f"{col}_hi_s"][0])
+                            need[key].append(needed(exact, *(iv[f"{col}_{p}"][0] for p in ("centre", "below",
+                                                                                              "above"))))
+                    filled, _, _ = fill_gaps(noisy, OPTS.max_gap_s)
+                    for v in a.q:
+                        tr = analyse(filled, OPTS, mot=rts(filled, v)).columns
+                        if ttc_exact is not None:
+                            err[f"rts q={v:g}"][0].append(abs(tr["min_ttc_s"][0] - ttc_exact))
+                        err[f"rts q={v:g}"][1].append(abs(tr["ta_s"][0] - ta_exact))
+                kind = "white" if corr <= 0 else f"AR(1) {corr:g} s"
+                print(f"{name}, noise {s:g} m {kind} ({a.trials} trials, intervals' corr {model_corr:g} s):")
+                for k, (e_ttc, e_ta) in err.items():
+                    print(f"  {k:12s} |min TTC err| median {q(e_ttc, 50):.3f} p90 {q(e_ttc, 90):.3f} s;"
+                          f" |TA err| median {q(e_ta, 50):.3f} p90 {q(e_ta, 90):.3f} s"
+                          f" (TA found {np.isfinite(e_ta).sum()})")
+                print(f"  90 % intervals' coverage: min TTC {cov(cover['ttc'])}, TA {cov(cover['ta'])},"
+                      f" PET {cov(cover['pet'])}; TA found {found_ta}/{a.trials}; spread needed (p90):"
+                      f" min TTC {q(need['ttc'], 90):.2f}, TA {q(need['ta'], 90):.2f}, PET"
+                      f" {q(need['pet'], 90):.2f}", flush=True)
+                for key in need_all:
+                    need_all[key] += need[key]
+    print(f"pooled: spread needed for 90 % coverage (p90 over all cases): min TTC {q(need_all['ttc'], 90):.2f},"
+          f" TA {q(need_all['ta'], 90):.2f}, PET {q(need_all['pet'], 90):.2f}")
 
 
 if __name__ == "__main__":

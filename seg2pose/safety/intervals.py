@@ -1,25 +1,40 @@
-"""Error intervals of the indicators: each conflict recomputed on ``draws`` versions of its two
-tracks with the positions moved within their uncertainty.
+"""Error intervals of the indicators: a parametric bootstrap of each conflict's two tracks.
 
-A pose with ``r90_m`` = R has its true position within R metres with 90 % probability; as an
-isotropic 2D Gaussian that is sigma = R / sqrt(2 ln 10) = R / 2.146 per axis. Pose errors of
-one road user are not independent from frame to frame (the same mask errors persist), so each
-draw moves a track by an AR(1) process with correlation time ``corr_s`` seconds (per axis:
-e_k = rho e_(k-1) + sqrt(1 - rho^2) z_k, rho = exp(-dt / corr_s)), scaled by each row's sigma.
-Velocities are re-estimated from the moved positions, so the interval of TTC carries the
-velocity error too. The interval is the basic bootstrap interval of the central ``level`` of
-the draws (``_basic``: the draws' 5th and 95th percentiles reflected around the estimate, so
-that the bias of a minimum over noisy frames is corrected, not doubled) for min TTC and TA;
-PET's is the draws' 5th to 95th percentile (PET is a fact of the positions, not of a
-velocity: no such bias); ``*_found_share`` says in how many draws the indicator exists at all (a draw with no
-collision course has no TTC).
+**Error model.** A pose's error is two parts, per axis. A *fast* part, measured on the track
+itself: the residuals of the track from its smoothed self (below), their standard deviation
+sigma_f and lag-1 autocorrelation rho_f (``fast_errors``; 0 is white noise), drawn as an
+AR(1) process e_k = rho e_(k-1) + sqrt(1 - rho^2) z_k with rho = rho_f. A *slow* part that
+persists over seconds (the same mask errors from frame to frame: a wrong height, a shadow),
+an AR(1) with correlation time ``corr_s`` (rho = exp(-dt / corr_s)) and standard deviation
+sigma_c. The two add up to the pose's error radius ``r90_m`` = R: its true position is within
+R metres with 90 % probability, an isotropic 2D Gaussian of sigma = R / sqrt(2 ln 10) =
+R / 2.146 per axis, so sigma_c^2 = max(sigma^2 - sigma_f^2, 0). A track cannot tell its slow
+error from its motion, so the slow part's size comes from r90 (calibrated against the truth on
+other scenes, ``s2p calibrate-errors``) and its correlation time from tuning scenes. The
+baseline's errors on synthetic seed 201 are such a mix: their autocorrelation falls to 0.6
+within 0.5 s (the fast part) and stays near 0.4 for seconds (the slow part).
+
+**Bootstrap.** The model world is the smoothed tracks (the local quadratic fit's values,
+``kinematics.derivative`` of order 0, over ``model_window_s`` or the track's acceleration
+window if wider): each draw adds errors from the model to it, and every indicator is computed
+on the draw as on the tracks (velocities re-estimated, TTC, TA and PET searched over the whole
+time both exist). Draw 0 has no error: its indicator theta_0 is the model world's "truth", and
+the draws' deviations d = theta_d - theta_0 stand for the estimate's deviation from the truth
+(minima over noisy frames included: they are biased low in the draws as in the estimate). The
+interval is the basic bootstrap interval [theta - q_hi, theta - q_lo] of the deviations'
+central ``level`` (where draw 0 has no such indicator, of the draws' deviations from the
+estimate), widened ``spread`` times about the deviations' median, at least 0. The smoothed
+world is smoother than the real one (a sudden braking in it is already spread out, and the
+smoother's own bias at such a change does not show in the draws), so the raw bootstrap
+intervals are too narrow; ``spread`` (per indicator: min TTC, TA, PET) was chosen so that 90 %
+intervals hold the truth 90 % of the time on tuning data (docs/RESULTS.md, "Traffic
+conflicts"). ``*_found_share`` says in how many draws the indicator exists at all (a draw with
+no collision course has no TTC).
 
 Only the encounter's own frames (with a margin for the velocity window) are redrawn, so this
 costs little per conflict. PET is searched in each draw as the table searches it, over the
-whole encounter (``pet.pet``; the draws set apart in time so that they never meet): where
-two road users share a path, the least PET may lie elsewhere in a draw than in the tracks
-(searching only near the nominal pair of frames, ``pet_search_s``, as before, made the
-intervals too narrow).
+whole encounter (``pet.pet``; the draws set apart in time so that they never meet).
+Measured coverage: benches/conflicts_noise.py and benches/conflicts_accuracy.py.
 """
 
 from __future__ import annotations
@@ -31,7 +46,7 @@ from scipy.signal import lfilter
 
 from seg2pose.safety.evasive import onsets, time_to_accident
 from seg2pose.safety.footprints import overlaps
-from seg2pose.safety.kinematics import motion
+from seg2pose.safety.kinematics import derivative, motion
 from seg2pose.safety.pet import closest_in_time, pet, refine
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.ttc import ttc
@@ -42,17 +57,24 @@ SIGMA_PER_HEADING90 = 1.0 / 1.6449  # |N(0, sigma)| is below 1.645 sigma 90 % of
 
 @dataclass(frozen=True)
 class IntervalOptions:
-    """draws: samples per conflict; corr_s: correlation time of pose errors, seconds; level:
-    the interval's coverage (``corr_s`` 3 s covered best on the tuning scene, seed 201: 0.3,
-    1, 3, 10 s tried); pet_search_s: None (the default): PET searched over the whole
-    encounter, as in the table; a number: only this close to the nominal frames (before);
-    seed: of the draws (the same seed gives the same intervals)."""
+    """draws: samples per conflict; corr_s: correlation time of the slow part of pose errors,
+    seconds (the module's error model); level: the interval's coverage; pet_search_s: None
+    (the default): PET searched over the whole encounter, as in the table; a number: only
+    this close to the nominal frames; seed: of the draws (the same seed gives the same
+    intervals); spread: the widening of the min TTC, TA and PET intervals (the module's
+    bootstrap); model_window_s: the model world's smoothing; details: also return each
+    interval's centre and half widths before the widening (``_put``). The defaults of
+    corr_s and spread were chosen on tuning data (synthetic seed 201's runs and
+    benches/conflicts_noise.py's seed 0), docs/RESULTS.md, "Traffic conflicts"."""
 
     draws: int = 200
     corr_s: float = 3.0
     level: float = 0.9
     pet_search_s: float | None = None
     seed: int = 0
+    spread: tuple[float, float, float] = (2.1, 2.7, 2.2)
+    model_window_s: float = 2.5
+    details: bool = False
 
 
 def ar1_noise(n: int, draws: int, rho: float, rng: np.random.Generator) -> np.ndarray:
@@ -60,6 +82,24 @@ def ar1_noise(n: int, draws: int, rho: float, rng: np.random.Generator) -> np.nd
     z = rng.standard_normal((draws, n, 2))
     z[:, 0] /= np.sqrt(max(1.0 - rho * rho, 1e-12))  # start in the stationary distribution
     return lfilter([np.sqrt(1.0 - rho * rho)], [1.0, -rho], z, axis=1)
+
+
+def fast_errors(tracks: Tracks, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) per row its track's fast error: the standard deviation per axis of the residuals
+    ``resid`` (N, 2) from the smoothed track, and their lag-1 autocorrelation (0: white; in
+    [0, 0.99]), over consecutive frames of the track."""
+    tid = tracks.track_id
+    ids, inv = np.unique(tid, return_inverse=True)
+    inv = inv.reshape(-1)
+    n = np.bincount(inv, minlength=len(ids)).astype(np.float64)
+    ss = np.bincount(inv, (resid ** 2).sum(axis=1), minlength=len(ids))
+    nxt = np.r_[(tid[1:] == tid[:-1]) & (np.diff(tracks.frame) == 1), False]
+    lag = np.r_[(resid[:-1] * resid[1:]).sum(axis=1), 0.0] * nxt
+    sl = np.bincount(inv, lag, minlength=len(ids))
+    s0 = np.bincount(inv, (resid ** 2).sum(axis=1) * nxt, minlength=len(ids))
+    sigma = np.sqrt(ss / np.maximum(2 * n, 1))
+    rho = np.clip(np.divide(sl, s0, out=np.zeros(len(ids)), where=s0 > 0), 0.0, 0.99)
+    return sigma[inv], rho[inv]
 
 
 def _common_frames(tracks: Tracks, a: int, b: int, extra: int) -> tuple[int, int]:
@@ -84,20 +124,29 @@ def _rows_of(tracks: Tracks, track: int, f0: int, f1: int) -> np.ndarray:
 def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = IntervalOptions(),
                        r90: np.ndarray | None = None, progress=None,
                        heading90: np.ndarray | None = None) -> dict:
-    """INTERVAL_COLUMNS for each row of ``table`` (a ConflictTable of ``tracks``), (K,) arrays.
-    ``r90``: (N,) metres per row of ``tracks`` (default ``tracks.r90``); rows with NaN get no
-    noise. ``heading90``: (N,) radians per row, the heading error 90 % of the poses stay
-    within (None: headings not perturbed; drawn after the positions, with the same
+    """INTERVAL_COLUMNS for each row of ``table`` (a ConflictTable of ``tracks``), (K,) arrays,
+    by the module's bootstrap. ``r90``: (N,) metres per row of ``tracks`` (default
+    ``tracks.r90``); rows with NaN get no error (a pair with none: no interval).
+    ``heading90``: (N,) radians per row, the heading error 90 % of the poses stay within
+    (None: headings not perturbed; drawn after the positions, with the slow part's
     correlation, so the position draws do not change). ``opts``: the ConflictOptions the
     table was made with."""
     r90 = tracks.r90 if r90 is None else r90
     K = len(table)
     out = {k: np.full(K, np.nan) for k in ("min_ttc_lo_s", "min_ttc_hi_s", "pet_lo_s", "pet_hi_s",
                                            "ta_lo_s", "ta_hi_s", "ttc_found_share", "pet_found_share")}
-    if r90 is None:
+    if r90 is None or K == 0:
         return out
     c = table.columns
     fps = tracks.fps
+    # the model world: each track smoothed over its velocity window; the fast part of its
+    # error from the residuals
+    mot0 = motion(tracks, opts.motion)
+    smooth = derivative(tracks, tracks.xy, np.maximum(mot0.n_acc, int(iopts.model_window_s * fps) | 1), 0)
+    sig_f_all, rho_f_all = fast_errors(tracks, tracks.xy - smooth)
+    sig_all = r90 * SIGMA_PER_R90
+    sig_f_all = np.where(np.isfinite(sig_all), np.minimum(sig_f_all, np.nan_to_num(sig_all)), 0.0)
+    sig_c_all = np.sqrt(np.maximum(np.nan_to_num(sig_all) ** 2 - sig_f_all ** 2, 0.0))
     margin = int(np.ceil(opts.motion.max_window_s * fps)) + 2
     rho = float(np.exp(-1.0 / (fps * iopts.corr_s)))
     q = (100 * (1 - iopts.level) / 2, 100 * (1 + iopts.level) / 2)
@@ -114,16 +163,22 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         sub = tracks.take(rows)
         if not np.isfinite(r90[rows]).any():
             continue  # no uncertainty known: no interval (not one of zero width)
-        sig = np.nan_to_num(r90[rows] * SIGMA_PER_R90)  # rows: a's then b's, as sub sorts them
-        D = iopts.draws
+        # rows: a's then b's, as sub sorts them
+        sig_f, sig_c = sig_f_all[rows], sig_c_all[rows]
+        D = iopts.draws + 1  # draw 0: the model world without error
         # one Tracks with D copies of the pair, copy d's ids offset so they stay apart
-        noise = np.concatenate([ar1_noise(int((sub.track_id == tr).sum()), D, rho, rng)
-                                for tr in np.unique(sub.track_id)], axis=1)
-        xy = sub.xy[None] + noise * sig[None, :, None]
+        counts = [int((sub.track_id == tr).sum()) for tr in np.unique(sub.track_id)]
+        firsts = np.r_[0, np.cumsum(counts)[:-1]]
+        slow = np.concatenate([ar1_noise(m, D, rho, rng) for m in counts], axis=1)
+        fast = np.concatenate([ar1_noise(m, D, float(rho_f_all[rows][f]), rng) for m, f in zip(counts, firsts)],
+                              axis=1)
+        noise = slow * sig_c[None, :, None] + fast * sig_f[None, :, None]
+        noise[0] = 0.0
+        xy = smooth[rows][None] + noise
         heading = np.tile(sub.heading, D)
         if heading90 is not None:
-            hn = np.concatenate([ar1_noise(int((sub.track_id == tr).sum()), D, rho, rng)[..., 0]
-                                 for tr in np.unique(sub.track_id)], axis=1)
+            hn = np.concatenate([ar1_noise(m, D, rho, rng)[..., 0] for m in counts], axis=1)
+            hn[0] = 0.0
             heading = (sub.heading[None] + hn * np.nan_to_num(heading90[rows] * SIGMA_PER_HEADING90)[None]).ravel()
         off = (np.arange(D) * 4)[:, None]
         tid = np.where(sub.track_id == c["track_a"][k], 0, 1)[None, :] + off
@@ -146,30 +201,45 @@ def conflict_intervals(tracks: Tracks, table, opts, iopts: IntervalOptions = Int
         np.minimum.at(mins, draw, np.where(np.isfinite(x), x, np.inf))
         found = np.isfinite(mins)
         out["ttc_found_share"][k] = found.mean()
-        if found.any() and np.isfinite(c["min_ttc_s"][k]):
-            out["min_ttc_lo_s"][k], out["min_ttc_hi_s"][k] = _basic(c["min_ttc_s"][k], mins[found], q)
+        out["ttc_found_share"][k] = found[1:].mean()
+        if np.isfinite(c["min_ttc_s"][k]):
+            _put(out, "min_ttc", k, _basic(c["min_ttc_s"][k], mins, q, iopts.spread[0]), iopts.details)
         if np.isfinite(c["ta_s"][k]):
             tas = _ta_draws(big, mot, D, f0 + margin, f1 - margin, opts)
-            ok = np.isfinite(tas)
-            if ok.any():
-                out["ta_lo_s"][k], out["ta_hi_s"][k] = _basic(c["ta_s"][k], tas[ok], q)
+            _put(out, "ta", k, _basic(c["ta_s"][k], tas, q, iopts.spread[1]), iopts.details)
         if np.isfinite(c["pet_s"][k]):
             pets = (_pet_draws_whole(big, mot, a, b, x, opts, D) if search is None
                     else _pet_draws(big, mot, c, k, search, opts.pet_s, D))
-            ok = np.isfinite(pets)
-            out["pet_found_share"][k] = ok.mean()
-            if ok.any():
-                out["pet_lo_s"][k], out["pet_hi_s"][k] = np.percentile(pets[ok], q)
+            out["pet_found_share"][k] = np.isfinite(pets[1:]).mean()
+            _put(out, "pet", k, _basic(c["pet_s"][k], pets, q, iopts.spread[2]), iopts.details)
     return out
 
 
-def _basic(est: float, draws: np.ndarray, q) -> tuple[float, float]:
-    """The basic bootstrap interval of an indicator estimated as ``est`` whose draws (with
-    the poses moved once more) are ``draws``: [2 est - q_hi, 2 est - q_lo], at least 0. A
-    minimum over noisy frames is biased low, and the draws are biased low again by about as
-    much: the percentile interval of the draws would sit on the wrong side of the truth."""
-    lo, hi = np.percentile(draws, q)
-    return max(0.0, 2.0 * est - hi), max(0.0, 2.0 * est - lo)
+def _put(out: dict, name: str, k: int, got: tuple, details: bool) -> None:
+    """Row k's interval ``got`` (``_basic``) into ``out``; with ``details`` also its centre
+    and half widths (for calibrating ``spread``: benches/conflicts_noise.py)."""
+    out[f"{name}_lo_s"][k], out[f"{name}_hi_s"][k] = got[:2]
+    if details:
+        for j, part in enumerate(("centre", "below", "above")):
+            out.setdefault(f"{name}_{part}", np.full(len(out[f"{name}_lo_s"]), np.nan))[k] = got[2 + j]
+
+
+def _basic(est: float, draws: np.ndarray, q, spread: float = 1.0) -> tuple[float, ...]:
+    """The basic bootstrap interval of an indicator estimated as ``est``, from its values in
+    the draws (D,) (NaN / inf: none in that draw; draw 0 the model world's, without error):
+    [est - q_hi, est - q_lo] of the deviations d = draws[1:] - draws[0] (where draw 0 has
+    none, draws[1:] - est), widened ``spread`` times about their median m:
+    [est - m - spread (q_hi - m), est - m - spread (q_lo - m)], at least 0. Returns (lo, hi,
+    est - m, spread's units below and above it: m - q_lo, q_hi - m); NaN where no draw has
+    the indicator."""
+    ref = draws[0] if np.isfinite(draws[0]) else est
+    d = draws[1:][np.isfinite(draws[1:])] - ref
+    if not len(d):
+        return np.nan, np.nan, np.nan, np.nan, np.nan
+    lo, m, hi = np.percentile(d, (q[0], 50.0, q[1]))
+    centre = est - m
+    return (max(0.0, centre - spread * (hi - m)), max(0.0, centre + spread * (m - lo)), centre,
+            hi - m, m - lo)
 
 
 def _ta_draws(big: Tracks, mot, D: int, f0: int, f1: int, opts) -> np.ndarray:

@@ -143,7 +143,8 @@ def derivative(tracks: Tracks, values: np.ndarray, n: np.ndarray, order: int,
                bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(N, k) the ``order``-th derivative (1 or 2) per second of ``values`` (N, k) at each row,
     from the quadratic fitted to the ``n`` (N,) odd frames around it (shifted inside its
-    segment near the ends; a segment shorter than 3 frames: 0, or the slope of 2)."""
+    segment near the ends; a segment shorter than 3 frames: 0, or the slope of 2); order 0:
+    the fitted value itself (the smoothed positions)."""
     values = np.asarray(values, np.float64).reshape(len(tracks), -1)
     N = len(tracks)
     out = np.zeros_like(values)
@@ -159,7 +160,10 @@ def derivative(tracks: Tracks, values: np.ndarray, n: np.ndarray, order: int,
         rows = np.flatnonzero(regular & (n == w))
         hw = int(w) // 2
         k = np.arange(-hw, hw + 1, dtype=np.float64)
-        if order == 1:
+        if order == 0:
+            s2, s4 = float((k ** 2).sum()), float((k ** 4).sum())
+            wts = (s4 - s2 * k * k) / (w * s4 - s2 * s2)
+        elif order == 1:
             wts = k * fps / float(k @ k)
         else:
             s2, s4 = float((k ** 2).sum()), float((k ** 4).sum())
@@ -201,11 +205,14 @@ def _fit_rows(tracks: Tracks, values: np.ndarray, n: np.ndarray, order: int, row
     if q.any():
         A = np.stack([S[q][:, i:i + 3] for i in range(3)], 1)  # (Q, 3, 3) moments
         coef = np.linalg.solve(A, Sv[q])  # (Q, 3, k): c0 + c1 tau + c2 tau^2
-        out[q] = coef[:, 1] if order == 1 else 2.0 * coef[:, 2]
+        out[q] = coef[:, order] * (2.0 if order == 2 else 1.0)
     ln = deg == 1
-    if ln.any() and order == 1:
-        den = S[ln, 0] * S[ln, 2] - S[ln, 1] ** 2
-        out[ln] = (S[ln, 0][:, None] * Sv[ln, 1] - S[ln, 1][:, None] * Sv[ln, 0]) / den[:, None]
+    if ln.any() and order < 2:
+        den = (S[ln, 0] * S[ln, 2] - S[ln, 1] ** 2)[:, None]
+        out[ln] = ((S[ln, 0][:, None] * Sv[ln, 1] - S[ln, 1][:, None] * Sv[ln, 0]) / den if order == 1
+                   else (S[ln, 2][:, None] * Sv[ln, 0] - S[ln, 1][:, None] * Sv[ln, 1]) / den)
+    if order == 0:
+        out[deg == 0] = values[rows[deg == 0]]
     return out
 
 
