@@ -267,3 +267,36 @@ def test_pet_does_not_depend_on_where_the_frame_count_starts(case):
     assert max(got) - min(got) <= 1e-9
     hand = {"follower": 0.4, "crossing": 1.42, "turning": 2.0 - 1.2 / 1.4 - 2.3 / 6.0}[case]
     assert got[0] == pytest.approx(hand, abs=1e-6)
+
+
+def test_smoothed_positions_reproduce_a_quadratic_and_match_the_per_row_fit():
+    """Order 0 of ``derivative`` is the local quadratic's value: a constant acceleration's
+    positions come back exactly (centred windows and the track's ends alike), and on noisy
+    positions the correlation with fixed weights equals the per-row least-squares fit."""
+    t = np.arange(0, 3, 1 / FPS)
+    x = 3 + 2 * t - 1.5 * t * t
+    tr = Tracks(np.arange(len(t)), np.ones(len(t), np.int64), np.array(["car"] * len(t), object),
+                np.c_[x, 0.5 * x], np.zeros(len(t)), np.tile([4.0, 1.8], (len(t), 1)), FPS)
+    for n in (5, 11, 31):
+        np.testing.assert_allclose(derivative(tr, tr.xy, np.full(len(tr), n), 0), tr.xy, atol=1e-9)
+    noisy = tr.with_xy(tr.xy + np.random.default_rng(0).normal(0, 0.1, tr.xy.shape))
+    n = np.full(len(tr), 21)
+    st, en = segments(noisy)
+    rows = np.arange(len(tr))
+    np.testing.assert_allclose(derivative(noisy, noisy.xy, n, 0),
+                               _fit_rows(noisy, noisy.xy, n, 0, rows, st, en), atol=1e-9)
+
+
+def test_fast_errors_measure_scale_and_correlation():
+    """``intervals.fast_errors``: white residuals of 0.2 m give sigma 0.2 and a lag-1
+    correlation near 0; AR(1) residuals with rho 0.8 give rho near 0.8 (20,000 frames)."""
+    from seg2pose.safety.intervals import ar1_noise, fast_errors
+
+    rng = np.random.default_rng(1)
+    n = 20000
+    tr = Tracks(np.arange(n), np.ones(n, np.int64), np.array(["car"] * n, object), np.zeros((n, 2)),
+                np.zeros(n), np.tile([4.0, 1.8], (n, 1)), FPS)
+    sig, rho = fast_errors(tr, rng.normal(0, 0.2, (n, 2)))
+    assert sig[0] == pytest.approx(0.2, rel=0.03) and abs(rho[0]) < 0.03
+    sig, rho = fast_errors(tr, 0.2 * ar1_noise(n, 1, 0.8, rng)[0])
+    assert sig[0] == pytest.approx(0.2, rel=0.1) and rho[0] == pytest.approx(0.8, abs=0.03)
