@@ -196,6 +196,15 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
     return bp, sel.cameras, (sel.first, sel.last), list(stats.notes), stats.video_frames
 
 
+def run_tracks(run: Path) -> list[int]:
+    """The track ids of a run folder's poses with a position: the road users ``log_scene``
+    logs, whose trails ``app_blueprint`` names."""
+    from seg2pose.io.poses import read_poses
+
+    poses = read_poses(Path(run) / "poses.csv")
+    return sorted(set(poses.track_id[np.isfinite(poses.xyz).all(axis=1)].tolist()))
+
+
 TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (send_timeline)
 
 
@@ -205,9 +214,9 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
     """The annotation app's layout: camera ``large`` big on the left over the selected track's
     keyframe timeline; the 3D world and the other cameras small on the right.
     ``large_in_page``: the page shows camera ``large`` itself (annotate.app.frame_view), so
-    the viewer shows the 3D world and the other cameras over the timeline. runs: the names of
-    the runs shown, whose trails the 3D view then shows over the last TRAIL_FRAMES frames
-    (without: each road user's last step)."""
+    the viewer shows the 3D world and the other cameras over the timeline. runs: run name ->
+    the track ids of the runs shown (``run_tracks``), whose road users' trails the 3D view then
+    shows over the last TRAIL_FRAMES frames (without: each road user's last step)."""
     import rerun.blueprint as rrb
 
     large = large if large in cameras else (cameras[0] if cameras else None)
@@ -215,7 +224,7 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
     if runs:
-        extra["overrides"] = L.trail_overrides(runs, L.TRAIL_FRAMES, fps)
+        extra["overrides"] = L.trail_overrides(dict(runs), L.TRAIL_FRAMES, fps)
     world = rrb.Spatial3DView(origin="world", name="world", contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
     small = [rrb.Spatial2DView(origin=L.cam_path(c), name=f"{VIEW_PREFIX}{c}")

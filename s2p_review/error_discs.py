@@ -3,7 +3,8 @@ with radius r90_m (the radius that holds the true position with 90 % probability
 ``seg2pose.method.uncertainty``), outlined in a colour by size -- green for a tight bar, through
 yellow, to red at ``R90_RED_M`` and beyond -- so that the poses to distrust stand out.
 
-Runs without r90_m (older runs, runs without a calibration) draw nothing.
+Each disc is drawn on its road user's own entity (``road_users``), so that hiding the road
+user hides its disc. Runs without r90_m (older runs, runs without a calibration) draw nothing.
 """
 
 from __future__ import annotations
@@ -30,25 +31,3 @@ def r90_colors(r90: np.ndarray, red_m: float = R90_RED_M) -> np.ndarray:
     g = np.clip(2.0 * (1.0 - s), 0.0, 1.0)
     out = np.column_stack([r * 255, g * 200, np.full(len(s), 40.0), np.full(len(s), 230.0)])
     return np.round(out).astype(np.uint8)
-
-
-def log_error_discs(ctx, ent: str, table) -> bool:
-    """Log the discs of ``table`` (a PoseTable with r90) under ``ent`` per frame of ``ctx``
-    (``recording.LogContext``); False (nothing logged) when it has no finite r90_m."""
-    import rerun as rr
-
-    from s2p_review import columns as C
-
-    if table.r90 is None:
-        return False
-    t = table.take(np.argsort(table.frame, kind="stable"))
-    t = t.take(np.isfinite(t.r90) & np.isfinite(t.xyz).all(axis=1))
-    if not len(t):
-        return False
-    rings = disc_outlines(t.xyz, t.r90)
-    ctx.static(ent, rr.LineStrips3D.from_fields(radii=0.03))
-    ctx.send_range(ent, rr.LineStrips3D.columns(
-        strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
-        colors=r90_colors(t.r90), labels=[f"r90 {v:.2f} m" for v in t.r90])
-        .partition(C.frame_lengths(t.frame, ctx.first, ctx.last)))
-    return True

@@ -14,14 +14,16 @@ hidden and plotted alone. Run and camera names enter paths through Rerun's own e
     world/cameras/<cam>/normal/<run>                Points2D: mask centres of the run's views
     world/cameras/<cam>/poses/<run>                 LineStrips2D: fused boxes projected
     world/cameras/<cam>/gt                          LineStrips2D: true boxes projected
-    world/road_users/<run>/<track id>               Boxes3D (class ids of the AnnotationContext)
-                                                    + AnyValues: track id, class, speed, r90,
-                                                    source + Scalars: speed (m/s) -- one road
-                                                    user of the run
-    world/road_users/<run>/trails                   LineStrips3D: per frame a segment per road
-                                                    user (from its previous pose), shown over
-                                                    the last TRAIL_FRAMES by a visible time range
-    world/road_users/<run>/r90                      LineStrips3D: error discs (runs with r90)
+    world/road_users/<run>                          AnnotationContext: class colours in the
+                                                    run's look
+    world/road_users/<run>/<track id>               Boxes3D (class ids of the run's annotation
+                                                    context) + AnyValues road_user (track id,
+                                                    class, speed, r90, source) + Scalars: speed
+                                                    (m/s) + LineStrips3D: error disc (runs with
+                                                    r90) -- one road user of the run
+    world/road_users/<run>/<track id>/trail         LineStrips3D: per frame a segment from its
+                                                    previous pose, shown over the last
+                                                    TRAIL_FRAMES by a visible time range
     world/estimates/<run>/<cam>                     Points3D: normal positions of one view
     world/estimates/<run>/<cam>/residuals           Arrows3D: Seg2PoseNet residuals
     world/gt                                        Boxes3D: ground truth, drawn in grey
@@ -109,6 +111,11 @@ def road_user_path(run: str, track_id: int) -> str:
     return f"{run_path(run)}/{int(track_id)}"
 
 
+def trail_path(run: str, track_id: int) -> str:
+    """A road user's trail: a child of the road user, hidden with it."""
+    return f"{road_user_path(run, track_id)}/trail"
+
+
 ROAD_USER_SERIES = {"speed": "speed (m/s)", "error": "error against the truth (m)",
                     "r90": "r90 error bar (m)"}
 
@@ -134,13 +141,17 @@ def trail_ranges(trail: int, fps: float | None):
     return rrb.VisibleTimeRanges(ranges)
 
 
-def annotation_context(classes):
-    """Class ids (= mask pixel values) with names and colours; id 0 is transparent background."""
+def annotation_context(classes, look: str | None = None):
+    """Class ids (= mask pixel values) with names and colours; id 0 is transparent background.
+    look: the colours in a run's look (``run_colors`` of solid boxes), for the context under
+    the run's road users (``run_path``), which then need no colour of their own."""
     import rerun as rr
 
+    colors = [class_color(c.name, c.id) for c in classes] if look is None else \
+        [tuple(int(v) for v in row) for row in run_colors(np.array([c.name for c in classes]), classes, look,
+                                                          solid=True)]
     infos = [rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
-    infos += [rr.AnnotationInfo(id=c.id, label=c.name, color=class_color(c.name, c.id))
-              for c in classes]
+    infos += [rr.AnnotationInfo(id=c.id, label=c.name, color=col) for c, col in zip(classes, colors)]
     return rr.AnnotationContext(infos)
 
 
@@ -157,24 +168,37 @@ def default_eye(scene) -> tuple[np.ndarray, np.ndarray]:
     return pos, target
 
 
-def trail_overrides(runs, trail: int, fps: float | None) -> dict:
-    """3D-view overrides that show the trails of ``runs`` (run names) over the last ``trail``
-    frames: one per run's trails entity (Rerun's overrides take whole paths, no patterns)."""
+def trail_overrides(tracks, trail: int, fps: float | None) -> dict:
+    """3D-view overrides that show the road users' trails over the last ``trail`` frames;
+    tracks: run name -> its track ids. One override per trail: Rerun's overrides take whole
+    paths (no patterns) and do not pass to children, and the road user itself stays at the
+    time cursor."""
     ranges = trail_ranges(trail, fps)
-    return {f"{run_path(r)}/trails": ranges for r in runs}
+    return {trail_path(r, tid): ranges for r, ids in tracks.items() for tid in ids}
+
+
+def world_defaults() -> list:
+    """The 3D view's component defaults: road users' boxes solid without labels (class names
+    come from the annotation context; the baseline's wireframe is in its rows) and trails
+    4 cm wide, so that no road user's chunk carries them row by row."""
+    import rerun as rr
+
+    return [rr.Boxes3D.from_fields(fill_mode=rr.components.FillMode.Solid, show_labels=False),
+            rr.LineStrips3D.from_fields(radii=0.04)]
 
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,
               fps: float | None = None, error_max: float | None = None,
               timeline: str = TIMELINE, more_views=(), series: dict | None = None,
-              trail: int = TRAIL_FRAMES):
+              trail: int = TRAIL_FRAMES, tracks: dict | None = None):
     """The 3D world over the plots (one group per run, side by side) on the left; one 2D view
     per camera on the right. eye: (position, look target) of the 3D view, metres (see
     ``default_eye``); fps: frames per second, so that playback runs in real time; error_max:
     the top of the error plots' common y axis, metres; timeline: the timeline the time panel
     opens on; more_views: more views, in a row under the world (e.g.
-    ``s2p_review.conflicts.views()``); trail: the frames of the runs' trails the 3D view shows
-    (a visible time range on each run's trails entity); series: run name -> the road-user
+    ``s2p_review.conflicts.views()``); trail: the frames of the road users' trails the 3D view
+    shows (a visible time range on each trail); tracks: run name -> its track ids (the road
+    users whose trails get that range; without, a trail shows its last step); series: run name -> the road-user
     series it has (keys of ROAD_USER_SERIES), each a plot of all its road users, in tabs after
     the run's error plot (``with_metrics``). Rerun's blueprints cannot make a view follow the
     selection: a road user is found in its plot by hovering (the series is named by its
@@ -186,10 +210,10 @@ def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, ey
     extra: dict[str, Any] = {}
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
-    if runs and trail > 1:
-        extra["overrides"] = trail_overrides(runs, trail, fps)
+    if tracks and trail > 1:
+        extra["overrides"] = trail_overrides(tracks, trail, fps)
     world = rrb.Spatial3DView(origin="world", name="world",
-                              contents=["+ world/**"],
+                              contents=["+ world/**"], defaults=world_defaults(),
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
     axis: dict[str, Any] = {} if error_max is None else {
         "axis_y": rrb.ScalarAxis(range=(0.0, float(error_max)), zoom_lock=False)}

@@ -3,34 +3,37 @@
 selected or hovered at one frame is the same road user at every other frame, can be hidden
 alone, and has time series of its own.
 
-Per road user (track id), each sent with ``send_columns`` over the frames it is seen on:
+Per road user (track id), each sent with ``send_columns`` over the frames it is seen on, in
+one chunk with as few components as it takes (the viewer pays per component of each chunk
+when it loads a recording: docs/BENCHMARKS.md, "One entity per road user"):
 
-- its box (Boxes3D, class ids through the recording's AnnotationContext, colours in the run's
-  look) with ``AnyValues`` for the selection panel: track id, class, speed (m/s), r90 (m) and
-  source (the row's provenance, else the run's method); what is constant along the track
-  (class, colour, label, track id, source) once, statically; its speed as Scalars on the same
-  entity, so that selecting the box selects its line in the run's speed plot;
+- its box (Boxes3D with class ids: colour, see-through and class name from the annotation
+  context the run gets at ``world/road_users/<run>``, in the run's look; a baseline's
+  wireframe in its rows, solid boxes and hidden labels are the 3D view's defaults), one
+  ``AnyValues`` struct for the selection panel (``road_user``: track id, class, speed m/s,
+  r90 m, source: the row's provenance, else the run's method), its speed as Scalars (so that
+  selecting the box selects its line in the run's speed plot) and, with r90, its error disc
+  (LineStrips3D on the ground, coloured by size: ``error_discs``);
+- its trail, the child entity ``<track id>/trail`` (a segment per frame from its previous
+  pose, shown over the last ``LogStyle.trail`` frames by a visible time range on that entity):
+  hiding the road user hides its trail, its disc and its speed line;
 - series under ``metrics/road_users/<run>/<quantity>/<track id>``: error against the truth
   (rows whose (frame, track id) the truth has: ``seg2pose.eval.evaluate.match_poses``, as the
   run's error plot) and r90.
 
-Where a road user is not seen (a gap, or after its last frame) its box is emptied on the first
-frame without it, so nothing lingers. The run's trails (``world/road_users/<run>/trails``, one
-segment per road user and frame, shown over the last ``LogStyle.trail`` frames by a visible
-time range) and error discs (``world/road_users/<run>/r90``, runs with r90) are one entity per
-run each: hiding a road user hides its box, its values and its series, not its trail or disc.
+Where a road user is not seen (a gap, or after its last frame) its box and disc are emptied on
+the first frame without it, so nothing lingers.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from s2p_review import columns as C
 from s2p_review import layout as L
-from s2p_review.error_discs import log_error_discs
+from s2p_review.error_discs import disc_outlines, r90_colors
 from seg2pose.io.poses import PoseTable
 
 TRAIL_LIFT_M = 0.05  # trails drawn this far above the ground contact point
@@ -127,6 +130,22 @@ def shown_frames(frame: np.ndarray, last: int) -> tuple[np.ndarray, np.ndarray]:
     return out, lengths
 
 
+def info_column(users: RoadUsers, rows: slice, r90: np.ndarray, src: np.ndarray):
+    """The selection panel's values of one road user's rows as one AnyValues column,
+    ``road_user``: a struct per row of track_id, class, speed_mps, r90_m and source. One column
+    rather than five: Rerun's viewer pays per component of each chunk when it loads a recording
+    (docs/BENCHMARKS.md, "One entity per road user"), and a road user is a chunk of its own."""
+    import pyarrow as pa
+
+    t = users.table
+    n = rows.stop - rows.start
+    return pa.StructArray.from_arrays(
+        [pa.array(t.track_id[rows].astype(np.int64)), pa.array(t.cls[rows].astype(str).tolist()),
+         pa.array(users.speed[rows].astype(np.float32)), pa.array(r90[rows].astype(np.float32)),
+         pa.array(src[rows].astype(str).tolist() if n else [], pa.string())],
+        names=["track_id", "class", "speed_mps", "r90_m", "source"])
+
+
 def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source: str = "",
                    trail: int = L.TRAIL_FRAMES) -> list[int]:
     """Log every road user of ``run`` (see the module docstring) through ``ctx`` (a
@@ -138,74 +157,77 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
     scene = ctx.scene
     class_id = {c.name: c.id for c in scene.classes}
     ids = np.array([class_id.get(str(c), 0) for c in t.cls], np.uint16)
-    box_colors = L.run_colors(t.cls, scene.classes, look, solid=True)
-    line_colors = L.run_colors(t.cls, scene.classes, look)
     series_colors = L.class_colors(t.cls, scene.classes)
-    fill = rr.components.FillMode.Solid if L.RUN_LOOKS[look]["solid"] else rr.components.FillMode.MajorWireframe
+    # the run's look (colours, see-through) by class id, for its road users and their trails
+    ctx.static(L.run_path(run), L.annotation_context(scene.classes, look))
+    wire = not L.RUN_LOOKS[look]["solid"]  # solid boxes are the 3D view's default (layout)
     fields = C.box_columns(t.xyz, t.heading, users.sizes)
-    labels = np.array(L.labels(t.cls, t.track_id), object)
     r90 = t.r90 if t.r90 is not None else np.full(len(t), np.nan)
     src = t.source if t.source is not None else np.full(len(t), source, object)
-    has_r90 = bool(np.isfinite(r90).any())
+    ok90 = np.isfinite(r90) & np.isfinite(t.xyz).all(axis=1)
+    has_r90 = bool(ok90.any())  # the r90 series too
     has_error = bool(np.isfinite(users.error).any())
+    discs = disc_outlines(t.xyz[ok90], r90[ok90])
+    disc_row = np.cumsum(ok90) - 1  # row -> its disc
     done = []
     for tid, rows in users.track_rows():
         ent = L.road_user_path(run, tid)
         fr = t.frame[rows]
         frames, lengths = shown_frames(fr, ctx.last)
-        # one send per entity, nothing static: a chunk costs kilobytes of schema in the file
-        # and time in the viewer, while a constant column of a few bytes a row compresses away
+        # one chunk per road user with as few components as it takes (each costs the viewer
+        # time per chunk): geometry and class id (colour and name from the run's annotation
+        # context), the selection panel's values, the speed and, with r90, the error disc
         n = len(fr)
         box = rr.Boxes3D.columns(centers=fields["centers"][rows], half_sizes=fields["half_sizes"][rows],
                                  quaternions=fields["quaternions"][rows], class_ids=ids[rows],
-                                 colors=box_colors[rows], labels=labels[rows].tolist(),
-                                 fill_mode=[fill] * n, show_labels=[False] * n).partition(lengths)
-        values: dict[str, Any] = {"track_id": np.full(n, tid, np.int64), "class": t.cls[rows].astype(str),
-                                  "speed_mps": users.speed[rows].astype(np.float32),
-                                  "r90_m": r90[rows].astype(np.float32), "source": src[rows].astype(str)}
-        info = rr.AnyValues.columns(**values).partition(lengths)
+                                 fill_mode=[rr.components.FillMode.MajorWireframe] * n if wire else None)
+        cols = [*box.partition(lengths), *rr.AnyValues.columns(
+            road_user=info_column(users, rows, r90, src)).partition(lengths)]
         # the speed on the road user's own entity: selecting its box picks its line in the plot
         sp = users.speed[rows]
         ok = np.isfinite(sp)
-        speed_lengths = np.zeros(len(frames), np.int64)
-        np.add.at(speed_lengths, np.searchsorted(frames, fr[ok]), 1)
-        speed = [*rr.Scalars.columns(scalars=sp[ok]).partition(speed_lengths),
-                 *rr.SeriesLines.columns(colors=series_colors[rows][ok], names=labels[rows][ok].tolist())
-                 .partition(speed_lengths)]
-        ctx.send(ent, frames, [*box, *info, *speed])
+        cols += [*rr.Scalars.columns(scalars=sp[ok]).partition(_per_frame(frames, fr[ok])),
+                 *rr.SeriesLines.columns(colors=series_colors[rows][ok]).partition(_per_frame(frames, fr[ok]))]
+        mine = ok90[rows]
+        if mine.any():
+            rings = discs[disc_row[rows][mine]]
+            cols += [*rr.LineStrips3D.columns(
+                strips=C.segments_arrow(rings, rr.components.LineStrip3DBatch),
+                colors=r90_colors(r90[rows][mine])).partition(_per_frame(frames, fr[mine]))]
+        ctx.send(ent, frames, cols)
+        if trail > 1:
+            log_trail(ctx, run, tid, users, rows, ids[rows])
         for quantity, column, wanted in (("error", users.error, has_error), ("r90", r90, has_r90)):
             v = column[rows]
             okv = np.isfinite(v)
             if not wanted or not okv.any():
                 continue
             ctx.send(L.road_user_series_path(run, quantity, tid), fr[okv], [
-                *rr.Scalars.columns(scalars=v[okv]),
-                *rr.SeriesLines.columns(colors=series_colors[rows][okv], names=labels[rows][okv].tolist())])
+                *rr.Scalars.columns(scalars=v[okv]), *rr.SeriesLines.columns(colors=series_colors[rows][okv])])
         done.append(tid)
-    if trail > 1:
-        log_trails(ctx, run, users, line_colors)
-    log_error_discs(ctx, f"{L.run_path(run)}/r90", t)
     return done
 
 
-def log_trails(ctx, run: str, users: RoadUsers, colors: np.ndarray) -> None:
-    """The run's trails, ``world/road_users/<run>/trails``: at each frame, one segment per road
-    user seen there, from its previous pose; the blueprint shows them over the last frames with
-    a visible time range (``layout.trail_ranges``), so no point is sent twice over. One entity
-    for the run: an entity per road user's trail costs a chunk each (kilobytes of schema in the
-    file, and the viewer's time), and Rerun's time-range overrides take whole paths."""
+def _per_frame(frames: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """Rows per sent frame (``frames``, sorted) of a subset of a road user's rows at ``sub``."""
+    out = np.zeros(len(frames), np.int64)
+    np.add.at(out, np.searchsorted(frames, sub), 1)
+    return out
+
+
+def log_trail(ctx, run: str, tid: int, users: RoadUsers, rows: slice, class_ids: np.ndarray) -> None:
+    """A road user's trail, ``world/road_users/<run>/<track id>/trail``: at each of its frames
+    after the first, one segment from its previous pose, in its class colour; the blueprint
+    shows the last frames of it with a visible time range (``layout.trail_overrides``), so no
+    point is sent twice over. A child of the road user: hiding the road user hides its trail."""
     import rerun as rr
 
-    t = users.table
-    step = np.flatnonzero(np.r_[False, t.track_id[1:] == t.track_id[:-1]])  # rows with a previous
-    p = t.xyz + [0.0, 0.0, TRAIL_LIFT_M]
-    segs = np.stack([p[step - 1], p[step]], axis=1)
-    order = np.argsort(t.frame[step], kind="stable")
-    ent = f"{L.run_path(run)}/trails"
-    ctx.static(ent, rr.LineStrips3D.from_fields(radii=0.04))
-    ctx.send_range(ent, rr.LineStrips3D.columns(
-        strips=C.segments_arrow(segs[order], rr.components.LineStrip3DBatch), colors=colors[step][order])
-        .partition(C.frame_lengths(t.frame[step][order], ctx.first, ctx.last)))
+    p = users.table.xyz[rows] + [0.0, 0.0, TRAIL_LIFT_M]
+    if len(p) < 2:
+        return
+    segs = np.stack([p[:-1], p[1:]], axis=1)
+    ctx.send(L.trail_path(run, tid), users.table.frame[rows][1:], rr.LineStrips3D.columns(
+        strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch), class_ids=class_ids[1:]))
 
 
 def series_present(users: RoadUsers) -> list[str]:

@@ -130,7 +130,8 @@ def _record(scene: Scene, runs: list[Path], to: Targets, options: RecordOptions 
                      eye=L.default_eye(scene), fps=scene.fps, error_max=_error_max(scene, sel),
                      timeline=L.TIME if tb.start_ns is not None else L.TIMELINE,
                      more_views=CF.views() if conflicts is not None else (),
-                     series={k: RU.series_present(u) for k, u in users.items()}, trail=style.trail)
+                     series={k: RU.series_present(u) for k, u in users.items()}, trail=style.trail,
+                     tracks={k: RU.track_ids(u) for k, u in users.items()})
     rec = rr.RecordingStream("s2p", recording_id=uuid.uuid4().hex)
     title = f"{scene.name}: " + (", ".join(r.name for r in sel.runs) if sel.runs else "scene")
     shot_viewer = None

@@ -41,9 +41,9 @@ def test_rrd_holds_expected_entities_and_rows(tiny):
         assert rows[f"/world/estimates/run-s2pn/{cam}/residuals"] == n
         assert f"/world/estimates/run-base/{cam}/residuals" not in rows  # baseline: no residuals
     for r in ("run-base", "run-s2pn"):
-        assert rows[f"/world/road_users/{r}/trails"] == n  # the run's: a segment per road user
         for tid in TRACKS:  # one entity per road user, on every frame it is seen
             assert rows[f"/world/road_users/{r}/{tid}"] == n
+            assert rows[f"/world/road_users/{r}/{tid}/trail"] == n - 1  # a step per frame after its first
             assert rows[f"/metrics/road_users/{r}/error/{tid}"] == n
         for k in ("mean", "car", "pedestrian", "bicyclist"):
             assert rows[f"/metrics/error/{r}/{k}"] == n
@@ -70,7 +70,6 @@ def test_rrd_values(tiny):
     frames = boxes.column("frame").to_pylist()
     i = frames.index(5)
     centers = np.array(boxes.column("Boxes3D:centers").to_pylist()[i])
-    assert boxes.column("Boxes3D:labels").to_pylist()[i] == ["c12"]
     assert boxes.column("Boxes3D:class_ids").to_pylist()[i] == [CLASS_ID["car"]]
     k = 0
     x = TRACKS[12][1][0] + 5 * TRACKS[12][2][0] + EST_OFFSET[0]
@@ -241,33 +240,42 @@ def test_views_without_normal_position_are_left_out_in_3d(tiny, tmp_path):
 
 
 def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
-    """The baseline's boxes are hollow and pale, Seg2PoseNet's solid in the class colours; box
-    labels are data (hover, selection), never drawn over each other."""
+    """The baseline's boxes are hollow and pale, Seg2PoseNet's solid in the class colours (each
+    run's look is its annotation context, over its road users' class ids); box labels are data
+    (hover, selection), never drawn over each other (the 3D view's default)."""
+    import rerun as rr
     import rerun.chunk as rc
 
     scene, base, s2pn, root = tiny
     out = record(scene, [base, s2pn], root / "looks.rrd", NO_IMAGES).rrd
-    static, cols = {}, {}
-    for ch in rc.RrdReader(out).stream():
+    context, fills = {}, {}
+    reader = rc.RrdReader(out)
+    for ch in reader.stream():
         b = ch.to_record_batch()
         for run in ("run-base", "run-s2pn"):
-            if ch.entity_path != f"/world/road_users/{run}/12":  # the car
-                continue
-            if not ch.is_static:  # the look is in every row (one chunk per road user)
-                static[run] = {n: b.column(n).to_pylist()[0] for n in b.schema.names
-                               if n.startswith("Boxes3D:")}
-                cols[run] = np.array([c for row in b.column("Boxes3D:colors").to_pylist() for c in row])
-    assert static["run-base"]["Boxes3D:show_labels"] == [False]
-    assert static["run-s2pn"]["Boxes3D:show_labels"] == [False]
-    fills = {r: static[r]["Boxes3D:fill_mode"][0] for r in static}
-    assert fills["run-s2pn"] != fills["run-base"]
-    rgba = lambda c: np.array([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255, c & 255]).T  # noqa: E731
+            if ch.entity_path == f"/world/road_users/{run}" and ch.is_static:
+                infos = b.column("AnnotationContext:context").to_pylist()[0][0]
+                context[run] = {d["class_description"]["info"]["label"]: d["class_description"]["info"]["color"]
+                                for d in infos}
+            if ch.entity_path == f"/world/road_users/{run}/12" and not ch.is_static:  # the car
+                fills[run] = b.column("Boxes3D:fill_mode").to_pylist() if "Boxes3D:fill_mode" in b.schema.names \
+                    else None
+    defaults = {}
+    for ch in reader.stream(store=reader.blueprints()[0]):
+        if ch.entity_path.endswith("/defaults"):
+            b = ch.to_record_batch()
+            defaults |= {n: b.column(n).to_pylist()[0] for n in b.schema.names if n.startswith("Boxes3D:")}
+    assert defaults["Boxes3D:show_labels"] == [False]
+    solid, wire = rr.components.FillMode.Solid.value, rr.components.FillMode.MajorWireframe.value
+    assert defaults["Boxes3D:fill_mode"] == [solid] and fills["run-s2pn"] is None  # the default
+    assert {tuple(v) for v in fills["run-base"]} == {(wire,)}  # the baseline's, in its rows
+    rgba = lambda c: np.array([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255, c & 255])  # noqa: E731
     car = np.array(L.class_color("car"))
-    b, s = rgba(cols["run-base"]), rgba(cols["run-s2pn"])
-    assert any((s[:, :3] == car).all(axis=1)) and not any((b[:, :3] == car).all(axis=1))
+    b, s = rgba(context["run-base"]["car"]), rgba(context["run-s2pn"]["car"])
+    assert (s[:3] == car).all() and s[3] == L.RUN_LOOKS["model"]["alpha"] and not (b[:3] == car).all()
     # the baseline is 40 % of the way to grey: less saturated than Seg2PoseNet's colours
-    sat = lambda c: (c[:, :3].max(axis=1) - c[:, :3].min(axis=1)).mean()  # noqa: E731
-    assert abs(sat(b) - 0.6 * sat(s)) < 1.0  # saturation scales by 1 - 0.4
+    sat = lambda c: c[:3].max() - c[:3].min()  # noqa: E731
+    assert abs(sat(b) - 0.6 * sat(s)) <= 1.0  # saturation scales by 1 - 0.4
 
 
 def test_video_stored_small_is_shown_at_camera_size(tiny):

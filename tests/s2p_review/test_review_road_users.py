@@ -49,6 +49,11 @@ def _rows(batches, column):
             for f, v in zip(b.column("frame").to_pylist(), b.column(column).to_pylist())]
 
 
+def _info(batches, field):
+    """(frame, [value]) pairs of one field of the road user's AnyValues struct ``road_user``."""
+    return [(f, [d[field] for d in v]) for f, v in _rows(batches, "road_user")]
+
+
 def _road_user_paths(chunks, run_part):
     """The road users' entities of a run: world/road_users/<run>/<track id>."""
     prefix = f"/world/road_users/{run_part}/"
@@ -76,15 +81,16 @@ def test_one_road_user_is_one_entity_at_every_frame(tiny):
     for tid, (cls, p0, v) in TRACKS.items():
         ent = f"/world/road_users/run-base/{tid}"
         assert not statics[ent]  # everything it shows is in its rows, one send per entity
-        row = {col: dict(_rows(chunks[ent], col)) for col in (
-            "track_id", "class", "speed_mps", "Boxes3D:centers", "Boxes3D:class_ids", "Boxes3D:labels")}
+        row = {col: dict(_rows(chunks[ent], col)) for col in ("Boxes3D:centers", "Boxes3D:class_ids")}
+        row |= {k: dict(_info(chunks[ent], k)) for k in ("track_id", "class", "speed_mps")}
         for f in (3, 9):  # the same road user, selected at two frames: one entity path
             assert row["track_id"][f] == [tid] and row["class"][f] == [cls]
             assert row["Boxes3D:class_ids"][f] == [CLASS_ID[cls]]  # through the AnnotationContext
-            assert row["Boxes3D:labels"][f] == [f"{cls[0]}{tid}"]
             x = p0[0] + f * v[0] + EST_OFFSET[0]
             np.testing.assert_allclose(np.array(row["Boxes3D:centers"][f])[0, 0], x, atol=1e-5)
             np.testing.assert_allclose(row["speed_mps"][f], [np.hypot(*v) * FPS], rtol=1e-6)
+    # colours and class names of the run's look: an annotation context over its road users
+    assert "AnnotationContext:context" in statics["/world/road_users/run-base"]
 
 
 def test_an_entity_never_holds_another_road_user(tiny, two_names):
@@ -94,7 +100,7 @@ def test_an_entity_never_holds_another_road_user(tiny, two_names):
     for run_part in ("tri\\ T", "tri_T"):
         for path in _road_user_paths(chunks, run_part):
             tid = int(path.rsplit("/", 1)[1])
-            rows = _rows(chunks[path], "track_id")
+            rows = _info(chunks[path], "track_id")
             assert sorted(f for f, _ in rows) == list(range(N_FRAMES))
             assert all(v == [tid] for _, v in rows), path
             assert all(len(c) == 1 for _, c in _rows(chunks[path], "Boxes3D:centers"))
@@ -106,7 +112,7 @@ def test_run_names_that_differ_stay_two_entities(two_names):
     assert len(spaced) == len(underscored) == len(TRACKS)
     assert not spaced & underscored
     # each run's road users are its own: their source is their run's method
-    src = {p.split("/")[3]: dict(_rows(chunks[p], "source"))[0] for p in spaced | underscored}
+    src = {p.split("/")[3]: dict(_info(chunks[p], "source"))[0] for p in spaced | underscored}
     assert src == {"tri\\ T": ["baseline"], "tri_T": ["seg2posenet"]}
 
 
@@ -150,17 +156,20 @@ def test_series_per_road_user_have_hand_derived_values(tiny):
         assert len(speed) == len(err) == N_FRAMES
 
 
-def test_trails_are_a_visible_time_range_in_the_blueprint(tiny):
-    """The run's trails hold one segment per road user and frame (no point repeated over
-    frames) and the blueprint's 3D view shows them over the last TRAIL_FRAMES frames."""
+def test_trails_are_children_of_their_road_users_with_a_visible_time_range(tiny):
+    """Each road user's trail is a child entity of it (hiding the road user hides the trail)
+    holding one segment per frame, its own step (no point repeated over frames), and the
+    blueprint's 3D view shows exactly those trails over the last TRAIL_FRAMES frames."""
     import rerun.chunk as rc
 
     scene, base, _, root = tiny
     path = record(scene, [base], root / "trail.rrd", NO_IMAGES).rrd
-    strips = dict(_rows(_chunks(path)["/world/road_users/run-base/trails"], "LineStrips3D:strips"))
-    assert len(strips[0]) == 0 and all(len(strips[f]) == len(TRACKS) for f in range(1, N_FRAMES))
-    steps = sorted(tuple(np.round(np.diff(np.array(seg)[:, :2], axis=0)[0], 5)) for seg in strips[5])
-    assert steps == sorted(tuple(np.round(v, 5)) for _, _, v in TRACKS.values())  # a frame's step each
+    chunks = _chunks(path)
+    for tid, (_, _, v) in TRACKS.items():
+        strips = dict(_rows(chunks[f"/world/road_users/run-base/{tid}/trail"], "LineStrips3D:strips"))
+        assert sorted(strips) == list(range(1, N_FRAMES)) and all(len(s) == 1 for s in strips.values())
+        steps = {tuple(np.round(np.diff(np.array(s[0])[:, :2], axis=0)[0], 5)) for s in strips.values()}
+        assert steps == {tuple(np.round(v, 5))}  # this road user's step, at every frame
     reader = rc.RrdReader(path)
     overrides = defaultdict(list)
     for ch in reader.stream(store=reader.blueprints()[0]):
@@ -169,11 +178,44 @@ def test_trails_are_a_visible_time_range_in_the_blueprint(tiny):
             for n in b.schema.names:
                 if "VisibleTimeRanges" in n:
                     overrides[ch.entity_path.split("/ViewContents/overrides/")[1]] += b.column(n).to_pylist()
-    assert set(overrides) == {"world/road_users/run-base/trails/visualizers"}  # nothing else
-    by_timeline = {r["timeline"]: r["range"] for batch in overrides.popitem()[1] for r in batch}
-    # cursor-relative bounds (the union's tag is not in to_pylist): the last 30 frames, 3 s
-    assert by_timeline["frame"] == {"start": -L.TRAIL_FRAMES, "end": 0}
-    assert by_timeline["time"] == {"start": -L.TRAIL_FRAMES * 10**9 // int(FPS), "end": 0}
+    assert set(overrides) == {f"world/road_users/run-base/{tid}/trail/visualizers" for tid in TRACKS}
+    for ranges in overrides.values():
+        by_timeline = {r["timeline"]: r["range"] for batch in ranges for r in batch}
+        # cursor-relative bounds (the union's tag is not in to_pylist): the last 30 frames, 3 s
+        assert by_timeline["frame"] == {"start": -L.TRAIL_FRAMES, "end": 0}
+        assert by_timeline["time"] == {"start": -L.TRAIL_FRAMES * 10**9 // int(FPS), "end": 0}
+
+
+def test_error_disc_and_r90_series_are_the_road_users_own(tiny):
+    """A run with error bars: each road user's disc (a ring of radius r90 around its ground
+    point, coloured by size) is on its own entity, hidden with it, and its r90 is a series."""
+    from review_fixtures import make_run
+
+    from s2p_review.error_discs import r90_colors
+    from seg2pose.io.poses import read_poses, write_poses
+
+    scene, _, _, root = tiny
+    run = make_run(scene, root / "with-r90")
+    poses = read_poses(run / "poses.csv")
+    poses.r90 = 0.5 + 0.01 * poses.track_id + 0.1 * poses.frame  # metres, known per row
+    write_poses(run / "poses.csv", poses)
+    chunks = _chunks(record(scene, [run], root / "r90.rrd", NO_IMAGES).rrd)
+    for tid in TRACKS:
+        ent = chunks[f"/world/road_users/with-r90/{tid}"]
+        rings, centers = dict(_rows(ent, "LineStrips3D:strips")), dict(_rows(ent, "Boxes3D:centers"))
+        colors = dict(_rows(ent, "LineStrips3D:colors"))
+        for f in (2, 7):
+            r90 = 0.5 + 0.01 * tid + 0.1 * f
+            ring = np.array(rings[f][0])
+            np.testing.assert_allclose(np.linalg.norm(ring[:, :2] - np.array(centers[f])[0, :2], axis=1), r90,
+                                       rtol=1e-5)
+            c = colors[f][0]
+            rgba = [(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255, c & 255]
+            assert rgba == r90_colors(np.array([r90]))[0].tolist()
+        series = dict(_rows(chunks[f"/metrics/road_users/with-r90/r90/{tid}"], "Scalars:scalars"))
+        np.testing.assert_allclose([series[f][0] for f in range(N_FRAMES)],
+                                   [0.5 + 0.01 * tid + 0.1 * f for f in range(N_FRAMES)], rtol=1e-9)
+    assert not [p for p in chunks if p.startswith("/world/road_users/with-r90/") and p.endswith("r90")]
 
 
 def test_shown_frames_empty_the_road_user_after_each_stretch():
