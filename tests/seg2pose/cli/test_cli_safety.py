@@ -153,3 +153,13 @@ def test_tct_curve_is_checked(tmp_path, capsys, curve):
     code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(tmp_path / "c.csv"), "--fps", "30",
                       "--tct-curve", curve)
     assert code == 2 and "--tct-curve" in se and "Traceback" not in se
+
+
+@pytest.mark.parametrize("spread", ["2,2", "2,0,2", "a,b,c"])
+def test_interval_spread_is_checked(tmp_path, capsys, spread):
+    """--interval-spread takes three positive factors: one line naming the option otherwise."""
+    p = tmp_path / "poses.csv"
+    write_poses(p, crossing_poses())
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(tmp_path / "c.csv"), "--fps", "30", "--r90",
+                      "car=0.3", "--interval-spread", spread)
+    assert code == 2 and "--interval-spread" in se and "Traceback" not in se
