@@ -179,31 +179,47 @@ def build_app(state: PageState, scene, port: int, token: str):
 
 def run_page(args: PageArgs, browser: bool = True, echo=print) -> None:
     """``s2p calibrate-camera ... --aerial/--survey``: open the state, serve the page until
-    Ctrl-C, then release the journal."""
+    Ctrl-C, then release the journal. The outputs a Save writes (calib.json and the files
+    beside it, or the scene's scene.json) are locked from the start: another writer of them
+    is refused while the page is open, not only during a Save."""
     import uvicorn
 
     from annotate.app.serve import free_port
+    from seg2pose.io.atomic import holding
+    from seg2pose.io.calib_files import output_names
+    from seg2pose.io.scene import SCENE_FILE
 
     state, scene = open_state(args)
+    held = (list(output_names(args.out, list(state.sizes)).values()) if args.out is not None
+            else [scene.root / SCENE_FILE])
     try:
-        port = args.port or free_port()
-        import socket
-
-        with socket.socket() as sock:
-            if sock.connect_ex(("127.0.0.1", port)) == 0:
-                raise S2PError(f"port {port} is in use; choose another with --port")
-        token = new_token()
-        url = f"http://127.0.0.1:{port}/?{TOKEN_PARAM}={token}"
-        n = len(state.pairs())
-        echo(f"calibration page at {url}\n  ({n} pairs from {state.log.path}; only this machine can "
-             f"reach it, from another one use an SSH tunnel: ssh -N -L {port}:127.0.0.1:{port} "
-             "USER@THIS-HOST. Ctrl-C stops it.)")
-        if browser:
-            import webbrowser
-
-            webbrowser.open(url)
-        server = uvicorn.Server(uvicorn.Config(build_app(state, scene, port, token), host="127.0.0.1",
-                                               port=port, log_level="warning"))
-        server.run()
+        with holding(*held):
+            _serve(state, scene, args, browser, echo, free_port, uvicorn)
     finally:
         state.close()
+
+
+def _serve(state: PageState, scene, args: PageArgs, browser: bool, echo, free_port, uvicorn) -> None:
+    """Serve the page until Ctrl-C."""
+    import socket
+
+    port = args.port or free_port()
+    with socket.socket() as sock:
+        if sock.connect_ex(("127.0.0.1", port)) == 0:
+            raise S2PError(f"port {port} is in use; choose another with --port")
+    token = new_token()
+    url = f"http://127.0.0.1:{port}/?{TOKEN_PARAM}={token}"
+    n = len(state.pairs())
+    echo(f"calibration page at {url}\n  ({n} pairs from {state.log.path}; only this machine can "
+         f"reach it, from another one use an SSH tunnel: ssh -N -L {port}:127.0.0.1:{port} "
+         "USER@THIS-HOST. Ctrl-C stops it.)")
+    if browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    server = uvicorn.Server(uvicorn.Config(build_app(state, scene, port, token), host="127.0.0.1",
+                                           port=port, log_level="warning"))
+    try:
+        server.run()
+    except KeyboardInterrupt:  # Ctrl-C is how the page is stopped (uvicorn raises it again once shut down)
+        echo("calibration page stopped")
