@@ -83,20 +83,16 @@ def _parsed(fn, messages: list, topic: str, path: Path, *args):
         raise InputError(f"malformed {topic} messages: {type(e).__name__}: {e}", file=path) from None
 
 
-def _check_restored(run_dir: Path, path: Path) -> None:
-    """Read the restored tables back with the ordinary readers: values a run could not hold
-    (inf, negative sizes, duplicate rows) are refused, naming the MCAP file."""
-    from seg2pose.io.poses import read_poses
-    from seg2pose.io.run import read_views
-
-    for name, reader in (("poses.csv", read_poses), ("views.csv", read_views)):
-        if (run_dir / name).exists():
-            try:
-                reader(run_dir / name)
-            except InputError as e:
-                row = f" (row {e.line - 1})" if e.line else ""
-                raise InputError(f"the restored {name} would be invalid{row}: {e.message}",
-                                 file=path) from None
+def _restored_run(run_dir: Path, poses, views, meta: dict, path: Path) -> None:
+    """Write the restored run folder: its writer checks the tables and run.json against the
+    schemas their readers use (``io.schemas``: inf, negative sizes, duplicate rows, ...), and
+    what it refuses is refused here naming the MCAP file."""
+    try:
+        write_run_folder(run_dir, poses, views, meta)
+    except InputError as e:
+        name = Path(e.file).name if e.file else "run folder"
+        where = f" ({e.field})" if e.field else f" (line {e.line})" if e.line else ""
+        raise InputError(f"the restored {name} would be invalid{where}: {e.message}", file=path) from None
 
 
 def _check_scene(tmp: Path, path: Path) -> None:
@@ -132,8 +128,7 @@ def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRe
         run_meta["scene"] = "../.."
     views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
              if meta.get("has_views") == "true" or rec.views else None)
-    write_run_folder(tmp / run_rel, table, views, run_meta)
-    _check_restored(tmp / run_rel, path)
+    _restored_run(tmp / run_rel, table, views, run_meta, path)
     _check_scene(tmp, path)
     restore_scene_files(att, tmp, path)
     if video:

@@ -14,17 +14,20 @@ from typing import Literal, overload
 import numpy as np
 
 from seg2pose.core.errors import InputError
+from seg2pose.core.validate import MAX_COORD
 
 ALPHA = 0.3
 
 # Reasons a ray yields NaN instead of a point (status codes of ``intersect_rays``).
-HIT, POINTS_UP, BELOW_SURFACE, NO_CONVERGENCE, INVALID = 0, 1, 2, 3, 4
+HIT, POINTS_UP, BELOW_SURFACE, NO_CONVERGENCE, INVALID, TOO_FAR = 0, 1, 2, 3, 4, 5
 MISS_REASONS = {
     HIT: "hit",
     POINTS_UP: "ray points up or runs parallel to the ground",
     BELOW_SURFACE: "ray starts below the raised surface (behind the camera)",
     NO_CONVERGENCE: "no convergence",
     INVALID: "NaN or inf in the ray origin, direction or height",
+    # a ray almost parallel to the ground: no position file could hold it (io.schemas.METRES)
+    TOO_FAR: f"the ray meets the ground more than {MAX_COORD:g} m from the origin",
 }
 
 
@@ -249,7 +252,9 @@ class GroundSurface:
         idx = np.flatnonzero(ok)
         X[idx] = Xok
         status[idx[~done]] = NO_CONVERGENCE
-        X[idx[~done]] = np.nan
+        far = done & ~(np.abs(Xok) <= MAX_COORD).all(axis=1)
+        status[idx[far]] = TOO_FAR
+        X[idx[~done | far]] = np.nan
         return X, status
 
     def mesh(self, n: int = 64, margin: float = 2.0) -> tuple[np.ndarray, np.ndarray]:

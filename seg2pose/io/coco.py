@@ -29,9 +29,9 @@ import numpy as np
 from pycocotools import mask as mask_util
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import number
 from seg2pose.io.atomic import atomic_write_text
-from seg2pose.io.mots import MaskTable
+from seg2pose.io.mots import MaskTable, check_masks
+from seg2pose.io.schemas import DETECTION_SCORE
 from seg2pose.io.text import load_json
 from seg2pose.structures.masks import decode_counts
 
@@ -145,7 +145,7 @@ def read_coco(path: str | Path, known_classes: Iterable[int] | None = None,
                              field=f"[{i}].segmentation.counts")
         sc = r.get("score")
         if sc is not None:
-            sc = number(sc, file=path, field=f"[{i}].score")
+            sc = DETECTION_SCORE.value(sc, file=path, field=f"[{i}].score")
         frames.append(fr)
         tids.append(tid)
         cids.append(cid)
@@ -226,6 +226,7 @@ def coco_records(table: MaskTable) -> list[dict]:
 
 def write_coco(path: str | Path, table: MaskTable) -> None:
     """Write a MaskTable as COCO RLE JSON (one record per line, atomically)."""
+    check_masks(table, file=path)
     recs = coco_records(table)
     text = "[\n" + ",\n".join(json.dumps(r, separators=(",", ":")) for r in recs) + "\n]\n"
     atomic_write_text(path, text)

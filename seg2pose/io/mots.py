@@ -16,6 +16,7 @@ import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_open
+from seg2pose.io.schemas import FRAME, ID, IMAGE_SIDE, MASKS, mask_columns
 from seg2pose.structures.masks import decode_counts
 
 _INT = re.compile(r"^[+-]?[0-9]{1,19}$")
@@ -93,13 +94,16 @@ def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | No
         raise InputError(f"expected integers for frame track_id class_id height width, got {parts[:5]}",
                          file=path, line=lineno)
     frame, tid, cid, h, w = (int(p) for p in parts[:5])
+    # io.schemas.MASKS, one line at a time (a stream's block is checked whole by emit, but the
+    # size must be known good before it is compared with the next line's)
     if frame < 0:
         raise InputError(f"negative frame {frame}", file=path, line=lineno)
-    if not (frame < 2**62 and -2**62 < tid < 2**62 and -2**62 < cid < 2**62):
-        raise InputError("frame, track_id and class_id must fit in 64 bits", file=path, line=lineno)
+    if not (frame <= FRAME.hi and ID.lo <= tid <= ID.hi and ID.lo <= cid <= ID.hi):
+        raise InputError(f"frame must be {FRAME.expected()}, track_id and class_id {ID.expected()}",
+                         file=path, line=lineno)
     if h <= 0 or w <= 0:
         raise InputError(f"non-positive image size {h}x{w}", file=path, line=lineno)
-    if h > 2**20 or w > 2**20:
+    if h > IMAGE_SIDE.hi or w > IMAGE_SIDE.hi:
         raise InputError(f"implausible image size {h}x{w} (more than 2^20 pixels a side)",
                          file=path, line=lineno)
     if size is not None and (h, w) != size:
@@ -235,9 +239,34 @@ def format_mots_lines(table: MaskTable) -> Iterator[str]:
                f"{table.height} {table.width} {table.rles[i].decode('ascii')}\n")
 
 
+def check_masks(table: MaskTable, file: str | Path | None = None) -> None:
+    """Refuse, before a write, what the masks readers refuse (``io.schemas.MASKS``: frames,
+    ids and image sizes in range, a track once per frame; RLE runs covering height x width),
+    naming ``file`` and the detection (numbered from 1 in frame order)."""
+    MASKS.check(mask_columns(table), file=file)
+    if len(table):
+        order = np.argsort(table.frame, kind="stable")
+        try:
+            _check_rles([table.rles[i] for i in order], list(range(1, len(order) + 1)), table.height,
+                        table.width, Path(file or "masks"))
+        except InputError as e:
+            raise InputError(e.message, file=file, field=f"detection {e.line}") from None
+
+
 def write_mots(path: str | Path, table: MaskTable | Iterable[MaskTable]) -> None:
-    """Write one table, or stream many (in frame order), atomically."""
+    """Write one table, or stream many (in frame order, one image size), atomically; what
+    ``read_mots`` would refuse (``check_masks``) is refused and nothing is written."""
     tables = [table] if isinstance(table, MaskTable) else table
     with atomic_open(path, "w", encoding="ascii", newline="\n") as f:
+        last, size = -1, None
         for t in tables:
+            check_masks(t, file=path)
+            if len(t):
+                if size is not None and (t.height, t.width) != size:
+                    raise InputError(f"masks of {t.height}x{t.width} after masks of {size[0]}x{size[1]}: "
+                                     "one file holds one image size", file=path)
+                if int(t.frame.min()) < last:
+                    raise InputError(f"frame {int(t.frame.min())} comes after frame {last}: frames must "
+                                     "be in order", file=path)
+                last, size = int(t.frame.max()), (t.height, t.width)
             f.writelines(format_mots_lines(t))

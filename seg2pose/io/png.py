@@ -19,7 +19,7 @@ import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.io.atomic import atomic_write_bytes
-from seg2pose.io.mots import MaskTable
+from seg2pose.io.mots import MaskTable, check_masks
 from seg2pose.structures.masks import decode, encode
 
 ID_FACTOR = 1000
@@ -94,6 +94,7 @@ def write_png_folder(folder: str | Path, table: MaskTable) -> list[Path]:
     """One 16-bit PNG per frame that has detections; each file written atomically.
     Returns the paths written."""
     folder = Path(folder)
+    check_masks(table, file=folder)
     if len(table) and ((table.track_id < 0).any() or (table.track_id >= ID_FACTOR).any()):
         bad = int(table.track_id[(table.track_id < 0) | (table.track_id >= ID_FACTOR)][0])
         raise InputError(f"track id {bad} cannot be stored in an instance-id PNG (0..999)",

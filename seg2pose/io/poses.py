@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -27,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import MAX_COORD
 from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.schemas import FRAME, ID, POSES, pose_columns
 from seg2pose.io.text import read_text
 
 BASE_COLUMNS = ["frame", "track_id", "class", "x", "y", "z", "heading"]
@@ -122,7 +121,13 @@ def _f(v: float) -> str:
     return repr(float(v))
 
 
-def format_poses(table: PoseTable) -> str:
+def format_poses(table: PoseTable, file: str | Path | None = None) -> str:
+    """poses.csv's text, checked against ``io.schemas.POSES`` (``file``: named in the message)."""
+    POSES.check(pose_columns(table), file=file)
+    if table.source is not None and not set(table.source.tolist()) <= set(SOURCES):
+        bad = next(s for s in table.source.tolist() if s not in SOURCES)
+        raise InputError(f"unknown source {bad!r}; expected one of {', '.join(SOURCES)}", file=file,
+                         field=SOURCE_COLUMN)
     buf = io.StringIO()
     cols = BASE_COLUMNS + (SIZE_COLUMNS if table.size is not None else []) + (
         [SOURCE_COLUMN] if table.source is not None else []) + (
@@ -142,7 +147,10 @@ def format_poses(table: PoseTable) -> str:
 
 
 def write_poses(path: str | Path, table: PoseTable) -> None:
-    atomic_write_text(path, format_poses(table))
+    """Write a pose table; what ``read_poses`` would refuse (``io.schemas.POSES``: NaN
+    positions, frames out of order, a road user twice in a frame, ...) is refused first and
+    nothing is written."""
+    atomic_write_text(path, format_poses(table, file=path))
 
 
 def read_poses(path: str | Path, known_classes: Iterable[str] | None = None) -> PoseTable:
@@ -176,8 +184,7 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
                          f"{',r90_m' if with_r90 else ''}", file=path, line=1)
     ncol = len(header)
     frames, tids, classes, nums, sources, r90s = [], [], [], [], [], []
-    last_frame = -1
-    seen: dict[tuple[int, int], int] = {}  # (frame, track id) -> line
+    lines: list[int] = []
     for row in reader:
         lineno = reader.line_num
         if not row:
@@ -197,13 +204,9 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
             raise InputError(f"frame and track_id must be integers, got {row[:2]}", file=path,
                              line=lineno)
         fr, tid = int(row[0]), int(row[1])
-        if not (0 <= fr < 2**62 and -2**62 < tid < 2**62):
-            raise InputError(f"frame must be >= 0 and ids within 64 bits, got {fr}, {tid}",
-                             file=path, line=lineno)
-        if fr < last_frame:
-            raise InputError(f"frame {fr} comes after frame {last_frame}: frames must be in order",
-                             file=path, line=lineno)
-        last_frame = fr
+        if not (abs(fr) < 2**63 and abs(tid) < 2**63):  # int64 columns; POSES checks the range
+            raise InputError(f"frame must be {FRAME.expected()} and track_id {ID.expected()}, got "
+                             f"{fr}, {tid}", file=path, line=lineno)
         c = row[2].strip()
         if kc is not None and c not in kc:
             raise InputError(f"unknown class {c!r}; the scene knows {sorted(kc)}", file=path,
@@ -213,40 +216,25 @@ def parse_poses(reader, path: Path, kc: set[str] | None) -> PoseTable:
         except ValueError:
             raise InputError(f"expected numbers in {','.join(header[3:])}", file=path,
                              line=lineno) from None
-        if not all(math.isfinite(x) and abs(x) <= MAX_COORD for x in v[:3]):
-            raise InputError(f"x, y, z must be finite metres within +-{MAX_COORD:g}, got {v[:3]}",
-                             file=path, line=lineno)
-        if math.isinf(v[3]):
-            raise InputError("heading must be finite radians (or nan for unknown)", file=path,
-                             line=lineno, field="heading")
-        if len(v) > 4 and not all(math.isnan(x) or 0 < x <= 1000 for x in v[4:]):
-            raise InputError(f"l, w, h must be sizes in (0, 1000] metres (or nan for unknown), "
-                             f"got {v[4:]}", file=path, line=lineno)
-        if tid >= 0:
-            key = (fr, tid)
-            if key in seen:
-                raise InputError(f"duplicate row: track {tid} appears twice in frame {fr} (also "
-                                 f"line {seen[key]})", file=path, line=lineno)
-            seen[key] = lineno
         frames.append(fr)
         tids.append(tid)
         classes.append(c)
         nums.append(v)
+        lines.append(lineno)
     a = np.array(nums, dtype=np.float64).reshape(-1, ncol - 3)
-    return PoseTable(np.asarray(frames, np.int64), np.asarray(tids, np.int64), np.array(classes, dtype=object),
+    t = PoseTable(np.asarray(frames, np.int64), np.asarray(tids, np.int64), np.array(classes, dtype=object),
                      a[:, :3], a[:, 3],
                      a[:, 4:7] if ncol == 10 else None,
                      np.array(sources, dtype=object) if with_source else None,
                      np.array(r90s, dtype=np.float64) if with_r90 else None)
+    POSES.check(pose_columns(t), file=path, lines=lines)
+    return t
 
 
 def _parse_r90(text: str, path: Path, lineno: int) -> float:
-    """An r90_m cell: a radius in [0, MAX_COORD] metres, or nan (no calibration)."""
+    """An r90_m cell's number (its range is POSES's)."""
     try:
-        v = float(text)
+        return float(text)
     except ValueError:
-        v = -1.0
-    if not (math.isnan(v) or 0.0 <= v <= MAX_COORD):
         raise InputError(f"r90_m must be a radius in metres (>= 0, or nan), got {text.strip()!r}",
-                         file=path, line=lineno, field=R90_COLUMN)
-    return v
+                         file=path, line=lineno, field=R90_COLUMN) from None

@@ -33,6 +33,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -43,7 +44,11 @@ import numpy as np
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text, os_errors, output_lock, swap_in, temp_sibling_dir
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
+from seg2pose.io.schema import check
+from seg2pose.io.schemas import RUN_META, VIEWS, check_frame_range, check_view_boxes, view_columns
+from seg2pose.io.text import load_json, read_text
 
+_INT = re.compile(r"^[+-]?[0-9]{1,18}$")  # int64 without overflow (the range is VIEWS')
 RUN_FILE = "run.json"
 POSES_FILE = "poses.csv"
 VIEWS_FILE = "views.csv"
@@ -140,8 +145,16 @@ class ViewTable:
         return cls(*cols)
 
 
-def format_views(table: ViewTable) -> str:
-    """views.csv text, rows in the table's order; floats with ``repr`` (exact round trip)."""
+def format_views(table: ViewTable, file: str | Path | None = None) -> str:
+    """views.csv text, rows in the table's order; floats with ``repr`` (exact round trip).
+    What ``read_views`` would refuse (``io.schemas.VIEWS``) is refused first."""
+    VIEWS.check(view_columns(table), file=file)
+    check_view_boxes(table.box, file=file)
+    bad = [str(c) for c in np.concatenate([table.camera, table.cls]).tolist() if "," in str(c)
+           or "\n" in str(c) or str(c) != str(c).strip() or not str(c)]
+    if bad:
+        raise InputError(f"camera and class names cannot hold commas, line breaks or surrounding "
+                         f"spaces, got {bad[0][:40]!r}", file=file)
     buf = io.StringIO()
     cues = table.cues is not None
     box = table.box is not None
@@ -158,16 +171,14 @@ def format_views(table: ViewTable) -> str:
 def read_views(path: str | Path) -> ViewTable:
     """Read RUN/views.csv; errors name the file, line and what was expected."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("views file not found", file=path)
-    with open(path, encoding="utf-8") as f:
-        header = [h.strip() for h in f.readline().strip().split(",")]
-        if header not in (VIEW_COLUMNS, VIEW_COLUMNS + CUE_COLUMNS,
-                          VIEW_COLUMNS + CUE_COLUMNS + BOX_COLUMNS):
-            raise InputError(f"expected header {','.join(VIEW_COLUMNS)}[,{','.join(CUE_COLUMNS)}"
-                             f"[,{','.join(BOX_COLUMNS)}]], got {','.join(header)}", file=path,
-                             line=1)
-        lines = f.read().splitlines()
+    first, _, rest = read_text(path, "views file").partition("\n")
+    header = [h.strip() for h in first.strip().split(",")]
+    if header not in (VIEW_COLUMNS, VIEW_COLUMNS + CUE_COLUMNS,
+                      VIEW_COLUMNS + CUE_COLUMNS + BOX_COLUMNS):
+        raise InputError(f"expected header {','.join(VIEW_COLUMNS)}[,{','.join(CUE_COLUMNS)}"
+                         f"[,{','.join(BOX_COLUMNS)}]], got {','.join(header)[:200]}", file=path,
+                         line=1)
+    lines = rest.split("\n")
     rows = [ln.split(",") for ln in lines if ln.strip()]
     linenos = [i + 2 for i, ln in enumerate(lines) if ln.strip()]
     for r, ln in zip(rows, linenos):
@@ -176,12 +187,10 @@ def read_views(path: str | Path) -> ViewTable:
     if not rows:
         return ViewTable.empty()
     a = np.array(rows, dtype=object)
-    try:
-        ints = a[:, :2].astype(np.int64)
-    except ValueError:
-        bad = next(ln for r, ln in zip(rows, linenos) if not (r[0].strip().lstrip("-").isdigit()
-                                                            and r[1].strip().lstrip("-").isdigit()))
-        raise InputError("frame and track_id must be integers", file=path, line=bad) from None
+    for r, ln in zip(rows, linenos):  # int() would take "1_4", "\u0663" and 30 digits
+        if not (_INT.match(r[0].strip()) and _INT.match(r[1].strip())):
+            raise InputError(f"frame and track_id must be integers, got {r[:2]}", file=path, line=ln)
+    ints = a[:, :2].astype(np.int64)
     try:
         nums = a[:, 4:].astype(np.float64)
     except ValueError:
@@ -193,26 +202,14 @@ def read_views(path: str | Path) -> ViewTable:
                                  line=ln) from None
         raise
     cues = nums.shape[1] > 7
-    if cues:
-        bad = ~(np.isin(nums[:, 7:9], (0.0, 1.0)).all(axis=1) & (nums[:, 9] >= 0)
-                & ~(nums[:, 10] < 0))
-        if bad.any():
-            raise InputError("cut and far must be 0 or 1, spread_m and r90_m metres >= 0 (r90_m "
-                             "may be nan)", file=path, line=linenos[int(np.argmax(bad))])
     box = nums[:, 11:15] if nums.shape[1] > 11 else None
-    if box is not None:
-        # a box is all NaN (empty mask) or finite with x0 <= x1, y0 <= y1
-        nan = np.isnan(box).all(axis=1)
-        bad = ~nan & ~(np.isfinite(box).all(axis=1) & (box[:, 2] >= box[:, 0])
-                       & (box[:, 3] >= box[:, 1]))
-        if bad.any():
-            raise InputError("box_x0,box_y0,box_x1,box_y1 must be pixels with x0 <= x1 and "
-                             "y0 <= y1 (all nan for an empty mask)", file=path,
-                             line=linenos[int(np.argmax(bad))])
-    return ViewTable(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
-                     np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
-                     nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None,
-                     box)
+    t = ViewTable(ints[:, 0], ints[:, 1], np.char.strip(a[:, 2].astype(str)).astype(object),
+                  np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
+                  nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None, box)
+    VIEWS.check(view_columns(t), file=path, lines=linenos)
+    check_view_boxes(box, file=path, lines=linenos)
+    return t
+
 
 
 # ----------------------------------------------------------------------------------------------
@@ -224,13 +221,26 @@ def read_run_meta(path: str | Path) -> dict:
     meta_path = Path(path) / RUN_FILE
     if not meta_path.exists():
         raise InputError("no run.json here (is this a run folder made by `s2p run`?)", file=meta_path)
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=meta_path, line=e.lineno) from None
+    meta = load_json(meta_path, "run.json")
     if not isinstance(meta, dict):
         raise InputError("expected a JSON object", file=meta_path)
+    check_run_meta(meta, file=meta_path)
     return meta
+
+
+def check_run_meta(meta: dict, file=None) -> None:
+    """run.json's fields against ``io.schemas.RUN_META`` (its writer and its reader)."""
+    check(meta, RUN_META, file=file)
+    check_frame_range(meta, file=file)
+
+
+def run_meta_text(meta: dict, file=None) -> str:
+    """run.json's text: checked as its reader checks it, JSON without NaN."""
+    check_run_meta(meta, file=file)
+    try:
+        return json.dumps(meta, indent=1, allow_nan=False) + "\n"
+    except ValueError:
+        raise InputError("a value of run.json is not a finite number", file=file) from None
 
 
 def relative_path(target: str | Path, folder: str | Path) -> str:
@@ -293,17 +303,17 @@ def write_run_folder(run_dir: str | Path, poses: PoseTable, views: ViewTable | N
     for name in extra_files or {}:
         if Path(name).name != name or name in (POSES_FILE, VIEWS_FILE, RUN_FILE):
             raise ValueError(f"not an extra run file name: {name!r}")
+    texts = {POSES_FILE: format_poses(poses, file=run_dir / POSES_FILE),
+             RUN_FILE: run_meta_text(meta, file=run_dir / RUN_FILE)}
+    if views is not None:
+        texts[VIEWS_FILE] = format_views(views, file=run_dir / VIEWS_FILE)
     with output_lock(run_dir):
         check_run_writable(run_dir, force)
         tmp = temp_sibling_dir(run_dir)
         try:
             with os_errors(run_dir):
-                atomic_write_text(tmp / POSES_FILE, format_poses(poses))
-                if views is not None:
-                    atomic_write_text(tmp / VIEWS_FILE, format_views(views))
-                for name, text in (extra_files or {}).items():
+                for name, text in {**texts, **(extra_files or {})}.items():
                     atomic_write_text(tmp / name, text)
-                atomic_write_text(tmp / RUN_FILE, json.dumps(meta, indent=1) + "\n")
                 swap_in(tmp, run_dir)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)

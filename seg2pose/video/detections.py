@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import number
 from seg2pose.io.coco import coco_categories, read_coco
 from seg2pose.io.mots import MaskTable
+from seg2pose.io.schemas import DETECTION_SCORE
 from seg2pose.structures.masks import iou, merge_bicyclists, rle_stats
 
 COCO_NAMES = {1: "person", 2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
@@ -37,10 +37,11 @@ class DetectionConfig:
     lone_bicycles: bool = False   # keep bicycles without a rider (as bicyclists)
 
     def __post_init__(self) -> None:
-        # finite, in [0, 1]: --score nan was taken and dropped nothing (nan < nan is false)
-        self.score_min = number(self.score_min, field="--score", lo=0.0, hi=1.0)
-        self.nms_iou = number(self.nms_iou, field="--nms", lo=0.0, hi=1.0)
-        self.bicycle_overlap = number(self.bicycle_overlap, field="bicycle_overlap", lo=0.0, hi=1.0)
+        # the COCO file's score schema: --score nan was taken and dropped nothing (nan < nan is
+        # false); overlaps are IoUs in [0, 1]
+        self.score_min = DETECTION_SCORE.value(self.score_min, field="--score")
+        self.nms_iou = DETECTION_SCORE.value(self.nms_iou, field="--nms")
+        self.bicycle_overlap = DETECTION_SCORE.value(self.bicycle_overlap, field="bicycle_overlap")
 
 
 def category_map(names: dict[int, str], scene_classes: dict[str, int]) -> dict[int, int]:

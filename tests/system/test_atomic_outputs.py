@@ -183,7 +183,7 @@ def test_import_mcap_refuses_a_crafted_run_name(tmp_path):
     ([{"frame": 0, "rows": [GOOD_ROW, GOOD_ROW]}],
      r"the restored poses\.csv would be invalid \(row 2\): duplicate row"),
     ([{"frame": 0, "rows": [dict(GOOD_ROW, l=-4)]}],
-     r"the restored poses\.csv would be invalid \(row 1\): l, w, h must be sizes"),
+     r"the restored poses\.csv would be invalid \(row 1\): l, w, h must be finite metres in"),
 ])
 def test_import_mcap_malformed_rows_are_one_error(tmp_path, rows, match):
     from s2p_review.mcap_import import import_mcap

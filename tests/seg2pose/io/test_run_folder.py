@@ -99,7 +99,7 @@ def test_interrupted_write_keeps_the_old_run(tmp_path, monkeypatch):
     write_run_folder(d, poses(3), views(4), {"n": 1})
     before = {p.name: p.read_bytes() for p in d.iterdir()}
 
-    def boom(table):
+    def boom(table, **kw):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(R, "format_views", boom)

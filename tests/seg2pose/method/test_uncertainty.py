@@ -74,7 +74,7 @@ def test_pose_r90_column_round_trip_and_old_files(tmp_path):
     p.write_text(format_poses(PoseTable(t.frame, t.track_id, t.cls, t.xyz, t.heading, t.size)))
     assert read_poses(p).r90 is None
     p.write_text("frame,track_id,class,x,y,z,heading,r90_m\n0,1,car,1,2,0,0,-0.5\n")
-    with pytest.raises(InputError, match=r"poses.csv:2: field 'r90_m': r90_m must be a radius"):
+    with pytest.raises(InputError, match=r"poses.csv:2: r90_m must be finite metres in \[0, "):
         read_poses(p)
 
 
@@ -93,7 +93,7 @@ def test_view_cue_columns_round_trip_and_old_files(tmp_path):
     assert read_views(p).cues is None
     lines = format_views(v).splitlines()
     p.write_text("\n".join([lines[0], lines[1].replace(",1.0,0.0,0.3,", ",2.0,0.0,0.3,")]) + "\n")
-    with pytest.raises(InputError, match=r"views.csv:2: cut and far must be 0 or 1"):
+    with pytest.raises(InputError, match=r"views.csv:2: cut, far must be integers in \[0, 1\]"):
         read_views(p)
 
 
