@@ -27,7 +27,9 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from seg2pose.core.errors import S2PError
+from seg2pose.core.errors import InputError, S2PError
+from seg2pose.io import schemas as S
+from seg2pose.io.schema import ListOf, Name, Opt, Text, check
 
 SPAN_KINDS = ("occluded", "outside")
 FLAG_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
@@ -186,8 +188,50 @@ def _track(tracks: dict[int, Track], tid: int) -> Track:
         raise EditError(f"no track {tid}") from None
 
 
+def check_op(op) -> None:
+    """One journal operation against its schema (``io.schemas.JOURNAL_OPS``): the same check
+    when an edit is made (before it is journalled) and when the journal is replayed, so the
+    journal never holds a record its replay refuses (a frame of -5 or 1.5, x of 1e300, a size
+    of 0, an unknown span kind). Raises InputError (one line)."""
+    if not isinstance(op, dict) or op.get("op") not in S.JOURNAL_OPS:
+        raise InputError(f"expected an operation {' / '.join(S.JOURNAL_OPS)}, got {repr(op)[:60]}",
+                         field="op")
+    check(op, S.JOURNAL_OPS[op["op"]], field=op["op"])
+    if op["op"] == "put_track" and op["track"] is not None:
+        t = op["track"]
+        for i, r in enumerate(t.get("keyframes") or []):
+            S.keyframe_values(r, field=f"track.keyframes[{i}]")
+        for i, sp in enumerate(t.get("spans") or []):
+            S.check_span(sp, field=f"track.spans[{i}]")
+        _check_reviewed(t.get("reviewed") or [], "track.reviewed")
+    elif op["op"] == "set_keyframes":
+        for i, r in enumerate(op.get("set") or []):
+            S.keyframe_values(r, field=f"set[{i}]")
+    elif op["op"] == "set_fields":
+        for name, v in op["fields"].items():
+            if name in _FIELDS:
+                check(v, _FIELDS[name], field=f"fields.{name}")
+            if name == "spans":
+                for i, sp in enumerate(v):
+                    S.check_span(sp, field=f"fields.spans[{i}]")
+            elif name == "reviewed":
+                _check_reviewed(v, "fields.reviewed")
+
+
+def _check_reviewed(spans: list, field: str) -> None:
+    for i, (a, b) in enumerate(check(spans, ListOf(S.SPAN), field=field)):
+        if b < a:
+            raise InputError(f"span {a}..{b}: the last frame comes before the first", field=f"{field}[{i}]")
+
+
+_FIELDS = {"cls": Name("class name"), "size": S.BOX_SIZE,
+           "interp": Opt(Text(40)), "spans": list, "reviewed": list, "meta": dict}
+
+
 def apply_op(tracks: dict[int, Track], op: dict) -> dict:
-    """Apply one primitive operation to ``tracks`` (in place) and return its inverse."""
+    """Apply one primitive operation to ``tracks`` (in place) and return its inverse. The
+    operation is checked first (``check_op``): a bad one changes nothing."""
+    check_op(op)
     kind, tid = op["op"], int(op["id"])
     if kind == "put_track":
         old = tracks.get(tid)

@@ -258,7 +258,9 @@ def check(v, spec, *, file=None, field: str = "", line: int | None = None):
         return v
     if isinstance(spec, OneOf):
         if isinstance(v, bool) or v not in spec.values:
-            raise bad(f"expected one of {', '.join(map(str, spec.values))}, got {repr(v)[:40]}")
+            names = [str(x) for x in spec.values]
+            say = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+            raise bad(f"expected {say}, got {repr(v)[:40]}")
         return v
     if isinstance(spec, ListOf):
         if not isinstance(v, list) or len(v) > spec.max_len or (spec.n is not None and len(v) != spec.n):

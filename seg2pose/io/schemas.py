@@ -113,7 +113,8 @@ def check_frame_range(meta: dict, *, file=None) -> None:
 TRACK_ID = Num(1, MAX_ID - 1, integer=True)
 KEYFRAME_ROW = ListOf(Num(-MAX_COORD, MAX_COORD), max_len=5)  # [frame, x, y, heading, [flags]]
 SPAN = ListOf(FRAME, n=2)
-TRACK = Record({"id": TRACK_ID, "cls": Name("class name"), "size": ListOf(SIZE, n=3),
+BOX_SIZE = ListOf(Num(0, 1000, lo_open=True, unit="metres"), n=3)  # a track's l, w, h
+TRACK = Record({"id": TRACK_ID, "cls": Name("class name"), "size": BOX_SIZE,
                 "interp": Opt(Text(40)), "keyframes": Opt(list), "spans": Opt(list),
                 "reviewed": Opt(ListOf(SPAN)), "meta": Opt(dict)})
 JOURNAL_OPS = {

@@ -12,14 +12,13 @@ method where that leaves a conflict). Steps 2-4 (cutting, joining, ids) are
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from seg2pose.core.errors import InputError
-from seg2pose.core.validate import integer, number
+from seg2pose.io.schema import Num, read_settings
 
 _FAR = 2.0  # gate-normalised distances are clipped here for the track-level mean
 _KEY = 1e6  # frame * _KEY + x (metres): one sort key for "same frame, near in x"
@@ -41,23 +40,10 @@ class AssociateConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> AssociateConfig:
-        out = cls()
-        known = {f.name: f for f in fields(cls)}
-        for k, v in (d or {}).items():
-            if k not in known:
-                raise InputError(f"unknown setting {k!r}; known: {', '.join(sorted(known))}",
-                                 file=file, field=f"extra.associate.{k}")
-            kind = type(getattr(out, k))
-            if kind is bool:
-                if not isinstance(v, bool):
-                    raise InputError(f"expected true or false, got {v!r}", file=file,
-                                     field=f"extra.associate.{k}")
-            elif kind is int:  # the schema of scene.json's reader: a JSON integer, finite
-                v = integer(v, file=file, field=f"extra.associate.{k}", lo=0)
-            else:  # a finite number (--set gate_m=nan was taken, and gated nothing)
-                v = number(v, file=file, field=f"extra.associate.{k}", lo=0)
-            setattr(out, k, kind(v))
-        return out
+        """Settings from scene.json's ``extra.associate`` merged with ``--set``: numbers finite
+        and >= 0 (``--set gate_m=nan`` was taken and gated nothing), integers JSON integers,
+        track_weight in [0, 1] (``io.schema.read_settings``)."""
+        return read_settings(cls(), d, {"track_weight": Num(0, 1)}, file=file, section="associate")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -5,11 +5,11 @@ knob does, its default and why, and the one-line errors for a bad value in ``sce
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from seg2pose.core.errors import InputError
+from seg2pose.io.schema import Num, OneOf, read_settings
 
 
 @dataclass
@@ -53,50 +53,27 @@ class BgConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> BgConfig:
-        d = d or {}
-        names = {f.name: f.type for f in fields(cls)}
-        out = cls()
-        for k, v in d.items():
-            if k not in names:
-                raise InputError(f"unknown setting {k!r}; known: {', '.join(names)}", file=file,
-                                 field=f"extra.video_masks.{k}")
-            default = getattr(out, k)
-            ok = (isinstance(v, type(default)) or (isinstance(default, float) and isinstance(v, int))) \
-                and not (isinstance(v, bool) and not isinstance(default, bool))
-            if not ok or (isinstance(v, float) and not math.isfinite(v)):  # nan: every test fails
-                raise InputError(f"expected {'a finite ' if ok else ''}{type(default).__name__}, got {v!r}",
-                                 file=file, field=f"extra.video_masks.{k}")
-            setattr(out, k, type(default)(v))
+        """Settings from scene.json's ``extra.video_masks`` merged with ``--set``, each value
+        checked against ``BG_LIMITS`` (``io.schema.read_settings``: an unknown key, a value of
+        another type, nan or one out of range is one line naming the setting)."""
+        out = read_settings(cls(), d, BG_LIMITS, file=file, section="video_masks")
         out.validate(file)
         return out
 
     def validate(self, file: Path | None = None) -> None:
-        def bad(k, msg):
-            raise InputError(msg, file=file, field=f"extra.video_masks.{k}")
-        if self.method not in ("mog2", "knn"):
-            bad("method", f"expected mog2 or knn, got {self.method!r}")
-        if self.init not in ("mode", "median", "warmup", "none"):
-            bad("init", f"expected mode, median, warmup or none, got {self.init!r}")
-        if self.update not in ("selective", "all", "none"):
-            bad("update", f"expected selective, all or none, got {self.update!r}")
-        for k in ("history", "init_samples", "update_every"):
-            if getattr(self, k) < 1:
-                bad(k, "must be >= 1")
-        for k in ("open_px", "close_px", "min_area", "init_frames", "ghost_after"):
-            if getattr(self, k) < 0:
-                bad(k, "must be >= 0")
-        if not 0 <= self.shadow_texture <= 1:
-            bad("shadow_texture", "must be in [0, 1]")
-        if not self.ghost_ratio > 1:
-            bad("ghost_ratio", "must be > 1")
-        if not self.threshold > 0:
-            bad("threshold", "must be > 0")
+        """The rules a range cannot say (on top of ``BG_LIMITS``)."""
         if not (self.learning_rate == -1 or 0 <= self.learning_rate <= 1):
-            bad("learning_rate", "must be in [0, 1], or -1 for 1/history")
-        if not 0 < self.unsettled <= 1:
-            bad("unsettled", "must be in (0, 1]")
-        if not 0 <= self.exposure_band < 1:
-            bad("exposure_band", "must be in [0, 1)")
+            raise InputError("must be in [0, 1], or -1 for 1/history", file=file,
+                             field="extra.video_masks.learning_rate")
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+BG_LIMITS = {"method": OneOf(("mog2", "knn")), "init": OneOf(("mode", "median", "warmup", "none")),
+             "update": OneOf(("selective", "all", "none")),
+             **{k: Num(1) for k in ("history", "init_samples", "update_every")},
+             **{k: Num(0) for k in ("open_px", "close_px", "min_area", "init_frames", "ghost_after")},
+             "shadow_texture": Num(0, 1), "ghost_ratio": Num(1, lo_open=True),
+             "threshold": Num(0, lo_open=True), "learning_rate": Num(-1, 1),
+             "unsettled": Num(0, 1, lo_open=True), "exposure_band": Num(0, 0.999)}

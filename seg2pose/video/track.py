@@ -31,10 +31,10 @@ from pycocotools import mask as mask_util
 from scipy.optimize import linear_sum_assignment
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import number
 from seg2pose.geometry.camera import Camera
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.mots import MaskTable, iter_mots, write_mots
+from seg2pose.io.schema import Num, read_settings
 from seg2pose.video.track_split import BlobSplitting
 
 _BLOCK = 256          # frames whose normal positions are computed together
@@ -65,16 +65,11 @@ class TrackConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, file: Path | None = None) -> TrackConfig:
-        out = cls()
-        known = {f.name for f in fields(cls)}
-        for k, v in (d or {}).items():
-            if k not in known:
-                raise InputError(f"unknown setting {k!r}; known: {', '.join(sorted(known))}",
-                                 file=file, field=f"extra.tracker.{k}")
-            # finite and >= 0, as scene.json's reader takes numbers (nan was taken before)
-            number(v, file=file, field=f"extra.tracker.{k}", lo=0)
-            setattr(out, k, type(getattr(out, k))(v))
-        return out
+        """Settings from scene.json's ``extra.tracker`` merged with ``--set``: numbers finite and
+        >= 0 (nan was taken before), integers JSON integers (max_gap=2.5 was cut to 2), shares
+        in [0, 1] (``io.schema.read_settings``)."""
+        return read_settings(cls(), d, {k: Num(0, 1) for k in ("iou_min", "split_min", "join_near")},
+                             file=file, section="tracker")
 
     def to_dict(self) -> dict:
         return asdict(self)

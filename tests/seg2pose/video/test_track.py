@@ -110,7 +110,7 @@ def test_frames_must_increase_and_config_is_checked():
     assert tr.final_ids(np.array([0, -1])).tolist() == [-1, -1]    # shorter than min_length
     with pytest.raises(InputError, match="extra.tracker.speed"):
         TrackConfig.from_dict({"speed": 3})
-    with pytest.raises(InputError, match="expected a number >= 0"):
+    with pytest.raises(InputError, match="expected an integer >= 0"):
         TrackConfig.from_dict({"max_gap": -1})
 
 

@@ -127,9 +127,9 @@ def test_config_from_scene_is_validated(tmp_path):
         BgConfig.from_dict({"speed": 1})
     with pytest.raises(InputError, match=r"extra.video_masks.method'.*mog2 or knn"):
         BgConfig.from_dict({"method": "magic"})
-    with pytest.raises(InputError, match=r"extra.video_masks.min_area'.*expected int"):
+    with pytest.raises(InputError, match=r"extra.video_masks.min_area'.*expected an integer"):
         BgConfig.from_dict({"min_area": "x"})
-    with pytest.raises(InputError, match=r"extra.video_masks.exposure_band'.*must be in \[0, 1\)"):
+    with pytest.raises(InputError, match=r"extra.video_masks.exposure_band'.*expected a finite number in \[0, 0.999\]"):
         BgConfig.from_dict({"exposure_band": 1.5})
 
 
