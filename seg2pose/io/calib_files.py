@@ -27,8 +27,11 @@ import numpy as np
 
 from seg2pose.core.errors import InputError
 from seg2pose.core.validate import MAX_COORD, MAX_PIXEL_COORD, safe_name
+from seg2pose.geometry.camera import Camera
 from seg2pose.io.atomic import atomic_write_bytes, atomic_write_text, outputs
-from seg2pose.io.text import read_text
+from seg2pose.io.schema import check
+from seg2pose.io.schemas import CALIB_FILE
+from seg2pose.io.text import load_json, read_text
 
 WORLD_FILE_EXTS = (".pgw", ".jgw", ".tfw", ".wld", ".pngw", ".jpgw")
 
@@ -190,10 +193,70 @@ def output_names(out: Path, cameras: list[str]) -> dict[str, Path]:
     return names
 
 
-def calib_json(cameras: list[dict], report: dict) -> str:
+def calib_json(cameras: list[dict], report: dict, file: str | Path | None = None) -> str:
     """calib.json's text: ``{"cameras": [...], "report": {...}}`` (what ``s2p new-scene``
-    reads: the cameras; the report rides along)."""
-    return json.dumps({"cameras": cameras, "report": report}, indent=1, allow_nan=False) + "\n"
+    reads: the cameras; the report rides along). The cameras are read back as
+    ``read_calib_json`` reads them (a degenerate solve's NaN, a bad name: one line naming
+    ``file``, nothing written); the report's non-finite numbers are written as null
+    (unknown: JSON has no NaN)."""
+    d = {"cameras": cameras, "report": _finite_or_null(report)}
+    calib_cameras(d, file=file)
+    return json.dumps(d, indent=1, allow_nan=False) + "\n"
+
+
+def _finite_or_null(v):
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _finite_or_null(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite_or_null(x) for x in v]
+    if isinstance(v, np.generic):
+        return _finite_or_null(v.item())
+    return v
+
+
+def calib_cameras(d, file: str | Path | None = None, sizes: dict[str, tuple[int, int]] | None = None
+                  ) -> dict[str, Camera]:
+    """The cameras of calib.json's object ``d`` (``io.schemas.CALIB_FILE``: ``{"cameras":
+    [...]}`` or one camera object), each as scene.json holds a camera (``Camera.from_dict``),
+    names unique. ``sizes``: camera name -> (width, height) for cameras without an image size
+    (a video's); a camera without one and without a video of its name is left out."""
+    sizes = sizes or {}
+    items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
+    if not isinstance(items, list) or not items:
+        raise InputError("expected {\"cameras\": [...]} or one camera object", file=file)
+    if isinstance(d, dict) and "cameras" in d:
+        check(d, CALIB_FILE, file=file)
+    cams: dict[str, Camera] = {}
+    for i, c in enumerate(items):
+        if not isinstance(c, dict):
+            raise InputError("expected an object", file=file, field=f"cameras[{i}]")
+        c = dict(c)
+        if "name" not in c and len(items) == 1 and len(sizes) == 1:
+            c["name"] = next(iter(sizes))
+        if ("width" not in c or "height" not in c) and sizes:
+            if str(c.get("name")) not in sizes:  # no video of that name to take the size from
+                continue
+            c["width"], c["height"] = sizes[str(c.get("name"))]
+        cam = Camera.from_dict(c, file=file, where=f"cameras[{i}]")
+        if cam.name in cams:
+            raise InputError(f"duplicate camera name {cam.name!r}", file=file, field=f"cameras[{i}].name")
+        cams[cam.name] = cam
+    return cams
+
+
+def read_calib_json(path: str | Path, sizes: dict[str, tuple[int, int]] | None = None
+                    ) -> tuple[dict[str, Camera], list[str]]:
+    """The cameras of a calib.json file (``calib_cameras``) and the names of those left out for
+    want of an image size."""
+    path = Path(path)
+    d = load_json(path, "calibration file")
+    cams = calib_cameras(d, file=path, sizes=sizes)
+    items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
+    unsized = [str(c.get("name")) for c in items if isinstance(c, dict)
+               and str(c.get("name")) not in cams and ("width" not in c or "height" not in c)]
+    return cams, unsized
 
 
 def write_calibration(out: str | Path, cameras: list[dict], report: dict, report_text: str,
@@ -204,8 +267,9 @@ def write_calibration(out: str | Path, cameras: list[dict], report: dict, report
     from seg2pose.io.scene import write_ground_points
 
     names = output_names(Path(out), list(pictures))
+    text = calib_json(cameras, report, file=names["calib"])
     with outputs(list(names.values()), force) as files:
-        atomic_write_text(files.file(names["calib"]), calib_json(cameras, report))
+        atomic_write_text(files.file(names["calib"]), text)
         write_ground_points(files.file(names["ground"]), ground)
         atomic_write_text(files.file(names["report"]), report_text)
         for c, png in pictures.items():

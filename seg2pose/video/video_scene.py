@@ -16,10 +16,11 @@ import numpy as np
 from seg2pose.core.errors import InputError
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.io.atomic import outputs
+from seg2pose.io.calib_files import read_calib_json
 from seg2pose.io.mots import write_mots
 from seg2pose.io.nofollow import fdopen_nofollow
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
-from seg2pose.io.text import load_json, read_text
+from seg2pose.io.text import read_text
 from seg2pose.io.track_ids import ids_path, stage_ids
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
 from seg2pose.io.video_decode import video_index
@@ -206,25 +207,7 @@ def read_calibration(path: str | Path, sizes: dict[str, tuple[int, int]]) -> dic
     -> (width, height) of its video)."""
     path = Path(path)
     if path.suffix.lower() == ".json":
-        d = load_json(path, "calibration file")
-        items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
-        if not isinstance(items, list) or not items:
-            raise InputError("expected {\"cameras\": [...]} or one camera object", file=path)
-        cams, unsized = {}, []
-        for i, c in enumerate(items):
-            if not isinstance(c, dict):
-                raise InputError("expected an object", file=path, field=f"cameras[{i}]")
-            c = dict(c)
-            if "name" not in c and len(items) == 1 and len(sizes) == 1:
-                c["name"] = next(iter(sizes))
-            name = str(c.get("name"))
-            if "width" not in c or "height" not in c:
-                if name not in sizes:  # no video of that name to take the size from
-                    unsized.append(name)
-                    continue
-                c["width"], c["height"] = sizes[name]
-            cam = Camera.from_dict(c, file=path, where=f"cameras[{i}]")
-            cams[cam.name] = cam
+        cams, unsized = read_calib_json(path, sizes)
         missing = [v for v in sizes if v not in cams]
         if missing and unsized:  # "missing field 'width'" said nothing of the names
             raise InputError(f"no camera named {missing[0]!r} (the video's name) in the calibration; "
