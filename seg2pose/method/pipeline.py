@@ -415,8 +415,9 @@ def scene_last_frame(scene: Scene, cams: list[str]) -> tuple[int, str]:
                 last.append((r.first + r.step * (n - 1), f"camera {c}'s video"))
     if last:
         return max(last)
-    start = scene.start_time_ns or 0
-    return int((2**63 - 1 - start) / 1e9 * scene.fps) - 1, "the times a recording can hold"
+    from seg2pose.io.schemas import frame_limit
+
+    return frame_limit(scene.fps, scene.start_time_ns), "the times a recording can hold"
 
 
 def check_frames(scene: Scene, cams: list[str], frames: np.ndarray) -> None:
