@@ -180,11 +180,12 @@ def trail_overrides(tracks, trail: int, fps: float | None) -> dict:
 def world_defaults() -> list:
     """The 3D view's component defaults: road users' boxes solid without labels (class names
     come from the annotation context; the baseline's wireframe is in its rows) and trails
-    4 cm wide, so that no road user's chunk carries them row by row."""
+    4 cm wide without labels (their class names would cover the scene), so that no road
+    user's chunk carries them row by row."""
     import rerun as rr
 
     return [rr.Boxes3D.from_fields(fill_mode=rr.components.FillMode.Solid, show_labels=False),
-            rr.LineStrips3D.from_fields(radii=0.04)]
+            rr.LineStrips3D.from_fields(radii=0.04, show_labels=False)]
 
 
 def blueprint(cameras: list[str], runs: list[str], with_metrics: bool = True, eye=None,

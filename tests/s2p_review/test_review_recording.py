@@ -264,8 +264,9 @@ def test_runs_tell_apart_and_labels_are_not_drawn(tiny):
     for ch in reader.stream(store=reader.blueprints()[0]):
         if ch.entity_path.endswith("/defaults"):
             b = ch.to_record_batch()
-            defaults |= {n: b.column(n).to_pylist()[0] for n in b.schema.names if n.startswith("Boxes3D:")}
-    assert defaults["Boxes3D:show_labels"] == [False]
+            defaults |= {n: b.column(n).to_pylist()[0] for n in b.schema.names if ":" in n}
+    # neither boxes nor trails draw their class names over the scene
+    assert defaults["Boxes3D:show_labels"] == defaults["LineStrips3D:show_labels"] == [False]
     solid, wire = rr.components.FillMode.Solid.value, rr.components.FillMode.MajorWireframe.value
     assert defaults["Boxes3D:fill_mode"] == [solid] and fills["run-s2pn"] is None  # the default
     assert {tuple(v) for v in fills["run-base"]} == {(wire,)}  # the baseline's, in its rows
