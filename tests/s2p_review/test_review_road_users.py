@@ -218,6 +218,18 @@ def test_error_disc_and_r90_series_are_the_road_users_own(tiny):
     assert not [p for p in chunks if p.startswith("/world/road_users/with-r90/") and p.endswith("r90")]
 
 
+def test_the_annotation_app_ranges_the_trails_of_its_runs_road_users(tiny):
+    """The app's blueprint names every trail of the run it shows (run_tracks: the poses' track
+    ids with a position), as s2p review's does."""
+    from s2p_review.annotation_log import run_tracks
+
+    _, base, _, _ = tiny
+    assert run_tracks(base) == sorted(TRACKS)
+    overrides = L.trail_overrides({"run-base": run_tracks(base)}, L.TRAIL_FRAMES, FPS)
+    assert set(overrides) == {f"world/road_users/run-base/{tid}/trail" for tid in TRACKS}
+    assert L.trail_path("tri T", 7) == "world/road_users/tri\\ T/7/trail"
+
+
 def test_shown_frames_empty_the_road_user_after_each_stretch():
     frames, lengths = RU.shown_frames(np.array([2, 3, 4, 7, 8]), last=9)
     assert frames.tolist() == [2, 3, 4, 5, 7, 8, 9] and lengths.tolist() == [1, 1, 1, 0, 1, 1, 0]
