@@ -1,5 +1,5 @@
 """Small hand-made files for the reader and writer tests (seg2pose/io) and their fuzzing
-(tests/system/test_fuzz.py): a 24 x 32 mask table, a two-camera scene, a text-file writer."""
+(tests/system/test_fuzz_*.py): a 24 x 32 mask table, a two-camera scene, a text-file writer."""
 
 from __future__ import annotations
 

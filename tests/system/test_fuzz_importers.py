@@ -1,6 +1,6 @@
-"""Structured fuzzing of the importers added after tests/system/test_fuzz.py's readers (issue
-24): COCO detections, T-Analyst ``.tacal`` calibrations, T-Analyst tracks CSV, videos, calibration files
-of ``new-scene``, UTOCS. Near-valid inputs (one field mutated, truncated, swapped or absurd)
+"""Structured fuzzing of the importers (issue 24; the readers themselves in test_fuzz_scene,
+_masks, _poses and _mcap): COCO detections, T-Analyst ``.tacal`` calibrations, T-Analyst tracks
+CSV, videos, calibration files of ``new-scene``, UTOCS. Near-valid inputs (one field mutated, truncated, swapped or absurd)
 end in the project's one-line error or are imported; valid inputs import exactly; and the
 property every importer keeps: what it wrote is accepted by the commands that read it (the
 scene by ``s2p info`` and ``s2p run --baseline``, masks by ``run``, annotations by reopening
@@ -14,31 +14,13 @@ import json
 import warnings
 
 import numpy as np
+from fuzz_fixtures import FUZZ, folder, importing, mutate_json, mutate_text
 from hostile_fixtures import write_scene, write_utocs
 from hypothesis import given
 from hypothesis import strategies as st
-from test_fuzz import FUZZ, folder, mutate_json, mutate_text
 from video_fixtures import calibration, det, write_folder, write_video
 
-from seg2pose.core.errors import S2PError
-
 SMALL = 2048 * 2048  # pixels: larger accepted cameras get `info` only (a mask would be huge)
-
-
-def one_line(e: S2PError) -> None:
-    assert "\n" not in str(e) and str(e), repr(e)
-
-
-def importing(fn):
-    """fn() under the importer's rules: its result, or None after the project's own one-line
-    error; a numpy warning (overflow, invalid value) is a failure, as any other exception."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", RuntimeWarning)
-        try:
-            return fn()
-        except S2PError as e:
-            one_line(e)
-            return None
 
 
 def scene_is_usable(root, run_dir) -> None:
