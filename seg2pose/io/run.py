@@ -45,7 +45,7 @@ from seg2pose.core.errors import InputError, S2PError
 from seg2pose.io.atomic import atomic_write_text, os_errors, output_lock, swap_in, temp_sibling_dir
 from seg2pose.io.poses import PoseTable, format_poses, read_poses
 from seg2pose.io.schema import check
-from seg2pose.io.schemas import RUN_META, VIEWS, check_frame_range, check_view_boxes, view_columns
+from seg2pose.io.schemas import RUN_META, VIEWS, check_frame_range, check_view_boxes, check_view_names, view_columns
 from seg2pose.io.text import load_json, read_text
 
 _INT = re.compile(r"^[+-]?[0-9]{1,18}$")  # int64 without overflow (the range is VIEWS')
@@ -150,11 +150,7 @@ def format_views(table: ViewTable, file: str | Path | None = None) -> str:
     What ``read_views`` would refuse (``io.schemas.VIEWS``) is refused first."""
     VIEWS.check(view_columns(table), file=file)
     check_view_boxes(table.box, file=file)
-    bad = [str(c) for c in np.concatenate([table.camera, table.cls]).tolist() if "," in str(c)
-           or "\n" in str(c) or str(c) != str(c).strip() or not str(c)]
-    if bad:
-        raise InputError(f"camera and class names cannot hold commas, line breaks or surrounding "
-                         f"spaces, got {bad[0][:40]!r}", file=file)
+    check_view_names(table.camera, table.cls, file=file)
     buf = io.StringIO()
     cues = table.cues is not None
     box = table.box is not None
@@ -207,6 +203,7 @@ def read_views(path: str | Path) -> ViewTable:
                   np.char.strip(a[:, 3].astype(str)).astype(object), nums[:, 0:2], nums[:, 2:5],
                   nums[:, 5:7], nums[:, 7:10] if cues else None, nums[:, 10] if cues else None, box)
     VIEWS.check(view_columns(t), file=path, lines=linenos)
+    check_view_names(t.camera, t.cls, file=path, lines=linenos)
     check_view_boxes(box, file=path, lines=linenos)
     return t
 
@@ -232,15 +229,16 @@ def check_run_meta(meta: dict, file=None) -> None:
     """run.json's fields against ``io.schemas.RUN_META`` (its writer and its reader)."""
     check(meta, RUN_META, file=file)
     check_frame_range(meta, file=file)
+    try:  # Python's json reads NaN and Infinity, which JSON does not have
+        json.dumps(meta, allow_nan=False)
+    except ValueError:
+        raise InputError("a value of run.json is not a finite number", file=file) from None
 
 
 def run_meta_text(meta: dict, file=None) -> str:
     """run.json's text: checked as its reader checks it, JSON without NaN."""
     check_run_meta(meta, file=file)
-    try:
-        return json.dumps(meta, indent=1, allow_nan=False) + "\n"
-    except ValueError:
-        raise InputError("a value of run.json is not a finite number", file=file) from None
+    return json.dumps(meta, indent=1, allow_nan=False) + "\n"
 
 
 def relative_path(target: str | Path, folder: str | Path) -> str:

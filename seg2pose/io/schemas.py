@@ -74,6 +74,19 @@ def mask_columns(t) -> dict:
             "score": None if t.score is None else t.score[order]}
 
 
+def check_view_names(camera, cls, *, file=None, lines=None) -> None:
+    """views.csv's camera (non-empty) and class (empty: none yet) names: no commas or line
+    breaks (the file is split on them) and no surrounding spaces (the reader strips them)."""
+    for col, names, empty_ok in (("camera", camera, False), ("class", cls, True)):
+        for i, c in enumerate(np.asarray(names, object).tolist()):
+            c = str(c)
+            if ("," in c or "\n" in c or "\r" in c or c != c.strip()) or (not c and not empty_ok):
+                raise InputError(f"{col} must be a name without commas, line breaks or surrounding "
+                                 f"spaces{'' if empty_ok else ' (not empty)'}, got {c[:40]!r}", file=file,
+                                 line=None if lines is None else int(lines[i]),
+                                 field=col if lines is not None else f"row {i + 1} {col}")
+
+
 def check_view_boxes(box: np.ndarray | None, *, file=None, lines=None) -> None:
     """A view's mask box is all NaN (an empty mask) or finite with x0 <= x1 and y0 <= y1."""
     if box is None or not len(box):

@@ -216,3 +216,34 @@ def test_fuzz_png(tmp_path, data):
         read_png_folder(tmp_path / "png")
     except S2PError:
         pass
+
+
+# --- s2p convert-masks: near-valid input in any format, output read by its format's reader ----
+
+@FUZZ
+@given(st.data(), st.sampled_from(["mots", "coco"]), st.sampled_from(["mots", "coco", "png"]))
+def test_convert_masks_near_valid(data, src_fmt, out_fmt):
+    """``s2p convert-masks``: a damaged input is refused in one line with nothing written; an
+    accepted one is written in a form its format's reader accepts, exactly for MOTS and COCO
+    (a PNG holds one id per pixel: overlapping masks lose the covered pixels)."""
+    from seg2pose.cli.scene import convert_masks_cmd
+
+    with folder() as d:
+        t = _valid_masks(d)
+        src = d / ("in.txt" if src_fmt == "mots" else "in.json")
+        (write_mots if src_fmt == "mots" else write_coco)(src, t)
+        if src_fmt == "mots":
+            src.write_text(mutate_text(data, src.read_text(), None))
+        else:
+            src.write_text(mutate_json(data, json.loads(src.read_text())))
+        out = d / {"mots": "out.txt", "coco": "out.json", "png": "out"}[out_fmt]
+        got = only_s2p_errors(lambda: convert_masks_cmd(src, out, out_fmt, src_fmt, False))
+        if not out.exists():
+            return  # refused (or nothing to hold: an empty PNG folder is not made)
+        assert got is None
+        table = read_mots(src) if src_fmt == "mots" else read_coco(src)
+        back = {"mots": read_mots, "coco": read_coco, "png": read_png_folder}[out_fmt](out)
+        if out_fmt != "png":
+            same_masks(back, table)
+        else:
+            assert set(back.frame.tolist()) <= set(table.frame.tolist())

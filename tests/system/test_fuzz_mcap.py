@@ -6,6 +6,7 @@ run folder's run.json, poses.csv and views.csv)."""
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 
 from fuzz_fixtures import FUZZ, finite, folder, mutate_json, only_s2p_errors
@@ -30,6 +31,7 @@ def test_mcap_import_round_trip(rows):
         f = write_s2p_mcap(d / "x.mcap", {"version": 1}, "ground_points.csv", msgs)
         run = import_mcap(f, d / "out")
         t = read_poses(run / "poses.csv")
+        restored_is_readable(run)
         assert t.frame.tolist() == sorted(r[0] for r in rows)
         assert t.xyz[:, :2].tolist() == [[x, y] for _, x, y in sorted(rows)]
 
@@ -57,8 +59,21 @@ def test_mcap_import_near_valid(data):
         run = only_s2p_errors(lambda: import_mcap(f, d / "out" / "scene"))
         # nothing is ever written outside the output folder
         assert sorted(p.name for p in d.iterdir()) in (["x.mcap"], ["out", "x.mcap"])
-        if run is not None:
-            read_poses(run / "poses.csv")
+        if run is not None:  # what it restored, every reader accepts
+            restored_is_readable(run)
+
+
+def restored_is_readable(run) -> None:
+    """The restored scene as ``s2p info`` reads it, and its run folder (run.json, poses.csv,
+    views.csv) as review, eval and export read it."""
+    from seg2pose.cli.scene import info
+    from seg2pose.io.run import read_run
+    from seg2pose.io.scene import load_scene
+
+    scene = load_scene(run.parent.parent)
+    with contextlib.redirect_stdout(io.StringIO()):
+        info(scene.root)
+    read_run(run, known_classes=None)
 
 
 @FUZZ

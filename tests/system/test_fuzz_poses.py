@@ -90,3 +90,68 @@ def test_valid_poses_parse_exactly(tmp_path, rows, with_size, sep):
         np.testing.assert_array_equal(got.size, np.tile([4.5, 1.8, 1.5], (len(rows), 1)))
     else:
         assert got.size is None
+
+
+# --- views.csv and run.json: the run writer's schema is its reader's -----------------------------
+
+def _views_text() -> str:
+    from seg2pose.io.run import ViewTable, format_views
+
+    v = ViewTable([0, 0, 1], [1, 2, 1], ["c0", "c1", "c0"], ["car", "pedestrian", "car"],
+                  [[10.5, 20.25], [3, 4], [11, 21]], [[1, 2, 0], [np.nan] * 3, [1.5, 2, 0]],
+                  [[0.1, -0.2], [0, 0], [0, 0]], [[1, 0, 0.3], [0, 1, 0], [0, 0, 0]],
+                  [1.25, np.nan, 0.5], [[0, 0, 4, 8], [np.nan] * 4, [1, 1, 5, 9]])
+    return format_views(v)
+
+
+def _same_views(a, b) -> None:
+    for col in ("frame", "track_id", "camera", "cls", "uv", "normal", "residual", "cues", "r90", "box"):
+        np.testing.assert_array_equal(getattr(a, col), getattr(b, col))
+
+
+@FUZZ_FILES
+@given(st.data())
+def test_views_near_valid_round_trip(tmp_path, data):
+    """A damaged views.csv is refused in one line, or read and written back exactly by the run
+    folder's writer (which refuses what the reader refuses: one schema)."""
+    from seg2pose.io.run import read_views, write_run_folder
+
+    p = tmp_path / "views.csv"
+    p.write_text(mutate_text(data, _views_text(), ","))
+    v = only_s2p_errors(lambda: read_views(p))
+    if v is not None:
+        run = tmp_path / "run"
+        write_run_folder(run, PoseTable.empty(), v, {}, force=True)
+        _same_views(read_views(run / "views.csv"), v)
+
+
+@FUZZ_FILES
+@given(text_like())
+def test_fuzz_views(tmp_path, data):
+    from seg2pose.io.run import read_views
+
+    head = b"frame,track_id,camera,class,u,v,xn,yn,zn,dx,dy\n"
+    for blob in (data, head + data):
+        fuzz_file(tmp_path, "views.csv", blob, read_views)
+
+
+RUN_META = {"scene": "../..", "scene_fingerprint": "abc", "config": "mono-1", "cameras": ["c0"],
+            "method": "baseline", "smooth_frames": 3, "models": {}, "split": "test",
+            "frame_range": [0, 9], "created": "2026-01-01T00:00:00Z", "n_frames": 10,
+            "n_views": 4, "n_poses": 2}
+
+
+@FUZZ_FILES
+@given(st.data())
+def test_run_json_near_valid_round_trip(tmp_path, data):
+    """run.json with one field mutated: refused in one line, or read and written back equal."""
+    from fuzz_fixtures import mutate_json
+
+    from seg2pose.io.run import read_run_meta, write_run_folder
+
+    (tmp_path / "r").mkdir(exist_ok=True)
+    (tmp_path / "r" / "run.json").write_text(mutate_json(data, RUN_META))
+    meta = only_s2p_errors(lambda: read_run_meta(tmp_path / "r"))
+    if meta is not None:
+        write_run_folder(tmp_path / "w", PoseTable.empty(), None, meta, force=True)
+        assert read_run_meta(tmp_path / "w") == meta

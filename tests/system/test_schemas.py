@@ -67,7 +67,7 @@ def views(**kw) -> ViewTable:
 
 @pytest.mark.parametrize("kw,what", [({"uv": [[math.inf, 0.0]]}, "u, v"),
                                     ({"frame": [-1]}, "frame"),
-                                    ({"camera": ["c,0"]}, "commas"),
+                                    ({"camera": ["c,0"]}, "commas"), ({"camera": [""]}, "not empty"),
                                     ({"normal": [[1e300, 0.0, 0.0]]}, "xn, yn, zn")])
 def test_views_writer_refuses_what_read_views_refuses(tmp_path, kw, what):
     with pytest.raises(InputError) as e:
