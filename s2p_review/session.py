@@ -16,6 +16,7 @@ from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
 from seg2pose.core.errors import S2PError
 from seg2pose.io.atomic import atomic_path, check_writable, clean_stale_partials, holding
+from seg2pose.io.disk import disk_full, write_failed
 from seg2pose.io.scene import Scene
 
 
@@ -165,8 +166,13 @@ def _record(scene: Scene, runs: list[Path], to: Targets, options: RecordOptions 
 
         if rrd is not None:
             with atomic_path(rrd) as tmp:
-                stats = log(rr.FileSink(tmp))
-                rec.disconnect()  # closes the file before it is renamed
+                try:
+                    stats = log(rr.FileSink(tmp))
+                    rec.disconnect()  # closes the file before it is renamed
+                except RuntimeError as e:  # Rerun's file writer stopped (it says no more)
+                    raise write_failed(rrd, f"Rerun's file writer stopped ({e})") from e
+                if disk_full(tmp):  # what the writer could not write it dropped
+                    raise write_failed(rrd, "the disk is full")
         else:
             stats = log()
         for client in live:

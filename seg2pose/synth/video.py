@@ -17,9 +17,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seg2pose.core.errors import S2PError
 from seg2pose.geometry.camera import Camera
 from seg2pose.io.atomic import atomic_path
+from seg2pose.io.disk import disk_full, write_failed
 from seg2pose.synth import junction as J
 from seg2pose.synth.look import (
     AMBIENT,
@@ -203,17 +203,26 @@ def write_video(path: Path, camera: Camera, cam_index: int, world: World, seed: 
         track_cls = np.zeros(int(world.track.max(initial=0)), np.int8)  # each track's class
         track_cls[world.track - 1] = world.cls
         textures = draw_textures(track_cls, seed)
-    with atomic_path(path) as tmp:  # .NAME.partial-PID-x.mp4, renamed when complete
-        wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),  # type: ignore[attr-defined]  # in cv2, not in its stubs
-                             (camera.width, camera.height))
-        if not wr.isOpened():
-            raise S2PError(f"cannot write {path}: OpenCV cannot open an mp4v video there (the disk is "
-                           "full, or this OpenCV has no mp4v encoder)")
-        try:
-            for f in (frames if frames is not None else range(world.n_frames)):
-                img = render_frame(camera, world, f, bg, float(sun[f]), textures)
-                k = int(rng.integers(len(bank)))
-                img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
-                wr.write(img)
-        finally:
-            wr.release()
+    level = cv2.utils.logging.getLogLevel()
+    # a frame that does not fit is a warning on stderr per frame from OpenCV's writer (no
+    # error returned): quiet, and judged by the room left once the video is closed
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        with atomic_path(path) as tmp:  # .NAME.partial-PID-x.mp4, renamed when complete
+            wr = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),  # type: ignore[attr-defined]  # in cv2, not in its stubs
+                                 (camera.width, camera.height))
+            if not wr.isOpened():
+                raise write_failed(path, "OpenCV cannot open an mp4v video there (this OpenCV has no mp4v "
+                                   "encoder?)")
+            try:
+                for f in (frames if frames is not None else range(world.n_frames)):
+                    img = render_frame(camera, world, f, bg, float(sun[f]), textures)
+                    k = int(rng.integers(len(bank)))
+                    img = cv2.subtract(cv2.add(img, pos[k]), neg[k])
+                    wr.write(img)
+            finally:
+                wr.release()
+            if disk_full(tmp):  # its last frames did not fit: never swapped in cut short
+                raise write_failed(path, "the disk is full")
+    finally:
+        cv2.utils.logging.setLogLevel(level)
