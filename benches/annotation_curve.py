@@ -224,6 +224,8 @@ def main() -> None:
     ap.add_argument("--min-mask-iou", type=float, default=FineTuneOptions.min_mask_iou,
                     help="annotated masks whose box IoU with the truth's projected box is lower are not trained on")
     ap.add_argument("--folds", type=int, default=FineTuneOptions.folds)
+    ap.add_argument("--baseline-min-users", type=int, default=FineTuneOptions.baseline_min_users,
+                    help="a class takes the baseline only from this many annotated road users")
     ap.add_argument("--tag", default="", help="suffix of the rows' names (variants)")
     a = ap.parse_args()
     truth_scene = load_scene(a.scene)
@@ -272,11 +274,13 @@ def main() -> None:
                                       FineTuneOptions(epochs=a.epochs, threads=a.threads, progress=False,
                                                       min_held_out_users=a.min_held_out,
                                                       choose=not a.no_choose, folds=a.folds,
+                                                      baseline_min_users=a.baseline_min_users,
                                                       min_mask_iou=a.min_mask_iou),
                                       cameras=[CAM])
                 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
                 emit({"row": name, "start": start, "chooser": chooser, "k": k, **counts,
                       "min_held_out": a.min_held_out, "choose": not a.no_choose, "folds": a.folds,
+                      "baseline_min_users": a.baseline_min_users,
                       "min_mask_iou": a.min_mask_iou,
                       "fine_tune_cpu_s": round(cpu), "fine_tune_wall_s": round(wall),
                       "lines": res.lines, **score(truth_scene, run(work, out / "runs" / name, models),

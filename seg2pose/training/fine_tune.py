@@ -88,6 +88,7 @@ class FineTuneOptions:
     # the early stopping above
     choose: bool = True
     folds: int = 3
+    baseline_min_users: int = 2  # a class takes the baseline only from this many road users
     # annotated masks whose box IoU with their road user's projected 3D box is below this
     # (merged, cut: fine_tune_data.truth_box_iou) are not trained on; 0: all are
     min_mask_iou: float = 0.0
@@ -213,7 +214,7 @@ def _save_tuned(scene: Scene, sm: StartModel, tr: WeightedExamples, va: Weighted
         "fine_tune": {"start": {"file": str(sm.path), "sha256": file_sha256(sm.path)},
                       "options": {k: getattr(opts, k) for k in ("epochs", "batches_per_epoch",
                                   "batch_size", "lr", "rough_every", "rough_per_class", "patience",
-                                  "choose", "folds", "min_mask_iou", "seed")},
+                                  "choose", "folds", "baseline_min_users", "min_mask_iou", "seed")},
                       "examples_by_weight": {str(k): int((tr.weight == k).sum())
                                              for k in np.unique(tr.weight)},
                       "road_users": {"train": np.unique(tr.road_user).tolist(),
@@ -279,7 +280,7 @@ def _choose_and_train(scene: Scene, sm: StartModel, w: WeightedExamples, rough: 
             train_from(s, tr, rough, None, opts)
 
     errors = cross_validate(sm, w, device, train, opts.folds, opts.seed)
-    ch = choose(errors, w, sm.classes)
+    ch = choose(errors, w, sm.classes, opts.baseline_min_users)
     for c in sm.classes:
         marker = out / baseline_marker_name(sm.camera, c)
         if c in ch.baseline:

@@ -19,7 +19,10 @@ annotated track does not outvote a short one. The lowest wins; on a tie the simp
 (baseline, then start). A class with one annotated road user cannot validate a fine-tuning:
 the baseline and the start are compared on it, and when the start wins it is fine-tuned
 unvalidated (with one road user the fixed schedule beat keeping the start on the tuning scene:
-docs/RESULTS.md, "Fine-tuning on a few keyframes"); the line says so.
+docs/RESULTS.md, "Fine-tuning on a few keyframes"); the line says so. When the baseline wins on
+that one road user the start is kept all the same: a switch to the baseline needs
+``baseline_min_users`` (2) annotated road users of the class (on the measured scenes every
+switch made on one road user left the class worse on the test split: RESULTS.md).
 
 A class that chose the baseline gets a marker in the model folder, ``<camera>__<class>.baseline.json``
 (``BASELINE_SUFFIX``, read by ``seg2pose.method.checkpoint.ModelSet.load``): ``s2p run`` uses
@@ -117,11 +120,13 @@ def cross_validate(sm: StartModel, w: WeightedExamples, device, train: Callable,
     return out
 
 
-def choose(errors: dict[str, np.ndarray], w: WeightedExamples, classes: list[str]) -> Choice:
+def choose(errors: dict[str, np.ndarray], w: WeightedExamples, classes: list[str],
+           baseline_min_users: int = 2) -> Choice:
     """The candidates' scores per class of ``classes`` (those with annotated examples) and the
     choice (see the module docstring). One network serves all of ``classes``: "fine-tuned"
     when its summed score over the classes where both were measured is lower than the
-    start's; then each class whose baseline beats that network takes the baseline."""
+    start's; then each class with ``baseline_min_users`` or more annotated road users whose
+    baseline beats that network takes the baseline (fewer: the network stays)."""
     scores, users = {}, {}
     for c in classes:
         sel = np.flatnonzero(w.ex.cls == c)
@@ -140,6 +145,6 @@ def choose(errors: dict[str, np.ndarray], w: WeightedExamples, classes: list[str
         ch.net, ch.unvalidated = "fine-tuned", [c for c in scores if scores[c]["start"] < scores[c]["baseline"]]
     for c, s in scores.items():
         net_score = s["fine-tuned"] if ch.net == "fine-tuned" and c in both else s["start"]
-        if not s["baseline"] > net_score:  # a tie goes to the baseline
+        if not s["baseline"] > net_score and users[c] >= baseline_min_users:  # a tie: the baseline
             ch.baseline.append(c)
     return ch

@@ -75,8 +75,11 @@ def test_choose_ties_go_to_the_simpler_and_one_road_user_is_unvalidated():
                 one, ["car"])
     assert ch.net == "fine-tuned" and ch.unvalidated == ["car"] and ch.baseline == []
     assert "fine-tuned unvalidated (one road user)" in ch.describe("car")
-    ch = choose({"baseline": np.array([0.2]), "start": np.array([0.6]), "fine-tuned": np.array([np.nan])},
-                one, ["car"])
+    # the baseline better on the one road user: the start stays (a switch needs two road users)
+    worse = {"baseline": np.array([0.2]), "start": np.array([0.6]), "fine-tuned": np.array([np.nan])}
+    ch = choose(worse, one, ["car"])
+    assert ch.baseline == [] and ch.unvalidated == [] and ch.net == "start"
+    ch = choose(worse, one, ["car"], baseline_min_users=1)
     assert ch.baseline == ["car"] and ch.unvalidated == []
 
 
