@@ -158,6 +158,7 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
     class_id = {c.name: c.id for c in scene.classes}
     ids = np.array([class_id.get(str(c), 0) for c in t.cls], np.uint16)
     series_colors = L.class_colors(t.cls, scene.classes)
+    line_colors = L.run_colors(t.cls, scene.classes, look)  # opaque, in the run's look
     # the run's look (colours, see-through) by class id, for its road users and their trails
     ctx.static(L.run_path(run), L.annotation_context(scene.classes, look))
     wire = not L.RUN_LOOKS[look]["solid"]  # solid boxes are the 3D view's default (layout)
@@ -196,7 +197,7 @@ def log_road_users(ctx, run: str, users: RoadUsers, look: str = "model", source:
                 colors=r90_colors(r90[rows][mine])).partition(_per_frame(frames, fr[mine]))]
         ctx.send(ent, frames, cols)
         if trail > 1:
-            log_trail(ctx, run, tid, users, rows, ids[rows])
+            log_trail(ctx, run, tid, users, rows, line_colors[rows])
         for quantity, column, wanted in (("error", users.error, has_error), ("r90", r90, has_r90)):
             v = column[rows]
             okv = np.isfinite(v)
@@ -215,9 +216,11 @@ def _per_frame(frames: np.ndarray, sub: np.ndarray) -> np.ndarray:
     return out
 
 
-def log_trail(ctx, run: str, tid: int, users: RoadUsers, rows: slice, class_ids: np.ndarray) -> None:
+def log_trail(ctx, run: str, tid: int, users: RoadUsers, rows: slice, colors: np.ndarray) -> None:
     """A road user's trail, ``world/road_users/<run>/<track id>/trail``: at each of its frames
-    after the first, one segment from its previous pose, in its class colour; the blueprint
+    after the first, one segment from its previous pose, in ``colors`` (N, 4) of its rows
+    (colours rather than class ids: the recording has that component already, and each
+    component adds columns to every chunk's row of the .rrd's manifest); the blueprint
     shows the last frames of it with a visible time range (``layout.trail_overrides``), so no
     point is sent twice over. A child of the road user: hiding the road user hides its trail."""
     import rerun as rr
@@ -227,7 +230,7 @@ def log_trail(ctx, run: str, tid: int, users: RoadUsers, rows: slice, class_ids:
         return
     segs = np.stack([p[:-1], p[1:]], axis=1)
     ctx.send(L.trail_path(run, tid), users.table.frame[rows][1:], rr.LineStrips3D.columns(
-        strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch), class_ids=class_ids[1:]))
+        strips=C.segments_arrow(segs, rr.components.LineStrip3DBatch), colors=colors[1:]))
 
 
 def series_present(users: RoadUsers) -> list[str]:
