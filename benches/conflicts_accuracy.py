@@ -15,12 +15,15 @@ the truth's track ids, so encounters pair up by their two ids. Reported:
   road user that evades, and the median / 90th percentile of |run - truth| of TA and of the
   conflicting speed;
 - coverage: the share of those truth values inside the run's 90 % interval (sampling within
-  r90, per class from ``--r90``: runs of uncalibrated scenes carry no r90_m), and the intervals'
-  median width.
+  r90: per class from ``--r90``, or per pose from ``--r90-calibration``, the error bars
+  ``s2p run --r90 CAL`` would write into the run's poses.csv, computed from its views.csv;
+  runs of uncalibrated scenes carry no r90_m), and the intervals' median width.
 
     PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN [--pair ...]
         --r90 car=0.93,pedestrian=0.39,bicyclist=0.79 [--draws 200] [--window 1.0] [--corr 3.0]
         [--heading90 car=40,pedestrian=61,bicyclist=16]
+    PYTHONPATH=. .venv/bin/python benches/conflicts_accuracy.py --pair SCENE RUN
+        --r90-calibration R90.json   # per-pose r90_m (s2p calibrate-errors on a tuning scene's run)
 
 Prints one line per run and the pooled figures.
 """
@@ -34,6 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.io.poses import read_poses
+from seg2pose.io.run import read_run
+from seg2pose.io.scene import load_scene
+from seg2pose.method.fusion import fuse
+from seg2pose.method.uncertainty import read_calibration, view_r90
 from seg2pose.safety.conflicts import ConflictOptions, analyse
 from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
 from seg2pose.safety.kinematics import MotionOptions
@@ -55,19 +62,36 @@ def needed(exact: float, centre: float, below: float, above: float) -> float:
     return (exact - centre) / above if above > 0 else np.inf
 
 
+def pose_r90(scene: Path, run: Path, calibration: Path, est) -> np.ndarray:
+    """(N,) r90_m of each row of ``est`` (the run's tracks) as ``s2p run --r90 calibration``
+    gives it (``seg2pose.method.pipeline``: each view's bar, then the fused pose's), computed
+    from the run's views.csv; NaN for rows without one."""
+    cal = read_calibration(calibration)
+    rr = read_run(run)
+    sc = load_scene(scene)
+    views = rr.views
+    views.r90 = view_r90(cal, sc, views)
+    poses = fuse(views, sc, int(rr.meta.get("smooth_frames") or 0), r90=cal)
+    at = {(int(f), int(t)): r for f, t, r in zip(poses.frame, poses.track_id, poses.r90)}
+    return np.array([at.get((int(f), int(t)), np.nan) for f, t in zip(est.frame, est.track_id)])
+
+
 def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
             window_s: float | None = None, corr_s: float = 3.0, heading90: dict | None = None,
-            spread: tuple[float, float, float] | None = None) -> dict:
+            spread: tuple[float, float, float] | None = None, calibration: Path | None = None) -> dict:
     est, _ = load_tracks(run)
+    if calibration is not None:
+        est.r90 = pose_r90(scene, run, calibration, est)
     fps = est.fps
     gt = read_poses(scene / "gt" / "poses.csv").in_frames((int(est.frame.min()), int(est.frame.max())))
     truth, _ = from_poses(gt, fps, sizes=scene_class_sizes(scene / "gt" / "poses.csv"))
     opts = ConflictOptions(all_pairs=True, motion=MotionOptions(window_s=window_s))
     tt, ti = table_of(truth, opts)
     et, ei = table_of(est, opts)
-    if r90 is not None:
-        ft = et.tracks  # the analysed tracks (short gaps filled)
-        ft.r90 = np.array([r90[str(c)] for c in ft.cls], float)
+    if r90 is not None or calibration is not None:
+        ft = et.tracks  # the analysed tracks (short gaps filled; r90 filled as s2p conflicts does)
+        if calibration is None:
+            ft.r90 = np.array([r90[str(c)] for c in ft.cls], float)
         # the run's conflicts, and its rows of the truth's TTC conflicts and PET pairs (their
         # intervals are the ones coverage is measured on)
         tcol = tt.columns
@@ -92,7 +116,7 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
         err = np.array([abs(ec[col][ei[k]] - tc[col][ti[k]]) for k in both])
         out[name] = {"truth": len(true_conf), "found": len(found), "est": len(est_conf),
                      "false": len(false), "err": err}
-        if r90 is not None:
+        if r90 is not None or calibration is not None:
             inside, width, need = [], [], []
             base = lo[:-5]  # "min_ttc" / "pet"
             for k in both:
@@ -123,7 +147,7 @@ def measure(scene: Path, run: Path, r90: dict | None, draws: int, seed: int,
                  "err": np.array([abs(ec["ta_s"][ei[k]] - tc["ta_s"][ti[k]]) for k in both]),
                  "speed_err": np.array([abs(ec["conflicting_speed_mps"][ei[k]]
                                             - tc["conflicting_speed_mps"][ti[k]]) for k in both])}
-    if r90 is not None:
+    if r90 is not None or calibration is not None:
         ks = [k for k in both if k in pos and np.isfinite(iv["ta_lo_s"][pos[k]])]
         out["ta"]["inside"] = np.array([iv["ta_lo_s"][pos[k]] - 1e-9 <= tc["ta_s"][ti[k]]
                                         <= iv["ta_hi_s"][pos[k]] + 1e-9 for k in ks], bool)
@@ -171,6 +195,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pair", nargs=2, action="append", metavar=("SCENE", "RUN"), required=True)
     ap.add_argument("--r90", default=None, help="class=metres,... (90 %% error radius per class)")
+    ap.add_argument("--r90-calibration", type=Path, default=None, help="per-pose r90_m from this "
+                    "calibration (s2p calibrate-errors) applied to each run's views, as s2p run --r90 does")
     ap.add_argument("--draws", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--window", type=float, default=None, help="a fixed smoothing window, s (--window of s2p "
@@ -186,7 +212,7 @@ def main() -> None:
     pooled: dict = {}
     for scene, run in a.pair:
         m = measure(Path(scene), Path(run), r90, a.draws, a.seed, a.window, a.corr, h90,
-                    None if a.spread is None else tuple(a.spread))
+                    None if a.spread is None else tuple(a.spread), a.r90_calibration)
         print(f"{m['scene']} {m['run']} ({m['method']})")
         print("  " + ta_line(m["ta"]))
         print("  SSAM conflicts by type (truth / found / missed / false): " + "; ".join(
