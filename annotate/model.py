@@ -218,6 +218,27 @@ def check_op(op) -> None:
                 _check_reviewed(v, "fields.reviewed")
 
 
+def check_op_frames(op: dict, frame_range: tuple[int, int] | None) -> None:
+    """The frames an operation (already ``check_op``'ed) places keyframes, spans and reviewed
+    spans at lie within the scene's ``frame_range`` (inclusive; None: not known), as an edit's
+    frames must (a replayed keyframe at frame 10^15 made interpolation ask for 7 PiB)."""
+    if frame_range is None:
+        return
+    if op["op"] == "put_track":
+        t = op["track"] or {}
+        rows = [r[0] for r in t.get("keyframes") or []]
+        rows += [f for sp in (t.get("spans") or []) + (t.get("reviewed") or []) for f in sp[:2]]
+    elif op["op"] == "set_keyframes":
+        rows = [r[0] for r in op.get("set") or []]
+    else:
+        f = op["fields"]
+        rows = [x for sp in (f.get("spans") or []) + (f.get("reviewed") or []) for x in sp[:2]]
+    bad = [x for x in rows if not frame_range[0] <= x <= frame_range[1]]
+    if bad:
+        raise InputError(f"frame {bad[0]} is outside the scene's frames {frame_range[0]}..{frame_range[1]}",
+                         field=op["op"])
+
+
 def _check_reviewed(spans: list, field: str) -> None:
     for i, (a, b) in enumerate(check(spans, ListOf(S.SPAN), field=field)):
         if b < a:

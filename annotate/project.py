@@ -27,7 +27,7 @@ from annotate.edits import EditsMixin
 from annotate.estimates import scene_frames
 from annotate.headings import auto_heading_op
 from annotate.interpolate import METHODS, default_method
-from annotate.model import EditError, Track, apply_ops, op_tracks
+from annotate.model import EditError, Track, apply_ops, check_op, check_op_frames, op_tracks
 from annotate.place import PlacementMixin
 from annotate.table import empty, track_poses
 from seg2pose.core.errors import S2PError
@@ -319,6 +319,9 @@ class Project(EditsMixin, PlacementMixin):
         s.seq = seq
         if kind == "edit":
             ops = rec["ops"]
+            for op in ops:  # as an edit's frames are checked when it is made
+                check_op(op)
+                check_op_frames(op, self.frame_range)
             H.record_edit(s, H.Entry(seq, rec["name"], ops, apply_ops(s.tracks, ops)))
         elif kind in ("undo", "redo"):
             apply_ops(s.tracks, H.step_ops(H.swap(s, kind, rec["of"]), kind))

@@ -254,7 +254,7 @@ def read_calib_json(path: str | Path, sizes: dict[str, tuple[int, int]] | None =
     d = load_json(path, "calibration file")
     cams = calib_cameras(d, file=path, sizes=sizes)
     items = d.get("cameras") if isinstance(d, dict) and "cameras" in d else [d]
-    unsized = [str(c.get("name")) for c in items if isinstance(c, dict)
+    unsized = [str(c.get("name")) for c in items or [] if isinstance(c, dict)
                and str(c.get("name")) not in cams and ("width" not in c or "height" not in c)]
     return cams, unsized
 

@@ -11,6 +11,7 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -20,6 +21,8 @@ from seg2pose.io.schemas import FRAME, ID, IMAGE_SIDE, MASKS, mask_columns
 from seg2pose.structures.masks import decode_counts
 
 _INT = re.compile(r"^[+-]?[0-9]{1,19}$")
+# io.schemas.MASKS's limits, as plain ints for the per-line checks
+_FRAME_HI, _ID_LO, _ID_HI, _SIDE_HI = (int(cast(float, v)) for v in (FRAME.hi, ID.lo, ID.hi, IMAGE_SIDE.hi))
 _BLOCK = 2048  # detections checked together by iter_mots (whole frames; frames are yielded one by one)
 
 
@@ -98,12 +101,12 @@ def _parse_line(line: str, path: Path, lineno: int, known_classes: set[int] | No
     # size must be known good before it is compared with the next line's)
     if frame < 0:
         raise InputError(f"negative frame {frame}", file=path, line=lineno)
-    if not (frame <= FRAME.hi and ID.lo <= tid <= ID.hi and ID.lo <= cid <= ID.hi):
+    if not (frame <= _FRAME_HI and _ID_LO <= tid <= _ID_HI and _ID_LO <= cid <= _ID_HI):
         raise InputError(f"frame must be {FRAME.expected()}, track_id and class_id {ID.expected()}",
                          file=path, line=lineno)
     if h <= 0 or w <= 0:
         raise InputError(f"non-positive image size {h}x{w}", file=path, line=lineno)
-    if h > IMAGE_SIDE.hi or w > IMAGE_SIDE.hi:
+    if h > _SIDE_HI or w > _SIDE_HI:
         raise InputError(f"implausible image size {h}x{w} (more than 2^20 pixels a side)",
                          file=path, line=lineno)
     if size is not None and (h, w) != size:

@@ -82,7 +82,7 @@ class Num:
                     good &= a <= self.hi
                 if self.nan:
                     good |= np.isnan(a)
-        return good.all(axis=tuple(range(1, good.ndim))) if good.ndim > 1 else good
+        return np.asarray(good.all(axis=tuple(range(1, good.ndim))) if good.ndim > 1 else good)
 
     def _ok_scalar(self, v) -> bool:
         if isinstance(v, float) and math.isnan(v):
