@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
 _ZYGOTE = r"""
-import json, os, sys, traceback
+import json, os, sys, tempfile, traceback
 sys.argv = ["s2p"]
 import numpy, cv2                      # what every command imports, loaded once
 cv2.setNumThreads(1)  # tiny frames: a thread pool per forked command costs more than it saves
@@ -43,6 +43,7 @@ for line in sys.stdin:
         code = 1
         try:
             os.environ.update(env)  # S2P_KILL_AT: a kill at a commit step (seg2pose.io.kill_points)
+            tempfile.tempdir = None  # a TMPDIR of the command's own counts
             os.setpgid(0, 0)
             null = os.open(os.devnull, os.O_RDWR)
             os.dup2(null, 0)

@@ -96,6 +96,7 @@ class Case:
     resume: bool = False
     rerun: list | None = None  # the re-run after a kill (default: argv without --force)
     tree: bool = False  # wait for the killed command's other processes (Ray's) to end
+    env: dict | None = None  # the command's environment besides the harness's (its TMPDIR)
     stray: int = 0  # of those, still running 120 s after the kill
     new: object = None
     seconds: float = 1.0
@@ -132,7 +133,7 @@ class Case:
         self.put_old()
         z = zygote()
         t = time.perf_counter()
-        z.start(self.argv)
+        z.start(self.argv, self.env)
         code = z.wait(600)
         self.seconds = time.perf_counter() - t
         if code != 0:
@@ -169,7 +170,7 @@ class Case:
         self.old_state()
         self.put_old()
         z = zygote()
-        pid = z.start(self.argv, env)
+        pid = z.start(self.argv, {**(self.env or {}), **(env or {})})
         code = z.wait(rng.uniform(*share) * self.seconds if rng is not None else 600)
         if env and code == 0:  # the step was not reached: nothing to count
             self.put_old()
@@ -233,7 +234,7 @@ class Case:
         server.start()
         z = zygote()
         try:
-            z.start(self.argv, {"S2P_KILL_FORKS": f"{per_step},{folder}/k"})
+            z.start(self.argv, {**(self.env or {}), "S2P_KILL_FORKS": f"{per_step},{folder}/k"})
             code = z.wait(1200)
         finally:
             listener.shutdown(socket.SHUT_RDWR)
@@ -269,7 +270,7 @@ class Case:
                 self.mixed.pop()
         if self.resume and kind != "mixed" and rerun:
             z = zygote()
-            z.start(self.rerun or [a for a in self.argv if a != "--force"])
+            z.start(self.rerun or [a for a in self.argv if a != "--force"], self.env)
             code = z.wait(600)
             if code != 0 or self.snap() != self.new:
                 kind = "mixed"

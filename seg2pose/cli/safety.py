@@ -246,7 +246,7 @@ def conflicts(
     import numpy as np
 
     from seg2pose.core.say import say
-    from seg2pose.io.atomic import atomic_write_text, check_writable, output_lock
+    from seg2pose.io.atomic import atomic_write_text, check_writable, outputs
     from seg2pose.safety.conflicts import ConflictOptions, analyse
     from seg2pose.safety.evasive import EvasiveOptions
     from seg2pose.safety.gaps import jump_note, jumps
@@ -314,13 +314,12 @@ def conflicts(
     elif draws > 0:
         say("the poses carry no r90_m: error intervals none (give --r90 CLASS=METRES,... for "
             "a per-class error radius)", "note")
-    with output_lock(out):
-        check_writable(out, force)
-        atomic_write_text(out, format_conflicts(table if all_pairs else table.take(c["conflict"] == 1), tr.fps))
-    if pet_only is not None:
-        with output_lock(pet_only):
-            check_writable(pet_only, force)
-            atomic_write_text(pet_only, format_conflicts(table.take(c["pet_only"] == 1), tr.fps))
+    # the conflicts and the PET-only encounters as one set: a kill between them leaves both old
+    with outputs([out] + ([pet_only] if pet_only is not None else []), force) as files:
+        atomic_write_text(files.file(out), format_conflicts(table if all_pairs else table.take(c["conflict"] == 1),
+                                                            tr.fps))
+        if pet_only is not None:
+            atomic_write_text(files.file(pet_only), format_conflicts(table.take(c["pet_only"] == 1), tr.fps))
     if conflict_map is not None:
         from seg2pose.safety.conflict_map import draw_map
 

@@ -63,6 +63,42 @@ COMMIT_STEPS = {"run": ONE, "synth": ONE, "convert-masks": ONE, "import-utocs": 
 KILLS_PER_STEP = 10
 
 
+MORE = ["review-o", "screenshot", "calibrate-errors", "conflicts", "calibrate-camera"]
+COMMIT_STEPS.update({"review-o": ONE, "screenshot": ONE, "calibrate-errors": ONE, "conflicts": SET,
+                     "calibrate-camera": SET})
+
+
+@pytest.fixture(scope="module")
+def more_cases(tmp_path_factory):
+    from kill_cases_more import build_more_cases
+
+    return {c.name: c for c in build_more_cases(tmp_path_factory.mktemp("kill-more"))}
+
+
+@pytest.mark.parametrize("name", MORE)
+def test_more_writers_killed_at_every_commit_step(more_cases, name):
+    """Issue 38: review -o, screenshot (its headless viewer: none left running, no state
+    folder left), calibrate-errors, conflicts (its CSV and PET-only CSV one set: a kill between
+    them left a new CSV beside an old PET-only one) and calibrate-camera --points, each killed
+    at least 10 times at each commit step as above."""
+    from kill_cases_more import viewer_states
+
+    if name == "screenshot":
+        from s2p_review import viewer as V
+
+        if V.vulkan_problem() is not None:
+            pytest.skip(f"no Vulkan for the headless viewer: {V.vulkan_problem()}")
+    case = more_cases[name]
+    case.run_fully()
+    kinds = case.kill_forks(KILLS_PER_STEP)
+    assert set(kinds) == COMMIT_STEPS[name]
+    assert all(len(k) >= KILLS_PER_STEP for k in kinds.values()), {s: len(k) for s, k in kinds.items()}
+    assert case.counts["mixed"] == 0, (kinds, case.mixed)
+    assert [n for n in case.leftovers() if not n.endswith(".lock")] == []
+    assert viewer_states(case) == []  # the viewers' state folders went with them
+    assert case.stray == 0
+
+
 @pytest.mark.parametrize("name", FIRST + WRITERS + ["batch-ray", "train"])
 def test_kills_timed_at_every_commit_step(cases, name):
     """Issue 38: every writer killed (SIGKILL) at each of its commit steps, at least 10 times
