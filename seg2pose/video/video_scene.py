@@ -20,6 +20,7 @@ from seg2pose.io.calib_files import read_calib_json
 from seg2pose.io.mots import write_mots
 from seg2pose.io.nofollow import fdopen_nofollow
 from seg2pose.io.scene import DEFAULT_CLASSES, SCENE_FILE, ClassSpec, Scene, load_scene, read_ground_points
+from seg2pose.io.schemas import frame_limit
 from seg2pose.io.text import read_text
 from seg2pose.io.track_ids import ids_path, stage_ids
 from seg2pose.io.video import VIDEO_EXTS, FrameReader, camera_reader  # noqa: F401 (re-exported)
@@ -158,7 +159,8 @@ def scene_track(scene_dir: str | Path, cameras: list[str] | None = None, *,
 
 def scene_frame_count(scene: Scene, camera: str) -> int | None:
     """Frames of a camera: from its video's header (first + step * count), else up to the
-    last frame of the scene's splits; None when neither says."""
+    last frame of the scene's splits, else up to the last frame MCAP and Rerun can time
+    (``io.schemas.frame_limit``: what ``s2p run`` then accepts)."""
     if scene.video_path(camera) is not None:
         reader = camera_reader(scene, camera)
         _, _, n = reader.header()
@@ -166,7 +168,7 @@ def scene_frame_count(scene: Scene, camera: str) -> int | None:
             return reader.first + reader.step * n
     if scene.splits:
         return max(b for _, b in scene.splits.values()) + 1
-    return None
+    return frame_limit(scene.fps, scene.start_time_ns) + 1
 
 
 def scene_import_detections(scene_dir: str | Path, camera: str, coco: str | Path, *,

@@ -252,3 +252,25 @@ def test_journal_replay_refuses_records_outside_the_schema(tmp_path, op, what):
         Project.open(scene, read_only=True)
     one_line(e.value, seg.name, what)
 
+
+
+def test_import_detections_refuses_frames_s2p_run_refuses(tmp_path):
+    """A scene with neither video nor splits: a COCO detection at frame 10^15 was imported,
+    and s2p run (and review, export) then refused the masks; the importer now takes the same
+    last frame (the last one MCAP and Rerun can time), and nothing is written."""
+    from io_fixtures import make_scene
+
+    from seg2pose.video.video_scene import scene_import_detections
+
+    scene = make_scene(tmp_path / "s")
+    scene.splits = {}
+    scene.save()
+    poly = [[100, 100, 140, 100, 140, 160, 100, 160]]
+    recs = [{"frame": f, "category_id": 3, "segmentation": poly, "score": 0.9} for f in (0, 10**15)]
+    (tmp_path / "d.json").write_text(json.dumps({"images": [{"id": 0, "height": 480, "width": 640},
+                                                            {"id": 10**15, "height": 480, "width": 640}],
+                                                 "annotations": [dict(r, image_id=r["frame"]) for r in recs]}))
+    with pytest.raises(InputError) as e:
+        scene_import_detections(scene.root, "c0", tmp_path / "d.json", force=True, log=lambda s: None)
+    one_line(e.value, "d.json", "frame 1000000000000000")
+    assert not scene.masks_path("c0").exists()
