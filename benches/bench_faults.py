@@ -19,6 +19,13 @@ would after a crash: "between" counts kills that left some steps done (each outp
 a re-run that fails or ends anywhere but at the uninterrupted run's outputs is mixed. The
 promise is 0 mixed. Then one full run checks that the dead writers' leftovers are removed.
 
+Also (issue 38, tests/kill_cases_more.py) ``review -o``, ``screenshot`` (its headless viewers:
+none may outlive a kill, and no /tmp/s2p-viewer-state-* folder of theirs may stay),
+``calibrate-errors``, ``conflicts`` and ``calibrate-camera --points``. And kills timed at each
+commit step (``--steps`` per step, ``Case.kill_forks``: at the first commit of each kind of
+output the command, or the Ray worker that commits, forks children that die at the step,
+exactly or after a sub-delay; the journal's "appended" step killed in the command itself).
+
     python benches/bench_faults.py [--kills 100] [--steps 10] [--seed 0] [--only run,synth] [--share 0.15,1.05]
 """
 
@@ -35,8 +42,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout's s2p, also in the killed commands
 from kill_cases import build_cases, build_training_cases, build_writer_cases  # noqa: E402
+from kill_cases_more import build_more_cases, viewer_states  # noqa: E402
 
-STEPS = ["built", "swapped", "recorded", "set-swap", "unrecorded", "appended"]  # seg2pose.io.atomic_set.commit_step
+MORE = ["review-o", "screenshot", "calibrate-errors", "conflicts", "calibrate-camera"]
 
 
 def _ray_sessions(root: Path = Path(tempfile.gettempdir()) / "ray") -> tuple[int, int]:
@@ -64,8 +72,10 @@ def main() -> None:
         cases = []
         if only is None or set(only) & set(first):
             cases += build_cases(Path(d) / "first", frames=20)
-        if only is None or set(only) - set(first) - {"train"}:
+        if only is None or set(only) - set(first) - set(MORE) - {"train"}:
             cases += build_writer_cases(Path(d) / "writers")
+        if only is None or set(only) & set(MORE):
+            cases += build_more_cases(Path(d) / "more")
         if only is None or "train" in only:
             cases += build_training_cases(Path(d) / "training")
         if only:
@@ -74,7 +84,7 @@ def main() -> None:
         share = tuple(float(x) for x in args.share.split(","))
         print(f"{'command':>17} {'kills':>6} {'timed':>6} {'absent':>7} {'old':>5} {'new':>5} {'between':>8} "
               f"{'mixed':>6} {'finished':>9} {'leftovers':>10} {'s/run':>6}", flush=True)
-        total_mixed = total_left = 0
+        total_mixed = total_left = total_stray = 0
         for c in cases:
             sessions = _ray_sessions()
             c.run_fully()
@@ -84,30 +94,37 @@ def main() -> None:
                 if k % 50 == 0 and k < args.kills:
                     print(f"  {c.name}: {k} kills so far: {c.counts}", flush=True)
             timed = 0
-            if args.steps and c.name not in ("train", "batch-ray"):
-                # killed exactly at each commit step, every time the command reaches it (up to
-                # --steps times a step; judged after the next writer's first step)
-                for step in STEPS:
-                    for n in range(1, args.steps + 1):
-                        if c.kill_at(step, n) == "not reached":
-                            break
-                        timed += 1
+            if args.steps:
+                # killed at each commit step, --steps times a step of each commit (judged after
+                # the next writer's first step)
+                from seg2pose.io.kill_points import DELAYS
+
+                kinds = c.kill_forks(args.steps)
+                if c.name == "import-tanalyst":  # the journal's append: no commit to fork at
+                    kinds["appended"] = [c.kill_at("appended", 1, x) for x in [0.0, *DELAYS][:args.steps]]
+                timed = sum(map(len, kinds.values()))
+                print(f"    timed: {({s: len(k) for s, k in kinds.items()})}", flush=True)
             c.run_fully()  # the next writer takes over and cleans up
-            left = len(c.leftovers())
+            left = len(c.leftovers()) + len(viewer_states(c))
             n = c.counts
             total_mixed += n["mixed"]
             total_left += left
+            total_stray += c.stray
             print(f"{c.name:>17} {args.kills:>6} {timed:>6} {n['absent']:>7} {n['old']:>5} {n['new']:>5} "
                   f"{n['between']:>8} {n['mixed']:>6} {n['finished']:>9} {left:>10} {c.seconds:>6.2f}   "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)
-            if c.tree:  # Ray: what the killed drivers' clusters left running or on disk
+            if c.name == "screenshot":
+                print(f"    {c.stray} viewer processes still running 120 s after their kill; "
+                      f"{len(viewer_states(c))} viewer state folders left", flush=True)
+            elif c.tree:  # Ray: what the killed drivers' clusters left running or on disk
                 print(f"    {c.stray} processes of the killed commands still running 120 s after "
                       f"their kill; {_ray_sessions()[0] - sessions[0]} Ray session folders "
                       f"added ({(_ray_sessions()[1] - sessions[1]) / 1e6:.1f} MB)", flush=True)
             for states, beside in c.mixed:
                 print(f"    mixed: outputs {states}, beside them {beside}", flush=True)
-        print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}")
-        sys.exit(1 if total_mixed or total_left else 0)
+        print(f"mixed or partial outputs: {total_mixed}; left over after the next run: {total_left}; "
+              f"processes outliving their kill: {total_stray}")
+        sys.exit(1 if total_mixed or total_left or total_stray else 0)
 
 
 if __name__ == "__main__":
