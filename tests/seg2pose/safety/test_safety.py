@@ -260,3 +260,29 @@ def test_interval_heading_noise():
         np.testing.assert_array_equal(zero[k], plain[k])
     assert plain["pet_lo_s"][0] <= 1.42 <= plain["pet_hi_s"][0]
     assert (turned["pet_hi_s"][0] - turned["pet_lo_s"][0]) > (plain["pet_hi_s"][0] - plain["pet_lo_s"][0])
+
+
+def test_interval_width_follows_each_poses_r90():
+    """Per-pose error radii (poses.csv's r90_m): the PET interval of the right-angle crossing
+    widens in proportion to the r90 of the one road user that has an error. By hand: with car 2
+    exact and car 1's slow error e (sigma = r90 / 2.146 per axis; the straight clean track has
+    no fast part), car 1 leaves the shared square e_x / 10 s early and car 2 meets car 1's
+    path e_y / 10 s early, so PET deviates by (e_y - e_x) / 10 m/s, standard deviation
+    sqrt(2) sigma / 10; the 90 % interval, widened ``spread`` times, is
+    2 x 1.645 x spread x sqrt(2) r90 / 2.146 / 10 wide: 0.0238 s for r90 = 0.05 m and
+    spread 2.2. The same unit draws (one seed) with twice the radius give twice the width
+    (small errors: at r90 = 0.2 m the footprint's heading from the noisy motion adds 8 %)."""
+    from seg2pose.safety.intervals import IntervalOptions, conflict_intervals
+
+    tr = crossing()
+    table = analyse(tr, ConflictOptions())
+    io_ = IntervalOptions(draws=400, spread=(1.0, 1.0, 2.2))
+    one_m = tr.track_id == 1
+    widths = []
+    for r in (0.05, 0.1):
+        iv = conflict_intervals(tr, table, ConflictOptions(), io_, r90=np.where(one_m, r, 0.0))
+        assert iv["pet_lo_s"][0] <= 1.42 <= iv["pet_hi_s"][0]
+        widths.append(iv["pet_hi_s"][0] - iv["pet_lo_s"][0])
+    hand = 2 * 1.6449 * 2.2 * np.sqrt(2) * 0.05 / np.sqrt(2 * np.log(10)) / 10
+    assert widths[0] == pytest.approx(hand, rel=0.1)
+    assert widths[1] / widths[0] == pytest.approx(2.0, rel=0.03)
