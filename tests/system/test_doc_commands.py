@@ -315,6 +315,43 @@ def test_every_block_is_run_or_marked(doc):
             f"run by this test), ```python (run) or ```text / ```csv / ```json (not commands)")
 
 
+def _options(cmd) -> set[str]:
+    return {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
+
+
+def inline_command_errors(text: str, root) -> list[str]:
+    """The `s2p ...` spans of prose whose command does not exist or that name an option their
+    command does not have (a renamed or dropped flag)."""
+    bad = []
+    for m in re.finditer(r"`(s2p [^`]+)`", text):
+        words, cmd, i = m.group(1).split(), root, 1
+        while i < len(words) and hasattr(cmd, "commands") and words[i] in cmd.commands:
+            cmd, i = cmd.commands[words[i]], i + 1
+        if cmd is root:
+            if i < len(words) and words[i][:1].islower():
+                bad.append(f"`{m.group(1)}`: no command {words[i]!r}")
+            continue
+        if hasattr(cmd, "commands"):  # `s2p annotate SCENE` is `s2p annotate open SCENE`
+            cmd = cmd.commands.get("open", cmd)
+        opts = _options(cmd)
+        bad += [f"`{m.group(1)}`: no option {w}" for w in
+                (w.split("=")[0].rstrip(",.;:)") for w in words[i:]) if w.startswith("--") and w not in opts]
+    return bad
+
+
+def test_inline_commands_name_real_options():
+    import typer.main
+
+    from seg2pose.cli import app
+
+    root = typer.main.get_command(app)
+    assert inline_command_errors("`s2p conflicts R -o c.csv --near 25`, `s2p frobnicate X`", root) == [
+        "`s2p conflicts R -o c.csv --near 25`: no option --near", "`s2p frobnicate X`: no command 'frobnicate'"]
+    bad = [f"{d.relative_to(ROOT)}: {b}" for d in DOCS
+           for b in inline_command_errors(d.read_text(encoding="utf-8"), root)]
+    assert not bad, "\n".join(bad)
+
+
 @pytest.fixture(scope="module")
 def givens(tmp_path_factory):
     from doc_givens import make_givens
