@@ -19,6 +19,7 @@ types: s2p_review does not import annotate.
 
 from __future__ import annotations
 
+import functools
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -198,11 +199,17 @@ def log_scene(rec, scene, run: Path | None, cameras: list[str] | None,
 
 def run_tracks(run: Path) -> list[int]:
     """The track ids of a run folder's poses with a position: the road users ``log_scene``
-    logs, whose trails ``app_blueprint`` names."""
+    logs, whose trails ``app_blueprint`` names (read once per version of the file)."""
+    path = Path(run) / "poses.csv"
+    return list(_track_ids(path, path.stat().st_mtime_ns))
+
+
+@functools.lru_cache(maxsize=16)
+def _track_ids(path: Path, mtime_ns: int) -> tuple[int, ...]:
     from seg2pose.io.poses import read_poses
 
-    poses = read_poses(Path(run) / "poses.csv")
-    return sorted(set(poses.track_id[np.isfinite(poses.xyz).all(axis=1)].tolist()))
+    poses = read_poses(path)
+    return tuple(sorted(set(poses.track_id[np.isfinite(poses.xyz).all(axis=1)].tolist())))
 
 
 TIMELINE_PATH = "timeline/selected"   # the selected track's keyframe timeline (send_timeline)
@@ -214,9 +221,9 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
     """The annotation app's layout: camera ``large`` big on the left over the selected track's
     keyframe timeline; the 3D world and the other cameras small on the right.
     ``large_in_page``: the page shows camera ``large`` itself (annotate.app.frame_view), so
-    the viewer shows the 3D world and the other cameras over the timeline. runs: run name ->
-    the track ids of the runs shown (``run_tracks``), whose road users' trails the 3D view then
-    shows over the last TRAIL_FRAMES frames (without: each road user's last step)."""
+    the viewer shows the 3D world and the other cameras over the timeline. runs: the folders
+    of the runs shown, whose road users' trails (``run_tracks``) the 3D view then shows over the
+    last TRAIL_FRAMES frames (without: each road user's last step)."""
     import rerun.blueprint as rrb
 
     large = large if large in cameras else (cameras[0] if cameras else None)
@@ -224,7 +231,8 @@ def app_blueprint(cameras: list[str], large: str | None, eye=None, fps: float | 
     if eye is not None:
         extra["eye_controls"] = rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0, 0, 1))
     if runs:
-        extra["overrides"] = L.trail_overrides(dict(runs), L.TRAIL_FRAMES, fps)
+        extra["overrides"] = L.trail_overrides({Path(r).name: run_tracks(Path(r)) for r in runs},
+                                               L.TRAIL_FRAMES, fps)
     world = rrb.Spatial3DView(origin="world", name="world", contents=["+ world/**"],
                               line_grid=rrb.LineGrid3D(visible=False), **extra)
     small = [rrb.Spatial2DView(origin=L.cam_path(c), name=f"{VIEW_PREFIX}{c}")

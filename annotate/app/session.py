@@ -40,7 +40,6 @@ from s2p_review.annotation_log import (  # noqa: E402
     camera_of_view,
     log_scene,
     new_recording,
-    run_tracks,
     send_timeline,
 )
 
@@ -70,8 +69,7 @@ class Session:
         from rerun.notebook import Viewer
 
         self.ctl = Controller.open(scene, run=run, cameras=cameras)
-        # run name -> its track ids: their trails' time range (app_blueprint)
-        self._runs = {Path(run).name: run_tracks(Path(run))} if run is not None else {}
+        self._runs = [Path(run)] if run is not None else []  # their trails' time range
         self.rec = new_recording()
         # hidden until the page says whether it renders in software (Controller.set_renderer)
         self.viewer = Viewer(width="auto", height=VIEWER_HEIGHT, recording=self.rec)
@@ -178,8 +176,8 @@ class Session:
         """A new run loaded (train now's, annotate/app/fine_tune_job.py): the viewer logs the
         scene again with it (now when shown, else when it is first shown), its trails named."""
         self._run_dir, self._logged = run, False
-        if Path(run).name not in self._runs:
-            self._runs[Path(run).name] = run_tracks(Path(run))
+        if Path(run) not in self._runs:
+            self._runs.append(Path(run))
         self._send_layout(self.ctl.large_camera)
         if self.ctl.viewer_visible:
             self._log_scene()
