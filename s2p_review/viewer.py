@@ -8,6 +8,7 @@ that is Mesa's software rasteriser (Debian: ``mesa-vulkan-drivers``). It needs a
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -64,6 +65,7 @@ def _ensure_runtime_dir() -> None:
     d = os.environ.get("XDG_RUNTIME_DIR")
     if not d or not os.path.isdir(d):
         os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="s2p-xdg-")
+        _made_runtime_dir.append(os.environ["XDG_RUNTIME_DIR"])  # the viewer's guard removes it
 
 
 def check_reachable(url: str, timeout: float = 2.0) -> None:
@@ -103,13 +105,18 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
         os.environ["XDG_CONFIG_HOME"] = os.path.join(state, "config")
     else:
         state = None
+    # a headless viewer ends with this process, however it ends: its guard starts first, so
+    # that a kill while the viewer starts (before its pid is known) leaves nothing either
+    guard = _guard(port, state) if headless else None
     try:
         client = ViewerClient.spawn(headless=headless, port=port, hide_welcome_screen=True,
                                     executable_path=rerun_executable(),
                                     detach_process=not headless)
-        if headless:  # ended with this process, however it ends
-            _guard(getattr(client, "_pid", None), state)
+        if guard is not None:
+            _guards[getattr(client, "_pid", None) or -port] = guard
     except (ConnectionError, RuntimeError, OSError) as e:
+        if guard is not None:
+            os.close(guard)  # the guard removes what the failed start left
         if state:
             shutil.rmtree(state, ignore_errors=True)
         raise ViewerError(f"the viewer did not start on port {port}: {e}") from None
@@ -123,6 +130,9 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
     while True:
         try:
             client.get_state()
+            if guard is not None:  # the guard notes the viewer's processes (see _GUARD)
+                with contextlib.suppress(OSError):
+                    os.write(guard, b"answers\n")
             return client
         except Exception as e:  # noqa: BLE001 - still starting: connection refused etc.
             if time.monotonic() > deadline:
@@ -131,39 +141,68 @@ def spawn_viewer(headless: bool, port: int | None = None, timeout: float = 30.0)
             time.sleep(0.2)
 
 
-# The guard of a headless viewer: a small Python that waits for this process to end (the pipe
-# it reads closes however this process ends, SIGKILL included), then kills the viewer and
-# removes its state folder. Rerun starts the viewer itself, so it cannot be given a
-# parent-death signal; without the guard a killed ``s2p screenshot`` left ~700 MB running.
+# The guard of a headless viewer: a small Python that waits for this process to end or to stop
+# the viewer (the pipe it reads closes however this process ends, SIGKILL included), then kills
+# the viewer and removes what it leaves: its state folder, Rerun's rerun-data-PID-* folders and
+# the runtime folder s2p made for it. Rerun starts the viewer itself (in a process group of its
+# launcher's), so it cannot be given a parent-death signal, and the guard starts before it:
+# the viewer is found by its command line (--port=PORT --headless), also one whose start a kill
+# cut short. Without the guard a killed ``s2p screenshot`` left ~700 MB running.
 _GUARD = r"""
-import os, shutil, signal, sys
-sys.stdin.buffer.read()
-pid, state = int(sys.argv[1]), sys.argv[2]
-for kill in (os.killpg, os.kill):  # rerun's launcher leads the group its viewer runs in
-    try:
-        kill(pid, signal.SIGKILL)
-    except OSError:
-        pass
-if state:
-    shutil.rmtree(state, ignore_errors=True)
+import glob, os, shutil, signal, sys, time
+port, state, tmp, xdg = sys.argv[1:5]
+
+def viewers():
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    argv = f.read().split(b"\0")
+            except OSError:
+                continue
+            if f"--port={port}".encode() in argv and b"--headless" in argv:
+                out.append(int(d))
+    return out
+
+seen = set()
+for _ in sys.stdin.buffer:  # "answers": the viewer runs; note its processes (they may quit first)
+    seen.update(viewers())
+for i in range(20):  # a launcher that was starting its viewer: look again for a while
+    found = viewers()
+    seen.update(found)
+    for pid in found:
+        try:
+            os.killpg(pid, signal.SIGKILL) if os.getpgid(pid) == pid else os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    if not found and i >= 3:
+        break
+    time.sleep(0.1)
+for pid in seen:
+    for d in glob.glob(os.path.join(tmp, f"rerun-data-{pid}-*")):
+        shutil.rmtree(d, ignore_errors=True)
+for d in (state, xdg):
+    if d:
+        shutil.rmtree(d, ignore_errors=True)
 """
 _guards: dict[int, int] = {}  # viewer pid -> the write end of its guard's pipe
+_made_runtime_dir: list[str] = []  # the XDG_RUNTIME_DIR s2p made (its guard removes it)
 
 
-def _guard(pid: int | None, state: str | None) -> None:
-    """Start the guard of viewer ``pid`` and its state folder (see ``_GUARD``)."""
+def _guard(port: int, state: str | None) -> int:
+    """Start the guard of the headless viewer on ``port`` and its state folder (see
+    ``_GUARD``); the write end of its pipe (closed: the guard does its work)."""
     import subprocess
 
-    if pid is None:
-        return
     r, w = os.pipe()  # both ends close on exec: only the guard gets ``r``, as its stdin
     try:
-        subprocess.Popen([sys.executable, "-c", _GUARD, str(pid), state or ""], stdin=r,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
+        subprocess.Popen([sys.executable, "-c", _GUARD, str(port), state or "", tempfile.gettempdir(),
+                          _made_runtime_dir[-1] if _made_runtime_dir else ""], stdin=r,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     finally:
         os.close(r)
-    _guards[pid] = w
+    return w
 
 
 def connect_viewer(url: str):

@@ -47,10 +47,19 @@ def _png_state(path: Path) -> Callable:
     return state
 
 
-def viewer_states(case: Case) -> list[Path]:
-    """The state folders of the headless viewers ``case``'s command started (each has one, in
-    the command's own TMPDIR)."""
-    return sorted(Path(case.env["TMPDIR"]).glob("s2p-viewer-state-*")) if case.env else []
+def viewer_states(case: Case, wait: float = 15.0) -> list[Path]:
+    """What the headless viewers ``case``'s command started left in its own TMPDIR (their state
+    folders, Rerun's data folders, the runtime folder made for them), once their guards (which
+    clean up a moment after the command ends) have had up to ``wait`` seconds."""
+    import time
+
+    end = time.monotonic() + wait
+    while True:
+        left = sorted(p for g in ("s2p-viewer-state-*", "rerun-data-*", "s2p-xdg-*")
+                      for p in Path(case.env["TMPDIR"]).glob(g)) if case.env else []
+        if not left or time.monotonic() > end:
+            return left
+        time.sleep(0.2)
 
 
 def build_more_cases(root: Path) -> list[Case]:
