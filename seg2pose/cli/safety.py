@@ -302,12 +302,13 @@ def conflicts(
     c = table.columns
     n_conf, n_pet = int(c["conflict"].sum()), int(c["pet_only"].sum())
     ft = table.tracks  # the tracks analysed: short gaps filled in
+    assert ft is not None  # (analyse keeps them with the table)
     if draws > 0 and ft.r90 is not None and np.isfinite(ft.r90).any() and len(table):
         from tqdm import tqdm
 
         h90 = None if table_h90 is None else np.radians([table_h90[str(x)] for x in ft.cls])
         iopts = IntervalOptions(draws=draws, corr_s=corr_s, seed=seed,
-                                **({} if spread_f is None else {"spread": spread_f}))
+                                spread=IntervalOptions.spread if spread_f is None else spread_f)
         iv = conflict_intervals(ft, table, opts, iopts,
                                 heading90=h90, progress=lambda it: tqdm(it, desc="intervals", unit="pair"))
         table.columns.update({k: iv[k] for k in INTERVAL_COLUMNS})
@@ -333,7 +334,7 @@ def conflicts(
                + (f" among {len(table)} encounters" if all_pairs else "")
                + f" in {time.perf_counter() - t0:.1f} s")
     _say_least(c)
-    if review is not None:
+    if review is not None and scene_dir is not None:  # (found up front with --review)
         from s2p_review.session import RecordOptions, Targets, record
         from seg2pose.io.scene import load_scene
 

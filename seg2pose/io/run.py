@@ -102,10 +102,9 @@ class ViewTable:
         self.normal = np.asarray(self.normal, dtype=np.float64).reshape(-1, 3)
         self.residual = np.asarray(self.residual, dtype=np.float64).reshape(-1, 2)
         n = len(self.frame)
+        optional = [c for c in (self.cues, self.r90, self.box) if c is not None]
         if not all(len(c) == n for c in (self.track_id, self.camera, self.cls, self.uv,
-                                         self.normal, self.residual)) or (
-                self.cues is not None and not len(self.cues) == len(self.r90) == n) or (
-                self.box is not None and len(self.box) != n):
+                                         self.normal, self.residual, *optional)):
             raise ValueError("ViewTable columns differ in length")
 
     def __len__(self) -> int:
@@ -115,7 +114,7 @@ class ViewTable:
         return ViewTable(self.frame[idx], self.track_id[idx], self.camera[idx], self.cls[idx],
                          self.uv[idx], self.normal[idx], self.residual[idx],
                          None if self.cues is None else self.cues[idx],
-                         None if self.cues is None else self.r90[idx],
+                         None if self.r90 is None else self.r90[idx],  # (set with the cues)
                          None if self.box is None else self.box[idx])
 
     def sorted(self) -> ViewTable:
@@ -156,8 +155,8 @@ def format_views(table: ViewTable, file: str | Path | None = None) -> str:
     box = table.box is not None
     buf.write(",".join(VIEW_COLUMNS + (CUE_COLUMNS if cues else []) + (BOX_COLUMNS if box else []))
               + "\n")
-    num = np.column_stack([table.uv, table.normal, table.residual]
-                          + ([table.cues, table.r90] if cues else []) + ([table.box] if box else []))
+    num = np.column_stack([table.uv, table.normal, table.residual]  # then cues, r90, box if there
+                          + [c for c in (table.cues, table.r90, table.box) if c is not None])
     for i in range(len(table)):
         buf.write(f"{table.frame[i]},{table.track_id[i]},{table.camera[i]},{table.cls[i]},"
                   + ",".join(repr(float(x)) for x in num[i]) + "\n")

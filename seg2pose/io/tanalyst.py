@@ -15,7 +15,7 @@ read back to the same table and write again to the same text.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,14 +42,15 @@ CLASS_TO_TYPE = {"pedestrian": "Pedestrian", "car": "Car", "bicyclist": "Bicycle
 class TAnalystTable:
     """N detections. detection_id, road_user_id: (N,) int64; road_user_type: (N,) str as written;
     xy: (N, 2) metres; time_ms: (N,) int64 milliseconds since 00:00:00.000; lines: (N,) the
-    file's line of each row (0 when not read from a file); decimal: the file's separator."""
+    file's line of each row (0 when not read from a file: the default, or any empty array);
+    decimal: the file's separator."""
 
     detection_id: np.ndarray
     road_user_type: np.ndarray
     road_user_id: np.ndarray
     xy: np.ndarray
     time_ms: np.ndarray
-    lines: np.ndarray | None = None
+    lines: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     decimal: str = ","
 
     def __post_init__(self) -> None:
@@ -59,8 +60,9 @@ class TAnalystTable:
         self.xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
         self.time_ms = np.asarray(self.time_ms, dtype=np.int64).reshape(-1)
         n = len(self.detection_id)
-        self.lines = (np.zeros(n, np.int64) if self.lines is None
-                      else np.asarray(self.lines, dtype=np.int64).reshape(-1))
+        self.lines = np.asarray(self.lines, dtype=np.int64).reshape(-1)
+        if len(self.lines) == 0:
+            self.lines = np.zeros(n, np.int64)
         if not all(len(a) == n for a in (self.road_user_type, self.road_user_id, self.xy,
                                          self.time_ms, self.lines)):
             raise ValueError("TAnalystTable columns differ in length")
@@ -186,8 +188,9 @@ def parse_tanalyst(text: str, file: str | Path = "<csv>") -> TAnalystTable:
         xy.append(v)
         tms.append(t)
         where.append(lineno)
-    return TAnalystTable(det, np.array(typ, dtype=object), rid, np.array(xy).reshape(-1, 2), tms,
-                         where, decimal or ",")
+    return TAnalystTable(np.array(det, np.int64), np.array(typ, dtype=object), np.array(rid, np.int64),
+                         np.array(xy).reshape(-1, 2), np.array(tms, np.int64), np.array(where, np.int64),
+                         decimal or ",")
 
 
 def times_to_frames(table: TAnalystTable, fps: float, start_ms: int = 0,

@@ -174,7 +174,8 @@ def read_positions(folder: Path) -> tuple[PoseTable, list[str], int]:
             nums.append(v)
     a = np.array(nums, dtype=np.float64).reshape(-1, 8)
     heading = np.arctan2(a[:, 7], a[:, 6])
-    return PoseTable(frames, tids, np.array(types, object), a[:, :3], heading, a[:, 3:6]), seen, len(files)
+    return (PoseTable(np.array(frames, np.int64), np.array(tids, np.int64), np.array(types, object),
+                      a[:, :3], heading, a[:, 3:6]), seen, len(files))
 
 
 def _class_specs(types: list[str]) -> tuple[list[ClassSpec], dict[str, str]]:
@@ -298,9 +299,12 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
 
     # ground truth in the right-handed world
     heading = np.arctan2(-np.sin(poses.heading), np.cos(poses.heading))
-    gt = PoseTable(poses.frame, poses.track_id, np.array([mapping[t] for t in poses.cls], object),
-                   poses.xyz @ MIRROR, heading, poses.size * size_scale).sorted()
-    cars = gt.size[gt.cls == "car", 0]
+    cls = np.array([mapping[t] for t in poses.cls], object)
+    size = poses.size  # (every pose read has its l, w, h)
+    assert size is not None
+    size = size * size_scale
+    gt = PoseTable(poses.frame, poses.track_id, cls, poses.xyz @ MIRROR, heading, size).sorted()
+    cars = size[cls == "car", 0]
     if len(cars) and np.median(cars) < 3.0 and size_scale == 1.0:
         log(f"note: median car length {np.median(cars):.2f} m looks like CARLA half extents; "
             "import it with a size scale of 2 if so")

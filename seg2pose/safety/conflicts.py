@@ -278,8 +278,8 @@ def streamed_pair_frames(tracks: Tracks, mot: Motion, opts: ConflictOptions,
     if len(t) == 0:
         e = np.zeros(0, np.int64)
         return PairFrames(e, e, np.zeros(0), np.zeros(0)), 0
-    chunk = opts.chunk_s if opts.chunk_s > 0 else np.inf
-    k = np.floor((t - t.min()) / chunk).astype(np.int64) if np.isfinite(chunk) else np.zeros(len(t), np.int64)
+    span = opts.chunk_s if opts.chunk_s > 0 else np.inf  # seconds per chunk
+    k = np.floor((t - t.min()) / span).astype(np.int64) if np.isfinite(span) else np.zeros(len(t), np.int64)
     order = np.argsort(k, kind="stable")
     bounds = np.r_[0, np.flatnonzero(np.diff(k[order])) + 1, len(k)]
 

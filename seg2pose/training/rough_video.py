@@ -39,6 +39,8 @@ from seg2pose.video.video_masks import BackgroundMasks, BgConfig
 
 NEIGHBOUR_CLASSES = (("car", 0.45), ("pedestrian", 0.4), ("bicyclist", 0.15))
 MARGIN_PX = 12  # gap kept between targets of one frame (the closing must not join them)
+# a target waiting for a frame: its group's parts, contact point xyz, box (pixels), heading
+_Queued = tuple[list[np.ndarray], np.ndarray, tuple[int, int, int, int], float]
 
 
 @dataclass
@@ -107,8 +109,8 @@ def _group(camera: Camera, ground: GroundSurface, cls: str, xyz: np.ndarray, hd:
 
     objs = [place(rough_model(cls) * sc, hd, xyz)]
     if rng.random() < neighbours:
-        names, p = zip(*NEIGHBOUR_CLASSES)
-        ncls = names[int(rng.choice(len(names), p=np.array(p) / sum(p)))]
+        names, weights = [c for c, _ in NEIGHBOUR_CLASSES], [w for _, w in NEIGHBOUR_CLASSES]
+        ncls = names[int(rng.choice(len(names), p=np.array(weights) / sum(weights)))]
         ang, dist = rng.uniform(-np.pi, np.pi), rng.uniform(0.8, 4.0)
         nxy = xyz[:2] + dist * np.array([np.cos(ang), np.sin(ang)])
         nz = float(ground.height(nxy[None])[0])
@@ -209,7 +211,7 @@ def render_video_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
     xyz_out: list[np.ndarray] = []
     hd_out: list[float] = []
     stats = {"frames": 0, "targets": 0, "missed": 0, "merged": 0}
-    queue: list[tuple[list[np.ndarray], np.ndarray, tuple[int, int, int, int], float]] = []
+    queue: list[_Queued] = []
     while len(rles) < n:
         if stats["frames"] > 50 + 20 * n:
             raise InputError(f"could not film {n} {cls} rough models that the background "
@@ -244,7 +246,9 @@ def render_video_examples(camera: Camera, ground: GroundSurface, cls: str, n: in
                 continue
             queue.append((g, xyz, box, hd))
         # a frame: targets from the queue whose boxes do not overlap (the rest wait)
-        chosen, boxes, rest = [], [], []
+        chosen: list[_Queued] = []
+        rest: list[_Queued] = []
+        boxes: list[tuple[int, int, int, int]] = []
         for item in queue:
             b = item[2]
             if len(chosen) < per_frame and all(b[2] <= c[0] or c[2] <= b[0] or b[3] <= c[1]

@@ -143,7 +143,8 @@ def rough_stage_views(scene: Scene, stage_dir: Path, cams: list[str], progress: 
     split = unlabelled_split(scene)
     models = load_models(scene, cams, stage_dir)
     run_dir = stage_dir / TRAIN_RUN
-    shas = sorted({file_sha256(Path(p)) for p in models.paths.values()})
+    shas = sorted({file_sha256(Path(f)) for p in models.paths.values()
+                   for f in (p if isinstance(p, list) else [p])})
     if (run_dir / "views.csv").exists():
         meta = read_run_meta(run_dir)
         if (sorted({m["sha256"] for m in meta.get("models", {}).values()}) == shas
@@ -228,11 +229,11 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                               N_GEO if cfg.geometry else 0)
     ft = cfg.replace(epochs=cfg.self_epochs)  # the fine-tuning's loop (its cosine schedule too)
     cap = cfg.max_train_per_class or PSEUDO_PER_CLASS
-    labels = val_tracks = None
+    pseudo: tuple[PseudoLabels, np.ndarray] | None = None  # (labels, held-out track ids)
     skipped: list[str] = []
     for group in camera_groups(scene, cams, cfg.share_cameras):
         for job in model_jobs(scene, out, cfg, net_cfg, group, classes, None, settings.force):
-            if labels is None:  # only when a model is still to train
+            if pseudo is None:  # only when a model is still to train
                 views = rough_stage_views(scene, stage, cams, progress)
                 labels = pseudo_poses(scene, views, cfg.self_train, cfg.self_smooth)
                 tracks = np.unique(labels.track_id)
@@ -240,6 +241,10 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                 val_tracks = rng.choice(tracks, int(round(VAL_SHARE * len(tracks))), replace=False)
                 say(f"self-training ({cfg.self_train}): {len(labels)} pseudo-labelled views of "
                     f"{len(tracks)} tracks ({len(val_tracks)} held out for validation)")
+                pseudo = (labels, val_tracks)
+            labels, val_tracks = pseudo
+            rough = job.rough  # self-training is zero-annotation: every job has its rough pool
+            assert rough is not None
             start = check_rough_stage(stage / job.path.name, cfg)
             kcls = scene.class_names if job.key == "*" else [job.key]
             rng = np.random.default_rng([cfg.seed, sum(map(ord, job.path.name))])
@@ -253,9 +258,9 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                 skipped.append(keep_rough_stage(stage / job.path.name, job.path, kcls, labels))
                 continue
             say(f"{job.path.stem}: self-training on {len(job.train)} pseudo-labelled + "
-                f"{len(job.rough)} rough examples, {len(job.val)} validation")
+                f"{len(rough)} rough examples, {len(job.val)} validation")
             ck = new_checkpoint(scene, job, cfg, settings, net_cfg, scene.class_names,
-                                ExampleSet.concat([job.train, job.rough]))
+                                ExampleSet.concat([job.train, rough]))
             ck.info["self_training"] = {
                 "flavour": cfg.self_train, "epochs": cfg.self_epochs, "smooth": cfg.self_smooth,
                 "split": unlabelled_split(scene), "n_pseudo": len(job.train),
@@ -267,7 +272,7 @@ def self_train_scene(scene: Scene, out: Path, cfg: TrainConfig, settings: TrainS
                 return TrainData.of(ex, job.norm, scene.class_names, job.key == "*", cfg.geometry)
 
             init = {k: v.detach().cpu() for k, v in start.net.state_dict().items()}
-            train_model(data(job.train), data(job.rough), data(job.val), net_cfg, ft, ck,
+            train_model(data(job.train), data(rough), data(job.val), net_cfg, ft, ck,
                         job.path, progress, None, settings, init=init)
     if skipped:  # once more at the end of a long run, where the user looks
         say("self-training finished; skipped (rough-only model kept): " + "; ".join(skipped))

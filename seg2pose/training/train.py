@@ -156,11 +156,10 @@ def _set_aside(state_path: Path, err: Exception, ckpt: Checkpoint, cfg: TrainCon
         except S2PError:
             last = None
     info = last.info if last is not None else {}
-    usable = (last is not None and info.get("complete") is False
-              and last.scene_fingerprint == ckpt.scene_fingerprint
-              and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
-              and same_protocol(info.get("train_config", asdict(cfg)), cfg))
-    if not usable:
+    if last is None or path is None or not (
+            info.get("complete") is False and last.scene_fingerprint == ckpt.scene_fingerprint
+            and isinstance(info.get("run"), int) and isinstance(info.get("epoch"), int)
+            and same_protocol(info.get("train_config", asdict(cfg)), cfg)):
         say(f"the resume state {state_path} is damaged ({why}); set aside as {bad.name}; "
             "no checkpoint of this training to continue from, so it starts afresh", "warning")
         return None
@@ -220,6 +219,8 @@ def train_model(train: TrainData | None, rough: TrainData | None, val: TrainData
     n_real = cfg.batch_size - n_rough
     if n_real and (train is None or not len(train.ex)):
         raise S2PError(f"{path.stem}: no training examples")
+    # (examples, how many per batch) of the pools a batch draws from
+    pools = [(d, k) for d, k in ((train, n_real), (rough, n_rough)) if k and d is not None]
     resume = _load_resume(state_path, ckpt, cfg, path, settings.force)
     start_run, start_epoch, best = (resume["run"], resume["epoch"], resume["best"]) if resume else (
         0, 0, {"val_loss": math.inf})
@@ -252,8 +253,7 @@ def train_model(train: TrainData | None, rough: TrainData | None, val: TrainData
             # an epoch: batches drawn at random (with replacement), one Adam step each
             tot = 0.0
             for _ in range(cfg.batches_per_epoch):
-                parts = [data.batch(rng.integers(0, len(data.ex), k))
-                         for data, k in ((train, n_real), (rough, n_rough)) if k]
+                parts = [data.batch(rng.integers(0, len(data.ex), k)) for data, k in pools]
                 x, v, y = (torch.from_numpy(np.concatenate(p)).to(device) for p in zip(*parts))
                 with autocast(device):
                     p = net(x, v)
