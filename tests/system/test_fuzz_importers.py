@@ -1,7 +1,8 @@
 """Structured fuzzing of the importers (issue 24; the readers themselves in test_fuzz_scene,
 _masks, _poses and _mcap): COCO detections, T-Analyst ``.tacal`` calibrations, T-Analyst tracks
-CSV, videos, calibration files of ``new-scene``, UTOCS. Near-valid inputs (one field mutated, truncated, swapped or absurd)
-end in the project's one-line error or are imported; valid inputs import exactly; and the
+CSV, videos, calibration files of ``new-scene``, UTOCS. Near-valid inputs (one field mutated,
+truncated, swapped or absurd) end in the project's one-line error or are imported; valid
+inputs import exactly; and the
 property every importer keeps: what it wrote is accepted by the commands that read it (the
 scene by ``s2p info`` and ``s2p run --baseline``, masks by ``run``, annotations by reopening
 the project and exporting its ground truth). In-process, for speed."""
