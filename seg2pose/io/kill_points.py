@@ -151,13 +151,11 @@ def _restore(folder: Path, keep: Path, marks: dict[str, object]) -> dict[str, ob
     """Put ``folder`` back as ``_checkpoint`` found it: entries added since removed, changed
     or missing ones copied back from ``keep`` (unchanged ones, which the command may hold
     open, untouched). The signatures now."""
-    from seg2pose.io.atomic_set import remove_path
-
     now = {e.name: e for e in folder.iterdir() if not _skip(e.name)} if folder.is_dir() else {}
     out = {}
     for name, e in now.items():
         if name not in marks or _sig(e) != marks[name]:
-            remove_path(e)
+            shutil.rmtree(e) if e.is_dir() and not e.is_symlink() else e.unlink()
     for name in marks:
         p = folder / name
         if not (p.exists() or p.is_symlink()):
