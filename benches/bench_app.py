@@ -170,7 +170,7 @@ def browser(args) -> None:
     sizes = ', '.join(f'{c} {scene.cameras[c].width}x{scene.cameras[c].height}' for c in cams)
     print(f"scene: {n} frames, cameras {sizes}"
           f" (code videos written in {time.perf_counter() - t0:.0f} s)")
-    from annotate.app.session import prepare_viewer
+    from annotate.app.viewer_cache import prepare_viewer
 
     t0 = time.perf_counter()
     prepare_viewer(root)  # what `s2p annotate` does before it starts the server

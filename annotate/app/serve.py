@@ -210,7 +210,7 @@ def run_app(scene: Path, run: Path | None = None, cameras: list[str] | None = No
     import webbrowser
 
     check_scene(scene, run, cameras)
-    from annotate.app.session import prepare_viewer
+    from annotate.app.viewer_cache import prepare_viewer
 
     prepare_viewer(scene, run, cameras)  # videos encoded once, here with a progress bar
     # the server runs in its own process group (so that stopping it stops all it started):

@@ -31,6 +31,7 @@ from annotate.app.controller import Controller  # noqa: E402
 from annotate.app.frame_image import FrameImages  # noqa: E402
 from annotate.app.frame_view import FrameView  # noqa: E402
 from annotate.app.panel import Panel, render  # noqa: E402
+from annotate.app.viewer_cache import page_frames  # noqa: E402
 from s2p_review import layout as L  # noqa: E402
 from s2p_review.annotation_log import (  # noqa: E402
     AnnotationLogger,
@@ -83,7 +84,7 @@ class Session:
         self.target = target
         p = self.ctl.project
         self._run_dir, self._logged = run, False
-        cams, first, last, video = _page_frames(p.scene, run, self.ctl.cameras, self.ctl.frame_range)
+        cams, first, last, video = page_frames(p.scene, run, self.ctl.cameras, self.ctl.frame_range)
         self.notes: list[str] = []
         self.ctl.video_frames = video
         self.pictures = FrameImages(p.scene, cams, first, last)
@@ -407,42 +408,6 @@ class Session:
                 self.refresh_panel()
                 return
             self._apply_click(*self._last_click)
-
-
-def _page_frames(scene, run, cameras, frames) -> tuple[list[str], int, int, dict]:
-    """(cameras shown, first, last frame, camera -> frames with video) of a page: what
-    ``log_scene`` would log, from the selection and the cached video assets alone."""
-    from s2p_review.selection import select
-    from s2p_review.video_asset import video_asset
-
-    sel = select(scene, [run] if run is not None else [], frames, cameras)
-    video = {}
-    for c in sel.cameras:
-        asset = video_asset(scene, c, sel.first, sel.last)  # cached by prepare_viewer
-        video[c] = set(map(int, asset.frames)) if asset is not None else set()
-    return sel.cameras, sel.first, sel.last, video
-
-
-def prepare_viewer(scene_dir, run=None, cameras=None) -> None:
-    """Encode the cameras' videos and mask outlines for the viewer before a page asks for them
-    (cached: s2p_review.video_asset), with a progress bar here, so that the first page load
-    does not wait silently. The same frames and cameras as a page's (``log_scene``)."""
-    from tqdm import tqdm
-
-    from annotate.estimates import scene_frames
-    from s2p_review.recording import outline_table
-    from s2p_review.selection import select
-    from s2p_review.video_asset import video_asset
-    from seg2pose.io.scene import load_scene
-
-    scene = load_scene(scene_dir)
-    frames = scene_frames(scene) or (0, 0)
-    sel = select(scene, [run] if run is not None else [], frames, cameras)
-    for cam in tqdm(sel.cameras, desc="camera views for the viewer (cached: quick after the first start)",
-                    unit="camera", leave=False):
-        video_asset(scene, cam, sel.first, sel.last)
-        if scene.masks_path(cam).exists():
-            outline_table(scene, cam, sel.first, sel.last)
 
 
 def session_from_env() -> Session:

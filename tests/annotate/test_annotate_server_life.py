@@ -33,9 +33,9 @@ def test_s2p_annotate_exits_with_the_reason_when_its_server_dies(tmp_path, monke
                                  "import sys; sys.exit(3)"], stdout=f)
     monkeypatch.setattr(serve, "check_scene", lambda *a: None)
     monkeypatch.setattr(serve, "start", lambda *a, **k: serve.Server(proc, PORT, TOKEN, log))
-    import annotate.app.session as session
+    import annotate.app.viewer_cache as viewer_cache
 
-    monkeypatch.setattr(session, "prepare_viewer", lambda *a: None)
+    monkeypatch.setattr(viewer_cache, "prepare_viewer", lambda *a: None)
     said = []
     with pytest.raises(S2PError, match="stopped with exit code 3: 2026-01-01 boom: port gone"):
         serve.run_app(tmp_path, browser=False, echo=said.append)

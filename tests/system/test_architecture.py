@@ -43,7 +43,7 @@ MAY_IMPORT = {
 # does, and draws the large camera's picture from the same video asset and columns; the
 # annotation engine and the app's controller stay free of it
 EXCEPTIONS = {("annotate.app.session", "s2p_review"), ("annotate.app.notebook", "s2p_review"),
-              ("annotate.app.frame_image", "s2p_review")}
+              ("annotate.app.frame_image", "s2p_review"), ("annotate.app.viewer_cache", "s2p_review")}
 # third-party packages only some layers may use: the viewer's SDK belongs to the review and
 # annotation packages and the command layer
 ONLY_IN = {"rerun": {"s2p_review", "annotate", "seg2pose.cli"}}
