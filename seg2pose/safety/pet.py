@@ -5,8 +5,9 @@ position and the second vehicle first occupied the same position").
 Found from the footprints at every frame: PET is the smallest time between a frame of one road
 user and a frame of the other whose footprints overlap (they occupied a common spot), then
 refined between frames: the first one's exit from the second's footprint and the second's entry
-into the first's, with each moving in a straight line between its frames. For two cars crossing
-at right angles this is exactly "rear leaves the shared square" to "front enters it".
+into the first's, found together (``latest_exit``), with each moving in a straight line between
+its frames. For two cars crossing at right angles this is exactly "rear leaves the shared
+square" to "front enters it".
 
 Only moving rows (speed >= ``moving_mps``) are searched: a road user that stands still
 occupies one spot for long and is the subject of TTC, not PET. Rows more than ``window_s``
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.encounters import near_pairs, pair_codes
-from seg2pose.safety.footprints import Footprints, overlap_interval, reach
+from seg2pose.safety.footprints import Footprints, reach
 from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.workers import map_chunks
@@ -249,38 +250,96 @@ def refine(tracks: Tracks, mot: Motion, first: np.ndarray, second: np.ndarray):
     """Exit and entry times between frames for rows ``first`` (K,) and ``second`` (K,) whose
     footprints overlap, ``first`` not later: (t_exit, t_enter), (K,) seconds.
 
-    The first road user's exit point lies, by construction, on the edge of the second's
-    footprint, so whether the second still overlaps it a moment earlier is decided on that
-    edge: both footprints are taken ``EDGE_M`` larger here, so that rounding (times of frame
-    1e6, positions far from the origin) cannot turn a touching into a miss. Times between
-    frames are measured from the row's own frame (integer differences): the result depends
-    on the frames' differences only, not on where the frame count starts."""
+    Each road user moves in a straight line between its frames: the first one ``a`` seconds
+    after its frame (towards its next one), the second one ``b`` seconds before its frame
+    (back towards its previous one). PET is the frames' time apart less the largest a + b at
+    which the two footprints still overlap (``latest_exit``: exact, both offsets together).
+    Taking a first (the first one's exit from the second's footprint at its frame) and then b
+    from there lost up to a frame where the exit point only touches the second's edge and mm
+    of noise carry the second off that edge at once. Footprints are taken ``EDGE_M`` larger
+    here, so that rounding (times of frame 1e6, positions far from the origin) cannot turn a
+    touching into a miss. Times between frames are measured from the row's own frame
+    (integer differences): the result depends on the frames' differences only, not on where
+    the frame count starts."""
     xy, hd = tracks.xy, mot.heading
     size = tracks.size + 2 * EDGE_M
     frame, fps = tracks.frame, tracks.fps
     starts, ends = tracks.starts(), tracks.ends()
-    has_next = first < ends[first]
-    nxt = np.where(has_next, first + 1, first)
+    nxt = np.where(first < ends[first], first + 1, first)
+    prv = np.where(second > starts[second], second - 1, second)
     dt1 = (frame[nxt] - frame[first]) / fps
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v1 = np.where(has_next[:, None], (xy[nxt] - xy[first]) / np.where(dt1 > 0, dt1, 1)[:, None], 0)
-    _, leave = overlap_interval(xy[second], hd[second], size[second], xy[first], hd[first],
-                                size[first], v1)
-    alpha = np.clip(np.nan_to_num(leave, posinf=np.inf, neginf=0.0), 0, dt1)
-    at = xy[first] + v1 * alpha[:, None]
-    has_prev = second > starts[second]
-    prv = np.where(has_prev, second - 1, second)
     dt2 = (frame[second] - frame[prv]) / fps
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v2 = np.where(has_prev[:, None], (xy[prv] - xy[second]) / np.where(dt2 > 0, dt2, 1)[:, None], 0)
-    _, leave = overlap_interval(at, hd[first], size[first], xy[second], hd[second], size[second], v2)
-    beta = np.clip(np.nan_to_num(leave, posinf=np.inf, neginf=0.0), 0, dt2)
+    v1 = _per_second(xy[nxt] - xy[first], dt1)  # the first one's velocity
+    v2 = _per_second(xy[prv] - xy[second], dt2)  # the second one's, backwards in time
+    alpha, beta = latest_exit(xy[second] - xy[first], -v1, v2, hd[first], size[first], hd[second],
+                              size[second], dt1, dt2)
     # PET from the frames' difference and the two offsets (exact for any frame numbers)
     gap = (frame[second] - frame[first]) / fps - beta - alpha
     t0 = frame[first] / fps
     t_exit = t0 + alpha
     same = frame[first] == frame[second]  # side by side at one moment: PET 0
     return np.where(same, t0, t_exit), np.where(same, t0, t_exit + np.maximum(gap, 0.0))
+
+
+def _per_second(d: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """(K, 2) displacements ``d`` over ``dt`` (K,) seconds as velocities (0 where dt is 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((dt > 0)[:, None], d / np.where(dt > 0, dt, 1)[:, None], 0.0)
+
+
+# the pairs of the 12 lines that cross (not the two sides of one axis, nor of the box)
+_I, _J = (np.array(x) for x in zip(*[(i, j) for i in range(12) for j in range(i + 1, 12)
+                                    if not (j == i + 1 and i % 2 == 0)]))
+
+
+def latest_exit(r, va, vb, heading_a, size_a, heading_b, size_b, a_max, b_max):
+    """(a, b), (K,) each: the offsets in [0, a_max] x [0, b_max] with the largest a + b (ties:
+    the largest a) at which footprint B, centred at ``r + va a + vb b`` (K, 2) relative to
+    A's, overlaps footprint A (headings (K,), sizes (K, 2)); (0, 0) where none does.
+
+    The footprints overlap where B's centre, relative to A's, lies within a half-width of
+    each of the 4 axes (``footprints``): 8 half-planes in (a, b), with the 4 of the box. The
+    largest a + b over that convex polygon lies at one of its corners: every crossing of two
+    of the 12 lines is tried and the feasible ones (to ``EDGE_M`` metres, 1e-12 s) kept."""
+    ca, sa, cb, sb = np.cos(heading_a), np.sin(heading_a), np.cos(heading_b), np.sin(heading_b)
+    cd, sd = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)
+    la, wa, lb, wb = size_a[:, 0] / 2, size_a[:, 1] / 2, size_b[:, 0] / 2, size_b[:, 1] / 2
+    axes = ((ca, sa, la + lb * cd + wb * sd), (-sa, ca, wa + lb * sd + wb * cd),
+            (cb, sb, lb + la * cd + wa * sd), (-sb, cb, wb + la * sd + wa * cd))
+    K = len(r)
+    zero, one = np.zeros(K), np.ones(K)
+    P, Q, C = [], [], []  # 12 lines: P a + Q b <= C
+    for ux, uy, R in axes:
+        s0 = r[:, 0] * ux + r[:, 1] * uy
+        p, q = va[:, 0] * ux + va[:, 1] * uy, vb[:, 0] * ux + vb[:, 1] * uy
+        P += [p, -p]
+        Q += [q, -q]
+        C += [R - s0, R + s0]
+    P, Q = np.array(P + [-one, one, zero, zero]), np.array(Q + [zero, zero, -one, one])
+    C = np.array(C + [zero, a_max, zero, b_max])
+    tol = np.r_[np.full(8, EDGE_M), np.full(4, 1e-12)]
+    best_a, best_b = np.zeros(K), np.zeros(K)
+    for k in range(0, K, 4096):  # (60, 4096) at a time
+        sl = slice(k, k + 4096)
+        p, q, c = P[:, sl], Q[:, sl], C[:, sl]
+        pi, qi, ci, pj, qj, cj = p[_I], q[_I], c[_I], p[_J], q[_J], c[_J]
+        det = pi * qj - qi * pj
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (ci * qj - qi * cj) / det
+            b = (pi * cj - ci * pj) / det
+            ok = np.abs(det) > 1e-12 * (np.abs(pi) + np.abs(qi)) * (np.abs(pj) + np.abs(qj))
+            for m in range(12):
+                ok &= p[m] * a + q[m] * b <= c[m] + tol[m]
+            val = np.where(ok, a + b, -np.inf)
+        top = val.max(axis=0, initial=0.0)  # (0, 0) is a corner, feasible
+        # ties (to rounding): the largest a, the first one's exit as late as it can be
+        a = np.where(ok & (val >= top - 1e-12), a, -np.inf)
+        i = np.argmax(a, axis=0)
+        cols = np.arange(a.shape[1])
+        found = np.isfinite(a[i, cols])
+        best_a[sl] = np.where(found, a[i, cols], 0.0)
+        best_b[sl] = np.where(found, b[i, cols], 0.0)
+    return np.clip(best_a, 0, a_max), np.clip(best_b, 0, b_max)
 
 
 def pet(tracks: Tracks, mot: Motion, opts: PetOptions = PetOptions(),
