@@ -242,5 +242,12 @@ def restore_video(video: dict[str, list[tuple[int, bytes]]], folder: Path, fps: 
         vf = extra.get("video_frames") if isinstance(extra.get("video_frames"), dict) else {}
         vf.update({c: {"first": v["first"], "step": 1} for c, v in done.items()})
         extra["video_frames"] = vf
+        from seg2pose.io.scene_schema import scene_fields
+
+        try:  # the schema load_scene reads it with: a video of a camera the scene lacks is refused
+            scene_fields(d, folder, scene_json)
+        except InputError as e:
+            raise InputError(f"the restored scene would be invalid (scene.json field {e.field}): "
+                             f"{e.message}", file=file) from None
         atomic_write_bytes(scene_json, (json.dumps(d, indent=1) + "\n").encode())
     return done

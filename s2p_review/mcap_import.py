@@ -95,18 +95,40 @@ def _restored_run(run_dir: Path, poses, views, meta: dict, path: Path) -> None:
         raise InputError(f"the restored {name} would be invalid{where}: {e.message}", file=path) from None
 
 
+def _scene_refused(e: InputError, path: Path) -> InputError:
+    """A refusal of the restored scene's files said naming the MCAP file ``path``."""
+    where = Path(e.file).name if e.file else SCENE_FILE
+    where += (f" line {e.line}" if e.line else "") + (f" field {e.field}" if e.field else "")
+    return InputError(f"the restored scene would be invalid ({where}): {e.message}", file=path)
+
+
+def _check_attachments(scene_d: dict, att: dict, gfile: str, out_dir: Path, path: Path) -> None:
+    """The scene.json and ground points attachments checked against the schema their reader
+    uses (``io/scene_schema.py``) before anything is written: a scene ``load_scene`` would
+    refuse (a camera named '../x', fps -1, two ground points, ...) is refused naming the MCAP
+    file."""
+    from seg2pose.io.scene_schema import ground_points_from_text, scene_fields
+
+    try:
+        scene_fields(scene_d, out_dir, out_dir / SCENE_FILE)
+        try:
+            text = att[gfile].decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError("not UTF-8 text", file=out_dir / gfile) from None
+        ground_points_from_text(text, file=out_dir / gfile)
+    except InputError as e:
+        raise _scene_refused(e, path) from None
+
+
 def _check_scene(tmp: Path, path: Path) -> None:
     """Read the restored scene.json and ground points back with ``load_scene`` (the reader
-    every command uses): a scene it would refuse (a camera named '../x', fps -1, two ground
-    points, ...) is refused here, naming the MCAP file, before anything is swapped in."""
+    every command uses), before anything is swapped in; a refusal names the MCAP file."""
     from seg2pose.io.scene import load_scene
 
     try:
         load_scene(tmp)
     except InputError as e:
-        where = Path(e.file).name if e.file else SCENE_FILE
-        where += (f" line {e.line}" if e.line else "") + (f" field {e.field}" if e.field else "")
-        raise InputError(f"the restored scene would be invalid ({where}): {e.message}", file=path) from None
+        raise _scene_refused(e, path) from None
 
 
 def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRecords,
@@ -181,6 +203,7 @@ def import_mcap(path: Path, out_dir: Path, force: bool = False,
     table = _parsed(R.pose_table, rec.poses, R.POSES_TOPIC, path,
                     meta.get("poses_with_size", "true") == "true")
 
+    _check_attachments(scene_d, att, gfile, out_dir, path)
     journal = any(a.startswith(PREFIX) for a in att)
     video = read_video(path)
     run_rel = Path("out") / run_name

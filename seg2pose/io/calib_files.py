@@ -265,9 +265,11 @@ def write_calibration(out: str | Path, cameras: list[dict], report: dict, report
     """calib.json and the files beside it (``output_names``), locked, refused when present
     unless ``force``, built beside and swapped in as a set."""
     from seg2pose.io.scene import write_ground_points
+    from seg2pose.io.scene_schema import check_ground_points
 
     names = output_names(Path(out), list(pictures))
     text = calib_json(cameras, report, file=names["calib"])
+    check_ground_points(ground, file=names["ground"])  # as s2p new-scene --ground reads them
     with outputs(list(names.values()), force) as files:
         atomic_write_text(files.file(names["calib"]), text)
         write_ground_points(files.file(names["ground"]), ground)
@@ -292,12 +294,19 @@ def write_scene_version(root: str | Path, new_scene_json: str, old_scene_json: s
     """A scene's new calibration version: ``calibrations/v<N>/`` with the scene.json it
     replaces (``scene-before.json``) and ``files`` (name -> bytes: calib.json, report,
     pictures), and the new scene.json, swapped in together under their locks. The version
-    folder must be new (a version is never overwritten)."""
-    from seg2pose.io.scene import SCENE_FILE
+    folder must be new (a version is never overwritten). The new scene.json is checked first
+    against the schema its reader uses (``io/scene_schema.py``): nothing is written when
+    ``load_scene`` would refuse it."""
+    from seg2pose.io.scene_schema import SCENE_FILE, writable_scene
 
     root = Path(root)
     vdir = root / CALIBRATIONS / f"v{version}"
     scene_path = root / SCENE_FILE
+    try:
+        new = json.loads(new_scene_json)
+    except json.JSONDecodeError as e:
+        raise InputError(f"the new scene.json is not JSON: {e.msg}", file=scene_path) from None
+    writable_scene(new, root, scene_path)
     with outputs([vdir], force=False, records=[scene_path]) as out:
         tmp = out.folder(vdir)
         atomic_write_text(tmp / "scene-before.json", old_scene_json)

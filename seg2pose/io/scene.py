@@ -21,9 +21,7 @@ scene.json, version 1::
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,24 +29,28 @@ from pathlib import Path
 import numpy as np
 
 from seg2pose.core.errors import InputError
-from seg2pose.core.validate import FPS_RANGE, MAX_COORD, MAX_ID, inside, integer, number, safe_name
 from seg2pose.geometry.camera import Camera, Rig
 from seg2pose.geometry.ground import GroundSurface
 from seg2pose.io.atomic import atomic_write_text, outputs
 from seg2pose.io.mots import MaskTable, iter_mots
 from seg2pose.io.nofollow import write_new_text
+from seg2pose.io.scene_schema import (  # noqa: F401 (re-exported: the scene folder's names)
+    CLASS_SIZES,
+    DEFAULT_CLASSES,
+    MAX_CLASS_ID,
+    MAX_DEFAULT_HEIGHT,
+    MAX_START_NS,
+    SCENE_FILE,
+    SCENE_VERSION,
+    check_ground_points,
+    ground_points_from_text,
+    ground_points_text,
+    parse_start_time,
+    scene_fields,
+    writable_scene,
+)
+from seg2pose.io.schema import check
 from seg2pose.io.text import load_json, read_text
-
-SCENE_VERSION = 1
-MAX_CLASS_ID = 65535
-MAX_DEFAULT_HEIGHT = 20.0  # metres above the ground
-SCENE_FILE = "scene.json"
-DEFAULT_CLASSES: list[dict] = [
-    {"id": 1, "name": "pedestrian", "default_height": 0.9},
-    {"id": 2, "name": "bicyclist", "default_height": 0.9},
-    {"id": 3, "name": "car", "default_height": 0.75},
-]
-
 
 # l, w, h metres, used when scene.json gives no extra["class_sizes"]: a mid-size car, an adult
 # walking (shoulders and stride), a bicycle with rider, a rigid truck, a city bus, a motorcycle
@@ -119,6 +121,8 @@ class Scene:
 
     def __post_init__(self) -> None:
         self.ground = GroundSurface(self.ground_points, file=self.root / self.ground_file)
+        if not self.classes:  # as scene.json's reader reads no classes: the written scene reads back equal
+            self.classes = [ClassSpec(**c) for c in DEFAULT_CLASSES]
 
     # --- lookups --------------------------------------------------------------------------------
     @property
@@ -142,16 +146,9 @@ class Scene:
     def class_sizes(self) -> dict[str, tuple[float, float, float]]:
         """Class name -> typical (l, w, h) metres: extra['class_sizes'] over the defaults."""
         sizes = dict(DEFAULT_CLASS_SIZES)
-        extra = self.extra.get("class_sizes") or {}
-        if not isinstance(extra, dict):
-            raise InputError("expected an object of class name -> [l, w, h]",
-                             file=self.root / SCENE_FILE, field="extra.class_sizes")
-        for k, v in extra.items():
-            f = f"extra.class_sizes.{k}"
-            if not isinstance(v, list) or len(v) != 3:
-                raise InputError("expected [l, w, h] numbers (metres)", file=self.root / SCENE_FILE, field=f)
-            l, w, h = (number(x, file=self.root / SCENE_FILE, field=f, lo=0, lo_open=True, hi=1000.0) for x in v)
-            sizes[str(k)] = (l, w, h)
+        own = check(self.extra.get("class_sizes") or {}, CLASS_SIZES, file=self.root / SCENE_FILE,
+                    field="extra.class_sizes")
+        sizes.update({str(k): v for k, v in own.items()})
         return sizes
 
     def road_user_sizes(self, cls, own: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
@@ -230,7 +227,7 @@ class Scene:
         d = {"version": SCENE_VERSION, "name": self.name, "fps": self.fps,
              "ground_points": self.ground_file,
              "classes": [{"id": c.id, "name": c.name, "default_height": c.default_height}
-                         for c in self.classes],
+                         for c in self.classes or [ClassSpec(**c) for c in DEFAULT_CLASSES]],
              "rig": self.rig.name,
              "cameras": [c.to_dict() for c in self.cameras.values()],
              "configs": self.rig.configs}
@@ -244,207 +241,68 @@ class Scene:
             d["extra"] = self.extra
         return d
 
+    def check(self, root: str | Path | None = None) -> str:
+        """The scene.json text ``save`` would write into ``root`` (default: the scene's folder),
+        checked first with the reader's schema (``scene_schema``: scene.json and the ground
+        points): what ``load_scene`` would refuse (fps 0 or nan, a camera named '../x', two
+        ground points, ...) is refused in one line naming the file and the field."""
+        root = Path(root) if root is not None else self.root
+        d = self.to_dict()
+        try:  # NaN passes here: the schema refuses it naming its field (fps, cameras[c0].K, ...)
+            writable_scene(json.loads(json.dumps(d)), root, root / SCENE_FILE)
+            text = json.dumps(d, indent=1, allow_nan=False) + "\n"
+        except TypeError as e:
+            raise InputError(f"cannot write a value that is not JSON ({e})", file=root / SCENE_FILE) from None
+        except ValueError as e:  # (not InputError: the schema passed) NaN or inf where it is free-form
+            if isinstance(e, InputError):
+                raise
+            raise InputError(f"cannot write a number that is not finite ({e})", file=root / SCENE_FILE,
+                             field="extra") from None
+        try:
+            check_ground_points(self.ground_points, file=root / self.ground_file)
+        except InputError as e:
+            raise InputError(f"these ground points would not be readable: {e.message}", file=e.file,
+                             field=e.field) from None
+        return text
+
     def save(self, root: str | Path | None = None) -> None:
         """Write scene.json and the ground points into ``root`` as one set (``atomic.outputs``),
-        read back by ``load_scene`` first: what the reader would refuse (fps 0 or nan, two
-        ground points, ...) is refused with the reader's message, and nothing is written."""
+        checked first (``check``): what the reader would refuse is refused with the reader's
+        message, and nothing is written."""
         root = Path(root) if root is not None else self.root
-        try:
-            text = json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n"
-        except ValueError:
-            raise InputError(f"cannot write a scene with fps {self.fps!r} or another value that is "
-                             "not a finite number", file=root / SCENE_FILE) from None
+        text = self.check(root)
         with outputs([root / SCENE_FILE, root / self.ground_file], force=True) as out:
             write_new_text(sj := out.file(root / SCENE_FILE), text)
             g = sj.parent / self.ground_file
             g.parent.mkdir(parents=True, exist_ok=True)
-            write_new_text(g, ground_points_text(self.ground_points))
+            write_new_text(g, ground_points_text(self.ground_points, file=root / self.ground_file))
             out.adopt(root / self.ground_file, g)
-            try:
-                load_scene(sj.parent)
-            except InputError as e:
-                f = SCENE_FILE if e.file is None or Path(e.file).name == SCENE_FILE else self.ground_file
-                raise InputError(f"this scene would not be readable: {e.message}", file=root / f,
-                                 field=e.field, line=e.line) from None
 
 
 def read_ground_points(path: str | Path) -> np.ndarray:
-    """Ground points CSV: ``x,y,z`` per line (metres), an optional header line."""
+    """Ground points CSV: ``x,y,z`` per line (metres), an optional header line; checked as
+    ``scene_schema.check_ground_points`` declares."""
     path = Path(path)
-    text = read_text(path, "ground points file")
-    reader = csv.reader(io.StringIO(text))
-    try:
-        pts, lines = _parse_ground_points(reader, path)
-    except csv.Error as e:
-        raise InputError(f"malformed CSV: {e}", file=path, line=reader.line_num) from None
-    try:
-        GroundSurface(pts, file=path)  # validates count and duplicates
-    except InputError as e:
-        if e.line is None or not lines:
-            raise
-        # GroundSurface numbers points from 1; report the file's line instead
-        raise InputError(e.message, file=path, line=lines[e.line - 1]) from None
-    return pts
-
-
-def _parse_ground_points(reader, path: Path) -> tuple[np.ndarray, list[int]]:
-    """Rows (n, 3) metres and their line numbers (n,)."""
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    for row in reader:
-        i = reader.line_num
-        if not row or all(not c.strip() for c in row):
-            continue
-        if not rows and row[0].strip().lower() in ("x", "#x"):
-            continue  # header
-        if len(row) != 3:
-            raise InputError(f"expected 3 fields x,y,z, got {len(row)}", file=path, line=i)
-        try:
-            v = [float(c) for c in row]
-        except ValueError:
-            raise InputError(f"expected numbers x,y,z, got {row}", file=path, line=i) from None
-        if not np.all(np.isfinite(v)):
-            raise InputError("NaN or inf in ground point", file=path, line=i)
-        if max(abs(x) for x in v) > MAX_COORD:
-            raise InputError(f"ground point {v} is more than {MAX_COORD:g} m from the origin; "
-                             "expected metres within +-1e6", file=path, line=i)
-        rows.append(v)
-        lines.append(i)
-    return np.array(rows, dtype=np.float64).reshape(-1, 3), lines
-
-
-def ground_points_text(points: np.ndarray) -> str:
-    buf = io.StringIO()
-    buf.write("x,y,z\n")
-    for x, y, z in np.asarray(points, float).tolist():  # Python floats: repr is a plain number
-        buf.write(f"{x!r},{y!r},{z!r}\n")
-    return buf.getvalue()
+    return ground_points_from_text(read_text(path, "ground points file"), file=path)
 
 
 def write_ground_points(path: str | Path, points: np.ndarray) -> None:
-    atomic_write_text(path, ground_points_text(points))
-
-
-def _req(d: dict, key: str, file: Path, where: str = ""):
-    if not isinstance(d, dict) or key not in d:
-        raise InputError(f"missing field '{where}{key}'", file=file, field=f"{where}{key}")
-    return d[key]
+    """The ground points file, refused (nothing written) where the reader would refuse it."""
+    atomic_write_text(path, ground_points_text(points, file=path))
 
 
 def load_scene(root: str | Path) -> Scene:
-    """Read and validate a scene folder (or a path to its scene.json)."""
+    """Read and validate a scene folder (or a path to its scene.json): scene.json and the ground
+    points checked against their schema (``io/scene_schema.py``), which every writer of them
+    checks too."""
     root = Path(root)
     if root.name == SCENE_FILE:
         root = root.parent
     path = root / SCENE_FILE
     if not path.exists():
         raise InputError(f"no {SCENE_FILE} here (is this a scene folder?)", file=path)
-    d = load_json(path)
-    if not isinstance(d, dict):
-        raise InputError("expected a JSON object", file=path)
-    version = _req(d, "version", path)
-    if version != SCENE_VERSION:
-        raise InputError(f"unsupported version {version!r}; this s2p reads version {SCENE_VERSION}",
-                         file=path, field="version")
-    fps = number(_req(d, "fps", path), file=path, field="fps", lo=FPS_RANGE[0], hi=FPS_RANGE[1])
-    cams_d = _req(d, "cameras", path)
-    if not isinstance(cams_d, list) or not cams_d:
-        raise InputError("expected a non-empty list of cameras", file=path, field="cameras")
-    cameras: dict[str, Camera] = {}
-    for i, cd in enumerate(cams_d):
-        if not isinstance(cd, dict):
-            raise InputError("expected an object", file=path, field=f"cameras[{i}]")
-        cam = Camera.from_dict(cd, file=path, where=f"cameras[{i}]")
-        if cam.name in cameras:
-            raise InputError(f"duplicate camera name {cam.name!r}", file=path, field=f"cameras[{i}].name")
-        cameras[cam.name] = cam
-    configs = d.get("configs") or {}
-    if not isinstance(configs, dict) or not all(isinstance(v, list) for v in configs.values()):
-        raise InputError("expected an object of name -> list of camera names", file=path, field="configs")
-    for k, v in configs.items():
-        safe_name(k, file=path, field=f"configs.{k}", what="configuration name")
-        for j, n in enumerate(v):
-            if not isinstance(n, str):
-                raise InputError(f"expected a camera name, got {n!r}", file=path,
-                                 field=f"configs.{k}[{j}]")
-    try:
-        rig = Rig(cameras=cameras, configs={k: [str(n) for n in v] for k, v in configs.items()},
-                  name=str(d.get("rig", "rig")))
-    except InputError as e:
-        raise InputError(e.message, file=path, field=e.field) from None
-    classes = []
-    classes_d = d.get("classes") or DEFAULT_CLASSES
-    if not isinstance(classes_d, list):
-        raise InputError("expected a list of {id, name, default_height}", file=path, field="classes")
-    for i, c in enumerate(classes_d):
-        if not isinstance(c, dict):
-            raise InputError("expected an object {id, name, default_height}", file=path,
-                             field=f"classes[{i}]")
-        cs = ClassSpec(id=integer(_req(c, "id", path, f"classes[{i}]."), file=path,
-                                  field=f"classes[{i}].id", lo=1, hi=MAX_CLASS_ID),
-                       name=safe_name(_req(c, "name", path, f"classes[{i}]."), file=path,
-                                      field=f"classes[{i}].name", what="class name"),
-                       default_height=number(c.get("default_height", 0.9), file=path,
-                                             field=f"classes[{i}].default_height", lo=0,
-                                             hi=MAX_DEFAULT_HEIGHT))
-        classes.append(cs)
-    if len({c.id for c in classes}) != len(classes) or len({c.name for c in classes}) != len(classes):
-        raise InputError("class ids and names must be unique", file=path, field="classes")
-    splits = {}
-    splits_d = d.get("splits") or {}
-    if not isinstance(splits_d, dict):
-        raise InputError("expected an object of name -> [first, last]", file=path, field="splits")
-    for k, v in splits_d.items():
-        if not (isinstance(v, list) and len(v) == 2
-                and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x < MAX_ID for x in v)
-                and v[0] <= v[1]):
-            raise InputError("expected [first, last] frame numbers, 0 <= first <= last", file=path,
-                             field=f"splits.{k}")
-        splits[k] = (v[0], v[1])
-    gfile = d.get("ground_points", "ground_points.csv")
-    gpath = inside(root, gfile, file=path, field="ground_points", what="ground points file")
-    if gpath == path:
-        raise InputError(f"the ground points cannot be in {SCENE_FILE}", file=path, field="ground_points")
-    extra = d.get("extra") or {}
-    if not isinstance(extra, dict):
-        raise InputError("expected an object", file=path, field="extra")
-    start = d.get("start_time")
-    if start is not None:
-        parse_start_time(start, file=path, field="start_time")
-    videos = d.get("videos") or {}
-    if not isinstance(videos, dict):
-        raise InputError("expected an object of camera name -> video file", file=path, field="videos")
-    for k, v in videos.items():
-        if k not in cameras:
-            raise InputError(f"no camera {k!r} in the scene", file=path, field=f"videos.{k}")
-        inside(root, v, file=path, field=f"videos.{k}", what="video file")
-    pts = read_ground_points(gpath)
-    return Scene(root=root, name=str(d.get("name", root.name)), fps=float(fps), rig=rig,
-                 ground_points=pts, classes=classes, splits=splits,
-                 extra=extra, ground_file=gfile, start_time=start, videos=dict(videos))
-
-
-def parse_start_time(text, file: str | Path | None = None, field: str | None = None) -> int:
-    """An ISO 8601 time with its zone (``2021-06-14T08:00:00Z``, ``...+02:00``) -> UTC
-    nanoseconds since the Unix epoch. A time without a zone is refused: it would be read
-    differently on another machine."""
-    import datetime as dt
-
-    want = "expected an ISO 8601 time with a zone, e.g. 2021-06-14T08:00:00Z"
-    if not isinstance(text, str):
-        raise InputError(f"{want}, got {text!r}", file=file, field=field)
-    try:
-        t = dt.datetime.fromisoformat(text.strip())
-    except ValueError:
-        raise InputError(f"{want}, got {text!r}", file=file, field=field) from None
-    if t.tzinfo is None:
-        raise InputError(f"{want} (no zone in {text!r})", file=file, field=field)
-    delta = t - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
-    ns = (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
-    if not 0 <= ns < MAX_START_NS:
-        raise InputError(f"expected a time from 1970 to 2199 (MCAP and Rerun count unsigned / "
-                         f"signed 64-bit ns from 1970), got {text!r}", file=file, field=field)
-    return ns
-
-
-MAX_START_NS = 7_258_118_400 * 10**9  # 2200-01-01Z: 62 years below Rerun's end (2262-04-11)
+    f = scene_fields(load_json(path), root, path)
+    pts = read_ground_points(root / f.ground_file)
+    return Scene(root=root, name=root.name if f.name is None else f.name, fps=f.fps, rig=f.rig,
+                 ground_points=pts, classes=[ClassSpec(*c) for c in f.classes], splits=f.splits,
+                 extra=f.extra, ground_file=f.ground_file, start_time=f.start_time, videos=f.videos)

@@ -3,10 +3,11 @@ by both the file's writer and its reader, so that a writer cannot produce what a
 
 ``Num`` is one numeric field or column (range, NaN allowed or not, integer or not), ``Table`` a
 column table (its columns, the column that may not decrease, the key that a row holds once),
-``Opt``/``Name``/``Text``/``OneOf``/``ListOf``/``Record`` describe JSON records (run.json, the
-annotation journal's operations), and ``read_settings`` reads a settings object (``--set
-KEY=VALUE`` and scene.json's ``extra`` sections) against its declared ranges. The declarations
-of the file types themselves are in ``io/schemas.py``.
+``Opt``/``Name``/``Text``/``OneOf``/``ListOf``/``DictOf``/``Record``/``Fn`` describe JSON
+records (run.json, scene.json, the annotation journal's operations), and ``read_settings``
+reads a settings object (``--set KEY=VALUE`` and scene.json's ``extra`` sections) against its
+declared ranges. The declarations of the file types themselves are in ``io/schemas.py`` and
+``io/scene_schema.py``.
 
 Checks of columns are vectorised (millions of rows); errors are the project's one line
 (``InputError``) naming the file, the line or record and the field, and what was expected.
@@ -15,7 +16,7 @@ Checks of columns are vectorised (millions of rows); errors are the project's on
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -222,11 +223,14 @@ class OneOf:
 
 @dataclass(frozen=True)
 class ListOf:
-    """A JSON list of ``spec`` items (``n``: exactly that many)."""
+    """A JSON list of ``spec`` items (``n``: exactly that many; at least ``min_len``); ``what``
+    says in messages what is expected ("a non-empty list of cameras")."""
 
     spec: Any
     n: int | None = None
     max_len: int = 10_000_000
+    min_len: int = 0
+    what: str = ""
 
 
 @dataclass(frozen=True)
@@ -235,10 +239,29 @@ class Record:
 
     fields: Mapping[str, Any]
     closed: bool = False
+    what: str = ""
+
+
+@dataclass(frozen=True)
+class DictOf:
+    """A JSON object of any keys (each a ``key`` spec when given, e.g. ``Name``) -> ``spec``
+    values; fields are named ``<field>.<key>``."""
+
+    spec: Any
+    key: Any = None
+    what: str = ""
+
+
+@dataclass(frozen=True)
+class Fn:
+    """A value checked by a reader's own function ``fn(v, file=..., field=...)`` (a camera's
+    ``Camera.from_dict``, a time's parser); what it returns is the value as read."""
+
+    fn: Callable[..., Any]
 
 
 def check(v, spec, *, file=None, field: str = "", line: int | None = None):
-    """``v`` checked against ``spec`` (Num, Name, Text, OneOf, ListOf, Record, Opt, or a Python
+    """``v`` checked against ``spec`` (Num, Name, Text, OneOf, ListOf, DictOf, Record, Fn, Opt, or a Python
     type such as ``dict`` / ``bool`` for "any value of that type"); returns the value as read
     (an int or float for Num)."""
     fld = field or None
@@ -262,14 +285,24 @@ def check(v, spec, *, file=None, field: str = "", line: int | None = None):
             say = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
             raise bad(f"expected {say}, got {repr(v)[:40]}")
         return v
+    if isinstance(spec, Fn):
+        return spec.fn(v, file=file, field=fld) if line is None else spec.fn(v, file=file, field=fld, line=line)
     if isinstance(spec, ListOf):
-        if not isinstance(v, list) or len(v) > spec.max_len or (spec.n is not None and len(v) != spec.n):
+        if not isinstance(v, list) or not spec.min_len <= len(v) <= spec.max_len or (
+                spec.n is not None and len(v) != spec.n):
             n = f" of {spec.n}" if spec.n is not None else ""
-            raise bad(f"expected a list{n}, got {repr(v)[:40]}")
+            raise bad(f"expected {spec.what or 'a list' + n}, got {repr(v)[:40]}")
         return [check(x, spec.spec, file=file, field=f"{field}[{i}]", line=line) for i, x in enumerate(v)]
+    if isinstance(spec, DictOf):
+        if not isinstance(v, dict):
+            raise bad(f"expected {spec.what or 'an object'}, got {repr(v)[:40]}")
+        pre = f"{field}." if field else ""
+        for k in v if spec.key is not None else ():
+            check(k, spec.key, file=file, field=f"{pre}{k}", line=line)
+        return {k: check(x, spec.spec, file=file, field=f"{pre}{k}", line=line) for k, x in v.items()}
     if isinstance(spec, Record):
         if not isinstance(v, dict):
-            raise bad(f"expected an object, got {repr(v)[:40]}")
+            raise bad(f"expected {spec.what or 'an object'}, got {repr(v)[:40]}")
         pre = f"{field}." if field else ""
         if spec.closed:
             extra = [k for k in v if k not in spec.fields]

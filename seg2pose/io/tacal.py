@@ -247,5 +247,6 @@ def scene_from_tacals(files: Sequence[str | Path], ground_points: str | Path, ou
                       ground_points=pts, classes=[ClassSpec(**c) for c in DEFAULT_CLASSES],
                       extra={"imported_from": {"tacal": sources,
                                                "ground_points": str(Path(ground_points).resolve())}})
+        scene.check()  # as load_scene reads it, naming OUT's files
         scene.save(built.folder(out))
     return scene

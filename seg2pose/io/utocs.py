@@ -320,6 +320,7 @@ def import_utocs(src: str | Path, out: str | Path, force: bool = False,
                                     "frames": n_files, "size_scale": size_scale,
                                     "types": {t: mapping[t] for t in types}},
                                     **({"video_frames": video_frames} if video_frames else {})})
+    scene.check()  # as load_scene reads it, before anything is written
     # built beside OUT and swapped in as a unit: --force replaces the old scene entirely (its
     # masks, frames and cameras do not survive), and a killed import leaves OUT as it was
     with replacing(out, force) as tmp:

@@ -276,6 +276,7 @@ def new_scene(out: str | Path, videos: Mapping[str, str | Path], calibration: st
                       videos=names,
                       extra={"source": {"format": "video", "calibration": str(Path(calibration).resolve()),
                                         "videos": {c: str(Path(v).resolve()) for c, v in videos.items()}}})
+        scene.check()  # as load_scene reads it, before the videos are copied
         tmp = files.folder(out)
         (tmp / "masks").mkdir()
         for c, r in readers.items():
