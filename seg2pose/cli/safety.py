@@ -113,7 +113,7 @@ def _locked(command):
     def wrapper(*args, **kwargs):
         from seg2pose.io.atomic import holding
 
-        with holding(*(kwargs.get(k) for k in ("out", "pet_only", "conflict_map", "review"))):
+        with holding(*(kwargs.get(k) for k in ("out", "pet_only", "conflict_map", "tct_chart", "review"))):
             return command(*args, **kwargs)
     return wrapper
 
@@ -246,7 +246,7 @@ def conflicts(
     import numpy as np
 
     from seg2pose.core.say import say
-    from seg2pose.io.atomic import atomic_write_text, check_writable, outputs
+    from seg2pose.io.atomic import atomic_write_bytes, atomic_write_text, check_writable, outputs
     from seg2pose.safety.conflicts import ConflictOptions, analyse
     from seg2pose.safety.evasive import EvasiveOptions
     from seg2pose.safety.gaps import jump_note, jumps
@@ -315,20 +315,24 @@ def conflicts(
     elif draws > 0:
         say("the poses carry no r90_m: error intervals none (give --r90 CLASS=METRES,... for "
             "a per-class error radius)", "note")
-    # the conflicts and the PET-only encounters as one set: a kill between them leaves both old
-    with outputs([out] + ([pet_only] if pet_only is not None else []), force) as files:
+    # the pictures drawn before the commit (seconds of plotting kept out of it); the conflicts,
+    # the PET-only encounters and the pictures as one set: a kill or refusal leaves all old
+    pictures: dict[Path, bytes] = {}
+    if conflict_map is not None:
+        from seg2pose.safety.conflict_map import map_png
+
+        pictures[conflict_map] = map_png(table)
+    if tct_chart is not None:
+        from seg2pose.safety.conflict_map import tct_chart_of
+
+        pictures[tct_chart] = tct_chart_of(table.take(c["conflict"] == 1), opts.evasive)
+    with outputs([out] + ([pet_only] if pet_only is not None else []) + list(pictures), force) as files:
         atomic_write_text(files.file(out), format_conflicts(table if all_pairs else table.take(c["conflict"] == 1),
                                                             tr.fps))
         if pet_only is not None:
             atomic_write_text(files.file(pet_only), format_conflicts(table.take(c["pet_only"] == 1), tr.fps))
-    if conflict_map is not None:
-        from seg2pose.safety.conflict_map import draw_map
-
-        draw_map(conflict_map, table, force=force)
-    if tct_chart is not None:
-        from seg2pose.safety.conflict_map import draw_tct_chart
-
-        draw_tct_chart(tct_chart, table.take(c["conflict"] == 1), force=force, evasive=opts.evasive)
+        for path, data in pictures.items():
+            atomic_write_bytes(files.file(path), data)
     typer.echo(f"wrote {out}: {n_conf} conflicts (TTC <= {ttc_s:g} s on a collision course), "
                f"{n_pet} PET-only encounters (PET <= {pet_s:g} s)"
                + (f" among {len(table)} encounters" if all_pairs else "")

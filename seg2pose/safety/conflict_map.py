@@ -11,11 +11,9 @@ with the TCT's serious / slight boundary (``evasive.tct_boundary_s``).
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import numpy as np
 
-from seg2pose.io.atomic import atomic_write_bytes, check_writable, output_lock
 from seg2pose.safety.evasive import EvasiveOptions, tct_boundary_s
 
 TYPE_COLOURS = {"rear-end": "tab:blue", "lane-change": "tab:cyan", "crossing": "tab:orange",
@@ -117,22 +115,12 @@ def tct_chart_png(ta_s: np.ndarray, speed_mps: np.ndarray, lo: np.ndarray | None
     return data
 
 
-def draw_map(path: str | Path, table, force: bool = False) -> None:
-    """Write the conflict map of ``table`` to ``path`` (PNG)."""
-    with output_lock(path):
-        check_writable(path, force)
-        atomic_write_bytes(path, map_png(table))
-
-
-def draw_tct_chart(path: str | Path, table, force: bool = False,
-                   evasive: EvasiveOptions = EvasiveOptions()) -> None:
-    """Write the TCT chart of the rows of ``table`` (with their TA intervals, if sampled) to
-    ``path`` (PNG), with ``evasive``'s severity boundary."""
+def tct_chart_of(table, evasive: EvasiveOptions = EvasiveOptions()) -> bytes:
+    """The TCT chart of the rows of ``table`` (with their TA intervals, if sampled) as PNG
+    bytes, with ``evasive``'s severity boundary (``s2p conflicts`` writes it, with the map,
+    in the same set as its CSVs)."""
     c = table.columns
     lo, hi = c.get("ta_lo_s"), c.get("ta_hi_s")
-    data = tct_chart_png(np.asarray(c["ta_s"], float), np.asarray(c["conflicting_speed_mps"], float),
+    return tct_chart_png(np.asarray(c["ta_s"], float), np.asarray(c["conflicting_speed_mps"], float),
                          None if lo is None else np.asarray(lo, float), None if hi is None else np.asarray(hi, float),
                          evasive)
-    with output_lock(path):
-        check_writable(path, force)
-        atomic_write_bytes(path, data)
