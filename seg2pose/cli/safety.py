@@ -104,6 +104,24 @@ def register(app: typer.Typer) -> None:
     app.command("conflicts", rich_help_panel=SAFETY)(speaks_flags(_locked(conflicts)))
 
 
+_OUTPUT_OPTIONS = {"out": "-o", "pet_only": "--pet-only", "conflict_map": "--map", "tct_chart": "--tct-chart",
+                   "review": "--review"}
+
+
+def _distinct_outputs(kwargs: dict) -> None:
+    """Two output options naming one file would have one output silently overwrite the other
+    (the set would commit two builds to one name): refused before anything is computed."""
+    seen: dict[Path, str] = {}
+    for key, flag in _OUTPUT_OPTIONS.items():
+        path = kwargs.get(key)
+        if path is None:
+            continue
+        where = Path(path).absolute()
+        if where in seen:
+            raise S2PError(f"{path}: named by both {seen[where]} and {flag}; give each output its own file")
+        seen[where] = flag
+
+
 def _locked(command):
     """``conflicts`` with its outputs locked from the start of the analysis (it locked only
     for its final writes: two runs into one file both computed, the last one won)."""
@@ -113,7 +131,8 @@ def _locked(command):
     def wrapper(*args, **kwargs):
         from seg2pose.io.atomic import holding
 
-        with holding(*(kwargs.get(k) for k in ("out", "pet_only", "conflict_map", "tct_chart", "review"))):
+        _distinct_outputs(kwargs)
+        with holding(*(kwargs.get(k) for k in _OUTPUT_OPTIONS)):
             return command(*args, **kwargs)
     return wrapper
 

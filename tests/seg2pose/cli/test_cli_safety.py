@@ -163,3 +163,17 @@ def test_interval_spread_is_checked(tmp_path, capsys, spread):
     code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(tmp_path / "c.csv"), "--fps", "30", "--r90",
                       "car=0.3", "--interval-spread", spread)
     assert code == 2 and "--interval-spread" in se and "Traceback" not in se
+
+
+def test_two_outputs_naming_one_file_are_refused(tmp_path, capsys):
+    """-o and --map (or any two output options) naming one file: one line naming both options,
+    nothing written (before, the set committed two builds to one name and one output was lost)."""
+    p = tmp_path / "poses.csv"
+    write_with_r90(p, crossing_poses(), 0.3)
+    out = tmp_path / "c.csv"
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30", "--map", str(out))
+    assert code == 2 and "-o" in se and "--map" in se and len(se.strip().splitlines()) == 1
+    code, _, se = s2p(capsys, "conflicts", str(p), "-o", str(out), "--fps", "30",
+                      "--pet-only", str(tmp_path / "p.csv"), "--tct-chart", str(tmp_path / "." / "p.csv"))
+    assert code == 2 and "--pet-only" in se and "--tct-chart" in se
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["poses.csv"]
