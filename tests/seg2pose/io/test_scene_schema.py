@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 from fuzz_fixtures import FUZZ, folder
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from io_fixtures import make_scene
 
@@ -220,7 +220,7 @@ def scenes(draw, root) -> Scene:
     return s
 
 
-@FUZZ
+@settings(FUZZ, max_examples=25)
 @given(st.data())
 def test_what_the_writer_accepts_the_reader_loads_equal(data):
     with folder() as d:
@@ -237,3 +237,42 @@ def test_what_the_writer_accepts_the_reader_loads_equal(data):
         assert r.to_dict() == json.loads(json.dumps(s.to_dict()))
         assert np.array_equal(r.ground_points, s.ground_points)
         assert r.start_time_ns == s.start_time_ns and r.class_sizes() == s.class_sizes()
+
+
+def test_calibrate_camera_refuses_ground_points_new_scene_refuses(tmp_path):
+    from seg2pose.io.calib_files import write_calibration
+
+    cam = make_scene(tmp_path / "s").cameras["c0"].to_dict()
+    pts = np.array([[0.0, 0, 0], [1, 0, 0]])
+    msg = refused(lambda: write_calibration(tmp_path / "calib.json", [cam], {}, "", pts, {}))
+    assert "need at least 3 ground points, got 2" in msg and "calib.json" not in msg, msg
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_restored_video_of_a_camera_the_scene_lacks_is_refused(tmp_path):
+    """import-mcap's restored videos are named in scene.json: a video of a camera the scene
+    lacks was written there, and load_scene then refused the restored scene."""
+    from fractions import Fraction
+
+    import av
+
+    from s2p_review.annotated_mcap import restore_video
+
+    make_scene(tmp_path)
+    cc = av.CodecContext.create("libx264", "w")
+    cc.width, cc.height, cc.pix_fmt = 64, 48, "yuv420p"
+    cc.framerate, cc.time_base = Fraction(10), Fraction(1, 10)
+    cc.options = {"preset": "ultrafast", "tune": "zerolatency"}
+    msgs = []
+    for i in range(3):
+        vf = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), format="bgr24")
+        vf.pts = i
+        msgs += [(int(p.pts) * 10 ** 8, bytes(p)) for p in cc.encode(vf)]
+    msgs += [(int(p.pts) * 10 ** 8, bytes(p)) for p in cc.encode(None)]
+    old = (tmp_path / SJ).read_bytes()
+    msg = refused(lambda: restore_video({"c9": msgs}, tmp_path, 10.0, 0, file=tmp_path / "x.mcap"))
+    assert msg.startswith(f"{tmp_path / 'x.mcap'}: the restored scene would be invalid (scene.json field "
+                          "videos.c9): no camera 'c9' in the scene"), msg
+    assert (tmp_path / SJ).read_bytes() == old
+    assert restore_video({"c0": msgs}, tmp_path, 10.0, 0)["c0"]["frames"] == 3
+    assert load_scene(tmp_path).videos == {"c0": "video/c0.mp4"}
