@@ -4,7 +4,8 @@ annotate export's gt + MCAP + layout + CSV, all old or all new), and beside them
 next writer cleans up. ``batch`` is killed and re-run without --force: the re-run ends with
 the uninterrupted run's outputs (on Ray: the driver killed, its local Ray ends with it, the
 re-run serial); ``train`` too: the re-run resumes and ends with the uninterrupted run's models,
-byte for byte. 10 kills per command of issue 24, 4 per command of issue 10 and 5 of train (seeded), each
+byte for byte. 10 kills per command of issue 24, 4 per command of issue 10, 3 of batch on Ray and 2 of train
+(seeded; their commit steps are killed exactly below, and benches/bench_faults.py kills them 40 times), each
 command forked from one Python that has imported s2p (tests/command_zygote.py);
 benches/bench_faults.py does 100-300 per command. Issue 38: every writer also killed at least
 10 times at each of its commit steps (``test_kills_timed_at_every_commit_step``)."""
@@ -17,7 +18,8 @@ from kill_cases import build_cases, build_training_cases, build_writer_cases
 
 KILLS_PER_COMMAND = 10
 KILLS_FIRST = 4  # issue 10's five: 200 each in benches/bench_faults.py, unchanged since
-KILLS_TRAIN = 5  # s2p train: ~10 s a run and a re-run after each kill
+KILLS_TRAIN = 2  # s2p train: ~10 s a run and a re-run after each kill
+KILLS_RAY = 3  # batch on Ray: ~8 s a run (Ray's start) and a re-run after each kill
 FIRST = ["run", "synth", "convert-masks", "import-utocs", "export"]
 WRITERS = ["masks-from-video", "masks-from-video-2cam", "import-detections", "track", "new-scene", "import-tacal",
            "import-mcap", "annotate-export", "import-tanalyst", "associate", "batch-serial"]
@@ -38,7 +40,7 @@ def test_killed_command_leaves_old_or_new(cases, name):
     case = cases[name]
     case.run_fully()
     rng = np.random.default_rng(sum(map(ord, name)))
-    n = KILLS_FIRST if name in FIRST else KILLS_TRAIN if name == "train" else KILLS_PER_COMMAND
+    n = {"train": KILLS_TRAIN, "batch-ray": KILLS_RAY}.get(name, KILLS_FIRST if name in FIRST else KILLS_PER_COMMAND)
     kinds = [case.kill_once(rng) for _ in range(n)]
     assert case.counts["mixed"] == 0, (kinds, case.mixed)
     assert case.new is not None and case.new != case.old_state()

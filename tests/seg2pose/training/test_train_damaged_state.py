@@ -12,7 +12,7 @@ tiny = pytest.fixture(scope="module")(tiny_train_scene)
 
 
 def _interrupted(tiny, models, monkeypatch, after: int):
-    """Train with 6 epochs, interrupted during the validation of epoch ``after + 1``."""
+    """Train with 4 epochs, interrupted during the validation of epoch ``after + 1``."""
     import seg2pose.training.train as T
 
     calls = {"n": 0}
@@ -26,7 +26,7 @@ def _interrupted(tiny, models, monkeypatch, after: int):
 
     monkeypatch.setattr(T, "_evaluate", flaky)
     with pytest.raises(KeyboardInterrupt):
-        T.train_scene(tiny, models, tiny_config(epochs=6, batches_per_epoch=4), cameras=["c0"],
+        T.train_scene(tiny, models, tiny_config(epochs=4, batches_per_epoch=2), cameras=["c0"],
                       progress=False)
     monkeypatch.setattr(T, "_evaluate", real)
 
@@ -37,7 +37,7 @@ def test_damaged_resume_state_restarts_from_the_last_good_checkpoint(tiny, tmp_p
     import seg2pose.training.train as T
 
     models = tmp_path / "m"
-    _interrupted(tiny, models, monkeypatch, after=3)
+    _interrupted(tiny, models, monkeypatch, after=2)
     path = models / "c0__all.safetensors"
     state = path.with_name(path.name + ".state.pt")
     best_epoch = json.loads(path.with_suffix(".json").read_text())["epoch"]
@@ -54,7 +54,7 @@ def test_damaged_resume_state_restarts_from_the_last_good_checkpoint(tiny, tmp_p
         return real(*a, **k)
 
     monkeypatch.setattr(T, "_evaluate", counting)
-    T.train_scene(tiny, models, tiny_config(epochs=6, batches_per_epoch=4), cameras=["c0"],
+    T.train_scene(tiny, models, tiny_config(epochs=4, batches_per_epoch=2), cameras=["c0"],
                   progress=False)
     err = capsys.readouterr().err
     assert f"the resume state {state} is damaged" in err
@@ -62,7 +62,7 @@ def test_damaged_resume_state_restarts_from_the_last_good_checkpoint(tiny, tmp_p
     damaged = sorted(models.glob("c0__all.safetensors.state.pt.damaged-*"))
     assert len(damaged) == 1 and damaged[0].read_bytes() == broken  # kept for a look
     assert not state.exists()  # the finished training removed its own (new) state
-    assert calls["n"] == 6 - best_epoch  # the epochs after the last good checkpoint, no more
+    assert calls["n"] == 4 - best_epoch  # the epochs after the last good checkpoint, no more
     assert json.loads(path.with_suffix(".json").read_text())["complete"] is True
 
 
