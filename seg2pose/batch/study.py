@@ -30,6 +30,7 @@ summary, and the scene's later steps are skipped, the other scenes go on.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections.abc import Callable
@@ -41,6 +42,7 @@ from seg2pose.core.digest import file_fingerprint
 from seg2pose.core.errors import InputError, S2PError
 from seg2pose.core.ray import MAX_RETRIES, import_ray, start_ray
 from seg2pose.io.atomic import atomic_write_text, is_temporary
+from seg2pose.io.nofollow import LinkRefused, refuse_links
 
 SUMMARY = "summary.json"
 BATCH_DIR = "batch"
@@ -130,6 +132,12 @@ def _write_record(step: Step, scene_dir: Path, opts: BatchOptions, inputs: dict,
     atomic_write_text(rec, json.dumps({"inputs": inputs, "outputs": outs, "info": info}, indent=1))
 
 
+def _refuse_linked(scene_dir: Path, step: str) -> None:
+    """A scene folder of the study, its batch/ or batch/.done/ that is a link: refused before
+    the step (its records and outputs would land where the link points)."""
+    refuse_links(_record_path(scene_dir, step), root=scene_dir.parent)
+
+
 def _started_path(scene_dir: Path, step: str) -> Path:
     return scene_dir / BATCH_DIR / ".done" / f"{step}.started"
 
@@ -162,6 +170,7 @@ def attempt_part(step: Step, scene_dir: str | Path, part) -> dict:
                            "error": None}
     assert step.run_part is not None  # only steps with parts are cut into parts
     try:
+        _refuse_linked(Path(scene_dir), step.name)
         res["info"] = step.run_part(Path(scene_dir), part) or {}
         res["status"] = res["info"].get("status", "done")
     except Exception as e:  # noqa: BLE001 - reported as the scene's failure
@@ -178,6 +187,7 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
     res: dict[str, Any] = {"scene": scene_dir.name, "step": step.name, "status": "done", "info": {},
                            "error": None}
     try:
+        _refuse_linked(scene_dir, step.name)
         if is_complete(step, scene_dir, opts):
             res["status"] = "skipped"
             res["info"] = json.loads(_record_path(scene_dir, step.name).read_text()).get("info", {})
@@ -190,8 +200,11 @@ def attempt(step: Step, scene_dir: str | Path, opts: BatchOptions) -> dict:
         res["status"] = "failed"
         res["error"] = _failure(e)
         if not any(_files(Path(o)) for o in step.outputs(scene_dir, opts)):
-            # failed before writing anything: what appears later is not this step's
-            _started_path(scene_dir, step.name).unlink(missing_ok=True)
+            # failed before writing anything: what appears later is not this step's (never
+            # removed through a linked folder)
+            with contextlib.suppress(LinkRefused):
+                _refuse_linked(scene_dir, step.name)
+                _started_path(scene_dir, step.name).unlink(missing_ok=True)
     res["seconds"], res["cpu_seconds"] = time.perf_counter() - t, time.process_time() - cpu
     return res
 
@@ -260,6 +273,7 @@ def _parts_wave(ray, remote, step: Step, scenes: list[Path], opts: BatchOptions,
     jobs = []
     for s in scenes:
         try:
+            _refuse_linked(s, step.name)
             if not is_complete(step, s, opts):
                 assert step.parts is not None  # only steps with parts are cut into parts
                 o = replace(opts, force=_may_replace(step, s, opts))

@@ -51,6 +51,10 @@ def run_demo(scene_dir: Path = DEMO_SCENE, logs_dir: Path = SAMPLE_LOGS, seed: i
     from seg2pose.synth import SynthOptions, generate_scene
 
     t0 = time.perf_counter()
+    if record:  # a linked folder of the recordings: refused before the demo's work, not after
+        from seg2pose.io.nofollow import refuse_linked_folder
+
+        refuse_linked_folder(logs_dir)
     summary: dict = {"scene": str(scene_dir)}
     marker = scene_dir / "scene.json"
     made = json.loads(marker.read_text()).get("extra", {}).get("generator", {}) if marker.exists() else {}

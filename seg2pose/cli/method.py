@@ -244,8 +244,11 @@ def train_cmd(
 
     From a start: --from MODELS fine-tunes those models (the shipped demo models, a
     zero-annotation run's, another scene's) on this scene's annotations in minutes."""
+    from seg2pose.io.nofollow import refuse_linked_folder
     from seg2pose.io.scene import load_scene
 
+    # a linked model folder: refused before the examples are built, not at the first model
+    refuse_linked_folder(Path(out) if out is not None else Path(scene) / "models")
     if from_models is not None:
         return _fine_tune(scene, from_models, out, zero_annotation or bool(self_train), epochs,
                           batches, lr, seed, threads, device, camera, cls)

@@ -140,6 +140,9 @@ class ExclusiveLock:
             try:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | os.O_NOFOLLOW, 0o644)
             except FileExistsError:
+                if self.path.is_symlink():  # planted: never read through it (a FIFO, /dev/zero)
+                    raise S2PError(f"{self.path} is a symbolic link; s2p does not write through "
+                                   "links inside a scene or output folder (remove it)") from None
                 try:
                     text = self.path.read_text(encoding="utf-8", errors="replace")
                 except FileNotFoundError:

@@ -14,6 +14,7 @@ from seg2pose.eval.evaluate import evaluate, format_table, plot_error_vs_distanc
 from seg2pose.eval.tracking_inputs import in_view, sequence_from_poses
 from seg2pose.eval.tracking_metrics import summary
 from seg2pose.io.atomic import atomic_write_text
+from seg2pose.io.nofollow import refuse_linked_folder
 from seg2pose.io.poses import read_poses
 from seg2pose.io.run import read_run_meta, read_run_poses, read_views
 from seg2pose.io.scene import Scene
@@ -97,6 +98,7 @@ def paper_table(scene: Scene, models_dir: str | Path | list[Path] | None = None,
     Writes OUT/runs/<config>-<method>/ (run folders), OUT/table.txt, OUT/results.json and
     OUT/error_vs_distance.png (OUT defaults to SCENE/out/paper-table). Returns (OUT, table)."""
     out = Path(out_dir) if out_dir else scene.root / "out" / "paper-table"
+    refuse_linked_folder(out, root=None if out_dir else scene.root)  # SCENE/out linked: refused first
     if (out / "results.json").exists() and not force:
         raise S2PError(f"{out} holds a paper table already; pass --force to redo it")
     if configs is None:

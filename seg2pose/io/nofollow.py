@@ -10,7 +10,7 @@ is untrusted input, and a link planted in it (``annotations/lock -> ~/.bashrc``,
   is followed as given: the user chose it.
 - ``refuse_links(path)``: the same rule for an output that is swapped in by name (a link at
   the output's own name is replaced as a link, never written through; a linked folder that
-  holds it is refused).
+  holds it is refused); ``refuse_linked_folder(folder)`` for a folder written file by file.
 
 Refusals are one-line ``S2PError``s naming the link.
 """
@@ -25,8 +25,8 @@ from pathlib import Path
 
 from seg2pose.core.errors import S2PError
 
-__all__ = ["LinkRefused", "open_nofollow", "fdopen_nofollow", "refuse_links", "link_message",
-           "write_new_bytes", "write_new_text"]
+__all__ = ["LinkRefused", "open_nofollow", "fdopen_nofollow", "refuse_links", "refuse_linked_folder",
+           "link_message", "write_new_bytes", "write_new_text"]
 
 
 class LinkRefused(S2PError):
@@ -46,6 +46,15 @@ def refuse_links(path: str | Path, root: str | Path | None = None) -> None:
     for d in _folders(path, root):
         if d.is_symlink():
             raise LinkRefused(link_message(d))
+
+
+def refuse_linked_folder(folder: str | Path, root: str | Path | None = None) -> None:
+    """``refuse_links`` for a folder that a command writes file by file (a model folder, a
+    paper table, the demo's recordings), checked before its work rather than at its first
+    write: the folder itself and the folder holding it (with ``root``, every folder below
+    ``root`` down to it) must not be links."""
+    refuse_links(folder, root)
+    refuse_links(Path(folder) / "_", root)
 
 
 def _walk(path: Path, root: str | Path | None) -> tuple[Path, tuple[str, ...]]:

@@ -23,7 +23,7 @@ from seg2pose.core.errors import S2PError
 from seg2pose.geometry.normal import normal_positions
 from seg2pose.io.atomic import copy_tree, link_or_copy, replacing
 from seg2pose.io.mots import MaskTable, write_mots
-from seg2pose.io.nofollow import write_new_text
+from seg2pose.io.nofollow import refuse_links, write_new_text
 from seg2pose.io.scene import SCENE_FILE, Scene, load_scene
 from seg2pose.io.track_ids import entries, ids_path, ids_text, read_ids
 from seg2pose.structures.masks import decode, encode, mask_centers, rle_contains
@@ -211,6 +211,9 @@ def associate_scene(scene_dir: str | Path, cameras: list[str] | None = None, *,
         log("association: fewer than two cameras with masks; ids stay as they are")
         return None
     masks_dir = scene.masks_path(names[0]).parent
+    # a linked masks/: refused before reading through it (it would be replaced by a folder
+    # holding hard links to the files where it points)
+    refuse_links(ids_path(masks_dir))
     done = read_ids(masks_dir)
     if not force and all(done.get(c, {}).get("ids") == "associated"
                          and set(names) <= set(done[c].get("with", [])) for c in names):
