@@ -28,10 +28,10 @@ DEMO_CONFIGS = ("mono-1", "tri-T")
 SAMPLE_FRAMES = 160  # frames in the sample recording and MCAP
 DEMO_START = "2021-06-14T08:00:00Z"  # the demo scene's clock: frame 0 (the sample files show real times)
 # the sample files stay a few MB: video frames at 0.4 of the camera's size, JPEG quality 55,
-# video every 4th frame, masks every 4th in the MCAP and every 8th in the recording (which holds
+# video every 4th frame, masks every 4th in the MCAP and every 10th in the recording (which holds
 # them twice: by class and by the association's id); a viewer shows the latest; frame 600, the
 # README picture's, has both
-SAMPLE_IMAGES: dict[str, Any] = {"image_scale": 0.4, "jpeg_quality": 55, "mask_every": 4, "rrd_mask_every": 8,
+SAMPLE_IMAGES: dict[str, Any] = {"image_scale": 0.4, "jpeg_quality": 55, "mask_every": 4, "rrd_mask_every": 10,
                  "video_every": 4}
 
 
