@@ -102,3 +102,26 @@ def write_s2p_mcap(path: Path, scene_d: dict, ground_name: str, poses: list | No
             w.add_message(channel_id=cid, log_time=i, publish_time=i, data=data.encode())
         w.finish()
     return path
+
+
+def link_test_inputs(root: Path) -> tuple[Path, Path, Path]:
+    """The link tests' common inputs under ``root``: a scene of four frames (``scene``), its
+    baseline run (``run``) and export (``x.mcap``), and an annotation project with one car track
+    of two keyframes (``ann``): (root, the scene's folder, the project's folder)."""
+    from review_fixtures import make_scene
+
+    from annotate import Project
+    from s2p_review.mcap_export import export_mcap
+    from seg2pose.io.scene import load_scene
+    from seg2pose.method.pipeline import RunOptions, run_scene
+
+    scene = write_scene(root / "scene", frames=4, users=2)
+    run_scene(scene, root / "run", RunOptions(baseline=True, progress=False))
+    export_mcap(load_scene(scene.root), root / "run", root / "x.mcap")
+    ann = make_scene(root / "ann", n_frames=10).root
+    with Project.open(ann) as p:
+        p.create_track("car")
+        p.set_keyframe(1, 0, -8.0, -1.5, heading=0.0)
+        p.set_keyframe(1, 5, -4.0, -1.5, heading=0.0)
+    return root, scene.root, ann
+

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from hostile_fixtures import write_scene
+from hostile_fixtures import link_test_inputs
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -21,23 +21,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
     """A scene, its baseline run and its export, and an annotation project with one track."""
-    from review_fixtures import make_scene
-
-    from annotate import Project
-    from s2p_review.mcap_export import export_mcap
-    from seg2pose.io.scene import load_scene
-    from seg2pose.method.pipeline import RunOptions, run_scene
-
-    root = tmp_path_factory.mktemp("links")
-    scene = write_scene(root / "scene", frames=4, users=2)
-    run_scene(scene, root / "run", RunOptions(baseline=True, progress=False))
-    export_mcap(load_scene(scene.root), root / "run", root / "x.mcap")
-    ann = make_scene(root / "ann", n_frames=10).root
-    with Project.open(ann) as p:
-        p.create_track("car")
-        p.set_keyframe(1, 0, -8.0, -1.5, heading=0.0)
-        p.set_keyframe(1, 5, -4.0, -1.5, heading=0.0)
-    return root, scene.root, ann
+    return link_test_inputs(tmp_path_factory.mktemp("links"))
 
 
 def _run(monkeypatch, capsys, argv: list) -> tuple[int, str]:

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from hostile_fixtures import write_scene, write_utocs
+from hostile_fixtures import link_test_inputs, write_utocs
 
 from seg2pose.io.nofollow import link_message
 
@@ -32,26 +32,15 @@ def made(tmp_path_factory):
     frames, calibration, ground points, pairs, a .tacal, a UTOCS recording, COCO detections,
     a T-Analyst CSV and a study of one scene."""
     import numpy as np
-    from review_fixtures import make_scene
     from scene_fixtures import make_tiny_scene
     from video_fixtures import calibration, det, rle, write_folder
 
-    from annotate import Project
-    from s2p_review.mcap_export import export_mcap
     from seg2pose.io.scene import load_scene
     from seg2pose.io.tacal import camera_to_tacal, write_tacal
     from seg2pose.method.pipeline import RunOptions, run_scene
     from seg2pose.video.video_scene import new_scene, scene_masks_from_video
 
-    root = tmp_path_factory.mktemp("links-more")
-    scene = write_scene(root / "scene", frames=4, users=2)
-    run_scene(scene, root / "run", RunOptions(baseline=True, progress=False))
-    export_mcap(load_scene(scene.root), root / "run", root / "x.mcap")
-    ann = make_scene(root / "ann", n_frames=10).root
-    with Project.open(ann) as p:
-        p.create_track("car")
-        p.set_keyframe(1, 0, -8.0, -1.5, heading=0.0)
-        p.set_keyframe(1, 5, -4.0, -1.5, heading=0.0)
+    root, _, _ = link_test_inputs(tmp_path_factory.mktemp("links-more"))
     (root / "t.csv").write_text("\n".join([
         "Detection ID;Type of road user;Road user ID;X (m);Y (m);Time Stamp",
         "1;Car;3;-8;-1,5;12:00:00.000", "2;Car;3;-5;-1,5;12:00:00.300"]) + "\n")
