@@ -48,7 +48,7 @@ def _display_frame(cam: str, frame: int) -> np.ndarray:
     ns = int(meta["start_ns"]) + round(frame * 1e9 / float(meta["fps"]))
     with open(MCAP, "rb") as f:
         for _s, _c, m in make_reader(f).iter_messages(topics=[f"/cameras/{cam}/display"],
-                                                      start_time=ns, end_time=ns + 1):
+                                                      starting_at=ns, ending_before=ns + 1):
             msg = CompressedImage()
             msg.ParseFromString(m.data)
             return cv2.imdecode(np.frombuffer(msg.data, np.uint8), 1)[..., ::-1]
