@@ -95,13 +95,6 @@ def _restored_run(run_dir: Path, poses, views, meta: dict, path: Path) -> None:
         raise InputError(f"the restored {name} would be invalid{where}: {e.message}", file=path) from None
 
 
-def _scene_refused(e: InputError, path: Path) -> InputError:
-    """A refusal of the restored scene's files said naming the MCAP file ``path``."""
-    where = Path(e.file).name if e.file else SCENE_FILE
-    where += (f" line {e.line}" if e.line else "") + (f" field {e.field}" if e.field else "")
-    return InputError(f"the restored scene would be invalid ({where}): {e.message}", file=path)
-
-
 def _check_attachments(scene_d: dict, att: dict, gfile: str, out_dir: Path, path: Path) -> None:
     """The scene.json and ground points attachments checked against the schema their reader
     uses (``io/scene_schema.py``) before anything is written: a scene ``load_scene`` would
@@ -117,18 +110,9 @@ def _check_attachments(scene_d: dict, att: dict, gfile: str, out_dir: Path, path
             raise InputError("not UTF-8 text", file=out_dir / gfile) from None
         ground_points_from_text(text, file=out_dir / gfile)
     except InputError as e:
-        raise _scene_refused(e, path) from None
-
-
-def _check_scene(tmp: Path, path: Path) -> None:
-    """Read the restored scene.json and ground points back with ``load_scene`` (the reader
-    every command uses), before anything is swapped in; a refusal names the MCAP file."""
-    from seg2pose.io.scene import load_scene
-
-    try:
-        load_scene(tmp)
-    except InputError as e:
-        raise _scene_refused(e, path) from None
+        where = Path(e.file).name if e.file else SCENE_FILE
+        where += (f" line {e.line}" if e.line else "") + (f" field {e.field}" if e.field else "")
+        raise InputError(f"the restored scene would be invalid ({where}): {e.message}", file=path) from None
 
 
 def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRecords,
@@ -151,7 +135,6 @@ def _restore(tmp: Path, att: dict, gfile: str, run_rel: Path, table, rec: McapRe
     views = (_parsed(R.views_table, rec.views, R.VIEWS_TOPIC, path)
              if meta.get("has_views") == "true" or rec.views else None)
     _restored_run(tmp / run_rel, table, views, run_meta, path)
-    _check_scene(tmp, path)
     restore_scene_files(att, tmp, path)
     if video:
         try:

@@ -212,7 +212,7 @@ def test_import_mcap_force_replaces_its_outputs_as_one_set(annotated, tmp_path, 
 
     def refuse(*a, **k):
         raise S2PError("refused midway")
-    monkeypatch.setattr(MI, "_check_scene", refuse)
+    monkeypatch.setattr(MI, "restore_scene_files", refuse)
     code, _, err = s2p(monkeypatch, capsys, "import-mcap", mcap, "-o", out, "--force")
     assert code != 0 and "refused midway" in err
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
