@@ -122,6 +122,13 @@ class LockHolder:
         return self.host == socket.gethostname() and not pid_alive(self.pid, _epoch(self.since))
 
 
+def _planted_link(path: Path) -> S2PError:
+    """A lock's name planted as a link: refused, never read or written through (core sits below
+    io, so this is nofollow.link_message's wording for locks)."""
+    return S2PError(f"{path} is a symbolic link; s2p does not write through links inside a scene "
+                    "or output folder (remove it)")
+
+
 class ExclusiveLock:
     """Hold the lock file ``path`` (created exclusively, removed on release). A live holder
     makes ``acquire`` raise ``busy(holder)``; a gone one (or a file without a record, from a
@@ -141,8 +148,7 @@ class ExclusiveLock:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | os.O_NOFOLLOW, 0o644)
             except FileExistsError:
                 if self.path.is_symlink():  # planted: never read through it (a FIFO, /dev/zero)
-                    raise S2PError(f"{self.path} is a symbolic link; s2p does not write through "
-                                   "links inside a scene or output folder (remove it)") from None
+                    raise _planted_link(self.path) from None
                 try:
                     text = self.path.read_text(encoding="utf-8", errors="replace")
                 except FileNotFoundError:
@@ -182,8 +188,7 @@ class KernelLock:
             self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
         except OSError as e:
             if e.errno == errno.ELOOP:
-                raise S2PError(f"{self.path} is a symbolic link; s2p does not write through links "
-                               "inside a scene or output folder (remove it)") from None
+                raise _planted_link(self.path) from None
             raise
         try:
             fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
