@@ -48,13 +48,10 @@ def overlap_interval(xy_a, heading_a, size_a, xy_b, heading_b, size_b, v_rel):
 def _interval(rx, ry, vx, vy, ca, sa, la, wa, cb, sb, lb, wb):
     """``overlap_interval`` from components: B's centre relative to A's (rx, ry), B's velocity
     relative to A's (vx, vy), the headings' cosines and sines, half lengths and widths."""
-    cd = np.abs(ca * cb + sa * sb)  # |cos| and |sin| of the angle between the headings
-    sd = np.abs(sa * cb - ca * sb)
     M = len(rx)
     enter = np.full(M, -np.inf)
     leave = np.full(M, np.inf)
-    axes = ((ca, sa, la + lb * cd + wb * sd), (-sa, ca, wa + lb * sd + wb * cd),
-            (cb, sb, lb + la * cd + wa * sd), (-sb, cb, wb + la * sd + wa * cd))
+    axes = separating_axes(ca, sa, la, wa, cb, sb, lb, wb)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # inf: never / for ever
         for ux, uy, R in axes:
             s0 = rx * ux + ry * uy
@@ -81,13 +78,24 @@ def overlaps(xy_a, heading_a, size_a, xy_b, heading_b, size_b) -> np.ndarray:
 
 
 def _overlaps(rx, ry, ca, sa, la, wa, cb, sb, lb, wb) -> np.ndarray:
-    cd = np.abs(ca * cb + sa * sb)
-    sd = np.abs(sa * cb - ca * sb)
-    out = np.abs(rx * ca + ry * sa) <= la + lb * cd + wb * sd
-    out &= np.abs(ry * ca - rx * sa) <= wa + lb * sd + wb * cd
-    out &= np.abs(rx * cb + ry * sb) <= lb + la * cd + wa * sd
-    out &= np.abs(ry * cb - rx * sb) <= wb + la * sd + wa * cd
+    (ux0, uy0, R0), *rest = separating_axes(ca, sa, la, wa, cb, sb, lb, wb)
+    out = np.abs(rx * ux0 + ry * uy0) <= R0
+    for ux, uy, R in rest:
+        out &= np.abs(rx * ux + ry * uy) <= R
     return out
+
+
+def separating_axes(ca, sa, la, wa, cb, sb, lb, wb):
+    """The 4 axes on which two rectangles are tested (A's length and width directions, then
+    B's), each (ux, uy, R): the axis's direction and the half-width R of the pair's combined
+    projection on it. The rectangles (headings' cosines ``ca``, ``cb`` and sines ``sa``,
+    ``sb``; half lengths ``la``, ``lb`` and widths ``wa``, ``wb``) overlap where B's centre
+    relative to A's projects within R on every axis. On A's axis along its heading A projects
+    to +-la and B to +-(lb |cos| + wb |sin|) of the angle between them, and so on."""
+    cd = np.abs(ca * cb + sa * sb)  # |cos| and |sin| of the angle between the headings
+    sd = np.abs(sa * cb - ca * sb)
+    return ((ca, sa, la + lb * cd + wb * sd), (-sa, ca, wa + lb * sd + wb * cd),
+            (cb, sb, lb + la * cd + wa * sd), (-sb, cb, wb + la * sd + wa * cd))
 
 
 class Footprints:

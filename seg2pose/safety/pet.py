@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seg2pose.safety.encounters import near_pairs, pair_codes
-from seg2pose.safety.footprints import Footprints, reach
+from seg2pose.safety.footprints import Footprints, reach, separating_axes
 from seg2pose.safety.kinematics import Motion
 from seg2pose.safety.tracks import Tracks
 from seg2pose.safety.workers import map_chunks
@@ -298,14 +298,11 @@ def latest_exit(r, va, vb, heading_a, size_a, heading_b, size_b, a_max, b_max):
     A's, overlaps footprint A (headings (K,), sizes (K, 2)); (0, 0) where none does.
 
     The footprints overlap where B's centre, relative to A's, lies within a half-width of
-    each of the 4 axes (``footprints``): 8 half-planes in (a, b), with the 4 of the box. The
+    each of the 4 axes (``footprints.separating_axes``): 8 half-planes in (a, b), with the 4 of the box. The
     largest a + b over that convex polygon lies at one of its corners: every crossing of two
     of the 12 lines is tried and the feasible ones (to ``EDGE_M`` metres, 1e-12 s) kept."""
-    ca, sa, cb, sb = np.cos(heading_a), np.sin(heading_a), np.cos(heading_b), np.sin(heading_b)
-    cd, sd = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)
-    la, wa, lb, wb = size_a[:, 0] / 2, size_a[:, 1] / 2, size_b[:, 0] / 2, size_b[:, 1] / 2
-    axes = ((ca, sa, la + lb * cd + wb * sd), (-sa, ca, wa + lb * sd + wb * cd),
-            (cb, sb, lb + la * cd + wa * sd), (-sb, cb, wb + la * sd + wa * cd))
+    axes = separating_axes(np.cos(heading_a), np.sin(heading_a), size_a[:, 0] / 2, size_a[:, 1] / 2,
+                           np.cos(heading_b), np.sin(heading_b), size_b[:, 0] / 2, size_b[:, 1] / 2)
     K = len(r)
     zero, one = np.zeros(K), np.ones(K)
     P, Q, C = [], [], []  # 12 lines: P a + Q b <= C
