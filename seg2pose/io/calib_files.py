@@ -264,15 +264,15 @@ def write_calibration(out: str | Path, cameras: list[dict], report: dict, report
                       ) -> dict[str, Path]:
     """calib.json and the files beside it (``output_names``), locked, refused when present
     unless ``force``, built beside and swapped in as a set."""
-    from seg2pose.io.scene import write_ground_points
-    from seg2pose.io.scene_schema import check_ground_points
+    from seg2pose.io.scene_schema import ground_points_text
 
     names = output_names(Path(out), list(pictures))
     text = calib_json(cameras, report, file=names["calib"])
-    check_ground_points(ground, file=names["ground"])  # as s2p new-scene --ground reads them
+    # checked as s2p new-scene --ground reads them, before anything is written
+    ground_text = ground_points_text(ground, file=names["ground"])
     with outputs(list(names.values()), force) as files:
         atomic_write_text(files.file(names["calib"]), text)
-        write_ground_points(files.file(names["ground"]), ground)
+        atomic_write_text(files.file(names["ground"]), ground_text)
         atomic_write_text(files.file(names["report"]), report_text)
         for c, png in pictures.items():
             atomic_write_bytes(files.file(names[f"png:{c}"]), png)

@@ -241,11 +241,11 @@ class Scene:
             d["extra"] = self.extra
         return d
 
-    def check(self, root: str | Path | None = None) -> str:
-        """The scene.json text ``save`` would write into ``root`` (default: the scene's folder),
-        checked first with the reader's schema (``scene_schema``: scene.json and the ground
-        points): what ``load_scene`` would refuse (fps 0 or nan, a camera named '../x', two
-        ground points, ...) is refused in one line naming the file and the field."""
+    def check(self, root: str | Path | None = None) -> tuple[str, str]:
+        """The texts of scene.json and of the ground points file that ``save`` would write into
+        ``root`` (default: the scene's folder), checked first with the reader's schema
+        (``scene_schema``): what ``load_scene`` would refuse (fps 0 or nan, a camera named
+        '../x', two ground points, ...) is refused in one line naming the file and the field."""
         root = Path(root) if root is not None else self.root
         d = self.to_dict()
         try:  # NaN passes here: the schema refuses it naming its field (fps, cameras[c0].K, ...)
@@ -259,23 +259,23 @@ class Scene:
             raise InputError(f"cannot write a number that is not finite ({e})", file=root / SCENE_FILE,
                              field="extra") from None
         try:
-            check_ground_points(self.ground_points, file=root / self.ground_file)
+            ground = ground_points_text(self.ground_points, file=root / self.ground_file)
         except InputError as e:
             raise InputError(f"these ground points would not be readable: {e.message}", file=e.file,
                              field=e.field) from None
-        return text
+        return text, ground
 
     def save(self, root: str | Path | None = None) -> None:
         """Write scene.json and the ground points into ``root`` as one set (``atomic.outputs``),
         checked first (``check``): what the reader would refuse is refused with the reader's
         message, and nothing is written."""
         root = Path(root) if root is not None else self.root
-        text = self.check(root)
+        text, ground = self.check(root)
         with outputs([root / SCENE_FILE, root / self.ground_file], force=True) as out:
             write_new_text(sj := out.file(root / SCENE_FILE), text)
             g = sj.parent / self.ground_file
             g.parent.mkdir(parents=True, exist_ok=True)
-            write_new_text(g, ground_points_text(self.ground_points, file=root / self.ground_file))
+            write_new_text(g, ground)
             out.adopt(root / self.ground_file, g)
 
 
