@@ -5,8 +5,8 @@
 ``io.scene.load_scene`` reads a folder through these, and every writer of the files checks what
 it is about to write against the same declarations first (``writable_scene``,
 ``check_ground_points``), so that no writer produces what the reader refuses: ``Scene.save``
-(s2p new-scene, import-tacal, import-utocs, synth, heights --write), ``write_ground_points``
-(calibrate-camera's ground points), ``calib_files.write_scene_version`` (calibrate-camera's
+(s2p new-scene, import-tacal, import-utocs, synth, heights --write), ``ground_points_text``
+(calibrate-camera's ground points, ``write_ground_points``), ``calib_files.write_scene_version`` (calibrate-camera's
 new scene version) and import-mcap's restore (its attachments and the restored videos).
 
 scene.json, version 1 (``io/scene.py`` shows one): ``version`` 1; ``fps`` in [0.001, 1e6];
