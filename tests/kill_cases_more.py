@@ -1,6 +1,6 @@
 """More writers for benches/bench_faults.py (issue 38): ``review -o`` (a recording), ``screenshot``
 (the headless viewer it starts: no viewer process and no /tmp/s2p-viewer-state-* folder may
-outlive a kill), ``calibrate-errors``, ``conflicts`` (CSV and PET-only CSV as one command's
+outlive a kill), ``calibrate-errors``, ``conflicts`` (CSV, PET-only CSV and conflict map as one command's
 outputs) and ``calibrate-camera --points`` (calib.json and the files beside it as a set). What
 is compared where the bytes differ from run to run (a recording's id): what a reader sees."""
 
@@ -101,7 +101,8 @@ def build_more_cases(root: Path) -> list[Case]:
             main([str(a) for a in argv])
         except SystemExit as e:
             assert not e.code, argv
-    cli("conflicts", root / "other-run", "-o", old / "c.csv", "--pet-only", old / "pet.csv", "--draws", "20")
+    cli("conflicts", root / "other-run", "-o", old / "c.csv", "--pet-only", old / "pet.csv", "--map",
+        old / "map.png", "--draws", "20")
     # calibrate-camera --points: eight pairs; the old set from six of them
     from video_fixtures import H, W, write_folder
 
@@ -129,8 +130,8 @@ def build_more_cases(root: Path) -> list[Case]:
         Case("calibrate-errors", ["calibrate-errors", tiny.root, "--run", root / "val", "-o", out / "r90.json",
                                   "--force"], [out / "r90.json"], [old / "r90.json"]),
         Case("conflicts", ["conflicts", root / "run", "-o", out / "c.csv", "--pet-only", out / "pet.csv",
-                           "--draws", "20", "--force"], [out / "c.csv", out / "pet.csv"],
-             [old / "c.csv", old / "pet.csv"]),
+                           "--map", out / "map.png", "--draws", "20", "--force"],
+             [out / "c.csv", out / "pet.csv", out / "map.png"], [old / "c.csv", old / "pet.csv", old / "map.png"]),
         Case("calibrate-camera", ["calibrate-camera", root / "frames", "--points", root / "pairs.csv", "-o",
                                   out / "cal" / "calib.json", "--force"],
              [out / "cal" / n for n in cal_names], [old / "cal" / n for n in cal_names]),
