@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import os
 
-# Rerun logs a file sink that cannot write (a full disk) in lines of its own beside s2p's one
-# line naming the output (io/disk.py); read when rerun is first imported, which the modules
-# here do: set before, unless the user has set RUST_LOG
+# Rerun logs a sink that cannot write in lines of its own beside s2p's one line naming the
+# output (review -o writes the file itself: io/pipe_sink.py); read when rerun is first
+# imported, which the modules here do: set before, unless the user has set RUST_LOG
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off")
 
 __all__ = ["record", "RecordOptions", "Targets", "export_mcap", "ExportOptions", "import_mcap",

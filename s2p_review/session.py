@@ -15,8 +15,9 @@ from s2p_review.recording import LogStats, LogStyle, log_all
 from s2p_review.selection import Selection, select
 from s2p_review.timebase import scene_timebase
 from seg2pose.core.errors import S2PError
-from seg2pose.io.atomic import atomic_path, check_writable, clean_stale_partials, holding
-from seg2pose.io.disk import disk_full, write_failed
+from seg2pose.io.atomic import atomic_open, check_writable, clean_stale_partials, holding
+from seg2pose.io.disk import write_failed
+from seg2pose.io.pipe_sink import PipeSink
 from seg2pose.io.scene import Scene
 
 
@@ -165,14 +166,17 @@ def _record(scene: Scene, runs: list[Path], to: Targets, options: RecordOptions 
             return stats
 
         if rrd is not None:
-            with atomic_path(rrd) as tmp:
+            # Rerun writes into a pipe and this process into the file (io/pipe_sink.py: a full
+            # disk stalls Rerun's own file writer for ever)
+            with atomic_open(rrd, "wb") as f:
+                pipe = PipeSink(f)
                 try:
-                    stats = log(rr.FileSink(tmp))
-                    rec.disconnect()  # closes the file before it is renamed
+                    stats = log(rr.FileSink(pipe.path))
                 except RuntimeError as e:  # Rerun's file writer stopped (it says no more)
                     raise write_failed(rrd, f"Rerun's file writer stopped ({e})") from e
-                if disk_full(tmp):  # what the writer could not write it dropped
-                    raise write_failed(rrd, "the disk is full")
+                finally:
+                    rec.disconnect()  # Rerun closes its end: the copy ends
+                    pipe.close()  # the copy's OSError: one line naming rrd (atomic_open)
         else:
             stats = log()
         for client in live:

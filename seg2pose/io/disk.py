@@ -1,4 +1,4 @@
-"""A write that a library (OpenCV's video writer, Rerun's file sink) gave up on without an
+"""A write that a library (OpenCV's video writer) gave up on without an
 OSError: one line naming the output the user asked for, and "the disk is full" when the folder
 it was written in has (almost) no room left, the usual reason (tests/system/test_full_disk.py
 fills a small tmpfs for real)."""

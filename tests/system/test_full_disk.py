@@ -1,6 +1,7 @@
 """Issue 38: a full disk for real (a tmpfs of 8 MB, filled up to a little room): ``synth
---video`` (OpenCV's writer fails frame by frame without an error), ``review -o`` (Rerun's file
-sink stops) and ``export`` each say one line naming the output and "the disk is full", no
+--video`` (OpenCV's writer fails frame by frame without an error), ``review -o`` (Rerun writes
+through a pipe: its own file sink, meeting a full disk, stalled for ever about 1 run in 12)
+and ``export`` each say one line naming the output and "the disk is full", no
 traceback, leave the old output as it was and nothing beside it; the next run, with room,
 succeeds. Mounting needs root (``make test`` as root, as in CI); otherwise skipped with the
 reason. Rough substitutes (RLIMIT_FSIZE, an LD_PRELOAD) are not used: they fail differently."""
@@ -14,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hostile_fixtures import write_scene
 
@@ -97,3 +99,19 @@ def test_a_full_disk_is_one_line_and_the_old_output_stays(disk, reviewed, name):
     new = _state(disk)
     assert not [k for k in new if k.startswith(".")]
     assert new != old or name == "export"  # export: the same inputs, the same bytes
+
+
+def test_review_o_never_waits_on_a_full_disk(disk, reviewed):
+    """Rerun's own file sink stalled for ever on about 1 full-disk run in 12 (CI: 600 s); with
+    the pipe (io/pipe_sink.py) every room left, from none to most of the file, is one line."""
+    scene, run = reviewed
+    a = ["review", scene, "--run", run, "-o", disk / "r.rrd"]
+    assert _s2p(*a).returncode == 0
+    old = _state(disk)
+    size = (disk / "r.rrd").stat().st_size
+    for share in np.linspace(0.0, 0.9, 16):
+        _fill(disk, int(size * share))
+        r = subprocess.run([S2P, *map(str, a), "--force"], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and r.stderr.strip().endswith("the disk is full"), (share, r.stderr)
+        assert _state(disk) == old, share
+        (disk / "filler").unlink()
