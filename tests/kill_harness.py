@@ -210,7 +210,10 @@ class Case:
             conns: list[socket.socket] = []
             files = {}
             while True:
-                r, _, _ = select.select([listener, *conns], [], [])
+                try:
+                    r, _, _ = select.select([listener, *conns], [], [])
+                except (OSError, ValueError):  # the listener closed under select: the command ended
+                    return
                 for c in r:
                     if c is listener:
                         try:
