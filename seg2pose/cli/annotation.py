@@ -286,7 +286,9 @@ def export_set(p, out: Path, *, gt: bool, mcap: bool, tanalyst: bool, start: str
         if mcap:
             dst = out / "annotations.mcap"
             tmp = files.file(dst)
-            with tempfile.TemporaryDirectory(prefix="s2p-annotations-") as d:
+            # the scratch run inside the MCAP's partial folder: a killed export leaves nothing
+            # in /tmp, and the next writer removes the partial folder with it
+            with tempfile.TemporaryDirectory(prefix="annotation-run-", dir=tmp.parent) as d:
                 run = write_annotation_run(p, Path(d) / "annotations")
                 # the MCAP shows the set's own gt, not the gt/poses.csv this set replaces
                 res = export_annotated_mcap(p.scene, run, tmp, journal_files(p),

@@ -55,11 +55,12 @@ def test_killed_command_leaves_old_or_new(cases, name):
 
 # the commit steps (seg2pose.io.kill_points) each writer's commits reach: a single output's
 # swap ("built", "swapped") or a set's ("recorded", "set-swap", "unrecorded"); a commit of files
-# inside a build is not one (no reader sees them before the build is swapped in)
+# inside a build is not one (no reader sees them before the build is swapped in: annotate
+# export's scratch run, written inside its MCAP's build)
 ONE, SET = {"built", "swapped"}, {"recorded", "set-swap", "unrecorded"}
 COMMIT_STEPS = {"run": ONE, "synth": ONE, "convert-masks": ONE, "import-utocs": ONE, "export": SET,
                 "masks-from-video": SET, "masks-from-video-2cam": SET, "import-detections": SET,
-                "track": SET, "new-scene": ONE, "import-tacal": ONE, "annotate-export": ONE | SET,
+                "track": SET, "new-scene": ONE, "import-tacal": ONE, "annotate-export": SET,
                 "import-mcap": SET, "associate": ONE, "batch-serial": ONE | SET,
                 "batch-ray": ONE | SET, "train": ONE, "import-tanalyst": set()}
 KILLS_PER_STEP = 10

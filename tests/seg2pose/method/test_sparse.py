@@ -43,14 +43,11 @@ def he_init(net: Seg2PoseNet, seed: int = 0) -> Seg2PoseNet:
 
 
 @pytest.fixture(scope="module")
-def crops() -> tuple[np.ndarray, list[str]]:
+def crops(tmp_path_factory) -> tuple[np.ndarray, list[str]]:
     """420 x 420 crops of real masks: the rendered road users of a 3-frame synthetic scene and
     rough models of every class, a mask cut by the image corner, one larger than the crop and
     an empty crop."""
-    import tempfile
-    from pathlib import Path
-
-    root = Path(tempfile.mkdtemp(prefix="s2p_sparse_"))
+    root = tmp_path_factory.mktemp("sparse")
     scene = load_scene(generate_scene(root / "s", SynthOptions(frames=3, seed=3, progress=False, workers=1,
                                       match="all")))
     cam = scene.cameras["c2"]
