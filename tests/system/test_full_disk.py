@@ -40,7 +40,8 @@ def disk(tmp_path):
 
 
 def _s2p(*argv) -> subprocess.CompletedProcess:
-    return subprocess.run([S2P, *map(str, argv)], capture_output=True, text=True, timeout=600)
+    # each takes seconds: a stall fails in 3 min
+    return subprocess.run([S2P, *map(str, argv)], capture_output=True, text=True, timeout=180)
 
 
 def _state(disk: Path) -> dict:
