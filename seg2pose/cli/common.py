@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from seg2pose.cli.keep_inputs import refuse_replacing_inputs
 from seg2pose.core.errors import InputError
 
 # the groups of ``s2p --help`` (typer's rich_help_panel)
@@ -56,8 +57,10 @@ def _option_names(default, annotated: tuple) -> tuple[str, ...]:
 def speaks_flags(command: Callable) -> Callable:
     """Wrap a command so that a library InputError about one of its parameters (raised with
     ``field`` = the parameter's name and no file) names the command-line option instead: the
-    library speaks in parameters, the command layer in flags."""
+    library speaks in parameters, the command layer in flags. Also refuses, before any work,
+    an output that is, holds or is a part of one of the command's inputs (``keep_inputs``)."""
     flags: dict[str, str] = {}
+    labels: dict[str, str] = {}  # how the command line names each parameter: --flag, or ARG
     hints = typing.get_type_hints(command, include_extras=True)
     for p in inspect.signature(command).parameters.values():
         decls = _option_names(p.default, getattr(hints.get(p.name), "__metadata__", ()))
@@ -65,9 +68,13 @@ def speaks_flags(command: Callable) -> Callable:
         flag = longs[0] if longs else "--" + p.name.replace("_", "-")
         flags[p.name] = flag
         flags[flag[2:].replace("-", "_")] = flag
+        positional = isinstance(p.default, typer.models.ArgumentInfo) or any(
+            isinstance(i, typer.models.ArgumentInfo) for i in getattr(hints.get(p.name), "__metadata__", ()))
+        labels[p.name] = p.name.upper() if positional else flag
 
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
+        refuse_replacing_inputs(kwargs, labels)  # before any work: no output replaces an input
         try:
             return command(*args, **kwargs)
         except InputError as e:
