@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from seg2pose.core.errors import S2PError
+from seg2pose.core.errors import InputError, S2PError
 
 # parameters that name what a command reads (a "C=PATH" value names PATH) and what it writes
 INPUTS = frozenset({"scene", "src", "files", "ground", "source", "points", "aerial", "world_file",
@@ -22,9 +22,9 @@ INPUTS = frozenset({"scene", "src", "files", "ground", "source", "points", "aeri
                     "file", "rrd", "tracks", "csv", "conflicts", "r90"})
 OUTPUTS = frozenset({"out", "save", "screenshot", "pet_only", "conflict_map", "tct_chart", "review"})
 
-# what a scene folder holds that no command makes again from the rest (io/scene.py, io/run.py)
-SCENE_PARTS = ("scene.json", "masks", "gt", "video", "annotations")
-RUN_PARTS = ("poses.csv", "views.csv", "run.json")
+# what a scene folder holds that no command makes again from the rest, beside its scene.json
+# and ground points file (io/scene_schema.py), and a run folder's own files (io/run.py)
+SCENE_FOLDERS = ("masks", "gt", "video", "annotations")
 
 
 def _paths(value) -> Iterable[str]:
@@ -41,46 +41,52 @@ def _real(p: str | Path) -> Path:
     return Path(os.path.realpath(p))
 
 
-def _parts(folder: Path) -> list[Path]:
-    """The parts of ``folder`` that must not be replaced when it is a scene or run folder read
-    by the command (the scene's ground points file by its scene.json's name for it)."""
-    if (folder / "scene.json").is_file():
-        names = list(SCENE_PARTS)
-        try:
-            import json
+def _parts(folder: Path) -> tuple[str, list[Path]]:
+    """("scene" or "run", the parts of ``folder`` that must not be replaced) when the input
+    ``folder`` is a scene or run folder, else ("", []). The scene's ground points file is the
+    one its scene.json names, as the reader takes it (``scene_fields``; the default name when
+    the file does not read: the command itself then says why). Imported here, not at start:
+    ``s2p --help`` loads no numpy (tests/system/test_architecture.py)."""
+    from seg2pose.io.run import POSES_FILE, RUN_FILE, VIEWS_FILE
+    from seg2pose.io.scene_schema import DEFAULT_GROUND_FILE, SCENE_FILE, scene_fields
+    from seg2pose.io.text import load_json
 
-            g = json.loads((folder / "scene.json").read_text(encoding="utf-8")).get("ground_points")
-            names.append(g if isinstance(g, str) and g else "ground_points.csv")
-        except (OSError, ValueError, AttributeError):
-            names.append("ground_points.csv")
-        return [folder / n for n in names if (folder / n).exists()]
-    if (folder / "run.json").is_file():
-        return [folder / n for n in RUN_PARTS if (folder / n).exists()]
-    return []
+    if not folder.is_dir():
+        return "", []
+    if (folder / SCENE_FILE).is_file():
+        try:
+            ground = scene_fields(load_json(folder / SCENE_FILE), folder, folder / SCENE_FILE).ground_file
+        except InputError:
+            ground = DEFAULT_GROUND_FILE
+        kind, names = "scene", [SCENE_FILE, ground, *SCENE_FOLDERS]
+    elif (folder / RUN_FILE).is_file():
+        kind, names = "run", [POSES_FILE, VIEWS_FILE, RUN_FILE]
+    else:
+        return "", []
+    return kind, [folder / n for n in names if (folder / n).exists()]
 
 
 def refuse_replacing_inputs(kwargs: dict, labels: dict[str, str]) -> None:
     """One line (S2PError) when an output parameter's value is an input, holds one, or is a
-    part of an input scene or run folder (``SCENE_PARTS``, ``RUN_PARTS``); ``labels``:
-    parameter name -> how the command line names it (``--run``, ``SCENE``), for the message."""
-    inputs = [(name, _real(t)) for name in INPUTS & kwargs.keys() for t in _paths(kwargs[name])
-              if t and os.path.lexists(t)]
-    if not inputs:
+    part of an input scene or run folder (``_parts``); ``labels``: parameter name -> how the
+    command line names it (``--run``, ``SCENE``), for the message."""
+    outs = [text for name in OUTPUTS & kwargs.keys() for text in _paths(kwargs[name])]
+    if not outs:
         return
-    for oname in OUTPUTS & kwargs.keys():
-        for text in _paths(kwargs[oname]):
-            out = _real(text)
-            for iname, src in inputs:
-                what = f"{labels.get(iname, iname)} {src}"
-                if out == src:
-                    raise S2PError(f"{text}: is this command's input ({what}); replacing it would lose "
-                                   "it: choose another output")
-                if out in src.parents:
-                    raise S2PError(f"{text}: holds this command's input ({what}); replacing it would lose "
-                                   "it: choose another output")
-                for part in _parts(src) if src.is_dir() else []:
-                    if out == part or out in part.parents:
-                        kind = "scene" if (src / "scene.json").is_file() else "run"
-                        where = " (runs go under SCENE/out/)" if kind == "scene" else ""
-                        raise S2PError(f"{text}: is the {part.name} of the {kind} {src} ({labels.get(iname, iname)}), "
-                                       f"which no command makes again: choose another output{where}")
+    inputs = [(labels.get(name, name), src, *_parts(src))
+              for name in INPUTS & kwargs.keys() for t in _paths(kwargs[name])
+              if t and os.path.lexists(t) for src in [_real(t)]]
+    for text in outs:
+        out = _real(text)
+        for label, src, kind, parts in inputs:
+            if out == src:
+                raise S2PError(f"{text}: is this command's input ({label} {src}); replacing it would "
+                               "lose it: choose another output")
+            if out in src.parents:
+                raise S2PError(f"{text}: holds this command's input ({label} {src}); replacing it would "
+                               "lose it: choose another output")
+            for part in parts:
+                if out == part or out in part.parents:
+                    where = " (runs go under SCENE/out/)" if kind == "scene" else ""
+                    raise S2PError(f"{text}: is the {part.name} of the {kind} {src} ({label}), "
+                                   f"which no command makes again: choose another output{where}")
