@@ -39,9 +39,9 @@ def disk(tmp_path):
         subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def _s2p(*argv) -> subprocess.CompletedProcess:
-    # each takes seconds: a stall fails in 3 min
-    return subprocess.run([S2P, *map(str, argv)], capture_output=True, text=True, timeout=180)
+def _s2p(*argv, timeout: float = 180) -> subprocess.CompletedProcess:
+    """Run s2p; each command here takes seconds, so a stall fails within ``timeout``."""
+    return subprocess.run([S2P, *map(str, argv)], capture_output=True, text=True, timeout=timeout)
 
 
 def _state(disk: Path) -> dict:
@@ -112,7 +112,7 @@ def test_review_o_never_waits_on_a_full_disk(disk, reviewed):
     size = (disk / "r.rrd").stat().st_size
     for share in np.linspace(0.0, 0.9, 16):
         _fill(disk, int(size * share))
-        r = subprocess.run([S2P, *map(str, a), "--force"], capture_output=True, text=True, timeout=60)
+        r = _s2p(*a, "--force", timeout=60)
         assert r.returncode == 2 and r.stderr.strip().endswith("the disk is full"), (share, r.stderr)
         assert _state(disk) == old, share
         (disk / "filler").unlink()
